@@ -1,0 +1,26 @@
+"""The environments: one module per task; ``ENVIRONMENTS`` maps each id to its class."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from cir_gym.envs.base import RobotEnv, EntryPoint
+from cir_gym.envs.joint_tracking import JointTrackingEnv
+
+__all__ = ["ENVIRONMENTS", "JointTrackingEnv", "RobotEnv", "register_envs"]
+
+#: id → (class, one-line description)
+ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
+    "cir_gym/JointTracking-v0": (
+        JointTrackingEnv,
+        "iiwa14 joint-space trajectory tracking with joint torques (ch. 4-5)",
+    ),
+}
+
+
+def register_envs() -> None:
+    """Register every id in ``ENVIRONMENTS`` with Gymnasium (idempotent)."""
+    for env_id, (cls, _) in ENVIRONMENTS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=EntryPoint(cls),
+                         disable_env_checker=False)

@@ -1,0 +1,266 @@
+"""Shared MuJoCo-environment plumbing: model loading, stepping, divergence, validation, rendering.
+
+A task module subclasses :class:`RobotEnv` and writes the task: spaces, reference, reward,
+metrics. The base class owns what every task does the same way:
+
+* ``_check_action``: a clear error for a wrong shape, dtype or a non-finite action, and
+  clipping of finite values to ``[-1, 1]`` (documented in every env);
+* ``_simulate``: ``frame_skip`` physics steps at a zero-order-hold control, with divergence
+  detection (non-finite state, MuJoCo's bad-acceleration warning, absurd speeds) that
+  restores the last finite state so observations stay finite;
+* rendering with ``mujoco.Renderer`` (shadows, reflections, skybox and MSAA off: software
+  GL on headless machines is ~100× faster that way), a lazy human viewer.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from cir_gym.metrics import MetricSpec
+from cir_gym.robot import Robot
+
+__all__ = ["InvalidArgument", "RobotEnv", "TaskContext", "check_kwargs", "check_number"]
+
+GL_HELP = (
+    "MuJoCo could not create an OpenGL context for rendering. On a headless Debian/Ubuntu "
+    "machine install Mesa (apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6) "
+    "and set MUJOCO_GL=egl (or MUJOCO_GL=osmesa) before importing mujoco."
+)
+
+MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverged
+
+
+class InvalidArgument(ValueError, TypeError):
+    """An unknown or out-of-range constructor argument (a ValueError and a TypeError)."""
+
+
+def check_kwargs(cls: type, kwargs: dict[str, Any]) -> None:
+    """Raise :class:`InvalidArgument` naming the allowed keywords if ``kwargs`` has others."""
+    allowed = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+    unknown = sorted(set(kwargs) - set(allowed))
+    if unknown:
+        raise InvalidArgument(
+            f"{cls.__name__} got unknown argument(s) {unknown}; allowed: {sorted(allowed)}"
+        )
+
+
+def check_number(
+    name: str, value: Any, low: float = -np.inf, high: float = np.inf, *, low_open: bool = False
+) -> float:
+    """Return ``value`` as a float in [low, high] (or (low, high]); else InvalidArgument."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InvalidArgument(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    bad = not np.isfinite(v) and not (np.isinf(v) and np.isinf(high) and v > 0)
+    if bad or v < low or v > high or (low_open and v <= low):
+        lo = "(" if low_open else "["
+        raise InvalidArgument(f"{name} must be in {lo}{low}, {high}], got {value!r}")
+    return v
+
+
+class EntryPoint:
+    """A picklable ``gymnasium.register`` entry point that rejects unknown keyword arguments."""
+
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+
+    def __call__(self, **kwargs: Any) -> gym.Env:
+        check_kwargs(self.cls, kwargs)
+        return self.cls(**kwargs)
+
+
+@dataclass(frozen=True)
+class TaskContext:
+    """What a controller may know about a task: never the simulator, only nominal facts.
+
+    Attributes:
+        robot: shipped robot name or MJCF path of the *nominal* model.
+        dt: control period (s).
+        action_kind: "joint_torque", "joint_velocity", … (what ``action * action_scale`` is).
+        action_scale: (n,) physical units per unit of action.
+        armature: (n,) reflected rotor inertia the task's motors give (kg m²), or None for the
+            robot file's values.
+        gear_ratio, rotor_inertia: (n,) motor side of the joints (chapter 4).
+        site: the task's end-effector site, if any.
+        extras: task-specific facts (objective, obstacle handling, ...).
+    """
+
+    robot: str
+    dt: float
+    action_kind: str
+    action_scale: np.ndarray
+    armature: np.ndarray | None = None
+    gear_ratio: np.ndarray | None = None
+    rotor_inertia: np.ndarray | None = None
+    site: str | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def nominal_robot(self) -> Robot:
+        """A fresh nominal :class:`Robot` (the file's parameters, the task's motors)."""
+        robot = Robot.from_name(self.robot)
+        if self.armature is not None:
+            robot.set_armature(self.armature)
+        return robot
+
+
+class RobotEnv(gym.Env[dict, np.ndarray]):
+    """Base class of the cir_gym environments (see the module docstring)."""
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = ()
+    primary_metric: ClassVar[str] = ""
+    success_threshold: ClassVar[float] = 0.0
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        *,
+        control_freq: float,
+        episode_duration: float,
+        render_mode: str | None,
+        width: int,
+        height: int,
+        camera: str | int = -1,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise InvalidArgument(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.model = model
+        self.data = mujoco.MjData(model)
+        timestep = model.opt.timestep
+        control_freq = check_number("control_freq", control_freq, 0.0, 1.0 / timestep, low_open=True)
+        self.frame_skip = max(1, round(1.0 / (control_freq * timestep)))
+        self.dt = self.frame_skip * timestep  # s, control period
+        episode_duration = check_number("episode_duration", episode_duration, 0.0, 3600.0,
+                                        low_open=True)
+        self.max_steps = max(1, round(episode_duration / self.dt))
+        self.render_mode = render_mode
+        self.width = int(check_number("width", width, 16, 4096))
+        self.height = int(check_number("height", height, 16, 4096))
+        self.camera = camera
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
+        self._renderer: mujoco.Renderer | None = None
+        self._viewer: Any = None
+        self._safe_qpos = self.data.qpos.copy()
+        self._safe_qvel = self.data.qvel.copy()
+        self._safe_act = self.data.act.copy()
+
+    # ------------------------------------------------------------------ validation
+    def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
+        """Validate an action; return it as float64 clipped to [-1, 1] and whether it was clipped.
+
+        Raises:
+            ValueError: wrong shape, a non-numeric dtype, or NaN/inf entries.
+        """
+        shape = self.action_space.shape
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"action must be an array of shape {shape} with values in [-1, 1], "
+                f"got {action!r}"
+            ) from exc
+        if a.shape != shape:
+            if a.size == int(np.prod(shape)) and a.ndim <= 1:
+                a = a.reshape(shape)
+            else:
+                raise ValueError(
+                    f"action has shape {a.shape}; this environment expects shape {shape} "
+                    f"(values in [-1, 1])"
+                )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
+        clipped = np.clip(a, -1.0, 1.0)
+        return clipped, bool(np.any(clipped != a))
+
+    # ------------------------------------------------------------------ physics
+    def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:
+        """Hold ``ctrl`` for ``frame_skip`` steps; return True (and restore) if it diverged."""
+        d = self.data
+        self._safe_qpos[:] = d.qpos
+        self._safe_qvel[:] = d.qvel
+        self._safe_act[:] = d.act
+        d.ctrl[:] = ctrl
+        if qfrc is not None:
+            d.qfrc_applied[:] = qfrc
+        diverged = False
+        with np.errstate(all="ignore"):
+            for _ in range(self.frame_skip):
+                mujoco.mj_step(self.model, d)
+                if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0:
+                    diverged = True
+                    break
+            if not diverged:
+                diverged = bool(
+                    not np.all(np.isfinite(d.qpos))
+                    or not np.all(np.isfinite(d.qvel))
+                    or np.max(np.abs(d.qvel), initial=0.0) > MAX_JOINT_SPEED
+                )
+        if diverged:
+            mujoco.mj_resetData(self.model, d)
+            d.qpos[:] = self._safe_qpos
+            d.qvel[:] = self._safe_qvel
+            d.act[:] = self._safe_act
+            mujoco.mj_forward(self.model, d)
+        return diverged
+
+    def _reset_physics(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self) -> np.ndarray | None:
+        if self.render_mode == "rgb_array":
+            if self._renderer is None:
+                self._renderer = self._make_renderer()
+            self._renderer.update_scene(self.data, camera=self.camera)
+            return self._renderer.render()
+        if self.render_mode == "human":
+            if self._viewer is None:
+                import mujoco.viewer
+
+                self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+            self._viewer.sync()
+        return None
+
+    def _make_renderer(self) -> mujoco.Renderer:
+        self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, self.width)
+        self.model.vis.global_.offheight = max(self.model.vis.global_.offheight, self.height)
+        self.model.vis.quality.offsamples = 0
+        try:
+            renderer = mujoco.Renderer(self.model, self.height, self.width)
+        except Exception as exc:  # any GL failure: name the packages that fix it
+            raise RuntimeError(f"{GL_HELP} ({type(exc).__name__}: {exc})") from exc
+        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
+                     mujoco.mjtRndFlag.mjRND_SKYBOX):
+            renderer.scene.flags[flag] = False
+        return renderer
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        state["_viewer"] = None
+        return state
+
+    # ------------------------------------------------------------------ controllers
+    def controller_context(self) -> TaskContext:
+        """What a controller may know of this task (see :class:`TaskContext`)."""
+        raise NotImplementedError

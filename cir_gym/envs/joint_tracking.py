@@ -1,0 +1,370 @@
+"""JointTracking: track a joint-space reference with joint torques (chapters 4 and 5)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+
+from cir_gym import trajectories as traj
+from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.metrics import MetricSpec
+from cir_gym.robot import ModelError, Robot, apply_model_error
+
+REFERENCES = ("random", "regulation", "quintic", "sine")
+
+# Ranges drawn per episode when randomize=True (uniform).
+RANDOM_RANGES = {
+    "payload_mass": (0.0, 5.0),  # kg
+    "mass_scale": (0.8, 1.2),
+    "viscous_friction": (0.0, 1.0),  # N m s/rad
+    "coulomb_friction": (0.0, 1.0),  # N m
+}
+
+
+class JointTrackingEnv(RobotEnv):
+    """Track a joint trajectory (q̄, q̄̇, q̄̈) of the KUKA iiwa 14 with joint torques.
+
+    ## Description
+    The decentralized (chapter 4) and centralized (chapter 5) joint-space control problem:
+    a 7-joint arm, torque-controlled, must follow a reference produced by
+    :mod:`cir_gym.trajectories`. The simulator holds the true robot; controllers receive the
+    nominal model through :meth:`controller_context` and only see the observation, so the
+    model-error arguments (payload, mass scale, friction) are unknown to them. Each joint
+    has a motor of gear ratio N and rotor inertia J_m (chapter 4): the reflected inertia
+    N² J_m is the joint's ``armature`` in both the simulator and the nominal model.
+
+    ## Action Space
+    ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320, 176, 176, 110, 40,
+    40) N m (link side; the motor torque is τ_m = τ / N). Finite values outside [-1, 1] are
+    clipped (counted as saturated); NaN/inf or a wrong shape raise ``ValueError``.
+
+    ## Observation Space
+    ``Dict`` of float64 arrays, each (7,):
+
+    | key | meaning | bounds | unit |
+    |---|---|---|---|
+    | q | measured joint positions (quantized to ``encoder_resolution``) | ±2π | rad |
+    | qd | measured joint velocities (difference of the measured positions when quantized) | ±50 | rad/s |
+    | q_ref | reference position q̄(t) | ±2π | rad |
+    | qd_ref | reference velocity | ±50 | rad/s |
+    | qdd_ref | reference acceleration | ±500 | rad/s² |
+
+    Values are clipped to the bounds.
+
+    ## Rewards
+    r = r_tracking + r_torque + r_action_rate + r_diverged, each in ``info["reward_<name>"]``:
+    - r_tracking = −(1 − (1/3) Σ_s exp(−‖q̃‖² / s²)), s ∈ ``error_scales`` = (1, 0.1, 0.01) rad:
+      wide and narrow kernels, in [−1, 0];
+    - r_torque = −``torque_weight`` ‖a‖² / 7;
+    - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / 7 (against chattering);
+    - r_diverged = −``divergence_penalty`` on the step the physics diverged, else 0.
+
+    ## Starting State
+    At rest on the reference, q(0) = q̄(0) (+ U(±``initial_error``) per joint). For
+    ``reference="regulation"`` the start is a random configuration and q̄ a constant random
+    setpoint, both inside the joint limits with a 10 % margin.
+
+    ## Episode End
+    Truncated after ``episode_duration`` s. Terminated when the physics diverges
+    (``info["diverged"] = True``; the last finite state is kept).
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | reference | "random" | "random" (multi-point spline, speed ≤ ½ velocity limit), "regulation", "quintic", "sine" |
+    | control_freq | 500.0 | control frequency (Hz); the physics step is 1 ms |
+    | episode_duration | 4.0 | s |
+    | payload_mass | 0.0 | unknown payload at the flange (kg) |
+    | mass_scale | 1.0 | true link masses and inertias / nominal ones |
+    | viscous_friction | 0.0 | true joint viscous friction (N m s/rad), unmodelled |
+    | coulomb_friction | 0.0 | true joint Coulomb friction (N m), unmodelled |
+    | torque_noise | 0.0 | std of Gaussian noise added to the applied torque (N m) |
+    | encoder_resolution | 0.0 | position quantum of the encoders (rad); 0 = exact |
+    | randomize | False | draw payload, mass scale and friction per episode (``RANDOM_RANGES``) |
+    | gear_ratio | None | gear ratio N, scalar or (7,); None = the robot file's (160 ×4, 100 ×3) |
+    | rotor_inertia | None | motor rotor inertia J_m (kg m²), scalar or (7,); None = file's |
+    | initial_error | 0.0 | max initial joint offset from the reference (rad) |
+    | error_scales | (1.0, 0.1, 0.01) | reward kernel widths (rad) |
+    | torque_weight | 0.01 | weight of the torque term |
+    | action_rate_weight | 0.01 | weight of the action-rate term |
+    | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | success_threshold | 0.05 | max joint error (rad) below which an episode succeeds |
+    | render_mode | None | None, "human" or "rgb_array" |
+    | width | 480 | frame width (px) |
+    | height | 480 | frame height (px) |
+
+    ## Metrics
+    ``rms_error`` (primary, rad; RMS over joints and steps), ``max_error`` (rad),
+    ``final_error`` (rad, norm at the last step), ``rms_torque`` (N m), ``saturation``
+    (fraction of steps with a clipped or saturated joint). Success: no divergence and
+    ``max_error`` < ``success_threshold``.
+
+    ## Reference controllers
+    ``baselines.available("cir_gym/JointTracking-v0")``: pid, p_pi_cascade,
+    p_pi_feedforward, decentralized_feedforward, pd_gravity, computed_torque, robust, adaptive.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec("rms_error", "rad", "lower", "RMS joint tracking error"),
+        MetricSpec("max_error", "rad", "lower", "max absolute joint error"),
+        MetricSpec("final_error", "rad", "lower", "joint error norm at the last step"),
+        MetricSpec("rms_torque", "N m", "lower", "RMS joint torque"),
+        MetricSpec("saturation", "", "lower", "fraction of steps with a saturated joint"),
+    )
+    primary_metric: ClassVar[str] = "rms_error"
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "exact model": {},
+        "unknown 3 kg payload": {"payload_mass": 3.0},
+    }
+    robot_name: ClassVar[str] = "iiwa14"
+
+    def __init__(
+        self,
+        reference: str = "random",
+        control_freq: float = 500.0,
+        episode_duration: float = 4.0,
+        payload_mass: float = 0.0,
+        mass_scale: float = 1.0,
+        viscous_friction: float = 0.0,
+        coulomb_friction: float = 0.0,
+        torque_noise: float = 0.0,
+        encoder_resolution: float = 0.0,
+        randomize: bool = False,
+        gear_ratio: float | list[float] | None = None,
+        rotor_inertia: float | list[float] | None = None,
+        initial_error: float = 0.0,
+        error_scales: tuple[float, ...] = (1.0, 0.1, 0.01),
+        torque_weight: float = 0.01,
+        action_rate_weight: float = 0.01,
+        divergence_penalty: float = 100.0,
+        success_threshold: float = 0.05,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        if reference not in REFERENCES:
+            raise InvalidArgument(f"reference must be one of {REFERENCES}, got {reference!r}")
+        self.reference = reference
+        self.model_error = ModelError(
+            payload_mass=check_number("payload_mass", payload_mass, 0.0, 50.0),
+            mass_scale=check_number("mass_scale", mass_scale, 0.0, 10.0, low_open=True),
+            viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
+            coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
+        )
+        self.torque_noise = check_number("torque_noise", torque_noise, 0.0, 1000.0)
+        self.encoder_resolution = check_number("encoder_resolution", encoder_resolution, 0.0, 0.1)
+        if not isinstance(randomize, (bool, np.bool_)):
+            raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
+        self.randomize = bool(randomize)
+        self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
+        scales = np.atleast_1d(np.asarray(error_scales, dtype=float))
+        if scales.ndim != 1 or scales.size == 0 or not np.all(scales > 0):
+            raise InvalidArgument(f"error_scales must be positive numbers, got {error_scales!r}")
+        self.error_scales = scales
+        self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
+        self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
+        self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+        self.success_threshold = check_number("success_threshold", success_threshold, 0.0, 10.0,
+                                              low_open=True)
+
+        self.robot = Robot.from_name(self.robot_name)  # the simulator's (true) robot
+        n = self.robot.n
+        self.gear_ratio = self._per_joint("gear_ratio", gear_ratio, self.robot.gear_ratio, n)
+        self.rotor_inertia = self._per_joint(
+            "rotor_inertia", rotor_inertia, self.robot.rotor_inertia, n, low_open=False
+        )
+        self.armature = self.gear_ratio**2 * self.rotor_inertia  # B̄_r: reflected rotor inertia
+        self.robot.set_armature(self.armature)
+        self._nominal_arrays = _inertial_arrays(self.robot.model)
+        apply_model_error(self.robot.model, self.model_error)
+        super().__init__(
+            self.robot.model,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
+        self.torque_limit = self.robot.torque_limit.copy()
+        self.n = n
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+        bounds = {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
+        self._obs_bounds = bounds
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(-b, b, (n,), dtype=np.float64) for k, b in bounds.items()}
+        )
+        steps = self.max_steps
+        self._ref = np.zeros((3, steps + 1, n))
+        self._err = np.zeros((steps, n))
+        self._tau = np.zeros((steps, n))
+        self._sat = np.zeros(steps, dtype=bool)
+        self._k = 0
+        self._a_prev = np.zeros(n)
+        self._q_meas_prev = np.zeros(n)
+        self._diverged = False
+        self.episode_model_error = self.model_error
+
+    @staticmethod
+    def _per_joint(name: str, value: Any, default: np.ndarray, n: int, low_open: bool = True
+                   ) -> np.ndarray:
+        if value is None:
+            return default.copy()
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy() if np.ndim(value) == 0 \
+            else np.asarray(value, dtype=float)
+        if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or (
+            low_open and np.any(arr <= 0)
+        ):
+            raise InvalidArgument(f"{name} must be a positive scalar or {n} values, got {value!r}")
+        return arr
+
+    # ------------------------------------------------------------------ reference
+    def _make_reference(self) -> tuple[np.ndarray, np.ndarray]:
+        """Fill ``self._ref`` (pos, vel, acc at every control instant); return (q0, qd0)."""
+        rng = self.np_random
+        lo, hi = self.robot.lower, self.robot.upper
+        margin = 0.1 * (hi - lo)
+        T = self.max_steps * self.dt
+        t = np.arange(self.max_steps + 1) * self.dt
+        home = self.robot.model.key("home").qpos.copy() if self.robot.model.nkey else (lo + hi) / 2
+        if self.reference == "random":
+            ref = traj.random_joint_trajectory(
+                rng, lo, hi, duration=T, n_points=5, v_max=0.5 * self.robot.velocity_limit,
+                start=home + rng.uniform(-0.2, 0.2, self.n),
+            )
+        elif self.reference == "quintic":
+            q1 = rng.uniform(lo + margin, hi - margin)
+            q0 = home + rng.uniform(-0.2, 0.2, self.n)
+            ref = traj.QuinticPolynomial(q0, q1, T)
+        elif self.reference == "sine":
+            amp = rng.uniform(0.1, 0.4, self.n)
+            freq = rng.uniform(0.2, 0.6, self.n)
+            amp = np.minimum(amp, 0.5 * self.robot.velocity_limit / (2 * np.pi * freq))
+            ref = traj.SineTrajectory(home, amp, freq, rng.uniform(0, 2 * np.pi, self.n))
+        else:  # regulation
+            goal = rng.uniform(lo + margin, hi - margin)
+            self._ref[0] = goal
+            self._ref[1:] = 0.0
+            return rng.uniform(lo + margin, hi - margin), np.zeros(self.n)
+        p, v, a = ref.evaluate(t)
+        self._ref[0], self._ref[1], self._ref[2] = p, v, a
+        return p[0].copy(), v[0].copy()
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None
+              ) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        if self.randomize:
+            draw = {k: float(rng.uniform(*r)) for k, r in RANDOM_RANGES.items()}
+            self.episode_model_error = ModelError(**draw)
+            _restore_inertial_arrays(self.model, self._nominal_arrays)
+            apply_model_error(self.model, self.episode_model_error)
+        q0, qd0 = self._make_reference()
+        if self.initial_error > 0:
+            q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
+        self._reset_physics(q0, qd0)
+        self._k = 0
+        self._a_prev[:] = 0.0
+        self._diverged = False
+        self._q_meas_prev[:] = self._quantize(q0)
+        return self._obs(), {"model_error": self.episode_model_error}
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        if self._k >= self.max_steps:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        a, clipped = self._check_action(action)
+        tau = a * self.torque_limit
+        if self.torque_noise > 0:
+            tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
+        self._q_meas_prev[:] = self._quantize(self.data.qpos)
+        diverged = self._simulate(tau)
+        k = self._k
+        self._k += 1
+        q_err = self._ref[0, self._k] - self.data.qpos
+        self._err[k] = q_err
+        self._tau[k] = a * self.torque_limit
+        self._sat[k] = clipped or bool(np.any(np.abs(a) >= 1.0))
+
+        err_sq = float(q_err @ q_err)
+        r_track = -(1.0 - float(np.mean(np.exp(-err_sq / self.error_scales**2))))
+        r_torque = -self.torque_weight * float(a @ a) / self.n
+        da = a - self._a_prev
+        r_rate = -self.action_rate_weight * float(da @ da) / self.n
+        r_div = -self.divergence_penalty if diverged else 0.0
+        self._a_prev[:] = a
+        reward = r_track + r_torque + r_rate + r_div
+
+        terminated = diverged
+        truncated = self._k >= self.max_steps and not terminated
+        info: dict[str, Any] = {
+            "reward_tracking": r_track,
+            "reward_torque": r_torque,
+            "reward_action_rate": r_rate,
+            "reward_diverged": r_div,
+            "joint_error": float(np.sqrt(err_sq)),
+            "diverged": diverged,
+        }
+        if terminated or truncated:
+            metrics = self.episode_metrics()
+            info["episode_metrics"] = metrics
+            info["is_success"] = bool(
+                not diverged and metrics["max_error"] < self.success_threshold
+            )
+        return self._obs(), reward, terminated, truncated, info
+
+    def episode_metrics(self) -> dict[str, float]:
+        """Metrics of the episode so far (see ``metric_specs``)."""
+        k = max(self._k, 1)
+        err, tau = self._err[:k], self._tau[:k]
+        return {
+            "rms_error": float(np.sqrt(np.mean(err**2))),
+            "max_error": float(np.max(np.abs(err))),
+            "final_error": float(np.linalg.norm(err[-1])),
+            "rms_torque": float(np.sqrt(np.mean(tau**2))),
+            "saturation": float(np.mean(self._sat[:k])),
+        }
+
+    # ------------------------------------------------------------------ observation
+    def _quantize(self, q: np.ndarray) -> np.ndarray:
+        res = self.encoder_resolution
+        return np.round(q / res) * res if res > 0 else q.copy()
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        k = min(self._k, self.max_steps)
+        q = self._quantize(self.data.qpos)
+        if self.encoder_resolution > 0:
+            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
+        else:
+            qd = self.data.qvel.copy()
+        raw = {"q": q, "qd": qd, "q_ref": self._ref[0, k], "qd_ref": self._ref[1, k],
+               "qdd_ref": self._ref[2, k]}
+        return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key]) for key, v in raw.items()}
+
+    def controller_context(self) -> TaskContext:
+        return TaskContext(
+            robot=self.robot_name,
+            dt=self.dt,
+            action_kind="joint_torque",
+            action_scale=self.torque_limit.copy(),
+            armature=self.armature.copy(),
+            gear_ratio=self.gear_ratio.copy(),
+            rotor_inertia=self.rotor_inertia.copy(),
+        )
+
+
+_INERTIAL_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_damping",
+                    "dof_frictionloss")
+
+
+def _inertial_arrays(model: Any) -> dict[str, np.ndarray]:
+    return {f: getattr(model, f).copy() for f in _INERTIAL_FIELDS}
+
+
+def _restore_inertial_arrays(model: Any, arrays: dict[str, np.ndarray]) -> None:
+    for f, v in arrays.items():
+        getattr(model, f)[:] = v

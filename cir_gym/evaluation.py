@@ -1,0 +1,184 @@
+"""One scorer for every policy: episodes on fixed seeds → per-episode and aggregated metrics.
+
+A policy is anything with SB3's ``predict(observation, state, episode_start, deterministic)``
+(a classical controller from ``baselines`` or a trained agent from ``agents``). Episode ``i``
+is reset with seed ``seed + i``, so every policy meets the same references, initial states
+and model errors. Metrics come from the environment's ``metric_specs`` and its
+``info["episode_metrics"]`` at the last step; nothing else is computed here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from cir_gym.metrics import MetricSpec, aggregate
+
+__all__ = ["EpisodeResult", "EvaluationResult", "Policy", "evaluate", "metric_specs"]
+
+
+class Policy(Protocol):
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]: ...
+
+
+@dataclass
+class EpisodeResult:
+    """One episode: its seed, return, length, success, divergence, metrics, and (optionally)
+    the recorded trajectory ``trace`` (dict of arrays (T, ...): observations, actions, rewards,
+    and the policy state when it has one)."""
+
+    seed: int
+    episode_return: float
+    length: int
+    success: bool
+    diverged: bool
+    metrics: dict[str, float]
+    trace: dict[str, np.ndarray] | None = None
+
+
+@dataclass
+class EvaluationResult:
+    """Results of :func:`evaluate`; ``summary`` aggregates every metric over the episodes."""
+
+    env_id: str
+    policy_name: str
+    episodes: list[EpisodeResult]
+    specs: tuple[MetricSpec, ...]
+    primary_metric: str
+    dt: float = 1.0
+    summary: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for spec in self.specs:
+            self.summary[spec.name] = aggregate(
+                spec, np.array([ep.metrics.get(spec.name, np.nan) for ep in self.episodes])
+            )
+        returns = np.array([ep.episode_return for ep in self.episodes])
+        self.summary["return"] = aggregate(MetricSpec("return", "", "higher", ""), returns)
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean([ep.success for ep in self.episodes]))
+
+    @property
+    def divergence_rate(self) -> float:
+        return float(np.mean([ep.diverged for ep in self.episodes]))
+
+    @property
+    def returns(self) -> np.ndarray:
+        return np.array([ep.episode_return for ep in self.episodes])
+
+    def spec(self, name: str) -> MetricSpec:
+        return next(s for s in self.specs if s.name == name)
+
+
+def metric_specs(env: gym.Env) -> tuple[tuple[MetricSpec, ...], str]:
+    """(metric specs, primary metric name) declared by an environment."""
+    base = env.unwrapped
+    return tuple(base.metric_specs), str(base.primary_metric)
+
+
+def _check_action_shape(action: Any, env: gym.Env, policy_name: str) -> None:
+    shape = env.action_space.shape
+    if np.shape(action) != shape:
+        raise ValueError(
+            f"policy {policy_name!r} returned an action of shape {np.shape(action)}; "
+            f"{env.spec.id if env.spec else 'the environment'} expects shape {shape}"
+        )
+
+
+def evaluate(
+    policy: Policy,
+    env_id: str,
+    n_episodes: int = 10,
+    seed: int = 0,
+    *,
+    record: bool = False,
+    policy_name: str | None = None,
+    deterministic: bool = True,
+    env: gym.Env | None = None,
+    **env_kwargs: Any,
+) -> EvaluationResult:
+    """Run ``n_episodes`` episodes of ``policy`` on ``env_id`` with seeds seed, seed+1, ….
+
+    Args:
+        policy: object with SB3's ``predict``.
+        env_id: registered id (``cir_gym/<Name>-v<N>``).
+        n_episodes: number of episodes (≥ 1).
+        seed: seed of the first episode.
+        record: keep each episode's trajectory in ``EpisodeResult.trace`` (for plots).
+        policy_name: label for tables (default: the policy's ``name`` or class name).
+        env: use this environment instead of making one (``env_kwargs`` must then be empty).
+        **env_kwargs: environment arguments.
+
+    Returns:
+        An :class:`EvaluationResult`.
+    """
+    if n_episodes < 1:
+        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    name = policy_name or getattr(policy, "name", None) or type(policy).__name__
+    own_env = env is None
+    if env is None:
+        env = gym.make(env_id, **env_kwargs)
+    elif env_kwargs:
+        raise ValueError("pass env_kwargs or an env, not both")
+    specs, primary = metric_specs(env)
+    dt = float(getattr(env.unwrapped, "dt", 1.0))  # s per step, for plots
+    episodes: list[EpisodeResult] = []
+    try:
+        for i in range(n_episodes):
+            obs, _ = env.reset(seed=seed + i)
+            state = None
+            start = np.ones(1, dtype=bool)
+            total, length, done = 0.0, 0, False
+            info: dict[str, Any] = {}
+            trace: dict[str, list] | None = {} if record else None
+            while not done:
+                action, state = policy.predict(obs, state=state, episode_start=start,
+                                               deterministic=deterministic)
+                start = np.zeros(1, dtype=bool)
+                _check_action_shape(action, env, name)
+                if trace is not None:
+                    _append(trace, "obs", obs)
+                    trace.setdefault("action", []).append(np.array(action, dtype=float))
+                    if state is not None and np.size(state) > 0:
+                        trace.setdefault("state", []).append(np.array(state, dtype=float).ravel())
+                obs, reward, terminated, truncated, info = env.step(action)
+                if trace is not None:
+                    trace.setdefault("reward", []).append(float(reward))
+                    for key in ("joint_error", "task_error"):
+                        if key in info:
+                            trace.setdefault(key, []).append(info[key])
+                total += float(reward)
+                length += 1
+                done = terminated or truncated
+            metrics = dict(info.get("episode_metrics", {}))
+            episodes.append(EpisodeResult(
+                seed=seed + i,
+                episode_return=total,
+                length=length,
+                success=bool(info.get("is_success", False)),
+                diverged=bool(info.get("diverged", False)),
+                metrics=metrics,
+                trace=_stack(trace) if trace is not None else None,
+            ))
+    finally:
+        if own_env:
+            env.close()
+    return EvaluationResult(env_id, name, episodes, specs, primary, dt=dt)
+
+
+def _append(trace: dict[str, list], prefix: str, obs: Any) -> None:
+    if isinstance(obs, dict):
+        for k, v in obs.items():
+            trace.setdefault(f"{prefix}/{k}", []).append(np.array(v, dtype=float))
+    else:
+        trace.setdefault(prefix, []).append(np.array(obs, dtype=float))
+
+
+def _stack(trace: dict[str, list]) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in trace.items()}
