@@ -81,7 +81,11 @@ PAYLOAD_OFFSET = 0.05  # m, payload centre beyond the flange along the flange z 
 
 
 def apply_model_error(model: mujoco.MjModel, error: ModelError) -> None:
-    """Write ``error`` into ``model`` in place (masses, inertias, damping, frictionloss)."""
+    """Write ``error`` into ``model`` in place (masses, inertias, damping, frictionloss).
+
+    Ends with ``mj_setConst``: MuJoCo's dynamics also read derived constants (subtree masses),
+    and skipping it leaves the simulator with a gravity that matches neither model.
+    """
     moving = model.body_dofnum > 0
     if error.mass_scale != 1.0:
         model.body_mass[moving] *= error.mass_scale
@@ -96,6 +100,7 @@ def apply_model_error(model: mujoco.MjModel, error: ModelError) -> None:
         model.body_inertia[bid] = 0.4 * error.payload_mass * PAYLOAD_RADIUS**2
     model.dof_damping[:] = error.viscous_friction
     model.dof_frictionloss[:] = error.coulomb_friction
+    mujoco.mj_setConst(model, mujoco.MjData(model))
 
 
 class Robot:
@@ -176,7 +181,6 @@ class Robot:
         error = error if error is not None else ModelError(**kwargs)
         robot = self.copy()
         apply_model_error(robot.model, error)
-        mujoco.mj_setConst(robot.model, robot.data)
         return robot
 
     def set_armature(self, armature: np.ndarray) -> None:

@@ -185,18 +185,20 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
     def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:
         """Hold ``ctrl`` for ``frame_skip`` steps; return True (and restore) if it diverged."""
         d = self.data
-        self._safe_qpos[:] = d.qpos
-        self._safe_qvel[:] = d.qvel
-        self._safe_act[:] = d.act
+        if np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)):
+            self._safe_qpos[:] = d.qpos  # the last finite state, restored on divergence
+            self._safe_qvel[:] = d.qvel
+            self._safe_act[:] = d.act
         d.ctrl[:] = ctrl
         if qfrc is not None:
             d.qfrc_applied[:] = qfrc
         diverged = False
+        warnings_before = self._instability_warnings()
         with np.errstate(all="ignore"):
             for _ in range(self.frame_skip):
                 mujoco.mj_step(self.model, d)
-                if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0:
-                    diverged = True
+                if self._instability_warnings() > warnings_before:
+                    diverged = True  # MuJoCo reset the state or zeroed a huge control
                     break
             if not diverged:
                 diverged = bool(
@@ -212,11 +214,20 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             mujoco.mj_forward(self.model, d)
         return diverged
 
+    _UNSTABLE = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
+                 mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADCTRL)
+
+    def _instability_warnings(self) -> int:
+        return sum(self.data.warning[w].number for w in self._UNSTABLE)
+
     def _reset_physics(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
         mujoco.mj_forward(self.model, self.data)
+        self._safe_qpos[:] = self.data.qpos
+        self._safe_qvel[:] = self.data.qvel
+        self._safe_act[:] = self.data.act
 
     # ------------------------------------------------------------------ rendering
     def render(self) -> np.ndarray | None:

@@ -366,5 +366,6 @@ def _inertial_arrays(model: Any) -> dict[str, np.ndarray]:
 
 
 def _restore_inertial_arrays(model: Any, arrays: dict[str, np.ndarray]) -> None:
+    """Put back the nominal values (``apply_model_error`` then recomputes the constants)."""
     for f, v in arrays.items():
         getattr(model, f)[:] = v

@@ -1,0 +1,81 @@
+"""The course's controllers as policies with SB3's ``predict`` protocol.
+
+>>> import baselines
+>>> baselines.available("cir_gym/JointTracking-v0")   # doctest: +SKIP
+>>> policy = baselines.make("computed_torque", "cir_gym/JointTracking-v0", omega_n=25.0)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+import cir_gym  # noqa: F401  (registers the environments)
+from baselines.base import Controller, InvalidGain
+from baselines.centralized import AdaptiveControl, ComputedTorque, PDGravity, RobustControl
+from baselines.decentralized import (
+    DecentralizedFeedforward,
+    IndependentPID,
+    PCascade,
+    PPIFeedforward,
+)
+
+__all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
+
+CONTROLLERS: dict[str, type[Controller]] = {
+    cls.name: cls
+    for cls in (
+        IndependentPID,
+        PCascade,
+        PPIFeedforward,
+        DecentralizedFeedforward,
+        PDGravity,
+        ComputedTorque,
+        RobustControl,
+        AdaptiveControl,
+    )
+}
+
+
+def task_name(env_id: str) -> str:
+    """'cir_gym:cir_gym/JointTracking-v0' → 'JointTracking'."""
+    return env_id.split(":")[-1].split("/")[-1].rsplit("-v", 1)[0]
+
+
+def available(env_id: str) -> list[str]:
+    """Names of the controllers that apply to an environment id."""
+    task = task_name(env_id)
+    return [name for name, cls in CONTROLLERS.items() if task in cls.tasks]
+
+
+def make(name: str, env_id: str, *, env: gym.Env | None = None,
+         env_kwargs: dict[str, Any] | None = None, **gains: Any) -> Controller:
+    """Build controller ``name`` for ``env_id``.
+
+    Args:
+        name: a controller name (see :func:`available`).
+        env_id: the environment id; its ``controller_context()`` gives the nominal model.
+        env: an existing environment of that id (avoids building one).
+        env_kwargs: arguments of the environment to build when ``env`` is None.
+        **gains: gain overrides (the controller's ``Gains`` fields) and ``robot=`` (a nominal
+            :class:`~cir_gym.robot.Robot`, e.g. an identified model).
+
+    Raises:
+        ValueError: unknown controller, a controller that does not apply, unknown gain.
+    """
+    if name not in CONTROLLERS:
+        raise ValueError(f"unknown controller {name!r}; available: {sorted(CONTROLLERS)}")
+    if env_id.split(":")[-1] not in gym.registry:
+        raise ValueError(f"unknown environment {env_id!r}; registered: "
+                         f"{sorted(k for k in gym.registry if k.startswith('cir_gym/'))}")
+    if name not in available(env_id):
+        raise ValueError(f"controller {name!r} does not apply to {env_id}; "
+                         f"available there: {available(env_id)}")
+    if env is None:
+        env = gym.make(env_id, **(env_kwargs or {}))
+        context = env.unwrapped.controller_context()
+        env.close()
+    else:
+        context = env.unwrapped.controller_context()
+    return CONTROLLERS[name](context, **gains)

@@ -1,0 +1,315 @@
+"""Chapter 5, joint space: PD + gravity, computed torque, robust and adaptive (Slotine-Li) control.
+
+Every law uses the controller's own nominal :class:`~cir_gym.robot.Robot` (B̂, n̂, ĝ) evaluated
+at the *measured* state, never the simulator. Errors are q̃ = q̄ − q, q̃̇ = q̄̇ − q̇.
+Gains follow the course: a second-order error dynamics q̃̈ + K_D q̃̇ + K_P q̃ = 0 with natural
+frequency ω_n and damping ζ gives K_P = ω_n² I, K_D = 2ζω_n I.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from baselines.base import Controller, InvalidGain, Observation
+from cir_gym import dynamics
+from cir_gym.envs.base import TaskContext
+from cir_gym.robot import ModelError, Robot
+
+__all__ = [
+    "AdaptiveControl",
+    "ComputedTorque",
+    "PDGravity",
+    "RobustControl",
+    "lyapunov_solution",
+]
+
+JOINT_TASKS = ("JointTracking",)
+
+
+def _positive(name: str, value: float) -> None:
+    if not np.isfinite(value) or value <= 0:
+        raise InvalidGain(f"{name} must be a finite number > 0, got {value!r}")
+
+
+class _ModelBased(Controller):
+    """A controller with a nominal robot model (the env's, or one handed in, e.g. identified)."""
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, **overrides)
+        self.robot = robot if robot is not None else context.nominal_robot()
+        self.n = self.robot.n
+
+
+# ---------------------------------------------------------------------- PD + gravity
+@dataclass(frozen=True)
+class PDGravityGains:
+    """ω (rad/s) and ζ of each joint's PD, scaled by the joint's nominal inertia B̂_ii(q_home):
+    K_P = ω² diag(B̂), K_D = 2ζω diag(B̂) (N m/rad, N m s/rad)."""
+
+    omega: float = 10.0
+    zeta: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive("omega", self.omega)
+        _positive("zeta", self.zeta)
+
+
+class PDGravity(_ModelBased):
+    """PD with gravity compensation: τ = ĝ(q) + K_P q̃ + K_D (q̄̇ − q̇).
+
+    For regulation (q̄̇ = 0) this is the law of the course, τ = g(q) + K_P q̃ − K_D q̇,
+    with the Lyapunov function V = ½q̇ᵀBq̇ + ½q̃ᵀK_P q̃ and V̇ = −q̇ᵀK_D q̇: q → q̄ when ĝ = g.
+    With a gravity-model error the equilibrium has the offset K_P q̃ = g(q) − ĝ(q).
+    """
+
+    name = "pd_gravity"
+    tasks = JOINT_TASKS
+    Gains = PDGravityGains
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        home = self.robot.model.key("home").qpos if self.robot.model.nkey else np.zeros(self.n)
+        b = np.diag(self.robot.inertia(home))
+        self.kp = self.gains.omega**2 * b
+        self.kd = 2.0 * self.gains.zeta * self.gains.omega * b
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        q = obs["q"]
+        return (self.robot.gravity(q) + self.kp * (obs["q_ref"] - q)
+                + self.kd * (obs["qd_ref"] - obs["qd"]))
+
+
+# ---------------------------------------------------------------------- computed torque
+@dataclass(frozen=True)
+class ComputedTorqueGains:
+    """Error dynamics q̃̈ + K_D q̃̇ + K_P q̃ = 0 with K_P = ω_n² I, K_D = 2ζω_n I.
+
+    omega_n: natural frequency (rad/s); zeta: damping ratio.
+    """
+
+    omega_n: float = 20.0
+    zeta: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive("omega_n", self.omega_n)
+        _positive("zeta", self.zeta)
+
+    @property
+    def kp(self) -> float:
+        return self.omega_n**2
+
+    @property
+    def kd(self) -> float:
+        return 2.0 * self.zeta * self.omega_n
+
+
+class ComputedTorque(_ModelBased):
+    """Inverse dynamics: τ = B̂(q) y + n̂(q, q̇), y = q̄̈ + K_D q̃̇ + K_P q̃.
+
+    With the exact model the closed loop is q̃̈ + K_D q̃̇ + K_P q̃ = 0.
+    """
+
+    name = "computed_torque"
+    tasks = JOINT_TASKS
+    Gains = ComputedTorqueGains
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        q, qd = obs["q"], obs["qd"]
+        y = obs["qdd_ref"] + self.gains.kd * (obs["qd_ref"] - qd) + self.gains.kp * (obs["q_ref"] - q)
+        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+
+
+# ---------------------------------------------------------------------- robust
+def lyapunov_solution(H: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Q solving Hᵀ Q + Q H = −P (continuous Lyapunov equation) by vectorisation.
+
+    Args:
+        H: (m, m) Hurwitz matrix; P: (m, m) symmetric positive definite.
+    Raises:
+        InvalidGain: H not Hurwitz (no positive-definite solution).
+    """
+    m = H.shape[0]
+    if np.max(np.linalg.eigvals(H).real) >= 0:
+        raise InvalidGain("the error dynamics matrix is not Hurwitz: K_P and K_D must be > 0")
+    eye = np.eye(m)
+    A = np.kron(eye, H.T) + np.kron(H.T, eye)
+    Q = np.linalg.solve(A, -P.reshape(-1, order="F")).reshape(m, m, order="F")
+    return 0.5 * (Q + Q.T)
+
+
+@dataclass(frozen=True)
+class RobustGains:
+    """Robust control gains.
+
+    omega_n, zeta: nominal error dynamics (K_P = ω_n² I, K_D = 2ζω_n I).
+    rho: bound ρ (rad/s²) of the robustifying term; None = computed from the uncertainty
+        bounds below with the course's inequality.
+    epsilon: boundary-layer width ε on ‖z‖ against chattering; None = the narrowest layer
+        whose high gain stays within the sampling rate: inside the layer w = (ρ/ε) z adds
+        (ρ/ε) Q₂₂ to the velocity gain, and ε = ρ Q₂₂ dt / ``layer_gain_dt`` keeps that
+        extra gain times dt at ``layer_gain_dt``.
+    layer_gain_dt: see epsilon (dimensionless, < 1 for a stable discrete loop).
+    payload_bound: largest unknown payload (kg) the bound must cover.
+    mass_scale_bound: largest relative link-mass error covered (e.g. 0.1 = ±10 %).
+    error_bound: assumed bound on ‖ξ‖ = ‖[q̃; q̃̇]‖ during operation.
+    qdd_ref_bound: Q_M, bound on ‖q̄̈‖ (rad/s²).
+    """
+
+    omega_n: float = 20.0
+    zeta: float = 1.0
+    rho: float | None = None
+    epsilon: float | None = None
+    layer_gain_dt: float = 0.5
+    payload_bound: float = 5.0
+    mass_scale_bound: float = 0.1
+    error_bound: float = 0.1
+    qdd_ref_bound: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("omega_n", "zeta", "layer_gain_dt"):
+            _positive(name, getattr(self, name))
+        if self.epsilon is not None:
+            _positive("epsilon", self.epsilon)
+        if self.rho is not None and (not np.isfinite(self.rho) or self.rho < 0):
+            raise InvalidGain(f"rho must be >= 0 or None, got {self.rho!r}")
+
+
+class RobustControl(_ModelBased):
+    """Robust control: τ = B̂ y + n̂, y = q̄̈ + K_D q̃̇ + K_P q̃ + w.
+
+    ξ = [q̃; q̃̇], H̃ = [[0, I], [−K_P, −K_D]], Q solves H̃ᵀQ + QH̃ = −P with
+    P = diag(K_P, I), D = [0; I],
+    z = DᵀQξ and w = ρ z / max(‖z‖, ε) (the boundary layer replaces the chattering switch).
+    ρ ≥ (α Q_M + α ‖K‖ ‖ξ‖ + B_M Φ) / (1 − α) with α ≥ ρ(I − B⁻¹B̂) (spectral radius), Φ ≥ ‖ñ‖, B_M ≥ ‖B⁻¹‖,
+    evaluated on sampled configurations for the declared payload and mass-scale bounds.
+    """
+
+    name = "robust"
+    tasks = JOINT_TASKS
+    Gains = RobustGains
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        n, g = self.n, self.gains
+        kp, kd = g.omega_n**2, 2 * g.zeta * g.omega_n
+        H = np.block([[np.zeros((n, n)), np.eye(n)], [-kp * np.eye(n), -kd * np.eye(n)]])
+        # P = diag(K_P, I): weighting q̃ by K_P makes z = DᵀQξ ∝ q̃̇ + (K_D/2) q̃, a
+        # sliding-surface-like combination; P = I would leave z almost pure velocity.
+        P = np.diag(np.concatenate((np.full(n, kp), np.ones(n))))
+        self.Q = lyapunov_solution(H, P)
+        self.DtQ = self.Q[n:, :]  # Dᵀ Q, D = [0; I]
+        self.rho = g.rho if g.rho is not None else self.rho_from_bounds()
+        q22 = float(np.max(np.diag(self.Q)[n:]))
+        self.epsilon = (g.epsilon if g.epsilon is not None
+                        else max(self.rho * q22 * self.dt / g.layer_gain_dt, 1e-9))
+
+    def rho_from_bounds(self, n_samples: int = 20, seed: int = 0) -> float:
+        """ρ from the course's inequality on ``n_samples`` random configurations (see class)."""
+        g = self.gains
+        worst = self.robot.with_error(
+            ModelError(payload_mass=g.payload_bound, mass_scale=1.0 + g.mass_scale_bound)
+        )
+        rng = np.random.default_rng(seed)
+        alpha = b_max = phi = 0.0
+        lo, hi = self.robot.lower, self.robot.upper
+        for _ in range(n_samples):
+            q = rng.uniform(lo, hi)
+            qd = rng.uniform(-1, 1, self.n) * np.minimum(self.robot.velocity_limit, 3.0)
+            B, B_hat = worst.inertia(q), self.robot.inertia(q)
+            B_inv = np.linalg.inv(B)
+            # Spectral radius of I − B⁻¹B̂ (its eigenvalues are those of B⁻¹ΔB, in [0, 1) for
+            # a heavier true robot); the 2-norm of this non-normal matrix exceeds 1 here.
+            alpha = max(alpha, np.max(np.abs(np.linalg.eigvals(np.eye(self.n) - B_inv @ B_hat))))
+            b_max = max(b_max, np.linalg.norm(B_inv, 2))
+            phi = max(phi, np.linalg.norm(worst.bias(q, qd) - self.robot.bias(q, qd)))
+        if alpha >= 1:
+            raise InvalidGain(f"uncertainty too large for robust control: α = {alpha:.2f} ≥ 1")
+        k_norm = np.hypot(g.omega_n**2, 2 * g.zeta * g.omega_n)
+        self.alpha, self.b_max, self.phi = alpha, b_max, phi
+        return float((alpha * g.qdd_ref_bound + alpha * k_norm * g.error_bound + b_max * phi)
+                     / (1 - alpha))
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        q, qd = obs["q"], obs["qd"]
+        g = self.gains
+        e, ed = obs["q_ref"] - q, obs["qd_ref"] - qd
+        z = self.DtQ @ np.concatenate((e, ed))
+        w = self.rho * z / max(float(np.linalg.norm(z)), self.epsilon)
+        y = obs["qdd_ref"] + (2 * g.zeta * g.omega_n) * ed + g.omega_n**2 * e + w
+        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+
+
+# ---------------------------------------------------------------------- adaptive
+@dataclass(frozen=True)
+class AdaptiveGains:
+    """Slotine-Li gains.
+
+    lam: Λ = λ I (1/s), σ = q̃̇ + Λ q̃.
+    kd: K_D = kd · diag(B̂(q_home)) (N m s/rad per unit inertia; 1/s).
+    gamma: adaptation gain, K_π⁻¹ = γ diag(scale²) with each parameter's nominal magnitude as
+        scale (so masses and small inertias adapt at comparable relative rates).
+    adapt: "all" parameters, or "last_link" (the link carrying the payload).
+    """
+
+    lam: float = 10.0
+    kd: float = 20.0
+    gamma: float = 0.5
+    adapt: str = "all"
+
+    def __post_init__(self) -> None:
+        for name in ("lam", "kd", "gamma"):
+            _positive(name, getattr(self, name))
+        if self.adapt not in ("all", "last_link"):
+            raise InvalidGain(f"adapt must be 'all' or 'last_link', got {self.adapt!r}")
+
+
+class AdaptiveControl(_ModelBased):
+    """Adaptive control (Slotine-Li): τ = Y(q, q̇, q̇_r, q̈_r) π̂ + K_D σ, π̂̇ = K_π⁻¹ Yᵀ σ.
+
+    q̇_r = q̄̇ + Λ q̃, q̈_r = q̄̈ + Λ q̃̇, σ = q̇_r − q̇. π̂ starts at the nominal parameters
+    (:func:`cir_gym.dynamics.inertial_parameters`) and lives in the policy state, so it can be
+    plotted; only Y π̃ → 0 is guaranteed, not π̂ → π.
+    """
+
+    name = "adaptive"
+    tasks = JOINT_TASKS
+    Gains = AdaptiveGains
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        self.model = self.robot.model
+        self.pi0 = dynamics.inertial_parameters(self.model)
+        home = self.model.key("home").qpos if self.model.nkey else np.zeros(self.n)
+        self.kd = self.gains.kd * np.diag(self.robot.inertia(home))
+        scale = np.maximum(np.abs(self.pi0), 1e-2)
+        mask = np.ones_like(self.pi0)
+        if self.gains.adapt == "last_link":
+            mask[:] = 0.0
+            mask[10 * (self.n - 1): 10 * self.n] = 1.0
+        self.adapt_gain = self.gains.gamma * scale**2 * mask  # diagonal of K_π⁻¹
+
+    @property
+    def state_size(self) -> int:
+        return self.pi0.size
+
+    def initial_state(self, obs: Observation) -> np.ndarray:
+        return self.pi0.copy()
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        q, qd = obs["q"], obs["qd"]
+        lam = self.gains.lam
+        e, ed = obs["q_ref"] - q, obs["qd_ref"] - qd
+        qd_r = obs["qd_ref"] + lam * e
+        qdd_r = obs["qdd_ref"] + lam * ed
+        sigma = qd_r - qd
+        Y = dynamics.regressor(self.model, q, qd, qdd_r, qd_r=qd_r)
+        tau = Y @ state + self.kd * sigma
+        state += self.dt * self.adapt_gain * (Y.T @ sigma)  # π̂̇ = K_π⁻¹ Yᵀ σ (Euler)
+        return tau

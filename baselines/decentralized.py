@@ -1,0 +1,156 @@
+"""Chapter 4: independent-joint (decentralized) control seen from the motors.
+
+Each joint is a motor of rotor inertia J_m behind a gear of ratio n: q_m = n q, τ = n τ_m.
+The load seen by motor i is J_eff = J_m + J_l / n², J_l the link inertia about joint i at the
+home pose (B̂_ii minus the armature): the one model number the course's design uses. The
+rest of the manipulator (coupling, Coriolis, gravity) is the disturbance d, rejected by the
+loop; ``decentralized_feedforward`` also feeds the nominal d̂ forward.
+
+Design (control-laws.md §4): speed PI R_PI = k_pv (1 + s t_iv)/(s t_iv) with
+k_pv = ω_cv J_eff and 1/t_iv = ``integral_ratio`` · ω_cv (0.1…0.3); position P k_pp = ω_cp
+well below ω_cv; speed feed-forward k_ff q̄̇_m. With position measurement only, the PID on
+position places a triple pole at −ω: k_d = 3ωJ, k_p = 3ω²J, k_i = ω³J.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from baselines.base import Controller, InvalidGain, Observation
+from cir_gym.envs.base import TaskContext
+from cir_gym.robot import Robot
+
+__all__ = ["CascadeGains", "DecentralizedFeedforward", "PCascade", "PIDGains", "PPIFeedforward",
+           "IndependentPID", "effective_motor_inertia"]
+
+JOINT_TASKS = ("JointTracking",)
+
+
+def effective_motor_inertia(robot: Robot, gear_ratio: np.ndarray, rotor_inertia: np.ndarray
+                            ) -> np.ndarray:
+    """J_eff = J_m + J_l / n² (n,) in kg m² (motor side), J_l from B̂_ii(q_home) − armature."""
+    home = robot.model.key("home").qpos if robot.model.nkey else np.zeros(robot.n)
+    J_l = np.diag(robot.inertia(home)) - robot.model.dof_armature[robot.dof_adr]
+    return rotor_inertia + J_l / gear_ratio**2
+
+
+class _Decentralized(Controller):
+    tasks = JOINT_TASKS
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, **overrides)
+        robot = robot if robot is not None else context.nominal_robot()
+        self.robot = robot
+        self.n = robot.n
+        self.N = (context.gear_ratio if context.gear_ratio is not None else robot.gear_ratio).copy()
+        J_m = context.rotor_inertia if context.rotor_inertia is not None else robot.rotor_inertia
+        self.J_eff = effective_motor_inertia(robot, self.N, J_m)
+
+
+@dataclass(frozen=True)
+class PIDGains:
+    """omega: triple closed-loop pole (rad/s) of each joint's PID on position."""
+
+    omega: float = 20.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.omega) or self.omega <= 0:
+            raise InvalidGain(f"omega must be > 0, got {self.omega!r}")
+
+
+class IndependentPID(_Decentralized):
+    """Independent joint PID on position (no model beyond J_eff): τ_m = k_p q̃_m + k_i ∫q̃_m +
+    k_d q̃̇_m, τ = n τ_m. State: ∫q̃_m (n,)."""
+
+    name = "pid"
+    Gains = PIDGains
+
+    @property
+    def state_size(self) -> int:
+        return self.n
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        w, J = self.gains.omega, self.J_eff
+        e_m = self.N * (obs["q_ref"] - obs["q"])  # q̃_m = n q̃
+        ed_m = self.N * (obs["qd_ref"] - obs["qd"])
+        state += self.dt * e_m
+        tau_m = 3 * w**2 * J * e_m + w**3 * J * state + 3 * w * J * ed_m
+        return self.N * tau_m
+
+
+@dataclass(frozen=True)
+class CascadeGains:
+    """omega_cv: speed-loop bandwidth ω_cv (rad/s); integral_ratio: 1/(t_iv ω_cv) (0.1…0.3);
+    omega_cp: position-loop crossover ω_cp = k_pp (rad/s), well below ω_cv; k_ff: speed
+    feed-forward in [0, 1]."""
+
+    omega_cv: float = 80.0
+    integral_ratio: float = 0.2
+    omega_cp: float = 16.0
+    k_ff: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("omega_cv", "integral_ratio", "omega_cp"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise InvalidGain(f"{name} must be > 0, got {v!r}")
+        if not 0.0 <= self.k_ff <= 1.0:
+            raise InvalidGain(f"k_ff must be in [0, 1], got {self.k_ff!r}")
+        if self.omega_cp >= self.omega_cv:
+            raise InvalidGain("omega_cp must be well below omega_cv")
+
+
+class PCascade(_Decentralized):
+    """Position P + speed PI cascade on the motor side (Fig. 4.6 of the notes without k_ff).
+
+    ω_ref = k_pp (q̄_m − q_m) + k_ff q̄̇_m; τ_m = k_pv (e_v + ∫e_v / t_iv), e_v = ω_ref − q̇_m.
+    State: ∫e_v (n,).
+    """
+
+    name = "p_pi_cascade"
+    Gains = CascadeGains
+
+    @property
+    def state_size(self) -> int:
+        return self.n
+
+    def feedforward(self, obs: Observation) -> np.ndarray:
+        """Extra motor torque fed forward (n,) — none for the plain cascade."""
+        return np.zeros(self.n)
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        g = self.gains
+        k_pv = g.omega_cv * self.J_eff
+        inv_tiv = g.integral_ratio * g.omega_cv
+        w_ref = g.omega_cp * self.N * (obs["q_ref"] - obs["q"]) + g.k_ff * self.N * obs["qd_ref"]
+        e_v = w_ref - self.N * obs["qd"]
+        state += self.dt * e_v
+        tau_m = k_pv * (e_v + inv_tiv * state) + self.feedforward(obs)
+        return self.N * tau_m
+
+
+class PPIFeedforward(PCascade):
+    """The P/PI cascade with speed feed-forward k_ff q̄̇_m (default k_ff = 1)."""
+
+    name = "p_pi_feedforward"
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        overrides.setdefault("k_ff", 1.0)
+        super().__init__(context, gains, robot=robot, **overrides)
+
+
+class DecentralizedFeedforward(PPIFeedforward):
+    """P/PI with speed feed-forward plus the computed torque feed-forward of the notes:
+    τ_m,ff = (J_m + B̄_r) q̄̈_m + d̂ = n⁻¹ (B̂(q̄) q̄̈ + n̂(q̄, q̄̇)), from the nominal model at
+    the reference (not the measured state), so the loop stays decentralized."""
+
+    name = "decentralized_feedforward"
+
+    def feedforward(self, obs: Observation) -> np.ndarray:
+        q_ref = obs["q_ref"]
+        tau_ff = self.robot.inertia(q_ref) @ obs["qdd_ref"] + self.robot.bias(q_ref, obs["qd_ref"])
+        return tau_ff / self.N

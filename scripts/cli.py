@@ -1,0 +1,271 @@
+"""The ``cir-gym`` command line: a thin layer over the library (parse, call, print).
+
+    cir-gym list
+    cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...]
+                     [--plot out.png] [--video out.gif]
+    cir-gym leaderboard [--episodes N] [--out results/]
+    cir-gym train ...      (see ``agents.train``)
+    cir-gym identify ...   (see ``scripts.identify``)
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import inspect
+import sys
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+import baselines
+import cir_gym
+from cir_gym.evaluation import EvaluationResult, evaluate
+
+
+class CliError(Exception):
+    """A user error: printed without a traceback, exit status 2."""
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def _check_env_id(env_id: str) -> str:
+    key = env_id.split(":")[-1]
+    if key not in cir_gym.ENVIRONMENTS:
+        raise CliError(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+    return key
+
+
+def _agents_module() -> Any | None:
+    try:
+        import agents
+    except ImportError:
+        return None
+    return agents
+
+
+def policy_names(env_id: str) -> list[str]:
+    """Controllers and shipped agents (``agent:<name>``) that apply to an environment."""
+    names = baselines.available(env_id)
+    ag = _agents_module()
+    if ag is not None:
+        names += [f"agent:{a}" for a in ag.available(env_id)]
+    return names
+
+
+def split_settings(env_id: str, policy: str, settings: list[str]
+                   ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``--set key=value`` → (environment kwargs, controller gains); unknown keys are errors."""
+    env_cls = cir_gym.ENVIRONMENTS[env_id][0]
+    env_keys = [p for p in inspect.signature(env_cls.__init__).parameters if p != "self"]
+    gain_keys: list[str] = []
+    if policy in baselines.CONTROLLERS:
+        import dataclasses
+
+        gain_keys = [f.name for f in dataclasses.fields(baselines.CONTROLLERS[policy].Gains)]
+    env_kwargs: dict[str, Any] = {}
+    gains: dict[str, Any] = {}
+    for item in settings:
+        if "=" not in item:
+            raise CliError(f"--set expects key=value, got {item!r}")
+        key, value = item.split("=", 1)
+        if key in env_keys:
+            env_kwargs[key] = _parse_value(value)
+        elif key in gain_keys:
+            gains[key] = _parse_value(value)
+        else:
+            raise CliError(f"unknown --set key {key!r}; environment arguments: {env_keys}; "
+                           f"gains of {policy!r}: {gain_keys}")
+    return env_kwargs, gains
+
+
+def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]
+                ) -> Any:
+    valid = policy_names(env_id)
+    if policy not in valid:
+        raise CliError(f"unknown policy {policy!r} for {env_id}; valid: {valid}")
+    if policy.startswith("agent:"):
+        ag = _agents_module()
+        assert ag is not None
+        return ag.load(env_id, policy.split(":", 1)[1])
+    try:
+        return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
+
+
+def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
+    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, return."""
+    if not results:
+        return "(no results)"
+    primary = results[0].primary_metric
+    spec = results[0].spec(primary)
+    reverse = spec.better == "higher"
+    ranked = sorted(results, key=lambda r: (_nan_last(r.summary[primary]["mean"], reverse)))
+    other = [s for s in results[0].specs if s.name != primary]
+    unit = f" ({spec.unit})" if spec.unit else ""
+    head = (["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
+            + [f"{s.name}" for s in other] + ["return", "diverged"])
+    rows = []
+    for i, r in enumerate(ranked, 1):
+        s = r.summary[primary]
+        rows.append([str(i), r.policy_name, f"{s['mean']:.3g} ± {s['std']:.2g}",
+                     f"{s['worst']:.3g}", f"{s['cvar']:.3g}", f"{100 * r.success_rate:.0f}%"]
+                    + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
+                    + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"])
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(row) + " |" for row in rows]
+        return "\n".join(lines)
+    widths = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return "\n".join(fmt.format(*row) for row in [head, *rows])
+
+
+def _nan_last(value: float, reverse: bool) -> float:
+    if value != value:  # NaN
+        return float("inf")
+    return -value if reverse else value
+
+
+# ---------------------------------------------------------------------- commands
+def cmd_list(args: argparse.Namespace) -> int:
+    for env_id, (_, description) in cir_gym.ENVIRONMENTS.items():
+        print(f"{env_id}\n    {description}\n    policies: {', '.join(policy_names(env_id))}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    env_id = _check_env_id(args.env)
+    env_kwargs, gains = split_settings(env_id, args.policy, args.set or [])
+    policy = make_policy(env_id, args.policy, env_kwargs, gains)
+    try:
+        result = evaluate(policy, env_id, args.episodes, args.seed, record=bool(args.plot),
+                          policy_name=args.policy, **env_kwargs)
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
+    print(format_table([result], markdown=False))
+    if args.plot:
+        from cir_gym.plotting import plot_episode
+
+        print(f"plot: {plot_episode(result, args.plot)}")
+    if args.video:
+        print(f"video: {record_video(policy, env_id, args.video, args.seed, env_kwargs)}")
+    return 0
+
+
+def record_video(policy: Any, env_id: str, path: str, seed: int, env_kwargs: dict[str, Any],
+                 size: int = 320) -> Path:
+    """One episode rendered with ``rgb_array`` frames at ≤ 25 fps."""
+    from cir_gym.plotting import save_video
+
+    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
+    every = max(1, round(1.0 / (25 * env.unwrapped.dt)))
+    frames = []
+    obs, _ = env.reset(seed=seed)
+    state, start, done, k = None, True, False, 0
+    while not done:
+        if k % every == 0:
+            frames.append(env.render())
+        action, state = policy.predict(obs, state=state, episode_start=[start], deterministic=True)
+        start = False
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+        k += 1
+    env.close()
+    return save_video(frames, path, fps=round(1.0 / (every * env.unwrapped.dt)))
+
+
+def cmd_leaderboard(args: argparse.Namespace) -> int:
+    from scripts.leaderboard import run_leaderboard
+
+    run_leaderboard(Path(args.out), episodes=args.episodes, seed=args.seed,
+                    envs=[_check_env_id(e) for e in args.env] if args.env else None)
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    try:
+        from agents.train import train
+    except ImportError as exc:
+        raise CliError(f"training needs the train extra: pip install 'cir-gym[train]' ({exc})"
+                       ) from exc
+    env_id = _check_env_id(args.env)
+    env_kwargs, _ = split_settings(env_id, args.residual or "", args.set or [])
+    train(env_id, args.algo, timesteps=args.timesteps, seed=args.seed, residual=args.residual,
+          resume=args.resume, out=args.out, name=args.name, env_kwargs=env_kwargs,
+          n_envs=args.n_envs)
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    from scripts.identify import run_identify
+
+    run_identify(payload_mass=args.payload_mass, duration=args.duration, noise=args.noise,
+                 seed=args.seed, episodes=args.episodes)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cir-gym", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="environments and their policies").set_defaults(func=cmd_list)
+
+    e = sub.add_parser("evaluate", help="score one policy on one environment")
+    e.add_argument("--env", required=True)
+    e.add_argument("--policy", required=True)
+    e.add_argument("--episodes", type=int, default=5)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="environment argument or controller gain (repeatable)")
+    e.add_argument("--plot", metavar="OUT.png")
+    e.add_argument("--video", metavar="OUT.gif|OUT.mp4")
+    e.set_defaults(func=cmd_evaluate)
+
+    lb = sub.add_parser("leaderboard", help="every policy on every environment (the main job)")
+    lb.add_argument("--episodes", type=int, default=10)
+    lb.add_argument("--seed", type=int, default=1000)
+    lb.add_argument("--out", default="results")
+    lb.add_argument("--env", action="append", help="restrict to these ids (repeatable)")
+    lb.set_defaults(func=cmd_leaderboard)
+
+    t = sub.add_parser("train", help="train an SB3 agent (needs the train extra)")
+    t.add_argument("--env", required=True)
+    t.add_argument("--algo", choices=["sac", "td3", "ppo"], default="ppo")
+    t.add_argument("--residual", metavar="CONTROLLER")
+    t.add_argument("--timesteps", type=int, default=None)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--n-envs", type=int, default=None)
+    t.add_argument("--resume", action="store_true")
+    t.add_argument("--name", default=None)
+    t.add_argument("--out", default="runs")
+    t.add_argument("--set", action="append", metavar="KEY=VALUE", help="environment argument")
+    t.set_defaults(func=cmd_train)
+
+    i = sub.add_parser("identify", help="least-squares identification, then computed torque")
+    i.add_argument("--payload-mass", type=float, default=3.0)
+    i.add_argument("--duration", type=float, default=20.0)
+    i.add_argument("--noise", type=float, default=0.5, help="torque noise std (N m)")
+    i.add_argument("--episodes", type=int, default=5)
+    i.add_argument("--seed", type=int, default=0)
+    i.set_defaults(func=cmd_identify)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except CliError as exc:
+        print(f"cir-gym: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
