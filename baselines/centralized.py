@@ -27,6 +27,7 @@ __all__ = [
 ]
 
 JOINT_TASKS = ("JointTracking",)
+RIGID_MODEL_TASKS = ("JointTracking", "ElasticJointTracking")  # laws that work on link q, q̇
 
 
 def _positive(name: str, value: float) -> None:
@@ -67,7 +68,7 @@ class PDGravity(_ModelBased):
     """
 
     name = "pd_gravity"
-    tasks = JOINT_TASKS
+    tasks = RIGID_MODEL_TASKS
     Gains = PDGravityGains
 
     def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
@@ -115,7 +116,7 @@ class ComputedTorque(_ModelBased):
     """
 
     name = "computed_torque"
-    tasks = JOINT_TASKS
+    tasks = RIGID_MODEL_TASKS
     Gains = ComputedTorqueGains
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:

@@ -25,7 +25,9 @@ from cir_gym.robot import Robot
 __all__ = ["CascadeGains", "DecentralizedFeedforward", "PCascade", "PIDGains", "PPIFeedforward",
            "IndependentPID", "effective_motor_inertia"]
 
-JOINT_TASKS = ("JointTracking",)
+JOINT_TASKS = ("JointTracking", "ElasticJointTracking")
+#: highest loop bandwidth used by default, as a fraction of the sampling rate (ω dt)
+MAX_OMEGA_DT = 0.25
 
 
 def effective_motor_inertia(robot: Robot, gear_ratio: np.ndarray, rotor_inertia: np.ndarray
@@ -48,6 +50,19 @@ class _Decentralized(Controller):
         self.N = (context.gear_ratio if context.gear_ratio is not None else robot.gear_ratio).copy()
         J_m = context.rotor_inertia if context.rotor_inertia is not None else robot.rotor_inertia
         self.J_eff = effective_motor_inertia(robot, self.N, J_m)
+        # Elastic joints: ω_z = sqrt(k_el / (J_l / n²)) (motor side) = sqrt(k_el,link / J_l).
+        stiffness = context.extras.get("stiffness")
+        self.omega_z = None
+        if stiffness is not None:
+            J_l = (self.J_eff - J_m) * self.N**2
+            self.omega_z = np.sqrt(np.asarray(stiffness) / J_l)
+
+    def measured(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """Joint position and speed the loop closes on: the motor encoders (θ = q_m / n, in
+        link units) when the task has them, else the joint ones."""
+        if "q_motor" in obs:
+            return obs["q_motor"], obs["qd_motor"]
+        return obs["q"], obs["qd"]
 
 
 @dataclass(frozen=True)
@@ -74,8 +89,9 @@ class IndependentPID(_Decentralized):
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         w, J = self.gains.omega, self.J_eff
-        e_m = self.N * (obs["q_ref"] - obs["q"])  # q̃_m = n q̃
-        ed_m = self.N * (obs["qd_ref"] - obs["qd"])
+        q, qd = self.measured(obs)
+        e_m = self.N * (obs["q_ref"] - q)  # q̃_m = n q̃
+        ed_m = self.N * (obs["qd_ref"] - qd)
         state += self.dt * e_m
         tau_m = 3 * w**2 * J * e_m + w**3 * J * state + 3 * w * J * ed_m
         return self.N * tau_m
@@ -83,23 +99,26 @@ class IndependentPID(_Decentralized):
 
 @dataclass(frozen=True)
 class CascadeGains:
-    """omega_cv: speed-loop bandwidth ω_cv (rad/s); integral_ratio: 1/(t_iv ω_cv) (0.1…0.3);
-    omega_cp: position-loop crossover ω_cp = k_pp (rad/s), well below ω_cv; k_ff: speed
-    feed-forward in [0, 1]."""
+    """omega_cv: speed-loop bandwidth ω_cv (rad/s); None = 80 rad/s on rigid joints and
+    0.7 ω_z on elastic ones (the notes' choice), capped at 0.25/dt;
+    integral_ratio: 1/(t_iv ω_cv) (0.1…0.3);
+    omega_cp: position-loop crossover ω_cp = k_pp (rad/s); None = ω_cv / 5 (well below ω_cv);
+    k_ff: speed feed-forward in [0, 1]."""
 
-    omega_cv: float = 80.0
+    omega_cv: float | None = None
     integral_ratio: float = 0.2
-    omega_cp: float = 16.0
+    omega_cp: float | None = None
     k_ff: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("omega_cv", "integral_ratio", "omega_cp"):
             v = getattr(self, name)
-            if not np.isfinite(v) or v <= 0:
+            if v is not None and (not np.isfinite(v) or v <= 0):
                 raise InvalidGain(f"{name} must be > 0, got {v!r}")
         if not 0.0 <= self.k_ff <= 1.0:
             raise InvalidGain(f"k_ff must be in [0, 1], got {self.k_ff!r}")
-        if self.omega_cp >= self.omega_cv:
+        if (self.omega_cp is not None and self.omega_cv is not None
+                and self.omega_cp >= self.omega_cv):
             raise InvalidGain("omega_cp must be well below omega_cv")
 
 
@@ -113,6 +132,20 @@ class PCascade(_Decentralized):
     name = "p_pi_cascade"
     Gains = CascadeGains
 
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        g = self.gains
+        if g.omega_cv is not None:
+            w_cv = np.full(self.n, g.omega_cv)
+        elif self.omega_z is not None:
+            w_cv = np.minimum(0.7 * self.omega_z, MAX_OMEGA_DT / self.dt)
+        else:
+            w_cv = np.full(self.n, 80.0)
+        self.omega_cv = w_cv
+        self.omega_cp = np.full(self.n, g.omega_cp) if g.omega_cp is not None else w_cv / 5
+        self.k_pv = w_cv * self.J_eff  # ω_cv = k_pv / (J_m + J_l/n²)
+
     @property
     def state_size(self) -> int:
         return self.n
@@ -123,12 +156,12 @@ class PCascade(_Decentralized):
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         g = self.gains
-        k_pv = g.omega_cv * self.J_eff
-        inv_tiv = g.integral_ratio * g.omega_cv
-        w_ref = g.omega_cp * self.N * (obs["q_ref"] - obs["q"]) + g.k_ff * self.N * obs["qd_ref"]
-        e_v = w_ref - self.N * obs["qd"]
+        q, qd = self.measured(obs)
+        inv_tiv = g.integral_ratio * self.omega_cv
+        w_ref = self.omega_cp * self.N * (obs["q_ref"] - q) + g.k_ff * self.N * obs["qd_ref"]
+        e_v = w_ref - self.N * qd
         state += self.dt * e_v
-        tau_m = k_pv * (e_v + inv_tiv * state) + self.feedforward(obs)
+        tau_m = self.k_pv * (e_v + inv_tiv * state) + self.feedforward(obs)
         return self.N * tau_m
 
 

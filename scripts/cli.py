@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import ast
-import inspect
+
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ import gymnasium as gym
 
 import baselines
 import cir_gym
+from cir_gym.envs.base import constructor_arguments
 from cir_gym.evaluation import EvaluationResult, evaluate
 
 
@@ -63,7 +64,7 @@ def split_settings(env_id: str, policy: str, settings: list[str]
                    ) -> tuple[dict[str, Any], dict[str, Any]]:
     """``--set key=value`` → (environment kwargs, controller gains); unknown keys are errors."""
     env_cls = cir_gym.ENVIRONMENTS[env_id][0]
-    env_keys = [p for p in inspect.signature(env_cls.__init__).parameters if p != "self"]
+    env_keys = constructor_arguments(env_cls)
     gain_keys: list[str] = []
     if policy in baselines.CONTROLLERS:
         import dataclasses

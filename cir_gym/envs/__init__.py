@@ -5,15 +5,20 @@ from __future__ import annotations
 import gymnasium as gym
 
 from cir_gym.envs.base import RobotEnv, EntryPoint
+from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 
-__all__ = ["ENVIRONMENTS", "JointTrackingEnv", "RobotEnv", "register_envs"]
+__all__ = ["ENVIRONMENTS", "ElasticJointTrackingEnv", "JointTrackingEnv", "RobotEnv", "register_envs"]
 
 #: id → (class, one-line description)
 ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
     "cir_gym/JointTracking-v0": (
         JointTrackingEnv,
         "iiwa14 joint-space trajectory tracking with joint torques (ch. 4-5)",
+    ),
+    "cir_gym/ElasticJointTracking-v0": (
+        ElasticJointTrackingEnv,
+        "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),
 }
 

@@ -40,9 +40,23 @@ class InvalidArgument(ValueError, TypeError):
     """An unknown or out-of-range constructor argument (a ValueError and a TypeError)."""
 
 
+def constructor_arguments(cls: type) -> list[str]:
+    """Keyword arguments of ``cls``; a ``**kwargs`` passed to the parent adds the parent's."""
+    names: list[str] = []
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(vars(klass)["__init__"]).parameters.values()
+        names += [p.name for p in params if p.name != "self"
+                  and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    return list(dict.fromkeys(names))
+
+
 def check_kwargs(cls: type, kwargs: dict[str, Any]) -> None:
     """Raise :class:`InvalidArgument` naming the allowed keywords if ``kwargs`` has others."""
-    allowed = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+    allowed = constructor_arguments(cls)
     unknown = sorted(set(kwargs) - set(allowed))
     if unknown:
         raise InvalidArgument(

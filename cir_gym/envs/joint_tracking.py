@@ -172,14 +172,14 @@ class JointTrackingEnv(RobotEnv):
         self.success_threshold = check_number("success_threshold", success_threshold, 0.0, 10.0,
                                               low_open=True)
 
-        self.robot = Robot.from_name(self.robot_name)  # the simulator's (true) robot
+        self.robot = self._build_robot()  # the simulator's (true) robot
         n = self.robot.n
         self.gear_ratio = self._per_joint("gear_ratio", gear_ratio, self.robot.gear_ratio, n)
         self.rotor_inertia = self._per_joint(
             "rotor_inertia", rotor_inertia, self.robot.rotor_inertia, n, low_open=False
         )
         self.armature = self.gear_ratio**2 * self.rotor_inertia  # B̄_r: reflected rotor inertia
-        self.robot.set_armature(self.armature)
+        self._set_motor_inertia(self.armature)
         self._nominal_arrays = _inertial_arrays(self.robot.model)
         apply_model_error(self.robot.model, self.model_error)
         super().__init__(
@@ -192,6 +192,7 @@ class JointTrackingEnv(RobotEnv):
         )
         self.torque_limit = self.robot.torque_limit.copy()
         self.n = n
+        self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr  # the link joints
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         bounds = {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
         self._obs_bounds = bounds
@@ -208,6 +209,24 @@ class JointTrackingEnv(RobotEnv):
         self._q_meas_prev = np.zeros(n)
         self._diverged = False
         self.episode_model_error = self.model_error
+
+    # ------------------------------------------------------------------ hooks (elastic joints)
+    def _build_robot(self) -> Robot:
+        """The simulator's robot (a fresh model of ``robot_name``)."""
+        return Robot.from_name(self.robot_name)
+
+    def _set_motor_inertia(self, armature: np.ndarray) -> None:
+        """Put the reflected rotor inertia N² J_m (n,) where the motors are (the joints here)."""
+        self.robot.set_armature(armature)
+
+    def _home(self) -> np.ndarray:
+        m = self.robot.model
+        if m.nkey:
+            return m.key("home").qpos[self.robot.qpos_adr].copy()
+        return (self.robot.lower + self.robot.upper) / 2
+
+    def _set_initial_state(self, q0: np.ndarray, qd0: np.ndarray) -> None:
+        self._reset_physics(q0, qd0)
 
     @staticmethod
     def _per_joint(name: str, value: Any, default: np.ndarray, n: int, low_open: bool = True
@@ -230,7 +249,7 @@ class JointTrackingEnv(RobotEnv):
         margin = 0.1 * (hi - lo)
         T = self.max_steps * self.dt
         t = np.arange(self.max_steps + 1) * self.dt
-        home = self.robot.model.key("home").qpos.copy() if self.robot.model.nkey else (lo + hi) / 2
+        home = self._home()
         if self.reference == "random":
             ref = traj.random_joint_trajectory(
                 rng, lo, hi, duration=T, n_points=5, v_max=0.5 * self.robot.velocity_limit,
@@ -267,7 +286,7 @@ class JointTrackingEnv(RobotEnv):
         q0, qd0 = self._make_reference()
         if self.initial_error > 0:
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
-        self._reset_physics(q0, qd0)
+        self._set_initial_state(q0, qd0)
         self._k = 0
         self._a_prev[:] = 0.0
         self._diverged = False
@@ -281,11 +300,11 @@ class JointTrackingEnv(RobotEnv):
         tau = a * self.torque_limit
         if self.torque_noise > 0:
             tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-        self._q_meas_prev[:] = self._quantize(self.data.qpos)
+        self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
         k = self._k
         self._k += 1
-        q_err = self._ref[0, self._k] - self.data.qpos
+        q_err = self._ref[0, self._k] - self.data.qpos[self._qa]
         self._err[k] = q_err
         self._tau[k] = a * self.torque_limit
         self._sat[k] = clipped or bool(np.any(np.abs(a) >= 1.0))
@@ -336,11 +355,11 @@ class JointTrackingEnv(RobotEnv):
 
     def _obs(self) -> dict[str, np.ndarray]:
         k = min(self._k, self.max_steps)
-        q = self._quantize(self.data.qpos)
+        q = self._quantize(self.data.qpos[self._qa])
         if self.encoder_resolution > 0:
             qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
         else:
-            qd = self.data.qvel.copy()
+            qd = self.data.qvel[self._da]
         raw = {"q": q, "qd": qd, "q_ref": self._ref[0, k], "qd_ref": self._ref[1, k],
                "qdd_ref": self._ref[2, k]}
         return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key]) for key, v in raw.items()}

@@ -1,0 +1,167 @@
+"""ElasticJointTracking: joint tracking through elastic transmissions (chapter 4, k_el)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from cir_gym.envs.base import InvalidArgument, TaskContext
+from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.robot import Robot, robot_path
+
+#: Joint stiffness k_el (N m/rad) per joint — an ASSUMPTION of harmonic-drive order of magnitude
+#: (the data sheet publishes none), scaled down toward the wrist where the links are light.
+DEFAULT_STIFFNESS = (4000.0, 4000.0, 2000.0, 2000.0, 1000.0, 300.0, 300.0)
+#: Damping ratio of each spring with the link inertia at home (structural damping, small).
+SPRING_DAMPING_RATIO = 0.05
+
+
+def elastic_model(robot: str, stiffness: np.ndarray, timestep: float = 5e-4) -> mujoco.MjModel:
+    """The robot with a motor joint behind each link joint, coupled by a fixed-tendon spring.
+
+    For joint i a massless rotor body sits on the parent link, coaxial with the link joint;
+    its hinge ``motor<i>`` carries the reflected rotor inertia (armature) and the actuator;
+    the fixed tendon ``spring<i>`` of length θ_i − q_i (θ the motor angle divided by the gear
+    ratio, i.e. in link units) has stiffness k_el,i, so the link feels τ = k_el (θ − q).
+    """
+    spec = mujoco.MjSpec.from_file(str(robot_path(robot)))
+    spec.option.timestep = timestep
+    n = len(stiffness)
+    for i in range(1, n + 1):
+        link = spec.body(f"link{i}")
+        joint = spec.joint(f"joint{i}")
+        rotor = link.parent.add_body(
+            name=f"rotor{i}", pos=link.pos, quat=link.quat, mass=1e-6, inertia=[1e-9] * 3,
+            explicitinertial=True,
+        )
+        rotor.add_joint(name=f"motor{i}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1],
+                        armature=joint.armature)
+        joint.armature = 0.0
+        spring = spec.add_tendon(name=f"spring{i}", stiffness=float(stiffness[i - 1]),
+                                 springlength=[0.0, 0.0])
+        spring.wrap_joint(f"motor{i}", 1.0)
+        spring.wrap_joint(f"joint{i}", -1.0)
+        spec.actuator(f"motor{i}").target = f"motor{i}"
+    for key in spec.keys:  # keyframes would need the motor joints too
+        spec.delete(key)
+    return spec.compile()
+
+
+class ElasticJointTrackingEnv(JointTrackingEnv):
+    """Track a joint trajectory with motor torques through elastic joints (iiwa 14).
+
+    ## Description
+    JointTracking-v0 with each transmission modelled as in chapter 4 of the notes: a motor
+    (rotor inertia reflected to the link side, N² J_m) and the link, coupled by a spring of
+    stiffness k_el. In MuJoCo each joint is two hinges (``motor<i>`` on a massless rotor body
+    and ``joint<i>`` on the link) and a fixed tendon θ − q with stiffness k_el and a small
+    damping. The physics step is 0.5 ms (the stiff wrist springs need it). Motor positions
+    are given in link units θ = q_m / N.
+
+    ## Action Space
+    ``Box(-1, 1, (7,), float32)``: motor torque reflected to the link side, τ = a ⊙ τ_max
+    (τ_max as in JointTracking-v0; the motor torque itself is τ / N). Clipping as there.
+
+    ## Observation Space
+    The keys of JointTracking-v0 (q, qd are the LINK positions and velocities) plus
+    ``q_motor`` and ``qd_motor`` (7,), the motor positions (rad, link units) and velocities.
+
+    ## Rewards
+    As in JointTracking-v0, on the link error.
+
+    ## Starting State
+    As in JointTracking-v0, with the springs pre-loaded so that the arm is at rest: θ(0) =
+    q(0) + K_el⁻¹ g(q(0)).
+
+    ## Episode End
+    As in JointTracking-v0.
+
+    ## Arguments
+    The arguments of JointTracking-v0, plus:
+
+    | argument | default | meaning |
+    |---|---|---|
+    | stiffness | None | joint stiffness k_el (N m/rad), scalar or (7,); None = DEFAULT_STIFFNESS |
+
+    ## Metrics
+    As in JointTracking-v0 (on the link side).
+
+    ## Reference controllers
+    pid, p_pi_cascade, p_pi_feedforward (on motor-side measurements, ω_cv ≈ 0.7 ω_z),
+    pd_gravity and computed_torque (rigid model, link measurements).
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {"nominal stiffness": {}}
+
+    def __init__(self, *args: Any, stiffness: float | list[float] | None = None,
+                 **kwargs: Any) -> None:
+        k = np.asarray(DEFAULT_STIFFNESS if stiffness is None else stiffness, dtype=float)
+        k = np.broadcast_to(k, (7,)).copy() if k.ndim == 0 else k
+        if k.shape != (7,) or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise InvalidArgument(f"stiffness must be a positive scalar or 7 values, got "
+                                  f"{stiffness!r}")
+        self.stiffness = k
+        super().__init__(*args, **kwargs)
+        m = self.model
+        self._ma = np.array([m.jnt_qposadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
+        self._md = np.array([m.jnt_dofadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
+        bound = {"q_motor": 2 * np.pi, "qd_motor": 50.0}
+        self._obs_bounds.update(bound)
+        self.observation_space = spaces.Dict(
+            {**self.observation_space.spaces,
+             **{k_: spaces.Box(-b, b, (7,), dtype=np.float64) for k_, b in bound.items()}}
+        )
+
+    # hooks of JointTrackingEnv
+    def _build_robot(self) -> Robot:
+        robot = Robot(elastic_model(self.robot_name, self.stiffness),
+                      [f"joint{i}" for i in range(1, 8)])
+        ref = Robot.from_name(self.robot_name)
+        robot.torque_limit = ref.torque_limit.copy()  # actuators sit on the motor joints
+        robot.velocity_limit = ref.velocity_limit.copy()
+        self._home_q = ref.model.key("home").qpos.copy()
+        self._rigid = ref
+        return robot
+
+    def _set_motor_inertia(self, armature: np.ndarray) -> None:
+        m = self.robot.model
+        for i in range(7):
+            m.dof_armature[m.jnt_dofadr[m.joint(f"motor{i + 1}").id]] = armature[i]
+        # spring damping: ζ = 0.05 with the link inertia at home, d = 2ζ sqrt(k J_l)
+        self._rigid.set_armature(np.zeros(7))
+        J_l = np.diag(self._rigid.inertia(self._home_q))
+        m.tendon_damping[:] = 2 * SPRING_DAMPING_RATIO * np.sqrt(self.stiffness * J_l)
+        mujoco.mj_setConst(m, mujoco.MjData(m))
+
+    def _home(self) -> np.ndarray:
+        return self._home_q.copy()
+
+    def _set_initial_state(self, q0: np.ndarray, qd0: np.ndarray) -> None:
+        qpos = np.zeros(self.model.nq)
+        qvel = np.zeros(self.model.nv)
+        qpos[self._qa], qvel[self._da] = q0, qd0
+        qpos[self._ma] = q0 + self.robot.gravity(q0) / self.stiffness  # springs hold gravity
+        qvel[self._md] = qd0
+        self._reset_physics(qpos, qvel)
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        obs = super()._obs()
+        d = self.data
+        for key, val in (("q_motor", d.qpos[self._ma]), ("qd_motor", d.qvel[self._md])):
+            b = self._obs_bounds[key]
+            obs[key] = np.clip(val, -b, b)
+        return obs
+
+    def controller_context(self) -> TaskContext:
+        ctx = super().controller_context()
+        return TaskContext(
+            robot=ctx.robot, dt=ctx.dt, action_kind="motor_torque",
+            action_scale=ctx.action_scale, armature=ctx.armature, gear_ratio=ctx.gear_ratio,
+            rotor_inertia=ctx.rotor_inertia, extras={"stiffness": self.stiffness.copy()},
+        )
