@@ -188,3 +188,29 @@ def test_controllers_use_only_the_nominal_model():
 def test_registry_lists_joint_tracking():
     assert ENV in cir_gym.ENVIRONMENTS
     assert {"computed_torque", "pd_gravity", "robust", "pid"} <= set(baselines.available(ENV))
+
+
+def test_adaptive_control_learns_the_payload_and_drives_y_pi_tilde_to_zero():
+    from cir_gym import dynamics
+
+    kwargs = {"payload_mass": 3.0, "episode_duration": 3.0}
+    ct = evaluate(baselines.make("computed_torque", ENV, env_kwargs=kwargs), ENV, 1, 0, **kwargs)
+    policy = baselines.make("adaptive", ENV, env_kwargs=kwargs)
+    ad = evaluate(policy, ENV, 1, 0, record=True, **kwargs)
+    assert ad.summary["rms_error"]["mean"] < 0.2 * ct.summary["rms_error"]["mean"]
+    trace = ad.episodes[0].trace
+    true = Robot.from_name("iiwa14").with_error(ModelError(payload_mass=3.0))
+    true.set_armature(policy.robot.model.dof_armature)
+    pi_true = dynamics.inertial_parameters(true.model)
+    lam = policy.gains.lam
+    q, qd = trace["obs/q"], trace["obs/qd"]
+    e, ed = trace["obs/q_ref"] - q, trace["obs/qd_ref"] - qd
+    qd_r, qdd_r = trace["obs/qd_ref"] + lam * e, trace["obs/qdd_ref"] + lam * ed
+
+    def y_pi_tilde(k):
+        Y = dynamics.regressor(policy.model, q[k], qd[k], qdd_r[k], qd_r=qd_r[k])
+        return np.linalg.norm(Y @ (pi_true - trace["state"][k]))
+
+    early = np.mean([y_pi_tilde(k) for k in range(0, 50, 5)])
+    late = np.mean([y_pi_tilde(k) for k in range(len(q) - 500, len(q), 25)])
+    assert late < 0.3 * early
