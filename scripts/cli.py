@@ -46,9 +46,9 @@ def _check_env_id(env_id: str) -> str:
 def _agents_module() -> Any | None:
     try:
         import agents
-    except ImportError:
+    except ImportError:  # the train extra (SB3, torch) is not installed
         return None
-    return agents
+    return agents if hasattr(agents, "available") else None
 
 
 def policy_names(env_id: str) -> list[str]:

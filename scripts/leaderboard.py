@@ -20,13 +20,15 @@ import cir_gym
 from cir_gym.evaluation import EvaluationResult, evaluate
 
 
-def jobs_for(env_id: str) -> list[tuple[str, str, dict[str, Any], str]]:
+def jobs_for(env_id: str, overrides: dict[str, Any] | None = None
+             ) -> list[tuple[str, str, dict[str, Any], str]]:
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate."""
     from scripts.cli import policy_names
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
-    return [(env_id, v, kw, p) for v, kw in variants.items() for p in policy_names(env_id)]
+    return [(env_id, v, {**kw, **(overrides or {})}, p)
+            for v, kw in variants.items() for p in policy_names(env_id)]
 
 
 def run_job(job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
@@ -50,13 +52,18 @@ def _progress(total: int) -> Any:
 
 
 def run_leaderboard(out: Path, episodes: int = 10, seed: int = 1000,
-                    envs: list[str] | None = None, workers: int | None = None) -> Path:
-    """Evaluate everything, write ``out/leaderboard.md`` and the figures; return the md path."""
+                    envs: list[str] | None = None, workers: int | None = None,
+                    env_overrides: dict[str, Any] | None = None) -> Path:
+    """Evaluate everything, write ``out/leaderboard.md`` and the figures; return the md path.
+
+    ``env_overrides`` are added to every environment's kwargs (e.g. a short
+    ``episode_duration`` for tests).
+    """
     from cir_gym.plotting import plot_comparison
     from scripts.cli import format_table
 
     env_ids = envs or list(cir_gym.ENVIRONMENTS)
-    jobs = [j for e in env_ids for j in jobs_for(e)]
+    jobs = [j for e in env_ids for j in jobs_for(e, env_overrides)]
     workers = workers or min(len(jobs), os.cpu_count() or 1)
     results: dict[tuple[str, str, str], EvaluationResult] = {}
     seconds: dict[tuple[str, str, str], float] = {}
@@ -87,7 +94,7 @@ def run_leaderboard(out: Path, episodes: int = 10, seed: int = 1000,
         lines += [f"## {env_id}", "", description, ""]
         for variant, kwargs in getattr(cls, "leaderboard_variants", {"default": {}}).items():
             rows = [r for (e, v, _), r in sorted(results.items()) if e == env_id and v == variant]
-            setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "defaults"
+            setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
             lines += [f"### {variant} ({setting})", "", format_table(rows), ""]
             fig = out / f"{env_id.split('/')[-1]}_{_slug(variant)}.png"
             plot_comparison(rows, fig, title=f"{env_id} — {variant}")

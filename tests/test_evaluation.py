@@ -1,0 +1,94 @@
+"""The scorer, the policy protocol seen from SB3, the leaderboard and the command line."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import baselines
+from cir_gym.evaluation import evaluate
+from cir_gym.metrics import MetricSpec, aggregate, cvar
+from scripts.cli import main
+from scripts.leaderboard import run_leaderboard
+
+ENV = "cir_gym/JointTracking-v0"
+SHORT = {"episode_duration": 0.2}
+
+
+def test_evaluate_and_sb3_evaluate_policy_give_the_same_returns():
+    policy = baselines.make("computed_torque", ENV)
+    ours = evaluate(policy, ENV, n_episodes=1, seed=7, **SHORT)
+    venv = DummyVecEnv([lambda: Monitor(gym.make(ENV, **SHORT))])
+    venv.seed(7)
+    returns, lengths = evaluate_policy(policy, venv, n_eval_episodes=1, return_episode_rewards=True)
+    assert lengths[0] == ours.episodes[0].length
+    # Monitor reports the return rounded to 6 decimals
+    assert returns[0] == pytest.approx(ours.episodes[0].episode_return, abs=1e-6)
+
+
+def test_stateful_controller_state_is_reset_at_episode_start():
+    policy = baselines.make("pid", ENV)
+    env = gym.make(ENV)
+    obs, _ = env.reset(seed=0)
+    _, state = policy.predict(obs, None, np.array([True]))
+    state[:] = 123.0  # a stale integrator
+    a_fresh, _ = policy.predict(obs, None, np.array([True]))
+    a_reset, new_state = policy.predict(obs, state, np.array([True]))
+    np.testing.assert_array_equal(a_fresh, a_reset)
+    assert not np.any(new_state == 123.0)
+
+
+def test_same_seed_same_metrics_and_seeds_are_shared_across_policies():
+    a = evaluate(baselines.make("pid", ENV), ENV, 2, 3, **SHORT)
+    b = evaluate(baselines.make("pid", ENV), ENV, 2, 3, **SHORT)
+    assert [e.metrics for e in a.episodes] == [e.metrics for e in b.episodes]
+    assert [e.seed for e in a.episodes] == [3, 4]
+
+
+def test_aggregates_cvar_and_worst():
+    spec = MetricSpec("err", "rad", "lower", "")
+    values = np.arange(1.0, 11.0)
+    agg = aggregate(spec, values)
+    assert agg["worst"] == 10.0 and agg["mean"] == 5.5
+    assert agg["cvar"] == pytest.approx(9.5)  # mean of the worst 20 %: 10 and 9
+    assert cvar(values, "higher") == pytest.approx(1.5)
+
+
+def test_leaderboard_is_deterministic(tmp_path):
+    md1 = run_leaderboard(tmp_path / "a", episodes=1, seed=5, envs=[ENV], workers=2,
+                          env_overrides=SHORT).read_text()
+    md2 = run_leaderboard(tmp_path / "b", episodes=1, seed=5, envs=[ENV], workers=2,
+                          env_overrides=SHORT).read_text()
+    assert md1 == md2
+    assert "computed_torque" in md1 and (tmp_path / "a").glob("*.png")
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v0"),
+    (["evaluate", "--env", ENV, "--policy", "lqr"], "computed_torque"),
+    (["evaluate", "--env", ENV, "--policy", "pid", "--set", "foo=1"], "payload_mass"),
+    (["evaluate", "--env", ENV, "--policy", "pid", "--set", "omega=-1"], "omega"),
+])
+def test_cli_bad_input_exits_non_zero_listing_what_is_valid(argv, needle, capsys):
+    assert main(argv) != 0
+    assert needle in capsys.readouterr().err
+
+
+def test_cli_evaluate_prints_a_table(capsys):
+    assert main(["evaluate", "--env", ENV, "--policy", "computed_torque", "--episodes", "1",
+                 "--set", "episode_duration=0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "computed_torque" in out and "rms_error" in out
+
+
+def test_a_policy_with_the_wrong_action_shape_is_reported_with_the_expected_shape():
+    class Broken:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros(3), state
+
+    with pytest.raises(ValueError, match=r"expects shape \(7,\)"):
+        evaluate(Broken(), ENV, 1, 0, **SHORT)
