@@ -49,8 +49,14 @@ def available(env_id: str) -> list[str]:
     return [name for name, cls in CONTROLLERS.items() if task in cls.tasks]
 
 
-def make(name: str, env_id: str, *, env: gym.Env | None = None,
-         env_kwargs: dict[str, Any] | None = None, **gains: Any) -> Controller:
+def make(
+    name: str,
+    env_id: str,
+    *,
+    env: gym.Env | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    **gains: Any,
+) -> Controller:
     """Build controller ``name`` for ``env_id``.
 
     Args:
@@ -67,11 +73,14 @@ def make(name: str, env_id: str, *, env: gym.Env | None = None,
     if name not in CONTROLLERS:
         raise ValueError(f"unknown controller {name!r}; available: {sorted(CONTROLLERS)}")
     if env_id.split(":")[-1] not in gym.registry:
-        raise ValueError(f"unknown environment {env_id!r}; registered: "
-                         f"{sorted(k for k in gym.registry if k.startswith('cir_gym/'))}")
+        raise ValueError(
+            f"unknown environment {env_id!r}; registered: "
+            f"{sorted(k for k in gym.registry if k.startswith('cir_gym/'))}"
+        )
     if name not in available(env_id):
-        raise ValueError(f"controller {name!r} does not apply to {env_id}; "
-                         f"available there: {available(env_id)}")
+        raise ValueError(
+            f"controller {name!r} does not apply to {env_id}; available there: {available(env_id)}"
+        )
     if env is None:
         env = gym.make(env_id, **(env_kwargs or {}))
         context = env.unwrapped.controller_context()

@@ -81,8 +81,9 @@ class Controller:
     ) -> tuple[np.ndarray, np.ndarray]:
         """SB3's protocol: (action in [-1, 1], new state); single or batched observations."""
         if "q" not in observation:
-            raise ValueError(f"observation must be a dict with a 'q' entry, got keys "
-                             f"{list(observation)}")
+            raise ValueError(
+                f"observation must be a dict with a 'q' entry, got keys {list(observation)}"
+            )
         batched = np.ndim(observation["q"]) == 2  # every cir_gym observation has q (n,)
         n_envs = int(np.shape(observation["q"])[0]) if batched else 1
         if state is None:
@@ -90,12 +91,18 @@ class Controller:
             episode_start = np.ones(n_envs, dtype=bool)
         else:
             state = np.array(state, dtype=float, copy=True).reshape(n_envs, self.state_size)
-        starts = (np.ones(n_envs, dtype=bool) if episode_start is None
-                  else np.broadcast_to(np.asarray(episode_start, dtype=bool), (n_envs,)))
+        starts = (
+            np.ones(n_envs, dtype=bool)
+            if episode_start is None
+            else np.broadcast_to(np.asarray(episode_start, dtype=bool), (n_envs,))
+        )
         actions = np.zeros((n_envs, self.action_scale.size), dtype=np.float32)
         for i in range(n_envs):
-            obs_i = ({k: np.asarray(v[i], dtype=float) for k, v in observation.items()}
-                     if batched else {k: np.asarray(v, dtype=float) for k, v in observation.items()})
+            obs_i = (
+                {k: np.asarray(v[i], dtype=float) for k, v in observation.items()}
+                if batched
+                else {k: np.asarray(v, dtype=float) for k, v in observation.items()}
+            )
             if starts[i]:
                 state[i] = self.initial_state(obs_i)
             command = self.control(obs_i, state[i])

@@ -9,7 +9,6 @@ frequency ω_n and damping ζ gives K_P = ω_n² I, K_D = 2ζω_n I.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 
@@ -38,8 +37,9 @@ def _positive(name: str, value: float) -> None:
 class _ModelBased(Controller):
     """A controller with a nominal robot model (the env's, or one handed in, e.g. identified)."""
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, **overrides)
         self.robot = robot if robot is not None else context.nominal_robot()
         self.n = self.robot.n
@@ -71,8 +71,9 @@ class PDGravity(_ModelBased):
     tasks = RIGID_MODEL_TASKS
     Gains = PDGravityGains
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         home = self.robot.model.key("home").qpos if self.robot.model.nkey else np.zeros(self.n)
         b = np.diag(self.robot.inertia(home))
@@ -81,8 +82,11 @@ class PDGravity(_ModelBased):
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q = obs["q"]
-        return (self.robot.gravity(q) + self.kp * (obs["q_ref"] - q)
-                + self.kd * (obs["qd_ref"] - obs["qd"]))
+        return (
+            self.robot.gravity(q)
+            + self.kp * (obs["q_ref"] - q)
+            + self.kd * (obs["qd_ref"] - obs["qd"])
+        )
 
 
 # ---------------------------------------------------------------------- computed torque
@@ -121,7 +125,11 @@ class ComputedTorque(_ModelBased):
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q, qd = obs["q"], obs["qd"]
-        y = obs["qdd_ref"] + self.gains.kd * (obs["qd_ref"] - qd) + self.gains.kp * (obs["q_ref"] - q)
+        y = (
+            obs["qdd_ref"]
+            + self.gains.kd * (obs["qd_ref"] - qd)
+            + self.gains.kp * (obs["q_ref"] - q)
+        )
         return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
 
 
@@ -186,7 +194,8 @@ class RobustControl(_ModelBased):
     ξ = [q̃; q̃̇], H̃ = [[0, I], [−K_P, −K_D]], Q solves H̃ᵀQ + QH̃ = −P with
     P = diag(K_P, I), D = [0; I],
     z = DᵀQξ and w = ρ z / max(‖z‖, ε) (the boundary layer replaces the chattering switch).
-    ρ ≥ (α Q_M + α ‖K‖ ‖ξ‖ + B_M Φ) / (1 − α) with α ≥ ρ(I − B⁻¹B̂) (spectral radius), Φ ≥ ‖ñ‖, B_M ≥ ‖B⁻¹‖,
+    ρ ≥ (α Q_M + α ‖K‖ ‖ξ‖ + B_M Φ) / (1 − α) with α ≥ ρ(I − B⁻¹B̂) (spectral radius),
+    Φ ≥ ‖ñ‖, B_M ≥ ‖B⁻¹‖,
     evaluated on sampled configurations for the declared payload and mass-scale bounds.
     """
 
@@ -194,8 +203,9 @@ class RobustControl(_ModelBased):
     tasks = JOINT_TASKS
     Gains = RobustGains
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         n, g = self.n, self.gains
         kp, kd = g.omega_n**2, 2 * g.zeta * g.omega_n
@@ -207,8 +217,11 @@ class RobustControl(_ModelBased):
         self.DtQ = self.Q[n:, :]  # Dᵀ Q, D = [0; I]
         self.rho = g.rho if g.rho is not None else self.rho_from_bounds()
         q22 = float(np.max(np.diag(self.Q)[n:]))
-        self.epsilon = (g.epsilon if g.epsilon is not None
-                        else max(self.rho * q22 * self.dt / g.layer_gain_dt, 1e-9))
+        self.epsilon = (
+            g.epsilon
+            if g.epsilon is not None
+            else max(self.rho * q22 * self.dt / g.layer_gain_dt, 1e-9)
+        )
 
     def rho_from_bounds(self, n_samples: int = 20, seed: int = 0) -> float:
         """ρ from the course's inequality on ``n_samples`` random configurations (see class)."""
@@ -233,8 +246,9 @@ class RobustControl(_ModelBased):
             raise InvalidGain(f"uncertainty too large for robust control: α = {alpha:.2f} ≥ 1")
         k_norm = np.hypot(g.omega_n**2, 2 * g.zeta * g.omega_n)
         self.alpha, self.b_max, self.phi = alpha, b_max, phi
-        return float((alpha * g.qdd_ref_bound + alpha * k_norm * g.error_bound + b_max * phi)
-                     / (1 - alpha))
+        return float(
+            (alpha * g.qdd_ref_bound + alpha * k_norm * g.error_bound + b_max * phi) / (1 - alpha)
+        )
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q, qd = obs["q"], obs["qd"]
@@ -285,8 +299,9 @@ class AdaptiveControl(_ModelBased):
     tasks = JOINT_TASKS
     Gains = AdaptiveGains
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         self.model = self.robot.model
         self.pi0 = dynamics.inertial_parameters(self.model)
@@ -295,7 +310,7 @@ class AdaptiveControl(_ModelBased):
         scale = self.parameter_scale()
         if self.gains.adapt == "last_link":
             mask = np.zeros_like(self.pi0)
-            mask[10 * (self.n - 1): 10 * self.n] = 1.0
+            mask[10 * (self.n - 1) : 10 * self.n] = 1.0
             scale = scale * mask
         self.adapt_gain = self.gains.gamma * scale**2  # diagonal of K_π⁻¹
 
@@ -303,10 +318,10 @@ class AdaptiveControl(_ModelBased):
         """Magnitude of each parameter's plausible error: per link [m, m c (3), I (6)] scaled
         as [m̄, m̄ · 0.1 m, m̄ · 0.01 m²] with m̄ = max(m, 1 kg); armatures by themselves."""
         n = self.n
-        masses = np.maximum(self.pi0[0: 10 * n: 10], 1.0)
+        masses = np.maximum(self.pi0[0 : 10 * n : 10], 1.0)
         per_link = np.array([1.0, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
         scale = (masses[:, None] * per_link[None, :]).ravel()
-        return np.concatenate((scale, np.maximum(self.pi0[10 * n:], 1e-3)))
+        return np.concatenate((scale, np.maximum(self.pi0[10 * n :], 1e-3)))
 
     @property
     def state_size(self) -> int:

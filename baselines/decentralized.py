@@ -22,16 +22,24 @@ from baselines.base import Controller, InvalidGain, Observation
 from cir_gym.envs.base import TaskContext
 from cir_gym.robot import Robot
 
-__all__ = ["CascadeGains", "DecentralizedFeedforward", "PCascade", "PIDGains", "PPIFeedforward",
-           "IndependentPID", "effective_motor_inertia"]
+__all__ = [
+    "CascadeGains",
+    "DecentralizedFeedforward",
+    "IndependentPID",
+    "PCascade",
+    "PIDGains",
+    "PPIFeedforward",
+    "effective_motor_inertia",
+]
 
 JOINT_TASKS = ("JointTracking", "ElasticJointTracking")
 #: highest loop bandwidth used by default, as a fraction of the sampling rate (ω dt)
 MAX_OMEGA_DT = 0.25
 
 
-def effective_motor_inertia(robot: Robot, gear_ratio: np.ndarray, rotor_inertia: np.ndarray
-                            ) -> np.ndarray:
+def effective_motor_inertia(
+    robot: Robot, gear_ratio: np.ndarray, rotor_inertia: np.ndarray
+) -> np.ndarray:
     """J_eff = J_m + J_l / n² (n,) in kg m² (motor side), J_l from B̂_ii(q_home) − armature."""
     home = robot.model.key("home").qpos if robot.model.nkey else np.zeros(robot.n)
     J_l = np.diag(robot.inertia(home)) - robot.model.dof_armature[robot.dof_adr]
@@ -41,8 +49,9 @@ def effective_motor_inertia(robot: Robot, gear_ratio: np.ndarray, rotor_inertia:
 class _Decentralized(Controller):
     tasks = JOINT_TASKS
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, **overrides)
         robot = robot if robot is not None else context.nominal_robot()
         self.robot = robot
@@ -117,8 +126,11 @@ class CascadeGains:
                 raise InvalidGain(f"{name} must be > 0, got {v!r}")
         if not 0.0 <= self.k_ff <= 1.0:
             raise InvalidGain(f"k_ff must be in [0, 1], got {self.k_ff!r}")
-        if (self.omega_cp is not None and self.omega_cv is not None
-                and self.omega_cp >= self.omega_cv):
+        if (
+            self.omega_cp is not None
+            and self.omega_cv is not None
+            and self.omega_cp >= self.omega_cv
+        ):
             raise InvalidGain("omega_cp must be well below omega_cv")
 
 
@@ -132,8 +144,9 @@ class PCascade(_Decentralized):
     name = "p_pi_cascade"
     Gains = CascadeGains
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         g = self.gains
         if g.omega_cv is not None:
@@ -170,8 +183,9 @@ class PPIFeedforward(PCascade):
 
     name = "p_pi_feedforward"
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
+    def __init__(
+        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+    ) -> None:
         overrides.setdefault("k_ff", 1.0)
         super().__init__(context, gains, robot=robot, **overrides)
 

@@ -13,8 +13,8 @@ if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
     _os.environ["MUJOCO_GL"] = "egl"
     _os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from cir_gym.envs import ENVIRONMENTS, register_envs  # noqa: E402
-from cir_gym.robot import ModelError, Robot  # noqa: E402
+from cir_gym.envs import ENVIRONMENTS, register_envs
+from cir_gym.robot import ModelError, Robot
 
 __all__ = ["ENVIRONMENTS", "ModelError", "Robot", "register_envs"]
 __version__ = "0.1.0"

@@ -21,8 +21,13 @@ __all__ = ["EpisodeResult", "EvaluationResult", "Policy", "evaluate", "metric_sp
 
 
 class Policy(Protocol):
-    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]: ...
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]: ...
 
 
 @dataclass
@@ -138,8 +143,9 @@ def evaluate(
             info: dict[str, Any] = {}
             trace: dict[str, list] | None = {} if record else None
             while not done:
-                action, state = policy.predict(obs, state=state, episode_start=start,
-                                               deterministic=deterministic)
+                action, state = policy.predict(
+                    obs, state=state, episode_start=start, deterministic=deterministic
+                )
                 start = np.zeros(1, dtype=bool)
                 _check_action_shape(action, env, name)
                 if trace is not None:
@@ -157,15 +163,17 @@ def evaluate(
                 length += 1
                 done = terminated or truncated
             metrics = dict(info.get("episode_metrics", {}))
-            episodes.append(EpisodeResult(
-                seed=seed + i,
-                episode_return=total,
-                length=length,
-                success=bool(info.get("is_success", False)),
-                diverged=bool(info.get("diverged", False)),
-                metrics=metrics,
-                trace=_stack(trace) if trace is not None else None,
-            ))
+            episodes.append(
+                EpisodeResult(
+                    seed=seed + i,
+                    episode_return=total,
+                    length=length,
+                    success=bool(info.get("is_success", False)),
+                    diverged=bool(info.get("diverged", False)),
+                    metrics=metrics,
+                    trace=_stack(trace) if trace is not None else None,
+                )
+            )
     finally:
         if own_env:
             env.close()

@@ -28,15 +28,19 @@ def _plt() -> Any:
     return plt
 
 
-def plot_episode(result: EvaluationResult, path: str | Path, episode: int = 0,
-                 max_dims: int = 7) -> Path:
+def plot_episode(
+    result: EvaluationResult, path: str | Path, episode: int = 0, max_dims: int = 7
+) -> Path:
     """Reference vs actual, errors and commands of one recorded episode, saved to ``path``."""
     plt = _plt()
     trace = result.episodes[episode].trace
     if trace is None:
         raise ValueError("the evaluation was run without record=True")
-    pairs = [k[len("obs/"):-len("_ref")] for k in trace
-             if k.startswith("obs/") and k.endswith("_ref") and f"{k[:-4]}" in trace]
+    pairs = [
+        k[len("obs/") : -len("_ref")]
+        for k in trace
+        if k.startswith("obs/") and k.endswith("_ref") and f"{k[:-4]}" in trace
+    ]
     errors = [k for k in ("joint_error", "task_error") if k in trace]
     rows = len(pairs) + len(errors) + 1
     fig, axes = plt.subplots(rows, 1, figsize=(9, 2.6 * rows), sharex=True, squeeze=False)

@@ -125,7 +125,8 @@ class Robot:
             joints = [
                 model.joint(j).name
                 for j in range(model.njnt)
-                if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+                if int(model.jnt_type[j])
+                in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
             ]
         ids = []
         for name in joints:
@@ -243,7 +244,9 @@ class Robot:
         self._set_q(np.asarray(q, dtype=float))
         self._set_qd(np.asarray(qd, dtype=float))
         body = int(self.model.site_bodyid[sid])
-        mujoco.mj_jacDot(self.model, self.data, self._jacp, self._jacr, self.data.site_xpos[sid], body)
+        mujoco.mj_jacDot(
+            self.model, self.data, self._jacp, self._jacr, self.data.site_xpos[sid], body
+        )
         qdf = self.data.qvel
         return np.concatenate((self._jacp @ qdf, self._jacr @ qdf))
 
@@ -306,7 +309,7 @@ class Robot:
         return self.inertia(q) @ qdd + self.bias(q, qd)
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
-        """Modelled joint friction F_v q̇ + f_s sign(q̇) (n,) from the model's damping/frictionloss."""
+        """Joint friction F_v q̇ + f_s sign(q̇) (n,) from the model's damping and frictionloss."""
         fv = self.model.dof_damping[self.dof_adr]
         fs = self.model.dof_frictionloss[self.dof_adr]
         return fv * qd + fs * np.sign(qd)

@@ -1,18 +1,17 @@
 """The ``cir-gym`` command line: a thin layer over the library (parse, call, print).
 
-    cir-gym list
-    cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...]
-                     [--plot out.png] [--video out.gif]
-    cir-gym leaderboard [--episodes N] [--out results/]
-    cir-gym train ...      (see ``agents.train``)
-    cir-gym identify ...   (see ``scripts.identify``)
+cir-gym list
+cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...]
+                 [--plot out.png] [--video out.gif]
+cir-gym leaderboard [--episodes N] [--out results/]
+cir-gym train ...      (see ``agents.train``)
+cir-gym identify ...   (see ``scripts.identify``)
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
-
 import sys
 from pathlib import Path
 from typing import Any
@@ -60,8 +59,9 @@ def policy_names(env_id: str) -> list[str]:
     return names
 
 
-def split_settings(env_id: str, policy: str, settings: list[str]
-                   ) -> tuple[dict[str, Any], dict[str, Any]]:
+def split_settings(
+    env_id: str, policy: str, settings: list[str]
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """``--set key=value`` → (environment kwargs, controller gains); unknown keys are errors."""
     env_cls = cir_gym.ENVIRONMENTS[env_id][0]
     env_keys = constructor_arguments(env_cls)
@@ -81,13 +81,14 @@ def split_settings(env_id: str, policy: str, settings: list[str]
         elif key in gain_keys:
             gains[key] = _parse_value(value)
         else:
-            raise CliError(f"unknown --set key {key!r}; environment arguments: {env_keys}; "
-                           f"gains of {policy!r}: {gain_keys}")
+            raise CliError(
+                f"unknown --set key {key!r}; environment arguments: {env_keys}; "
+                f"gains of {policy!r}: {gain_keys}"
+            )
     return env_kwargs, gains
 
 
-def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]
-                ) -> Any:
+def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]) -> Any:
     valid = policy_names(env_id)
     if policy not in valid:
         raise CliError(f"unknown policy {policy!r} for {env_id}; valid: {valid}")
@@ -108,18 +109,29 @@ def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
     primary = results[0].primary_metric
     spec = results[0].spec(primary)
     reverse = spec.better == "higher"
-    ranked = sorted(results, key=lambda r: (_nan_last(r.summary[primary]["mean"], reverse)))
+    ranked = sorted(results, key=lambda r: _nan_last(r.summary[primary]["mean"], reverse))
     other = [s for s in results[0].specs if s.name != primary]
     unit = f" ({spec.unit})" if spec.unit else ""
-    head = (["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
-            + [f"{s.name}" for s in other] + ["return", "diverged"])
+    head = (
+        ["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
+        + [f"{s.name}" for s in other]
+        + ["return", "diverged"]
+    )
     rows = []
     for i, r in enumerate(ranked, 1):
         s = r.summary[primary]
-        rows.append([str(i), r.policy_name, f"{s['mean']:.3g} ± {s['std']:.2g}",
-                     f"{s['worst']:.3g}", f"{s['cvar']:.3g}", f"{100 * r.success_rate:.0f}%"]
-                    + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
-                    + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"])
+        rows.append(
+            [
+                str(i),
+                r.policy_name,
+                f"{s['mean']:.3g} ± {s['std']:.2g}",
+                f"{s['worst']:.3g}",
+                f"{s['cvar']:.3g}",
+                f"{100 * r.success_rate:.0f}%",
+            ]
+            + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
+            + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"]
+        )
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(row) + " |" for row in rows]
@@ -147,8 +159,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     env_kwargs, gains = split_settings(env_id, args.policy, args.set or [])
     policy = make_policy(env_id, args.policy, env_kwargs, gains)
     try:
-        result = evaluate(policy, env_id, args.episodes, args.seed, record=bool(args.plot),
-                          policy_name=args.policy, **env_kwargs)
+        result = evaluate(
+            policy,
+            env_id,
+            args.episodes,
+            args.seed,
+            record=bool(args.plot),
+            policy_name=args.policy,
+            **env_kwargs,
+        )
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     print(format_table([result], markdown=False))
@@ -161,8 +180,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def record_video(policy: Any, env_id: str, path: str, seed: int, env_kwargs: dict[str, Any],
-                 size: int = 320) -> Path:
+def record_video(
+    policy: Any, env_id: str, path: str, seed: int, env_kwargs: dict[str, Any], size: int = 320
+) -> Path:
     """One episode rendered with ``rgb_array`` frames at ≤ 25 fps."""
     from cir_gym.plotting import save_video
 
@@ -186,8 +206,12 @@ def record_video(policy: Any, env_id: str, path: str, seed: int, env_kwargs: dic
 def cmd_leaderboard(args: argparse.Namespace) -> int:
     from scripts.leaderboard import run_leaderboard
 
-    run_leaderboard(Path(args.out), episodes=args.episodes, seed=args.seed,
-                    envs=[_check_env_id(e) for e in args.env] if args.env else None)
+    run_leaderboard(
+        Path(args.out),
+        episodes=args.episodes,
+        seed=args.seed,
+        envs=[_check_env_id(e) for e in args.env] if args.env else None,
+    )
     return 0
 
 
@@ -195,21 +219,36 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         from agents.train import train
     except ImportError as exc:
-        raise CliError(f"training needs the train extra: pip install 'cir-gym[train]' ({exc})"
-                       ) from exc
+        raise CliError(
+            f"training needs the train extra: pip install 'cir-gym[train]' ({exc})"
+        ) from exc
     env_id = _check_env_id(args.env)
     env_kwargs, _ = split_settings(env_id, args.residual or "", args.set or [])
-    train(env_id, args.algo, timesteps=args.timesteps, seed=args.seed, residual=args.residual,
-          resume=args.resume, out=args.out, name=args.name, env_kwargs=env_kwargs,
-          n_envs=args.n_envs)
+    train(
+        env_id,
+        args.algo,
+        timesteps=args.timesteps,
+        seed=args.seed,
+        residual=args.residual,
+        resume=args.resume,
+        out=args.out,
+        name=args.name,
+        env_kwargs=env_kwargs,
+        n_envs=args.n_envs,
+    )
     return 0
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     from scripts.identify import run_identify
 
-    run_identify(payload_mass=args.payload_mass, duration=args.duration, noise=args.noise,
-                 seed=args.seed, episodes=args.episodes)
+    run_identify(
+        payload_mass=args.payload_mass,
+        duration=args.duration,
+        noise=args.noise,
+        seed=args.seed,
+        episodes=args.episodes,
+    )
     return 0
 
 
@@ -223,8 +262,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--policy", required=True)
     e.add_argument("--episodes", type=int, default=5)
     e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="environment argument or controller gain (repeatable)")
+    e.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="environment argument or controller gain (repeatable)",
+    )
     e.add_argument("--plot", metavar="OUT.png")
     e.add_argument("--video", metavar="OUT.gif|OUT.mp4")
     e.set_defaults(func=cmd_evaluate)

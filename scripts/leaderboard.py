@@ -20,19 +20,24 @@ import cir_gym
 from cir_gym.evaluation import EvaluationResult, evaluate
 
 
-def jobs_for(env_id: str, overrides: dict[str, Any] | None = None
-             ) -> list[tuple[str, str, dict[str, Any], str]]:
+def jobs_for(
+    env_id: str, overrides: dict[str, Any] | None = None
+) -> list[tuple[str, str, dict[str, Any], str]]:
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate."""
     from scripts.cli import policy_names
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
-    return [(env_id, v, {**kw, **(overrides or {})}, p)
-            for v, kw in variants.items() for p in policy_names(env_id)]
+    return [
+        (env_id, v, {**kw, **(overrides or {})}, p)
+        for v, kw in variants.items()
+        for p in policy_names(env_id)
+    ]
 
 
-def run_job(job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
-            ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
+def run_job(
+    job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
+) -> tuple[tuple[str, str, str], EvaluationResult, float]:
     from scripts.cli import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
@@ -51,9 +56,14 @@ def _progress(total: int) -> Any:
         return None
 
 
-def run_leaderboard(out: Path, episodes: int = 10, seed: int = 1000,
-                    envs: list[str] | None = None, workers: int | None = None,
-                    env_overrides: dict[str, Any] | None = None) -> Path:
+def run_leaderboard(
+    out: Path,
+    episodes: int = 10,
+    seed: int = 1000,
+    envs: list[str] | None = None,
+    workers: int | None = None,
+    env_overrides: dict[str, Any] | None = None,
+) -> Path:
     """Evaluate everything, write ``out/leaderboard.md`` and the figures; return the md path.
 
     ``env_overrides`` are added to every environment's kwargs (e.g. a short
@@ -101,8 +111,11 @@ def run_leaderboard(out: Path, episodes: int = 10, seed: int = 1000,
             lines += [f"![{env_id} {variant}]({fig.name})", ""]
     md = out / "leaderboard.md"
     md.write_text("\n".join(lines))
-    print(f"wrote {md} in {time.perf_counter() - t0:.0f} s "
-          f"(slowest run {max(seconds.values()):.0f} s)", file=sys.stderr)
+    print(
+        f"wrote {md} in {time.perf_counter() - t0:.0f} s "
+        f"(slowest run {max(seconds.values()):.0f} s)",
+        file=sys.stderr,
+    )
     print(md.read_text())
     return md
 

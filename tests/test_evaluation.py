@@ -59,28 +59,47 @@ def test_aggregates_cvar_and_worst():
 
 
 def test_leaderboard_is_deterministic(tmp_path):
-    md1 = run_leaderboard(tmp_path / "a", episodes=1, seed=5, envs=[ENV], workers=2,
-                          env_overrides=SHORT).read_text()
-    md2 = run_leaderboard(tmp_path / "b", episodes=1, seed=5, envs=[ENV], workers=2,
-                          env_overrides=SHORT).read_text()
+    md1 = run_leaderboard(
+        tmp_path / "a", episodes=1, seed=5, envs=[ENV], workers=2, env_overrides=SHORT
+    ).read_text()
+    md2 = run_leaderboard(
+        tmp_path / "b", episodes=1, seed=5, envs=[ENV], workers=2, env_overrides=SHORT
+    ).read_text()
     assert md1 == md2
     assert "computed_torque" in md1 and (tmp_path / "a").glob("*.png")
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v0"),
-    (["evaluate", "--env", ENV, "--policy", "lqr"], "computed_torque"),
-    (["evaluate", "--env", ENV, "--policy", "pid", "--set", "foo=1"], "payload_mass"),
-    (["evaluate", "--env", ENV, "--policy", "pid", "--set", "omega=-1"], "omega"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v0"),
+        (["evaluate", "--env", ENV, "--policy", "lqr"], "computed_torque"),
+        (["evaluate", "--env", ENV, "--policy", "pid", "--set", "foo=1"], "payload_mass"),
+        (["evaluate", "--env", ENV, "--policy", "pid", "--set", "omega=-1"], "omega"),
+    ],
+)
 def test_cli_bad_input_exits_non_zero_listing_what_is_valid(argv, needle, capsys):
     assert main(argv) != 0
     assert needle in capsys.readouterr().err
 
 
 def test_cli_evaluate_prints_a_table(capsys):
-    assert main(["evaluate", "--env", ENV, "--policy", "computed_torque", "--episodes", "1",
-                 "--set", "episode_duration=0.2"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--env",
+                ENV,
+                "--policy",
+                "computed_torque",
+                "--episodes",
+                "1",
+                "--set",
+                "episode_duration=0.2",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "computed_torque" in out and "rms_error" in out
 

@@ -98,8 +98,9 @@ def test_lyapunov_solution_solves_the_equation():
         lyapunov_solution(-H, P)
 
 
-@pytest.mark.parametrize("name", ["pid", "p_pi_cascade", "p_pi_feedforward",
-                                  "decentralized_feedforward"])
+@pytest.mark.parametrize(
+    "name", ["pid", "p_pi_cascade", "p_pi_feedforward", "decentralized_feedforward"]
+)
 def test_decentralized_controllers_track_with_zero_static_error(name):
     """Integral action rejects the constant gravity disturbance d (chapter 4)."""
     kwargs = {"reference": "regulation", "episode_duration": 6.0}
@@ -164,7 +165,7 @@ def test_diverging_physics_ends_the_episode_with_a_flag(torque):
     env.reset(seed=0)
     base.torque_limit[:] = torque  # a broken actuator model: absurd torques
     base.model.actuator_ctrlrange[:] = [-torque, torque]
-    obs, reward, terminated, truncated, info = env.step(np.ones(7))
+    obs, reward, terminated, _, info = env.step(np.ones(7))
     assert terminated and info["diverged"]
     assert all(np.all(np.isfinite(v)) for v in obs.values())
     assert np.isfinite(reward)

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from cir_gym.envs.base import RobotEnv, EntryPoint
+from cir_gym.envs.base import EntryPoint, RobotEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 
-__all__ = ["ENVIRONMENTS", "ElasticJointTrackingEnv", "JointTrackingEnv", "RobotEnv", "register_envs"]
+__all__ = [
+    "ENVIRONMENTS",
+    "ElasticJointTrackingEnv",
+    "JointTrackingEnv",
+    "RobotEnv",
+    "register_envs",
+]
 
 #: id → (class, one-line description)
 ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
@@ -27,5 +33,4 @@ def register_envs() -> None:
     """Register every id in ``ENVIRONMENTS`` with Gymnasium (idempotent)."""
     for env_id, (cls, _) in ENVIRONMENTS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=EntryPoint(cls),
-                         disable_env_checker=False)
+            gym.register(id=env_id, entry_point=EntryPoint(cls), disable_env_checker=False)

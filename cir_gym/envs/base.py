@@ -47,8 +47,11 @@ def constructor_arguments(cls: type) -> list[str]:
         if "__init__" not in vars(klass):
             continue
         params = inspect.signature(vars(klass)["__init__"]).parameters.values()
-        names += [p.name for p in params if p.name != "self"
-                  and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        names += [
+            p.name
+            for p in params
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+        ]
         if not any(p.kind == p.VAR_KEYWORD for p in params):
             break
     return list(dict.fromkeys(names))
@@ -150,11 +153,14 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.model = model
         self.data = mujoco.MjData(model)
         timestep = model.opt.timestep
-        control_freq = check_number("control_freq", control_freq, 0.0, 1.0 / timestep, low_open=True)
+        control_freq = check_number(
+            "control_freq", control_freq, 0.0, 1.0 / timestep, low_open=True
+        )
         self.frame_skip = max(1, round(1.0 / (control_freq * timestep)))
         self.dt = self.frame_skip * timestep  # s, control period
-        episode_duration = check_number("episode_duration", episode_duration, 0.0, 3600.0,
-                                        low_open=True)
+        episode_duration = check_number(
+            "episode_duration", episode_duration, 0.0, 3600.0, low_open=True
+        )
         self.max_steps = max(1, round(episode_duration / self.dt))
         self.render_mode = render_mode
         self.width = int(check_number("width", width, 16, 4096))
@@ -179,8 +185,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise ValueError(
-                f"action must be an array of shape {shape} with values in [-1, 1], "
-                f"got {action!r}"
+                f"action must be an array of shape {shape} with values in [-1, 1], got {action!r}"
             ) from exc
         if a.shape != shape:
             if a.size == int(np.prod(shape)) and a.ndim <= 1:
@@ -228,8 +233,12 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             mujoco.mj_forward(self.model, d)
         return diverged
 
-    _UNSTABLE = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
-                 mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADCTRL)
+    _UNSTABLE = (
+        mujoco.mjtWarning.mjWARN_BADQACC,
+        mujoco.mjtWarning.mjWARN_BADQPOS,
+        mujoco.mjtWarning.mjWARN_BADQVEL,
+        mujoco.mjtWarning.mjWARN_BADCTRL,
+    )
 
     def _instability_warnings(self) -> int:
         return sum(self.data.warning[w].number for w in self._UNSTABLE)
@@ -266,8 +275,11 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             renderer = mujoco.Renderer(self.model, self.height, self.width)
         except Exception as exc:  # any GL failure: name the packages that fix it
             raise RuntimeError(f"{GL_HELP} ({type(exc).__name__}: {exc})") from exc
-        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
-                     mujoco.mjtRndFlag.mjRND_SKYBOX):
+        for flag in (
+            mujoco.mjtRndFlag.mjRND_SHADOW,
+            mujoco.mjtRndFlag.mjRND_REFLECTION,
+            mujoco.mjtRndFlag.mjRND_SKYBOX,
+        ):
             renderer.scene.flags[flag] = False
         return renderer
 

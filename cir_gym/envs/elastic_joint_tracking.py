@@ -34,14 +34,23 @@ def elastic_model(robot: str, stiffness: np.ndarray, timestep: float = 5e-4) -> 
         link = spec.body(f"link{i}")
         joint = spec.joint(f"joint{i}")
         rotor = link.parent.add_body(
-            name=f"rotor{i}", pos=link.pos, quat=link.quat, mass=1e-6, inertia=[1e-9] * 3,
+            name=f"rotor{i}",
+            pos=link.pos,
+            quat=link.quat,
+            mass=1e-6,
+            inertia=[1e-9] * 3,
             explicitinertial=True,
         )
-        rotor.add_joint(name=f"motor{i}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1],
-                        armature=joint.armature)
+        rotor.add_joint(
+            name=f"motor{i}",
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=[0, 0, 1],
+            armature=joint.armature,
+        )
         joint.armature = 0.0
-        spring = spec.add_tendon(name=f"spring{i}", stiffness=float(stiffness[i - 1]),
-                                 springlength=[0.0, 0.0])
+        spring = spec.add_tendon(
+            name=f"spring{i}", stiffness=float(stiffness[i - 1]), springlength=[0.0, 0.0]
+        )
         spring.wrap_joint(f"motor{i}", 1.0)
         spring.wrap_joint(f"joint{i}", -1.0)
         spec.actuator(f"motor{i}").target = f"motor{i}"
@@ -99,13 +108,15 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
 
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {"nominal stiffness": {}}
 
-    def __init__(self, *args: Any, stiffness: float | list[float] | None = None,
-                 **kwargs: Any) -> None:
+    def __init__(
+        self, *args: Any, stiffness: float | list[float] | None = None, **kwargs: Any
+    ) -> None:
         k = np.asarray(DEFAULT_STIFFNESS if stiffness is None else stiffness, dtype=float)
         k = np.broadcast_to(k, (7,)).copy() if k.ndim == 0 else k
         if k.shape != (7,) or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise InvalidArgument(f"stiffness must be a positive scalar or 7 values, got "
-                                  f"{stiffness!r}")
+            raise InvalidArgument(
+                f"stiffness must be a positive scalar or 7 values, got {stiffness!r}"
+            )
         self.stiffness = k
         super().__init__(*args, **kwargs)
         m = self.model
@@ -114,14 +125,17 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         bound = {"q_motor": 2 * np.pi, "qd_motor": 50.0}
         self._obs_bounds.update(bound)
         self.observation_space = spaces.Dict(
-            {**self.observation_space.spaces,
-             **{k_: spaces.Box(-b, b, (7,), dtype=np.float64) for k_, b in bound.items()}}
+            {
+                **self.observation_space.spaces,
+                **{k_: spaces.Box(-b, b, (7,), dtype=np.float64) for k_, b in bound.items()},
+            }
         )
 
     # hooks of JointTrackingEnv
     def _build_robot(self) -> Robot:
-        robot = Robot(elastic_model(self.robot_name, self.stiffness),
-                      [f"joint{i}" for i in range(1, 8)])
+        robot = Robot(
+            elastic_model(self.robot_name, self.stiffness), [f"joint{i}" for i in range(1, 8)]
+        )
         ref = Robot.from_name(self.robot_name)
         robot.torque_limit = ref.torque_limit.copy()  # actuators sit on the motor joints
         robot.velocity_limit = ref.velocity_limit.copy()
@@ -161,7 +175,12 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     def controller_context(self) -> TaskContext:
         ctx = super().controller_context()
         return TaskContext(
-            robot=ctx.robot, dt=ctx.dt, action_kind="motor_torque",
-            action_scale=ctx.action_scale, armature=ctx.armature, gear_ratio=ctx.gear_ratio,
-            rotor_inertia=ctx.rotor_inertia, extras={"stiffness": self.stiffness.copy()},
+            robot=ctx.robot,
+            dt=ctx.dt,
+            action_kind="motor_torque",
+            action_scale=ctx.action_scale,
+            armature=ctx.armature,
+            gear_ratio=ctx.gear_ratio,
+            rotor_inertia=ctx.rotor_inertia,
+            extras={"stiffness": self.stiffness.copy()},
         )

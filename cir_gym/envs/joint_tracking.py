@@ -169,8 +169,9 @@ class JointTrackingEnv(RobotEnv):
         self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
         self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
         self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
-        self.success_threshold = check_number("success_threshold", success_threshold, 0.0, 10.0,
-                                              low_open=True)
+        self.success_threshold = check_number(
+            "success_threshold", success_threshold, 0.0, 10.0, low_open=True
+        )
 
         self.robot = self._build_robot()  # the simulator's (true) robot
         n = self.robot.n
@@ -229,14 +230,21 @@ class JointTrackingEnv(RobotEnv):
         self._reset_physics(q0, qd0)
 
     @staticmethod
-    def _per_joint(name: str, value: Any, default: np.ndarray, n: int, low_open: bool = True
-                   ) -> np.ndarray:
+    def _per_joint(
+        name: str, value: Any, default: np.ndarray, n: int, low_open: bool = True
+    ) -> np.ndarray:
         if value is None:
             return default.copy()
-        arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy() if np.ndim(value) == 0 \
+        arr = (
+            np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
+            if np.ndim(value) == 0
             else np.asarray(value, dtype=float)
-        if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or (
-            low_open and np.any(arr <= 0)
+        )
+        if (
+            arr.shape != (n,)
+            or not np.all(np.isfinite(arr))
+            or np.any(arr < 0)
+            or (low_open and np.any(arr <= 0))
         ):
             raise InvalidArgument(f"{name} must be a positive scalar or {n} values, got {value!r}")
         return arr
@@ -252,7 +260,12 @@ class JointTrackingEnv(RobotEnv):
         home = self._home()
         if self.reference == "random":
             ref = traj.random_joint_trajectory(
-                rng, lo, hi, duration=T, n_points=5, v_max=0.5 * self.robot.velocity_limit,
+                rng,
+                lo,
+                hi,
+                duration=T,
+                n_points=5,
+                v_max=0.5 * self.robot.velocity_limit,
                 start=home + rng.uniform(-0.2, 0.2, self.n),
             )
         elif self.reference == "quintic":
@@ -274,8 +287,7 @@ class JointTrackingEnv(RobotEnv):
         return p[0].copy(), v[0].copy()
 
     # ------------------------------------------------------------------ gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None
-              ) -> tuple[dict, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
         rng = self.np_random
         if self.randomize:
@@ -360,9 +372,16 @@ class JointTrackingEnv(RobotEnv):
             qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
         else:
             qd = self.data.qvel[self._da]
-        raw = {"q": q, "qd": qd, "q_ref": self._ref[0, k], "qd_ref": self._ref[1, k],
-               "qdd_ref": self._ref[2, k]}
-        return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key]) for key, v in raw.items()}
+        raw = {
+            "q": q,
+            "qd": qd,
+            "q_ref": self._ref[0, k],
+            "qd_ref": self._ref[1, k],
+            "qdd_ref": self._ref[2, k],
+        }
+        return {
+            key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key]) for key, v in raw.items()
+        }
 
     def controller_context(self) -> TaskContext:
         return TaskContext(
@@ -376,8 +395,14 @@ class JointTrackingEnv(RobotEnv):
         )
 
 
-_INERTIAL_FIELDS = ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_damping",
-                    "dof_frictionloss")
+_INERTIAL_FIELDS = (
+    "body_mass",
+    "body_inertia",
+    "body_ipos",
+    "body_iquat",
+    "dof_damping",
+    "dof_frictionloss",
+)
 
 
 def _inertial_arrays(model: Any) -> dict[str, np.ndarray]:
