@@ -35,14 +35,36 @@ def _positive(name: str, value: float) -> None:
 
 
 class _ModelBased(Controller):
-    """A controller with a nominal robot model (the env's, or one handed in, e.g. identified)."""
+    """A controller with a nominal robot model (the env's, or one handed in, e.g. identified).
+
+    ``robot=`` replaces the nominal :class:`Robot`; ``parameters=`` (11 n,) replaces its
+    inertial parameters π (e.g. ``IdentificationResult.to_full_parameters()``), evaluated with
+    the numpy dynamics of :mod:`cir_gym.dynamics`.
+    """
 
     def __init__(
-        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+        self,
+        context: TaskContext,
+        gains=None,
+        *,
+        robot: Robot | None = None,
+        parameters: np.ndarray | None = None,
+        **overrides,
     ) -> None:
         super().__init__(context, gains, **overrides)
         self.robot = robot if robot is not None else context.nominal_robot()
         self.n = self.robot.n
+        self.parameters = None if parameters is None else np.asarray(parameters, dtype=float)
+        if self.parameters is not None:
+            expected = dynamics.inertial_parameters(self.robot.model).shape
+            if self.parameters.shape != expected or not np.all(np.isfinite(self.parameters)):
+                raise InvalidGain(f"parameters must be {expected[0]} finite values")
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ = B̂(q) q̈ + n̂(q, q̇) of the controller's model."""
+        if self.parameters is not None:
+            return dynamics.rnea(self.robot.model, q, qd, qdd, parameters=self.parameters)
+        return self.robot.inertia(q) @ qdd + self.robot.bias(q, qd)
 
 
 # ---------------------------------------------------------------------- PD + gravity
@@ -130,7 +152,7 @@ class ComputedTorque(_ModelBased):
             + self.gains.kd * (obs["qd_ref"] - qd)
             + self.gains.kp * (obs["q_ref"] - q)
         )
-        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+        return self.inverse_dynamics(q, qd, y)
 
 
 # ---------------------------------------------------------------------- robust
@@ -257,7 +279,7 @@ class RobustControl(_ModelBased):
         z = self.DtQ @ np.concatenate((e, ed))
         w = self.rho * z / max(float(np.linalg.norm(z)), self.epsilon)
         y = obs["qdd_ref"] + (2 * g.zeta * g.omega_n) * ed + g.omega_n**2 * e + w
-        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+        return self.inverse_dynamics(q, qd, y)
 
 
 # ---------------------------------------------------------------------- adaptive
@@ -304,7 +326,8 @@ class AdaptiveControl(_ModelBased):
     ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         self.model = self.robot.model
-        self.pi0 = dynamics.inertial_parameters(self.model)
+        self.pi0 = (dynamics.inertial_parameters(self.model) if self.parameters is None
+                    else self.parameters.copy())
         home = self.model.key("home").qpos if self.model.nkey else np.zeros(self.n)
         self.kd = self.gains.kd * np.diag(self.robot.inertia(home))
         scale = self.parameter_scale()

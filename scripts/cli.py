@@ -294,8 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("identify", help="least-squares identification, then computed torque")
     i.add_argument("--payload-mass", type=float, default=3.0)
-    i.add_argument("--duration", type=float, default=20.0)
-    i.add_argument("--noise", type=float, default=0.5, help="torque noise std (N m)")
+    i.add_argument("--duration", type=float, default=60.0, help="excitation length (s)")
+    i.add_argument("--noise", type=float, default=0.2, help="torque noise std (N m)")
     i.add_argument("--episodes", type=int, default=5)
     i.add_argument("--seed", type=int, default=0)
     i.set_defaults(func=cmd_identify)
