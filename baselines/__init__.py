@@ -20,6 +20,7 @@ from baselines.decentralized import (
     PCascade,
     PPIFeedforward,
 )
+from baselines.kinematic import KINEMATIC_CONTROLLERS
 
 __all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
 
@@ -34,6 +35,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         ComputedTorque,
         RobustControl,
         AdaptiveControl,
+        *KINEMATIC_CONTROLLERS,
     )
 }
 

@@ -7,11 +7,14 @@ import gymnasium as gym
 from cir_gym.envs.base import EntryPoint, RobotEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.envs.redundant_ik import REDUNDANT_IK_ENVIRONMENTS, RedundantIK7Env, RedundantIKEnv
 
 __all__ = [
     "ENVIRONMENTS",
     "ElasticJointTrackingEnv",
     "JointTrackingEnv",
+    "RedundantIK7Env",
+    "RedundantIKEnv",
     "RobotEnv",
     "register_envs",
 ]
@@ -26,6 +29,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         ElasticJointTrackingEnv,
         "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),
+    **REDUNDANT_IK_ENVIRONMENTS,
 }
 
 

@@ -1,0 +1,464 @@
+"""Chapter 1: differential inverse kinematics and redundancy resolution as policies.
+
+Every law returns joint velocities q̇ (n,) in rad/s for the tasks ``RedundantIK`` (planar3r,
+position of ``ee``, m = 2) and ``RedundantIK7`` (iiwa14, pose of ``tcp``, m = 6). The base
+class divides by the velocity limits and clips to [-1, 1], so commands beyond the limits are
+saturated by the environment's action scaling.
+
+Notation: x̄, x̄̇ the reference (``x_ref``, ``xd_ref``; for 6-D also ``quat_ref``,
+``omega_ref``), e = [x̄ − x; e_O] the task error with e_O the rotation vector of R̄ Rᵀ
+(:func:`cir_gym.envs.redundant_ik.quat_orientation_error`), J (m, n) the geometric task Jacobian
+of the controller's own nominal robot at the measured q (rows [J_P; J_O], the first two rows
+of J_P on the plane). CLIK: q̇ = J†(x̄̇ + K e) gives ė + K e = 0, e(t) = e(0) exp(−K t);
+with the control period Δt the discrete loop is e_{k+1} = (1 − K Δt) e_k (stable for
+K Δt < 2; the default K = 50 1/s at 100 Hz gives K Δt = 0.5).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from baselines.base import Controller, InvalidGain, Observation
+from cir_gym.envs.base import TaskContext
+from cir_gym.envs.redundant_ik import (
+    OBJECTIVES,
+    LinkCapsules,
+    joint_limit_objective_gradient,
+    manipulability,
+    quat_orientation_error,
+)
+from cir_gym.robot import Robot
+
+__all__ = [
+    "CLIK",
+    "KINEMATIC_CONTROLLERS",
+    "AugmentedJacobianCLIK",
+    "DampedLeastSquaresCLIK",
+    "JacobianTranspose",
+    "NullSpaceCLIK",
+    "PseudoInverse",
+    "SingularJacobian",
+    "WeightedCLIK",
+    "damped_pseudo_inverse",
+    "null_space_projector",
+    "pseudo_inverse",
+    "weighted_pseudo_inverse",
+]
+
+KINEMATIC_TASKS = ("RedundantIK", "RedundantIK7")
+SINGULAR_TOLERANCE = 1e-9  # σ_min(J) below which J† does not exist (SingularJacobian)
+
+
+class SingularJacobian(FloatingPointError):
+    """J J ᵀ is singular (σ_min(J) < ``SINGULAR_TOLERANCE``): the pseudo-inverse does not exist."""
+
+
+def _positive(name: str, value: float) -> None:
+    if isinstance(value, bool) or not np.isfinite(value) or value <= 0:
+        raise InvalidGain(f"{name} must be a finite number > 0, got {value!r}")
+
+
+# ---------------------------------------------------------------------- linear algebra
+def pseudo_inverse(J: np.ndarray) -> np.ndarray:
+    """Right pseudo-inverse J† = Jᵀ(J Jᵀ)⁻¹ (n, m) of a full-row-rank J (m, n).
+
+    Raises:
+        SingularJacobian: σ_min(J) < ``SINGULAR_TOLERANCE`` (J Jᵀ not invertible).
+    """
+    sigma = np.linalg.svd(J, compute_uv=False)
+    if sigma[-1] < SINGULAR_TOLERANCE:
+        raise SingularJacobian(
+            f"the Jacobian is singular (smallest singular value {sigma[-1]:.2e}); "
+            f"use clik_dls near singular configurations"
+        )
+    return np.linalg.solve(J @ J.T, J).T
+
+
+def weighted_pseudo_inverse(J: np.ndarray, w_inv: np.ndarray) -> np.ndarray:
+    """J_W† = W⁻¹Jᵀ(J W⁻¹ Jᵀ)⁻¹ (n, m) for a diagonal weight, ``w_inv`` = diag(W⁻¹) (n,)."""
+    sigma = np.linalg.svd(J * np.sqrt(w_inv), compute_uv=False)
+    if sigma[-1] < SINGULAR_TOLERANCE:
+        raise SingularJacobian(f"J W^-1/2 is singular (smallest singular value {sigma[-1]:.2e})")
+    JW = J * w_inv  # J W⁻¹ (m, n)
+    return np.linalg.solve(JW @ J.T, JW).T
+
+
+def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:
+    """Damped least squares J* = Jᵀ(J Jᵀ + k² I)⁻¹ (n, m), k = ``damping`` ≥ 0.
+
+    ‖J* v‖ ≤ ‖v‖ / (2k) for k > 0: bounded at any configuration.
+    """
+    m = J.shape[0]
+    return np.linalg.solve(J @ J.T + damping**2 * np.eye(m), J).T
+
+
+def variable_damping(sigma_min: float, damping: float, region: float) -> float:
+    """k(σ) = k_max sqrt(1 − (σ/ε)²) inside the singular region σ < ε, else 0.
+
+    (Maciejewski & Klein's damping: exact least squares away from singularities, the full
+    damping k_max at σ = 0, continuous in between.)
+    """
+    if sigma_min >= region:
+        return 0.0
+    return damping * float(np.sqrt(1.0 - (sigma_min / region) ** 2))
+
+
+def null_space_projector(J: np.ndarray, J_pinv: np.ndarray) -> np.ndarray:
+    """I − J† J (n, n): J (I − J†J) q̇₀ = 0 for every q̇₀ (internal motion)."""
+    return np.eye(J.shape[1]) - J_pinv @ J
+
+
+# ---------------------------------------------------------------------- base
+class _KinematicController(Controller):
+    """Shared task plumbing: task Jacobian, task error and reference velocity from ``obs``.
+
+    Args:
+        context: the environment's :class:`TaskContext` (site, task dimension, objective).
+        robot: a nominal :class:`Robot` to use instead of ``context.nominal_robot()``.
+    """
+
+    tasks = KINEMATIC_TASKS
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, **overrides)
+        if context.action_kind != "joint_velocity":
+            raise ValueError(f"{self.name} commands joint velocities; the task's action is "
+                             f"{context.action_kind!r}")
+        self.robot = robot if robot is not None else context.nominal_robot()
+        self.n = self.robot.n
+        self.site_id = self.robot.site_id(context.site or "ee")
+        self.task_dim = int(context.extras.get("task_dim", 2))
+        self.pos_dim = 2 if self.task_dim == 2 else 3
+        self.objective = str(context.extras.get("objective", "manipulability"))
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        """SB3's protocol; a NaN/inf in any observation entry raises ValueError (broken sensor)."""
+        for key, value in observation.items():
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{self.name}: observation {key!r} is not finite: {value}")
+        return super().predict(observation, state, episode_start, deterministic)
+
+    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """Geometric task Jacobian (m, n): [J_P; J_O] (6-D) or the first two rows of J_P."""
+        J = self.robot.jacobian(self.site_id, q)
+        return J[:2] if self.task_dim == 2 else J
+
+    def task_error(self, obs: Observation) -> np.ndarray:
+        """e (m,) = [x̄ − x; θr of R̄ Rᵀ] (m, rad)."""
+        e = obs["x_ref"] - obs["x"]
+        if self.task_dim == 6:
+            e = np.concatenate((e, quat_orientation_error(obs["quat_ref"], obs["quat"])))
+        return e
+
+    def reference_velocity(self, obs: Observation) -> np.ndarray:
+        """x̄̇ (m,) = [ṗ̄; ω̄] (m/s, rad/s)."""
+        if self.task_dim == 6:
+            return np.concatenate((obs["xd_ref"], obs["omega_ref"]))
+        return obs["xd_ref"]
+
+
+# ---------------------------------------------------------------------- Jacobian transpose
+@dataclass(frozen=True)
+class JacobianTransposeGains:
+    """K: gain of q̇ = Jᵀ K e (rad s⁻¹ m⁻² on positions; the same number on orientation rows).
+
+    Discrete stability needs K Δt λ_max(J Jᵀ) < 2; λ_max ≲ 2 m² for the planar arm at its
+    reach, so K = 60 at Δt = 10 ms keeps K Δt λ_max ≤ 1.2.
+    """
+
+    K: float = 60.0
+
+    def __post_init__(self) -> None:
+        _positive("K", self.K)
+
+
+class JacobianTranspose(_KinematicController):
+    """Jacobian transpose: q̇ = Jᵀ K e (no inversion, no feed-forward; V = ½ eᵀKe decreases
+    for a constant reference, and a moving one leaves an error of order ‖x̄̇‖ / (K σ²))."""
+
+    name = "jacobian_transpose"
+    Gains = JacobianTransposeGains
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        J = self.task_jacobian(obs["q"])
+        return J.T @ (self.gains.K * self.task_error(obs))
+
+
+# ---------------------------------------------------------------------- pseudo-inverse
+@dataclass(frozen=True)
+class PseudoInverseGains:
+    """No gain: open-loop q̇ = J† x̄̇ (the error drifts, nothing corrects it)."""
+
+
+class PseudoInverse(_KinematicController):
+    """Open-loop differential inverse kinematics q̇ = J†(q) x̄̇.
+
+    Raises :class:`SingularJacobian` at a singular configuration (σ_min < 1e-9).
+    """
+
+    name = "pseudo_inverse"
+    Gains = PseudoInverseGains
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return pseudo_inverse(self.task_jacobian(obs["q"])) @ self.reference_velocity(obs)
+
+
+# ---------------------------------------------------------------------- CLIK
+@dataclass(frozen=True)
+class CLIKGains:
+    """K (1/s): error dynamics ė + K e = 0 (time constant 1/K). K Δt = 0.5 at 100 Hz."""
+
+    K: float = 50.0
+
+    def __post_init__(self) -> None:
+        _positive("K", self.K)
+
+
+class CLIK(_KinematicController):
+    """Closed-loop inverse kinematics q̇ = J†(x̄̇ + K e) (minimum-norm joint velocities).
+
+    Raises :class:`SingularJacobian` at a singular configuration (σ_min < 1e-9); near one,
+    J† grows like 1/σ_min and so do the joint speeds (see ``clik_dls``).
+    """
+
+    name = "clik"
+    Gains = CLIKGains
+
+    def task_velocity(self, obs: Observation) -> np.ndarray:
+        """v = x̄̇ + K e (m,)."""
+        return self.reference_velocity(obs) + self.gains.K * self.task_error(obs)
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return pseudo_inverse(self.task_jacobian(obs["q"])) @ self.task_velocity(obs)
+
+
+# ---------------------------------------------------------------------- damped least squares
+@dataclass(frozen=True)
+class DampedLeastSquaresGains:
+    """K (1/s) as CLIK; damping k_max (task units: m) applied when σ_min(J) < region (m).
+
+    k = k_max sqrt(1 − (σ_min/ε)²) inside σ_min < ε, 0 outside: exact CLIK away from
+    singularities, ‖q̇‖ ≤ ‖x̄̇ + K e‖ / (2 k_max) at a singularity.
+    """
+
+    K: float = 50.0
+    damping: float = 0.05
+    region: float = 0.1
+
+    def __post_init__(self) -> None:
+        _positive("K", self.K)
+        _positive("damping", self.damping)
+        _positive("region", self.region)
+
+
+class DampedLeastSquaresCLIK(CLIK):
+    """CLIK with damped least squares: q̇ = J*(x̄̇ + K e), J* = Jᵀ(J Jᵀ + k² I)⁻¹, k variable.
+
+    Attributes:
+        last_damping: k (m) of the last call; last_sigma_min: σ_min(J) of the last call.
+    """
+
+    name = "clik_dls"
+    Gains = DampedLeastSquaresGains
+
+    last_damping: float = 0.0
+    last_sigma_min: float = np.inf
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        J = self.task_jacobian(obs["q"])
+        sigma = float(np.linalg.svd(J, compute_uv=False)[-1])
+        k = variable_damping(sigma, self.gains.damping, self.gains.region)
+        self.last_sigma_min, self.last_damping = sigma, k
+        return damped_pseudo_inverse(J, k) @ self.task_velocity(obs)
+
+
+# ---------------------------------------------------------------------- weighted
+@dataclass(frozen=True)
+class WeightedCLIKGains:
+    """K (1/s) as CLIK. W = diag(1/(q_iM − q_im)²) from the observed joint ranges (no gain)."""
+
+    K: float = 50.0
+
+    def __post_init__(self) -> None:
+        _positive("K", self.K)
+
+
+class WeightedCLIK(CLIK):
+    """Weighted minimum norm CLIK: q̇ = J_W†(x̄̇ + K e), J_W† = W⁻¹Jᵀ(J W⁻¹ Jᵀ)⁻¹.
+
+    W = diag(1/(q_iM − q_im)²) minimises Σ (q̇_i / range_i)²: a joint with a narrow range
+    moves less (scale-free: only ratios of W matter).
+    """
+
+    name = "clik_weighted"
+    Gains = WeightedCLIKGains
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        w_inv = (obs["q_upper"] - obs["q_lower"]) ** 2  # diag(W⁻¹) (n,)
+        J = self.task_jacobian(obs["q"])
+        return weighted_pseudo_inverse(J, w_inv) @ self.task_velocity(obs)
+
+
+# ---------------------------------------------------------------------- null space
+@dataclass(frozen=True)
+class NullSpaceCLIKGains:
+    """K (1/s) as CLIK; k₀ of q̇₀ = k₀ ∇w for each objective (the env's ``objective``):
+
+    - k0_manipulability (rad² s⁻¹): w = sqrt(det J Jᵀ), ascended along ∇ ln w = ∇w / w (the
+      same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian);
+    - k0_joint_limits (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))²;
+    - k0_obstacle (rad² s⁻¹ m⁻²): w = −½ max(0, d_act − d)² with d the clearance (m), so q̇₀ =
+      k₀ (d_act − d)₊ ∇d pushes away only within ``activation_distance`` d_act (m).
+    ``fd_step`` (rad): central-difference step of the numerical gradients.
+    """
+
+    K: float = 50.0
+    k0_manipulability: float = 6.0
+    k0_joint_limits: float = 10.0
+    k0_obstacle: float = 30.0
+    activation_distance: float = 0.15
+    fd_step: float = 1e-6
+
+    def __post_init__(self) -> None:
+        for name in ("K", "k0_manipulability", "k0_joint_limits", "k0_obstacle",
+                     "activation_distance", "fd_step"):
+            _positive(name, getattr(self, name))
+
+
+class NullSpaceCLIK(CLIK):
+    """CLIK with a projected gradient: q̇ = J†(x̄̇ + K e) + (I − J†J) k₀ ∇w(q).
+
+    w is the environment's objective (``context.extras["objective"]``): manipulability,
+    distance from the joint limits (analytic gradient, ranges from the observation) or
+    obstacle clearance (analytic capsule distance of the nominal robot to ``obs["obstacle"]``).
+    Numerical gradients by central differences. The projection leaves the task untouched:
+    J (I − J†J) = 0.
+    """
+
+    name = "clik_nullspace"
+    Gains = NullSpaceCLIKGains
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        self.capsules = LinkCapsules(self.robot.model)
+        self._eye = np.eye(self.n)
+
+    # ------------------------------------------------------------------ objectives
+    def manipulability(self, q: np.ndarray) -> float:
+        return manipulability(self.task_jacobian(q))
+
+    def clearance(self, q: np.ndarray, obstacle: np.ndarray) -> float:
+        """Clearance (m) of the nominal robot's capsules to the observed obstacle."""
+        self.robot.site_pose(self.site_id, q)  # forward kinematics of the nominal robot
+        centre = np.zeros(3)
+        centre[: self.pos_dim] = obstacle[: self.pos_dim]
+        return self.capsules.clearance(self.robot.data, centre, float(obstacle[-1]))
+
+    def _central_difference(self, f, q: np.ndarray) -> np.ndarray:
+        h = self.gains.fd_step
+        grad = np.empty(self.n)
+        for i in range(self.n):
+            dq = h * self._eye[i]
+            grad[i] = (f(q + dq) - f(q - dq)) / (2 * h)
+        return grad
+
+    def objective_gradient(self, obs: Observation) -> np.ndarray:
+        """k₀ ∇w (n,), the preferred joint velocity q̇₀ (rad/s)."""
+        q, g = obs["q"], self.gains
+        if self.objective == "manipulability":
+            grad = self._central_difference(self.manipulability, q)
+            return g.k0_manipulability * grad / max(self.manipulability(q), 1e-9)
+        if self.objective == "joint_limits":
+            return g.k0_joint_limits * joint_limit_objective_gradient(
+                q, obs["q_lower"], obs["q_upper"])
+        obstacle = obs["obstacle"]
+        if obstacle[-1] <= 0:
+            return np.zeros(self.n)  # no obstacle this episode
+        d = self.clearance(q, obstacle)
+        push = g.activation_distance - d
+        if push <= 0:
+            return np.zeros(self.n)
+        grad = self._central_difference(lambda x: self.clearance(x, obstacle), q)
+        return g.k0_obstacle * push * grad
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        qd0 = self.objective_gradient(obs)
+        J = self.task_jacobian(obs["q"])
+        J_pinv = pseudo_inverse(J)
+        return J_pinv @ self.task_velocity(obs) + null_space_projector(J, J_pinv) @ qd0
+
+
+# ---------------------------------------------------------------------- augmented Jacobian
+@dataclass(frozen=True)
+class AugmentedJacobianGains:
+    """K (1/s) on the task and on the constraint y = cᵀq; near an algorithmic singularity
+    (σ_min(J_aug) < region) the inverse is damped with k_max = damping (as ``clik_dls``)."""
+
+    K: float = 50.0
+    damping: float = 0.05
+    region: float = 0.05
+
+    def __post_init__(self) -> None:
+        _positive("K", self.K)
+        _positive("damping", self.damping)
+        _positive("region", self.region)
+
+
+class AugmentedJacobianCLIK(CLIK):
+    """Augmented Jacobian: q̇ = J_aug⁻¹ [x̄̇ + K e; K (y₀ − cᵀq)], J_aug = [J; cᵀ] (n, n).
+
+    The constraint task y = cᵀq is held at its value y₀ at the start of the episode
+    (kept in ``state``): on the plane c = (1, 1, 1), the absolute angle of the last link
+    (the end effector's orientation, making the arm non-redundant); on the iiwa c = e₃, the
+    redundant joint 3 locked. J_aug is square, so its inverse adds *algorithmic*
+    singularities where J has full rank but cᵀ is a combination of J's rows (e.g. the
+    planar wrist point stretched). σ_min(J_aug) is reported in ``state[1]`` and
+    ``last_sigma_min``; below ``region`` the inverse is damped (never NaN, the task degrades)
+    and ``singular_steps`` counts such steps.
+    """
+
+    name = "clik_augmented"
+    Gains = AugmentedJacobianGains
+
+    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
+                 **overrides) -> None:
+        super().__init__(context, gains, robot=robot, **overrides)
+        self.c = np.ones(self.n) if self.task_dim == 2 else np.eye(self.n)[2]  # (n,)
+        self.last_sigma_min = np.inf
+        self.singular_steps = 0
+
+    @property
+    def state_size(self) -> int:
+        return 2  # y₀ (rad), σ_min(J_aug) of the last step
+
+    def initial_state(self, obs: Observation) -> np.ndarray:
+        return np.array([float(self.c @ obs["q"]), np.inf])
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        q = obs["q"]
+        J_aug = np.vstack((self.task_jacobian(q), self.c))
+        v_aug = np.append(self.task_velocity(obs), self.gains.K * (state[0] - self.c @ q))
+        sigma = float(np.linalg.svd(J_aug, compute_uv=False)[-1])
+        state[1] = self.last_sigma_min = sigma
+        if sigma < self.gains.region:
+            self.singular_steps += 1
+            k = variable_damping(sigma, self.gains.damping, self.gains.region)
+            return damped_pseudo_inverse(J_aug, k) @ v_aug
+        return np.linalg.solve(J_aug, v_aug)
+
+
+KINEMATIC_CONTROLLERS: tuple[type[Controller], ...] = (
+    JacobianTranspose,
+    PseudoInverse,
+    CLIK,
+    DampedLeastSquaresCLIK,
+    WeightedCLIK,
+    NullSpaceCLIK,
+    AugmentedJacobianCLIK,
+)

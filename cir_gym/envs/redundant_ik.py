@@ -1,0 +1,907 @@
+"""RedundantIK: closed-loop inverse kinematics and the use of redundancy (chapter 1).
+
+Two kinematic environments: the action is a joint-velocity command integrated exactly over the
+control period (q ← q + Δt q̇, then forward kinematics), with no dynamics. A redundant arm
+(n > m) tracks a closed task-space path; a secondary objective (manipulability, distance from
+joint limits, obstacle clearance) is scored and can be optimised in the null space of J.
+
+The module also holds the small kinematic measures shared by the environments and the
+controllers of :mod:`baselines.kinematic`: manipulability, joint-limit objective and margin,
+the SO(3) orientation error, and the analytic capsule–obstacle clearance.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from cir_gym import trajectories as traj
+from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.metrics import MetricSpec
+from cir_gym.robot import Robot, robot_path
+
+__all__ = [
+    "OBJECTIVES",
+    "REDUNDANT_IK_ENVIRONMENTS",
+    "SHAPES",
+    "LinkCapsules",
+    "RedundantIK7Env",
+    "RedundantIKEnv",
+    "joint_limit_margin",
+    "joint_limit_objective",
+    "manipulability",
+    "orientation_error",
+    "quat_orientation_error",
+]
+
+OBJECTIVES = ("manipulability", "joint_limits", "obstacle")
+SHAPES = ("circle", "ellipse", "figure_eight")
+DUMMY_OBSTACLE_CENTRE = 10.0  # m, every coordinate of the far-away dummy obstacle (radius 0)
+IK_TOLERANCE = 1e-12  # m (and rad): residual of the reset IK solve
+MANIPULABILITY_WINDOW = 0.1  # fraction of the lap excluded from min_manipulability (start-up)
+CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control period (no dynamics)
+
+
+# ---------------------------------------------------------------------- kinematic measures
+def manipulability(J: np.ndarray) -> float:
+    """Yoshikawa's manipulability w = sqrt(det(J Jᵀ)) of a task Jacobian J (m, n)."""
+    return float(np.sqrt(max(np.linalg.det(J @ J.T), 0.0)))
+
+
+def joint_limit_objective(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """w(q) = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))², q̄ the range midpoint; in [−1/8, 0]."""
+    u = (q - 0.5 * (lower + upper)) / (upper - lower)
+    return float(-0.5 * (u @ u) / q.size)
+
+
+def joint_limit_objective_gradient(q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+                                   ) -> np.ndarray:
+    """∂w/∂q (n,) of :func:`joint_limit_objective`: −(q_i − q̄_i) / (n (q_iM − q_im)²)."""
+    r = upper - lower
+    return -(q - 0.5 * (lower + upper)) / (q.size * r * r)
+
+
+def joint_limit_margin(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """min_i min(q_i − q_im, q_iM − q_i) (rad): distance to the nearest joint limit."""
+    return float(min(np.min(q - lower), np.min(upper - q)))
+
+
+def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Rotation vector θ r (3,) of R_ref Rᵀ (world frame), θ ∈ [0, π] (rad).
+
+    Computed through unit quaternions (:func:`quat_orientation_error`), so it is defined on
+    SO(3) (no Euler angles) and d(θ r)/dt ≈ ω_ref − ω for small errors.
+    """
+    quat_ref, quat = np.empty(4), np.empty(4)
+    mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    return quat_orientation_error(quat_ref, quat)
+
+
+def quat_orientation_error(quat_ref: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """Rotation vector θ r (3,) of Q_ref ⊗ Q⁻¹ (quaternions (w, x, y, z), world frame).
+
+    With Q_e = (η, ε) = Q_ref ⊗ Q⁻¹: θ r = 2 atan2(‖ε‖, η) ε/‖ε‖, wrapped to θ ∈ [0, π] (the
+    shorter rotation, so Q and −Q give the same error). MuJoCo's C helpers do the arithmetic.
+    """
+    conj, err, vec = np.empty(4), np.empty(4), np.empty(3)
+    mujoco.mju_negQuat(conj, quat)
+    mujoco.mju_mulQuat(err, quat_ref, conj)
+    mujoco.mju_quat2Vel(vec, err, 1.0)
+    return vec
+
+
+class LinkCapsules:
+    """The robot's moving capsule geoms as segments, for an analytic clearance.
+
+    Each capsule is the set of points within ``radius`` of a segment [a, b] along the geom's z
+    axis (half length ``size[1]``). The clearance to a spherical obstacle (centre c, radius
+    ρ; a cylinder along z for the planar arm, whose links lie in the plane of c) is
+    min_i (dist(c, [a_i, b_i]) − r_i) − ρ: negative when they intersect.
+
+    Args:
+        model: a model holding the robot (its capsules on bodies with joints).
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        capsule = int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+        moving = model.body_dofnum > 0
+        ids = [g for g in range(model.ngeom)
+               if int(model.geom_type[g]) == capsule and moving[model.geom_bodyid[g]]
+               and model.geom_contype[g] != 0]
+        self.geom_ids = np.array(ids, dtype=int)
+        self.radius = model.geom_size[self.geom_ids, 0].copy()  # (k,) m
+        self.half_length = model.geom_size[self.geom_ids, 1].copy()  # (k,) m
+
+    def segments(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """End points a, b (k, 3) in the world frame (after ``mj_kinematics``)."""
+        centre = data.geom_xpos[self.geom_ids]
+        axis = data.geom_xmat[self.geom_ids][:, 6:9]  # geom z axis (third column of R)
+        half = self.half_length[:, None] * axis
+        return centre - half, centre + half
+
+    def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:
+        """Minimum distance (m) between the obstacle sphere and the capsules (< 0: collision)."""
+        a, b = self.segments(data)
+        return float(np.min(_point_segment_distance(centre, a, b) - self.radius)) - radius
+
+
+def _all_numbers(action: Any) -> bool:
+    """True for a (nested) list of real numbers."""
+    flat = np.asarray(action, dtype=object).ravel()
+    return all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+               for v in flat)
+
+
+def _point_segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (k,) from the point c (3,) to the segments [a_i, b_i] (k, 3)."""
+    ab = b - a
+    t = np.einsum("ij,ij->i", c - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
+    closest = a + np.clip(t, 0.0, 1.0)[:, None] * ab
+    return np.linalg.norm(c - closest, axis=1)
+
+
+# ---------------------------------------------------------------------- environment base
+class _RedundantIKBase(RobotEnv):
+    """Shared kinematic plumbing of :class:`RedundantIKEnv` and :class:`RedundantIK7Env`.
+
+    Subclasses set ``robot_name``, ``site``, ``pos_dim`` (2 or 3), ``task_dim`` (2 or 6) and
+    implement ``_draw_path`` (the reference) and ``_obstacle_box`` (the drawn obstacle).
+    """
+
+    robot_name: ClassVar[str] = ""
+    site: ClassVar[str] = ""
+    pos_dim: ClassVar[int] = 2
+    task_dim: ClassVar[int] = 2
+    obstacle_type: ClassVar[int] = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+    manipulability_scale: ClassVar[float] = 0.1  # scale of the manipulability cost (task units)
+    obstacle_links: ClassVar[tuple[str, ...]] = ()  # bodies whose capsules the obstacle targets
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "manipulability": {"objective": "manipulability"},
+        "obstacle": {"objective": "obstacle"},
+        "joint limits": {"objective": "joint_limits"},
+    }
+    primary_metric: ClassVar[str] = "rms_task_error"
+
+    def _setup(
+        self,
+        *,
+        objective: str,
+        control_freq: float,
+        episode_duration: float,
+        initial_error: float,
+        joint_window: float,
+        error_scales: tuple[float, ...],
+        secondary_weight: float,
+        velocity_weight: float,
+        termination_penalty: float,
+        success_threshold: float,
+        render_mode: str | None,
+        width: int,
+        height: int,
+    ) -> None:
+        if objective not in OBJECTIVES:
+            raise InvalidArgument(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+        self.objective = objective
+        self.initial_error = check_number("initial_error", initial_error, 0.0, 0.1)
+        self.joint_window = check_number("joint_window", joint_window, 0.0, 2 * np.pi,
+                                         low_open=True)
+        try:
+            scales = np.atleast_1d(np.asarray(error_scales, dtype=float))
+        except (TypeError, ValueError) as exc:
+            raise InvalidArgument(f"error_scales must be positive numbers (m), got "
+                                  f"{error_scales!r}") from exc
+        if scales.ndim != 1 or scales.size == 0 or not np.all(scales > 0):
+            raise InvalidArgument(f"error_scales must be positive numbers (m), got {error_scales!r}")
+        self.error_scales = scales
+        self.orientation_scales = scales * 10.0  # rad: 1 mm ↔ 0.01 rad
+        self.secondary_weight = check_number("secondary_weight", secondary_weight, 0.0, 10.0)
+        self.velocity_weight = check_number("velocity_weight", velocity_weight, 0.0, 10.0)
+        self.termination_penalty = check_number("termination_penalty", termination_penalty,
+                                                0.0, 1e6)
+        self.success_threshold = check_number("success_threshold", success_threshold, 0.0, 1.0,
+                                              low_open=True)
+
+        model = self._build_model()
+        self.robot = Robot(model)
+        super().__init__(model, control_freq=control_freq, episode_duration=episode_duration,
+                         render_mode=render_mode, width=width, height=height,
+                         camera=self._camera_name())
+        self.data = self.robot.data  # kinematics only: the robot's MjData is the scene's
+        self.n = n = self.robot.n
+        self.file_lower, self.file_upper = self.robot.lower.copy(), self.robot.upper.copy()
+        self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
+        self.velocity_limit = self.robot.velocity_limit.copy()
+        self._site_id = self.robot.site_id(self.site)
+        self._obstacle_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "obstacle")
+        self.capsules = LinkCapsules(model)
+        self.home = model.key("home").qpos[self.robot.qpos_adr].copy()
+
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+        p = self.pos_dim
+        bounds: dict[str, tuple[float, int]] = {
+            "q": (2 * np.pi, n), "x": (3.0, p), "x_ref": (3.0, p), "xd_ref": (10.0, p),
+        }
+        if self.task_dim == 6:
+            bounds |= {"quat": (1.0, 4), "quat_ref": (1.0, 4), "omega_ref": (20.0, 3)}
+        bounds |= {"q_lower": (2 * np.pi, n), "q_upper": (2 * np.pi, n),
+                   "obstacle": (2 * DUMMY_OBSTACLE_CENTRE, p + 1)}
+        self._obs_bounds = {k: b for k, (b, _) in bounds.items()}
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(-b, b, (size,), dtype=np.float64) for k, (b, size) in bounds.items()}
+        )
+
+        steps = self.max_steps
+        self._x_ref = np.zeros((steps + 1, p))
+        self._xd_ref = np.zeros((steps + 1, p))
+        self._R_ref = np.tile(np.eye(3), (steps + 1, 1, 1))
+        self._quat_ref = np.zeros((steps + 1, 4))
+        self._omega_ref = np.zeros((steps + 1, 3))
+        self._trace = np.zeros((6, steps))  # task err, orient. err, manip., margin, clearance
+        self._obstacle = np.zeros(p + 1)
+        self._q = self.home.copy()
+        self._q0 = self.home.copy()
+        self._k = 0
+        self._done = False
+
+    # ------------------------------------------------------------------ model
+    def _build_model(self) -> mujoco.MjModel:
+        """The robot file plus an obstacle geom (moved per episode) and, for the plane, a camera."""
+        spec = mujoco.MjSpec.from_file(str(robot_path(self.robot_name)))
+        spec.option.timestep = CONTROL_TIMESTEP
+        # compiled at the base (so the free camera frames the robot); moved at every reset
+        spec.worldbody.add_geom(name="obstacle", type=mujoco.mjtGeom(self.obstacle_type),
+                                size=[0.05, 0.05, 0.0], pos=[0.0, 0.0, 0.0], contype=0,
+                                conaffinity=0,
+                                rgba=[0.9, 0.1, 0.1, 0.8])
+        self._add_camera(spec)
+        return spec.compile()
+
+    def _add_camera(self, spec: mujoco.MjSpec) -> None:
+        """Hook: add a camera to the scene (none by default: MuJoCo's free camera)."""
+
+    def _camera_name(self) -> str | int:
+        return -1
+
+    # ------------------------------------------------------------------ kinematics
+    def _forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Set q; return the site position (pos_dim,) and rotation (3, 3)."""
+        p, R = self.robot.site_pose(self._site_id, q)
+        return p[: self.pos_dim], R
+
+    def _task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        J = self.robot.jacobian(self._site_id, q)
+        return J[:2] if self.task_dim == 2 else J
+
+    def _solve_ik(self, q: np.ndarray, x: np.ndarray, R: np.ndarray, iterations: int = 200
+                  ) -> np.ndarray:
+        """Newton steps q ← q + J†(x − k(q)) (capped at 0.2 rad) to the pose (x, R)."""
+        for _ in range(iterations):
+            p, Rq = self._forward(q)
+            e = x - p
+            if self.task_dim == 6:
+                e = np.concatenate((e, orientation_error(R, Rq)))
+            if float(e @ e) < IK_TOLERANCE**2:
+                break
+            dq = np.linalg.lstsq(self._task_jacobian(q), e, rcond=None)[0]
+            step = float(np.max(np.abs(dq)))
+            q = q + (dq * (0.2 / step) if step > 0.2 else dq)
+        return q
+
+    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5) -> np.ndarray:
+        """Joint path (k, n) of minimum-norm CLIK along the reference, every ``stride`` steps.
+
+        Used only to place the obstacle where the pseudo-inverse motion would hit it.
+        """
+        q = q0.copy()
+        path = [q.copy()]
+        dt = self.dt * stride
+        for k in range(0, self.max_steps, stride):
+            J = self._task_jacobian(q)
+            p, R = self._forward(q)
+            e = self._x_ref[k] - p
+            v = self._xd_ref[k]
+            if self.task_dim == 6:
+                e = np.concatenate((e, orientation_error(self._R_ref[k], R)))
+                v = np.concatenate((v, self._omega_ref[k]))
+            q = q + dt * np.linalg.lstsq(J, v + e / dt, rcond=None)[0]
+            path.append(q.copy())
+        return np.array(path)
+
+    # ------------------------------------------------------------------ episode setup
+    def _draw_path(self) -> None:
+        """Fill ``_x_ref``, ``_xd_ref`` (and the orientation reference) for this episode."""
+        raise NotImplementedError
+
+    def _draw_obstacle(self, q0: np.ndarray) -> np.ndarray:
+        """Centre (3,) and radius of an obstacle on the elbow's minimum-norm sweep.
+
+        A random instant t* ∈ [0.3, 0.8] T of the minimum-norm (pseudo-inverse) motion and a
+        random point of one of the ``obstacle_links`` capsules are drawn; the obstacle overlaps
+        that capsule by 5–20 mm there, on a random side. Draws that come within
+        ``radius + 0.08`` m of the task path or that collide at q(0) are rejected (30 tries).
+        """
+        rng = self.np_random
+        motion = self._min_norm_motion(q0)
+        bodies = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
+                  for b in self.obstacle_links]
+        pick = [i for i, g in enumerate(self.capsules.geom_ids)
+                if self.model.geom_bodyid[g] in bodies]
+        path_pts = self._x_ref
+        best = np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
+        for _ in range(30):
+            k = int(rng.integers(int(0.3 * len(motion)), int(0.8 * len(motion))))
+            self._forward(motion[k])
+            a, b = self.capsules.segments(self.data)
+            i = int(rng.choice(pick))
+            point = a[i] + rng.uniform(0.3, 1.0) * (b[i] - a[i])
+            radius = float(rng.uniform(0.04, 0.07))
+            normal = self._random_normal(b[i] - a[i])
+            depth = float(rng.uniform(0.005, 0.02))
+            centre = point + (self.capsules.radius[i] + radius - depth) * normal
+            d_path = np.min(np.linalg.norm(path_pts - centre[: self.pos_dim], axis=1))
+            self._forward(q0)
+            if d_path > radius + 0.08 and self.capsules.clearance(self.data, centre, radius) > 0.03:
+                best = np.concatenate((centre, [radius]))
+                break
+        return best
+
+    def _random_normal(self, axis: np.ndarray) -> np.ndarray:
+        """A random unit vector normal to ``axis`` (in the plane z = 0 for the planar arm)."""
+        rng = self.np_random
+        if self.pos_dim == 2:
+            nrm = np.array([-axis[1], axis[0], 0.0])
+            return nrm / np.linalg.norm(nrm) * rng.choice((-1.0, 1.0))
+        v = rng.standard_normal(3)
+        v -= (v @ axis) / (axis @ axis) * axis
+        return v / np.linalg.norm(v)
+
+    def _set_obstacle(self, box: np.ndarray) -> None:
+        """Move the obstacle geom and store its observation (centre (pos_dim,), radius)."""
+        centre, radius = box[:3], float(box[3])
+        self._obstacle_centre = centre.copy()
+        self._obstacle_radius = radius
+        self.model.geom_pos[self._obstacle_id] = centre
+        self.model.geom_size[self._obstacle_id, 0] = max(radius, 1e-3)
+        self.model.geom_rgba[self._obstacle_id, 3] = 0.8 if radius > 0 else 0.0
+        self._obstacle = np.concatenate((centre[: self.pos_dim], [radius]))
+
+    def _poorly_conditioned_start(self, q_home_ik: np.ndarray, candidates: int = 8
+                                  ) -> np.ndarray:
+        """objective="manipulability": the worst-conditioned of ``candidates`` IK solutions.
+
+        IK solves from guesses home + U(±1 rad) (and the home-IK solution) on the self-motion
+        manifold at x̄(0); among those with w ≥ 30 % of the best, ≥ 0.6 rad from every joint
+        limit, the one of least manipulability w, so the redundancy starts badly used.
+        """
+        rng = self.np_random
+        sols = [q_home_ik]
+        for _ in range(candidates - 1):
+            guess = self.home + rng.uniform(-1.0, 1.0, self.n)
+            q = self._solve_ik(guess, self._x_ref[0], self._R_ref[0])
+            p, _ = self._forward(q)
+            ok = np.linalg.norm(self._x_ref[0] - p) < 1e-9
+            if ok and joint_limit_margin(q, self.file_lower, self.file_upper) >= 0.6:
+                sols.append(q)
+        w = np.array([manipulability(self._task_jacobian(q)) for q in sols])
+        allowed = np.flatnonzero(w >= 0.3 * np.max(w))
+        return sols[int(allowed[np.argmin(w[allowed])])]
+
+    def _set_joint_window(self, q0: np.ndarray) -> None:
+        """objective="joint_limits": one random joint gets a range of width ``joint_window``.
+
+        q(0) sits 10–25 % of the window from a random side of it, so minimum-norm motion runs
+        into that limit on many paths, while the self-motion can move the joint towards the
+        window's centre. The other joints keep the file's ranges; all are clipped to them.
+        """
+        rng = self.np_random
+        j = int(rng.integers(self.n))
+        frac = float(rng.uniform(0.1, 0.25))
+        frac = frac if rng.random() < 0.5 else 1.0 - frac
+        self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
+        self.lower[j] = max(q0[j] - frac * self.joint_window, self.file_lower[j])
+        self.upper[j] = min(self.lower[j] + self.joint_window, self.file_upper[j])
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None
+              ) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
+        self._set_obstacle(np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0]))
+        self._draw_path()
+        q0 = self._solve_ik(self.home.copy(), self._x_ref[0], self._R_ref[0])
+        if self.objective == "manipulability":
+            q0 = self._poorly_conditioned_start(q0)
+        if self.objective == "obstacle":
+            self._set_obstacle(self._draw_obstacle(q0))
+        if self.initial_error > 0:
+            d = rng.standard_normal(self.pos_dim)
+            offset = self.initial_error * d / np.linalg.norm(d)
+            q0 = self._solve_ik(q0, self._x_ref[0] + offset, self._R_ref[0])
+        if self.objective == "joint_limits":
+            self._set_joint_window(q0)
+        self.model.jnt_range[self.robot.joint_ids, 0] = self.lower
+        self.model.jnt_range[self.robot.joint_ids, 1] = self.upper
+        self._q = q0.copy()
+        self._q0 = q0.copy()
+        self._forward(q0)
+        self._k = 0
+        self._done = False
+        self._trace[:] = 0.0
+        info = {"obstacle": self._obstacle.copy(), "q_lower": self.lower.copy(),
+                "q_upper": self.upper.copy()}
+        return self._obs(), info
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        a, _ = self._check_action(action)
+        qd = a * self.velocity_limit  # q̇ (rad/s), clipped to the velocity limits
+        q = self._q + self.dt * qd  # exact integration of a constant q̇ over Δt
+        violation = bool(np.any(q < self.lower) or np.any(q > self.upper))
+        if violation:
+            q = np.clip(q, self.lower, self.upper)  # stops at the limit
+        self._q = q
+        k = min(self._k, self.max_steps - 1)  # past the end: the last reference is held
+        self._k = k + 1
+        p, R = self._forward(q)
+        e_pos = float(np.linalg.norm(self._x_ref[self._k] - p))
+        e_rot = (float(np.linalg.norm(orientation_error(self._R_ref[self._k], R)))
+                 if self.task_dim == 6 else 0.0)
+        w = manipulability(self._task_jacobian(q))
+        margin = joint_limit_margin(q, self.lower, self.upper)
+        clear = self.capsules.clearance(self.data, self._obstacle_centre, self._obstacle_radius)
+        collision = clear < 0.0
+        self._trace[:, k] = (e_pos, e_rot, w, margin, clear, 0.0)
+
+        r_track = -(1.0 - float(np.mean(np.exp(-(e_pos**2) / self.error_scales**2))))
+        r_orient = (-(1.0 - float(np.mean(np.exp(-(e_rot**2) / self.orientation_scales**2))))
+                    if self.task_dim == 6 else 0.0)
+        r_secondary = -self.secondary_weight * self._secondary_cost(q, w, clear)
+        r_velocity = -self.velocity_weight * float(a @ a) / self.n
+        terminated = violation or collision
+        r_term = -self.termination_penalty if terminated else 0.0
+        reward = r_track + r_orient + r_secondary + r_velocity + r_term
+        truncated = self._k >= self.max_steps and not terminated
+        self._done = terminated or truncated
+        info: dict[str, Any] = {
+            "reward_tracking": r_track,
+            "reward_orientation": r_orient,
+            "reward_secondary": r_secondary,
+            "reward_velocity": r_velocity,
+            "reward_termination": r_term,
+            "task_error": e_pos,
+            "manipulability": w,
+            "joint_limit_margin": margin,
+            "clearance": clear,
+            "joint_limit_violation": violation,
+            "collision": collision,
+            "diverged": False,
+        }
+        if self.task_dim == 6:
+            info["orientation_error"] = e_rot
+        if self._done:
+            metrics = self.episode_metrics()
+            info["episode_metrics"] = metrics
+            ok = metrics["max_task_error"] < self.success_threshold
+            if self.task_dim == 6:
+                ok = ok and metrics["max_orientation_error"] < 10.0 * self.success_threshold
+            info["is_success"] = bool(not terminated and ok)
+        return self._obs(), reward, terminated, truncated, info
+
+    def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
+        """The base class's check, plus: strings or objects are not actions (even "0.1")."""
+        kind = np.asarray(action, dtype=object if isinstance(action, list) else None).dtype.kind
+        if kind in "USO" and not (kind == "O" and _all_numbers(action)):
+            raise ValueError(f"action must be numbers of shape {self.action_space.shape} in "
+                             f"[-1, 1], got {action!r}")
+        return super()._check_action(action)
+
+    def _secondary_cost(self, q: np.ndarray, w: float, clear: float) -> float:
+        """Objective cost in [0, 1]: exp(−w/w₀), −8 w_jl(q), or exp(−clearance / 5 cm)."""
+        if self.objective == "manipulability":
+            return float(np.exp(-w / self.manipulability_scale))
+        if self.objective == "joint_limits":
+            return -8.0 * joint_limit_objective(q, self.lower, self.upper)
+        return float(np.exp(-max(clear, 0.0) / 0.05))
+
+    def episode_metrics(self) -> dict[str, float]:
+        """Metrics of the episode so far (see ``metric_specs``)."""
+        k = max(self._k, 1)
+        e, r, w, margin, clear = self._trace[:5, :k]
+        metrics = {
+            "rms_task_error": float(np.sqrt(np.mean(e**2))),
+            "max_task_error": float(np.max(e)),
+        }
+        if self.task_dim == 6:
+            metrics["rms_orientation_error"] = float(np.sqrt(np.mean(r**2)))
+            metrics["max_orientation_error"] = float(np.max(r))
+        metrics |= {
+            "min_manipulability": float(np.min(w[int(MANIPULABILITY_WINDOW * self.max_steps):]
+                                               if k > MANIPULABILITY_WINDOW * self.max_steps
+                                               else w)),
+            "min_joint_limit_margin": float(np.min(margin)),
+            "min_clearance": float(np.min(clear)),
+            "joint_drift": float(np.linalg.norm(self._q - self._q0)),
+        }
+        return metrics
+
+    def render(self) -> np.ndarray | None:
+        mujoco.mj_camlight(self.model, self.data)  # kinematics alone leaves cameras/lights unset
+        return super().render()
+
+    # ------------------------------------------------------------------ observation
+    def _obs(self) -> dict[str, np.ndarray]:
+        k = self._k
+        p, R = self._forward(self._q)
+        raw = {"q": self._q, "x": p, "x_ref": self._x_ref[k], "xd_ref": self._xd_ref[k]}
+        if self.task_dim == 6:
+            quat = np.empty(4)
+            mujoco.mju_mat2Quat(quat, R.ravel())
+            raw |= {"quat": quat, "quat_ref": self._quat_ref[k],
+                    "omega_ref": self._omega_ref[k]}
+        raw |= {"q_lower": self.lower, "q_upper": self.upper, "obstacle": self._obstacle}
+        return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key])
+                for key, v in raw.items()}
+
+    def controller_context(self) -> TaskContext:
+        return TaskContext(
+            robot=self.robot_name,
+            dt=self.dt,
+            action_kind="joint_velocity",
+            action_scale=self.velocity_limit.copy(),
+            site=self.site,
+            extras={"objective": self.objective, "task_dim": self.task_dim,
+                    "pos_dim": self.pos_dim},
+        )
+
+    def _time_grid(self) -> np.ndarray:
+        return np.arange(self.max_steps + 1) * self.dt
+
+    def _closed_path(self, shape: str, centre: np.ndarray, size: float, aspect: float,
+                     timing: traj.TimingLaw, start_angle: float, turns: float,
+                     **plane: Any) -> traj.Ellipse | traj.FigureEight:
+        if shape == "circle":
+            return traj.Circle(centre, size, timing, start_angle=start_angle, turns=turns,
+                               **plane)
+        if shape == "ellipse":
+            return traj.Ellipse(centre, size, aspect * size, timing, start_angle=start_angle,
+                                turns=turns, **plane)
+        return traj.FigureEight(centre, size, aspect * size, timing, start_angle=start_angle,
+                                turns=turns, **plane)
+
+
+
+
+# ---------------------------------------------------------------------- planar3r
+class RedundantIKEnv(_RedundantIKBase):
+    """Track a closed planar path with the end effector of a 3R planar arm (n = 3, m = 2).
+
+    ## Description
+    The redundancy-resolution problem of chapter 1: the `planar3r` arm (links 0.5, 0.4, 0.3 m
+    in the plane z = 0) must move its end effector (site ``ee``) along a closed path, with one
+    degree of redundancy left (dim ker J = 1). Kinematic control: the action is a joint-velocity
+    command integrated exactly over the control period (q ← q + Δt q̇, then forward kinematics);
+    there are no dynamics. Each episode draws a circle, an ellipse or a figure eight (centre at
+    0.5–0.8 m from the base within ±0.8 rad of the home end-effector direction, size
+    0.1–0.25 m, aspect 0.5–1, random start angle and direction) traced once with a quintic
+    timing law. ``objective`` selects the secondary task the reward scores:
+    "manipulability" (w = sqrt(det JJᵀ)), "joint_limits" (one joint's range narrowed per episode,
+    see Starting State) or "obstacle" (a circle in the plane, drawn as a cylinder, placed on
+    the sweep of links 1–2 under minimum-norm motion, see Starting State). Clearance is
+    computed analytically: the distance from the obstacle's centre to each link capsule's
+    segment minus the capsule and obstacle radii (negative when they intersect).
+
+    ## Action Space
+    ``Box(-1, 1, (3,), float32)``: q̇ = a ⊙ q̇_max with q̇_max = (2, 2, 2) rad/s. Finite values
+    outside [-1, 1] are clipped (so commands beyond the velocity limits are saturated); NaN/inf
+    or a wrong shape raise ``ValueError``.
+
+    ## Observation Space
+    ``Dict`` of float64 arrays (values clipped to the bounds):
+
+    | key | shape | meaning | bounds | unit |
+    |---|---|---|---|---|
+    | q | (3,) | joint positions | ±2π | rad |
+    | x | (2,) | end-effector position (x, y) | ±3 | m |
+    | x_ref | (2,) | reference position x̄(t) | ±3 | m |
+    | xd_ref | (2,) | reference velocity x̄̇(t) | ±10 | m/s |
+    | q_lower | (3,) | this episode's lower joint limits | ±2π | rad |
+    | q_upper | (3,) | this episode's upper joint limits | ±2π | rad |
+    | obstacle | (3,) | obstacle centre (x, y) and radius; (10, 10, 0) when there is none | ±20 | m |
+
+    ## Rewards
+    r = r_tracking + r_orientation + r_secondary + r_velocity + r_termination, each in
+    ``info["reward_<name>"]``:
+    - r_tracking = −(1 − (1/3) Σ_s exp(−‖x̄ − x‖² / s²)), s ∈ ``error_scales``, in [−1, 0];
+    - r_orientation = 0 (no orientation task on the plane);
+    - r_secondary = −``secondary_weight`` c, c ∈ [0, 1]: exp(−w / 0.1) for "manipulability",
+      −8 w_jl(q) = (4/n) Σ ((q_i − q̄_i)/(q_iM − q_im))² for "joint_limits",
+      exp(−max(clearance, 0) / 0.05 m) for "obstacle";
+    - r_velocity = −``velocity_weight`` ‖a‖² / 3;
+    - r_termination = −``termination_penalty`` on the step that violates a joint limit or
+      collides, else 0 (the default exceeds the return of any full episode).
+
+    ## Starting State
+    At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
+    steps q ← q + J†(x̄(0) − k(q)) (residual < 1e-12 m). For "manipulability" the redundancy
+    starts badly used: q(0) is the least manipulable of 8 IK solutions (from home and from
+    home + U(±1 rad) guesses) with w ≥ 30 % of the best of them and ≥ 0.6 rad from every joint
+    limit, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
+    at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
+    narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
+    the file's range; ``q_lower``/``q_upper`` in the observation). For "obstacle" the
+    obstacle (radius 4–7 cm) overlaps a link capsule by 5–20 mm at a random instant of the
+    minimum-norm (pseudo-inverse CLIK) motion, at least radius + 8 cm away from the path and
+    3 cm away from the arm at q(0).
+
+    ## Episode End
+    Truncated after ``episode_duration`` s (one lap). Terminated when a step would cross a
+    joint limit (the joint stops at the limit, ``info["joint_limit_violation"] = True``) or
+    when a link touches the obstacle (``info["collision"] = True``). ``info["diverged"]`` is
+    always False (kinematic simulation: actions are clipped and integrated exactly, so nothing
+    can diverge). Stepping on after an episode end continues from the stopped state with the
+    last reference held; call ``reset()``.
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | objective | "manipulability" | secondary task scored: "manipulability", "joint_limits", "obstacle" |
+    | control_freq | 200.0 | control frequency (Hz), Δt = 1/control_freq |
+    | episode_duration | 5.0 | s: one lap of the path (quintic timing law, at rest at both ends) |
+    | initial_error | 0.0 | initial task-position offset (m) in a random direction |
+    | joint_window | 1.4 | width (rad) of the narrowed joint range for "joint_limits" |
+    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
+    | secondary_weight | 0.1 | weight of the secondary-objective cost |
+    | velocity_weight | 0.01 | weight of the joint-velocity term |
+    | termination_penalty | 1000.0 | reward lost on a joint-limit violation or a collision |
+    | success_threshold | 0.001 | max position error (m) below which an episode succeeds |
+    | render_mode | None | None, "human" or "rgb_array" (camera "top" looks down on the plane) |
+    | width | 480 | frame width (px) |
+    | height | 480 | frame height (px) |
+
+    ## Metrics
+    ``rms_task_error`` (primary, m), ``max_task_error`` (m), ``min_manipulability`` (m², higher
+    is better; over t ≥ 0.1 T: the start-up tenth of the lap, where the reference barely moves
+    and a controller may reconfigure the arm, is excluded), ``min_joint_limit_margin`` (rad, higher is better), ``min_clearance`` (m,
+    higher is better; about 14 m to the dummy obstacle), ``joint_drift`` (‖q(T) − q(0)‖ after
+    the closed path, rad). Every metric is over the steps taken. Success: no termination and
+    ``max_task_error`` < ``success_threshold``.
+
+    ## Reference controllers
+    ``baselines.available("cir_gym/RedundantIK-v0")``: jacobian_transpose, pseudo_inverse,
+    clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    robot_name: ClassVar[str] = "planar3r"
+    site: ClassVar[str] = "ee"
+    pos_dim: ClassVar[int] = 2
+    task_dim: ClassVar[int] = 2
+    obstacle_type: ClassVar[int] = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
+    manipulability_scale: ClassVar[float] = 0.1
+    obstacle_links: ClassVar[tuple[str, ...]] = ("link1", "link2")
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec("rms_task_error", "m", "lower", "RMS end-effector position error"),
+        MetricSpec("max_task_error", "m", "lower", "max end-effector position error"),
+        MetricSpec("min_manipulability", "m^2", "higher", "min sqrt(det(J Jᵀ))"),
+        MetricSpec("min_joint_limit_margin", "rad", "higher", "min distance to a joint limit"),
+        MetricSpec("min_clearance", "m", "higher", "min link–obstacle distance"),
+        MetricSpec("joint_drift", "rad", "lower", "‖q(T) − q(0)‖ after the closed path"),
+    )
+
+    def __init__(
+        self,
+        objective: str = "manipulability",
+        control_freq: float = 200.0,
+        episode_duration: float = 5.0,
+        initial_error: float = 0.0,
+        joint_window: float = 1.4,
+        error_scales: tuple[float, ...] = (0.1, 0.01, 0.001),
+        secondary_weight: float = 0.1,
+        velocity_weight: float = 0.01,
+        termination_penalty: float = 1000.0,
+        success_threshold: float = 0.001,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        self._setup(objective=objective, control_freq=control_freq,
+                    episode_duration=episode_duration, initial_error=initial_error,
+                    joint_window=joint_window, error_scales=error_scales,
+                    secondary_weight=secondary_weight, velocity_weight=velocity_weight,
+                    termination_penalty=termination_penalty,
+                    success_threshold=success_threshold, render_mode=render_mode, width=width,
+                    height=height)
+
+    def _add_camera(self, spec: mujoco.MjSpec) -> None:
+        spec.worldbody.add_camera(name="top", pos=[0.4, 0.3, 2.6], fovy=45.0)
+
+    def _camera_name(self) -> str | int:
+        return "top"
+
+    def _draw_path(self) -> None:
+        rng = self.np_random
+        p_home, _ = self._forward(self.home)
+        heading = float(np.arctan2(p_home[1], p_home[0]) + rng.uniform(-0.8, 0.8))
+        rho = rng.uniform(0.5, 0.8)
+        centre = rho * np.array([np.cos(heading), np.sin(heading)])
+        shape = SHAPES[int(rng.integers(len(SHAPES)))]
+        size = float(rng.uniform(0.1, 0.25))
+        aspect = float(rng.uniform(0.5, 1.0))
+        angle = float(rng.uniform(-np.pi, np.pi))  # orientation of the shape's axes
+        axes = ((np.cos(angle), np.sin(angle)), (-np.sin(angle), np.cos(angle)))
+        timing = traj.TimingLaw.quintic(self.max_steps * self.dt)
+        path = self._closed_path(shape, centre, size, aspect, timing,
+                                 float(rng.uniform(-np.pi, np.pi)),
+                                 float(rng.choice((-1.0, 1.0))), axes=axes)
+        self._x_ref[:], self._xd_ref[:], _ = path.evaluate(self._time_grid())
+
+
+# ---------------------------------------------------------------------- iiwa14
+class RedundantIK7Env(_RedundantIKBase):
+    """Track a closed 3-D path and an orientation with the tool of a 7-DoF arm (n = 7, m = 6).
+
+    ## Description
+    Chapter 1 on the `iiwa14`: the pose of site ``tcp`` (position and orientation, m = 6) must
+    follow a closed path, with one degree of redundancy (the arm's self-motion, "elbow
+    angle"). Kinematic control: the action is a joint-velocity command integrated exactly over
+    the control period; no dynamics. Each episode draws a circle, an ellipse or a figure eight
+    of size 0.05–0.15 m (aspect 0.5–1) in a random plane whose centre is within 3 cm of the home
+    tcp position, traced once with a quintic timing law σ(t), and an orientation reference
+    R̄(t) = Rot(r, α sin 2πσ(t)) R_home (world axis r random, α ∈ [0.1, 0.3] rad), closed as
+    well; ω̄ = r α 2π cos(2πσ) σ̇. The orientation error is the rotation vector of R̄ Rᵀ
+    (through its quaternion), never an Euler-angle difference. ``objective`` as in
+    ``RedundantIK-v0``; the obstacle is a sphere on the sweep of links 3–5 (around the
+    elbow), and the clearance is computed analytically (centre to capsule segments, minus the
+    radii).
+
+    ## Action Space
+    ``Box(-1, 1, (7,), float32)``: q̇ = a ⊙ q̇_max with q̇_max = (85, 85, 100, 75, 130, 135, 135)
+    deg/s (data sheet, in rad/s). Finite values outside [-1, 1] are clipped; NaN/inf or a wrong
+    shape raise ``ValueError``.
+
+    ## Observation Space
+    ``Dict`` of float64 arrays (values clipped to the bounds):
+
+    | key | shape | meaning | bounds | unit |
+    |---|---|---|---|---|
+    | q | (7,) | joint positions | ±2π | rad |
+    | x | (3,) | tcp position | ±3 | m |
+    | x_ref | (3,) | reference position x̄(t) | ±3 | m |
+    | xd_ref | (3,) | reference velocity | ±10 | m/s |
+    | quat | (4,) | tcp orientation (w, x, y, z), w ≥ 0 | ±1 | |
+    | quat_ref | (4,) | reference orientation (w, x, y, z) | ±1 | |
+    | omega_ref | (3,) | reference angular velocity (world frame) | ±20 | rad/s |
+    | q_lower | (7,) | this episode's lower joint limits | ±2π | rad |
+    | q_upper | (7,) | this episode's upper joint limits | ±2π | rad |
+    | obstacle | (4,) | sphere centre and radius; (10, 10, 10, 0) when there is none | ±20 | m |
+
+    ## Rewards
+    As ``RedundantIK-v0``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
+    orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
+    exp(−w / 0.05).
+
+    ## Starting State
+    As ``RedundantIK-v0``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
+    (x̄(0), R̄(0)); ``initial_error`` offsets the position only.
+
+    ## Episode End
+    As ``RedundantIK-v0``.
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | objective | "manipulability" | secondary task scored: "manipulability", "joint_limits", "obstacle" |
+    | control_freq | 100.0 | control frequency (Hz), Δt = 1/control_freq |
+    | episode_duration | 6.0 | s: one lap of the path (quintic timing law, at rest at both ends) |
+    | initial_error | 0.0 | initial task-position offset (m) in a random direction |
+    | joint_window | 0.6 | width (rad) of the narrowed joint range for "joint_limits" |
+    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
+    | secondary_weight | 0.1 | weight of the secondary-objective cost |
+    | velocity_weight | 0.01 | weight of the joint-velocity term |
+    | termination_penalty | 1000.0 | reward lost on a joint-limit violation or a collision |
+    | success_threshold | 0.001 | max position error (m); the orientation must stay below 10× (rad) |
+    | render_mode | None | None, "human" or "rgb_array" (MuJoCo's free camera) |
+    | width | 480 | frame width (px) |
+    | height | 480 | frame height (px) |
+
+    ## Metrics
+    As ``RedundantIK-v0`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
+    manipulability of the 6×7 Jacobian (mixed units). Success: no termination,
+    ``max_task_error`` < ``success_threshold`` and ``max_orientation_error`` <
+    10 ``success_threshold``.
+
+    ## Reference controllers
+    ``baselines.available("cir_gym/RedundantIK7-v0")``: jacobian_transpose, pseudo_inverse,
+    clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    robot_name: ClassVar[str] = "iiwa14"
+    site: ClassVar[str] = "tcp"
+    pos_dim: ClassVar[int] = 3
+    task_dim: ClassVar[int] = 6
+    obstacle_type: ClassVar[int] = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+    manipulability_scale: ClassVar[float] = 0.05
+    obstacle_links: ClassVar[tuple[str, ...]] = ("link3", "link4", "link5")
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec("rms_task_error", "m", "lower", "RMS tcp position error"),
+        MetricSpec("max_task_error", "m", "lower", "max tcp position error"),
+        MetricSpec("rms_orientation_error", "rad", "lower", "RMS tcp orientation error"),
+        MetricSpec("max_orientation_error", "rad", "lower", "max tcp orientation error"),
+        MetricSpec("min_manipulability", "", "higher", "min sqrt(det(J Jᵀ)) of the 6×7 J"),
+        MetricSpec("min_joint_limit_margin", "rad", "higher", "min distance to a joint limit"),
+        MetricSpec("min_clearance", "m", "higher", "min link–obstacle distance"),
+        MetricSpec("joint_drift", "rad", "lower", "‖q(T) − q(0)‖ after the closed path"),
+    )
+
+    def __init__(
+        self,
+        objective: str = "manipulability",
+        control_freq: float = 100.0,
+        episode_duration: float = 6.0,
+        initial_error: float = 0.0,
+        joint_window: float = 0.6,
+        error_scales: tuple[float, ...] = (0.1, 0.01, 0.001),
+        secondary_weight: float = 0.1,
+        velocity_weight: float = 0.01,
+        termination_penalty: float = 1000.0,
+        success_threshold: float = 0.001,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        self._setup(objective=objective, control_freq=control_freq,
+                    episode_duration=episode_duration, initial_error=initial_error,
+                    joint_window=joint_window, error_scales=error_scales,
+                    secondary_weight=secondary_weight, velocity_weight=velocity_weight,
+                    termination_penalty=termination_penalty,
+                    success_threshold=success_threshold, render_mode=render_mode, width=width,
+                    height=height)
+
+    def _draw_path(self) -> None:
+        rng = self.np_random
+        p_home, R_home = self._forward(self.home)
+        normal = rng.standard_normal(3)
+        centre = p_home + rng.uniform(-0.03, 0.03, 3)
+        shape = SHAPES[int(rng.integers(len(SHAPES)))]
+        size = float(rng.uniform(0.05, 0.15))
+        aspect = float(rng.uniform(0.5, 1.0))
+        T = self.max_steps * self.dt
+        timing = traj.TimingLaw.quintic(T)
+        path = self._closed_path(shape, centre, size, aspect, timing,
+                                 float(rng.uniform(-np.pi, np.pi)),
+                                 float(rng.choice((-1.0, 1.0))), normal=normal)
+        t = self._time_grid()
+        self._x_ref[:], self._xd_ref[:], _ = path.evaluate(t)
+        # R̄(t) = Rot(r, α sin 2πσ) R_home, ω̄ = r α 2π cos(2πσ) σ̇ (world frame)
+        axis = rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        alpha = float(rng.uniform(0.1, 0.3))
+        s, sd, _ = timing.evaluate(t)
+        sigma, sigma_d = s / timing.length, sd / timing.length
+        self._R_ref[:] = traj.matrix_from_axis_angle(axis, alpha * np.sin(2 * np.pi * sigma)) \
+            @ R_home
+        self._quat_ref[:] = traj.quat_from_matrix(self._R_ref)
+        rate = alpha * 2 * np.pi * np.cos(2 * np.pi * sigma) * sigma_d
+        self._omega_ref[:] = rate[:, None] * axis
+
+
+REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
+    "cir_gym/RedundantIK-v0": (
+        RedundantIKEnv,
+        "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
+        "objective (ch. 1)",
+    ),
+    "cir_gym/RedundantIK7-v0": (
+        RedundantIK7Env,
+        "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
+    ),
+}

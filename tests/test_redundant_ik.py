@@ -1,0 +1,240 @@
+"""RedundantIK-v0, RedundantIK7-v0 and the chapter-1 kinematic controllers: theory checks."""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import re
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import cir_gym  # noqa: F401  (registers the environments it knows)
+from baselines import kinematic
+from baselines.base import InvalidGain
+from cir_gym.envs.base import InvalidArgument
+from cir_gym.envs.redundant_ik import (
+    REDUNDANT_IK_ENVIRONMENTS,
+    RedundantIK7Env,
+    RedundantIKEnv,
+    orientation_error,
+)
+from cir_gym.robot import Robot
+
+ENV = "cir_gym/RedundantIK-v0"
+ENV7 = "cir_gym/RedundantIK7-v0"
+CONTROLLERS = {cls.name: cls for cls in kinematic.KINEMATIC_CONTROLLERS}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def registered():
+    """Register the ids if the package registry does not (yet) hold them."""
+    from cir_gym.envs.base import EntryPoint
+
+    for env_id, (cls, _) in REDUNDANT_IK_ENVIRONMENTS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=EntryPoint(cls))
+
+
+def controller(name: str, env: gym.Env, **gains) -> kinematic.Controller:
+    return CONTROLLERS[name](env.unwrapped.controller_context(), **gains)
+
+
+def rollout(policy, env, seed, steps=None):
+    obs, _ = env.reset(seed=seed)
+    state, out = None, []
+    for k in range(steps or env.unwrapped.max_steps):
+        action, state = policy.predict(obs, state, np.array([k == 0]))
+        obs, reward, terminated, truncated, info = env.step(action)
+        out.append((obs, reward, info))
+        if terminated or truncated:
+            break
+    return out
+
+
+# ---------------------------------------------------------------------- accuracy
+@pytest.mark.parametrize("seed", [0, 2, 3])
+def test_clik_tracks_the_planar_path_to_1e_4(seed):
+    env = gym.make(ENV)
+    steps = rollout(controller("clik", env), env, seed)
+    info = steps[-1][2]
+    assert not info["joint_limit_violation"]
+    assert info["episode_metrics"]["rms_task_error"] <= 1e-4
+    assert info["is_success"]
+
+
+def test_clik_tracks_the_iiwa_pose():
+    env = gym.make(ENV7)
+    info = rollout(controller("clik", env), env, 0)[-1][2]
+    assert info["episode_metrics"]["rms_task_error"] <= 1e-4
+    assert info["episode_metrics"]["rms_orientation_error"] <= 1e-3
+    assert info["is_success"]
+
+
+def test_clik_error_decays_as_exp_minus_K_t():
+    """ė + K e = 0 ⇒ e(t) = e(0) e^{−Kt}; the discrete loop gives e_k = e(0)(1 − KΔt)^k.
+
+    With K = 20 1/s at 2 kHz (KΔt = 0.01), max_k |(1 − KΔt)^k − e^{−KkΔt}| ≤ KΔt/(2e) ≈ 0.2 %
+    of e(0); the path's own O(Δt) tracking error adds < 1e-5 m. Tolerance 1 % of e(0).
+    """
+    K, e0_norm = 20.0, 0.01
+    # a slow lap (20 s) so the reference barely moves during the 0.3 s transient observed
+    env = gym.make(ENV, initial_error=e0_norm, control_freq=2000.0, episode_duration=20.0)
+    policy = controller("clik", env, K=K)
+    obs, _ = env.reset(seed=5)
+    e0 = obs["x_ref"] - obs["x"]
+    np.testing.assert_allclose(np.linalg.norm(e0), e0_norm, rtol=1e-6)
+    errors, state = [], None
+    for k in range(600):
+        action, state = policy.predict(obs, state, np.array([k == 0]))
+        obs, *_ = env.step(action)
+        errors.append(obs["x_ref"] - obs["x"])
+    t = np.arange(1, len(errors) + 1) * env.unwrapped.dt
+    predicted = e0[None] * np.exp(-K * t)[:, None]
+    assert np.max(np.abs(np.array(errors) - predicted)) < 0.01 * e0_norm
+    wrong = e0[None] * np.exp(-1.3 * K * t)[:, None]  # a 30 % wrong rate is caught
+    assert np.max(np.abs(np.array(errors) - wrong)) > 0.03 * e0_norm
+
+
+def test_open_loop_pseudo_inverse_drifts_and_clik_does_not():
+    env = gym.make(ENV)
+    open_loop = rollout(controller("pseudo_inverse", env), env, 0)[-1][2]["episode_metrics"]
+    closed = rollout(controller("clik", env), env, 0)[-1][2]["episode_metrics"]
+    assert open_loop["rms_task_error"] > 10 * closed["rms_task_error"]
+
+
+# ---------------------------------------------------------------------- null space
+@pytest.mark.parametrize("robot_name,site,rows", [("planar3r", "ee", 2), ("iiwa14", "tcp", 6)])
+def test_null_space_motion_does_not_move_the_end_effector(robot_name, site, rows):
+    robot = Robot.from_name(robot_name)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = rng.uniform(robot.lower, robot.upper)
+        J = robot.jacobian(site, q)[:rows]
+        J_pinv = kinematic.pseudo_inverse(J)
+        qd0 = rng.normal(size=robot.n)
+        assert np.linalg.norm(J @ kinematic.null_space_projector(J, J_pinv) @ qd0) <= 1e-10
+
+
+def test_weighted_pseudo_inverse_is_a_generalised_inverse():
+    robot = Robot.from_name("iiwa14")
+    J = robot.jacobian("tcp", robot.model.key("home").qpos)
+    w_inv = np.linspace(0.5, 3.0, 7)
+    np.testing.assert_allclose(J @ kinematic.weighted_pseudo_inverse(J, w_inv), np.eye(6),
+                               atol=1e-10)
+
+
+def test_nullspace_raises_the_manipulability_at_equal_task_error():
+    env = gym.make(ENV)
+    plain = rollout(controller("clik", env), env, 1)[-1][2]["episode_metrics"]
+    ns = rollout(controller("clik_nullspace", env), env, 1)[-1][2]["episode_metrics"]
+    assert ns["min_manipulability"] > 1.05 * plain["min_manipulability"]
+    assert ns["rms_task_error"] < 2e-4
+
+
+# ---------------------------------------------------------------------- singularities
+def _stretched_observation(env: gym.Env) -> dict:
+    """An observation at q = 0 (planar arm stretched: J has rank 1) with a reference move."""
+    obs, _ = env.reset(seed=0)
+    obs = {k: v.copy() for k, v in obs.items()}
+    obs["q"] = np.zeros(3)
+    obs["x"] = np.array([1.2, 0.0])
+    obs["x_ref"] = np.array([1.19, 0.01])
+    obs["xd_ref"] = np.array([-0.1, 0.1])
+    return obs
+
+
+@pytest.mark.parametrize("name", sorted(CONTROLLERS))
+def test_controllers_never_return_nan_at_the_stretched_arm(name):
+    env = gym.make(ENV)
+    obs = _stretched_observation(env)
+    policy = controller(name, env)
+    if name in ("clik", "pseudo_inverse", "clik_weighted", "clik_nullspace"):
+        with pytest.raises(kinematic.SingularJacobian, match="singular"):
+            policy.predict(obs)
+        return
+    action, _ = policy.predict(obs)
+    assert np.all(np.isfinite(action))
+    if name == "clik_dls":
+        qd = policy.control(obs, np.zeros(0))
+        v = obs["xd_ref"] + policy.gains.K * (obs["x_ref"] - obs["x"])
+        assert np.linalg.norm(qd) <= np.linalg.norm(v) / (2 * policy.gains.damping) + 1e-9
+
+
+def test_augmented_jacobian_reports_its_smallest_singular_value():
+    env = gym.make(ENV)
+    policy = controller("clik_augmented", env)
+    obs, _ = env.reset(seed=0)
+    _, state = policy.predict(obs)
+    assert 0 < state[0, 1] == policy.last_sigma_min < np.inf
+
+
+# ---------------------------------------------------------------------- env contract
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+@pytest.mark.parametrize("objective", ["manipulability", "joint_limits", "obstacle"])
+def test_reward_is_the_sum_of_its_terms(env_id, objective):
+    env = gym.make(env_id, objective=objective, episode_duration=0.5)
+    env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    for _ in range(env.unwrapped.max_steps):
+        _, reward, terminated, truncated, info = env.step(rng.uniform(-0.3, 0.3, env.unwrapped.n))
+        terms = sum(v for k, v in info.items() if k.startswith("reward_"))
+        assert reward == pytest.approx(terms, abs=1e-12)
+        if terminated or truncated:
+            assert "episode_metrics" in info and "is_success" in info
+            break
+
+
+@pytest.mark.parametrize("cls", [RedundantIKEnv, RedundantIK7Env])
+def test_check_env_passes(cls):
+    check_env(cls(objective="obstacle"), skip_render_check=True)
+
+
+@pytest.mark.parametrize("cls", [RedundantIKEnv, RedundantIK7Env])
+def test_arguments_table_matches_the_signature(cls):
+    table = dict(re.findall(r"^\s*\| (\w+) \| ([^|]+) \|", cls.__doc__, flags=re.M))
+    for name, param in inspect.signature(cls.__init__).parameters.items():
+        if name != "self":
+            assert ast.literal_eval(table[name].strip()) == param.default, name
+
+
+def test_joint_limit_is_hard_and_terminates():
+    env = gym.make(ENV, objective="joint_limits")
+    env.reset(seed=0)
+    base = env.unwrapped
+    for _ in range(base.max_steps):
+        _, _, terminated, _, info = env.step(np.ones(3))
+        if terminated:
+            break
+    assert info["joint_limit_violation"] and terminated
+    assert np.all(base._q <= base.upper) and np.any(base._q == base.upper)
+
+
+def test_unknown_objective_names_the_allowed_ones():
+    with pytest.raises(InvalidArgument, match=r"manipulability.*joint_limits.*obstacle"):
+        gym.make(ENV, objective="energy")
+
+
+def test_non_positive_gain_is_rejected():
+    env = gym.make(ENV)
+    with pytest.raises(InvalidGain, match="K"):
+        controller("clik", env, K=0.0)
+
+
+def test_same_seed_same_episode():
+    a, b = gym.make(ENV7, objective="obstacle"), gym.make(ENV7, objective="obstacle")
+    oa, _ = a.reset(seed=7)
+    ob, _ = b.reset(seed=7)
+    for k in oa:
+        np.testing.assert_array_equal(oa[k], ob[k])
+
+
+def test_orientation_error_is_the_rotation_vector():
+    from cir_gym.trajectories import matrix_from_axis_angle
+
+    R = matrix_from_axis_angle([1.0, 2.0, 3.0], 0.7)
+    axis = np.array([0.0, 0.6, 0.8])
+    np.testing.assert_allclose(orientation_error(matrix_from_axis_angle(axis, 2.9) @ R, R),
+                               2.9 * axis, atol=1e-12)
