@@ -312,15 +312,17 @@ class NullSpaceCLIKGains:
     - k0_manipulability (rad² s⁻¹): w = sqrt(det J Jᵀ), ascended along ∇ ln w = ∇w / w (the
       same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian);
     - k0_joint_limits (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))²;
-    - k0_obstacle (rad² s⁻¹ m⁻²): w = −½ max(0, d_act − d)² with d the clearance (m), so q̇₀ =
-      k₀ (d_act − d)₊ ∇d pushes away only within ``activation_distance`` d_act (m).
+    - k0_obstacle (rad/s per unit ∇d): a barrier on the clearance d (m): q̇₀ =
+      k₀ ((d_act − d)₊ / d) ∇d pushes away within ``activation_distance`` d_act (m) and grows
+      without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d let 16/20 planar episodes
+      collide; this barrier with k₀ = 5: 3/10 on the first 10 seeds, vs 9/10 for ``clik``).
     ``fd_step`` (rad): central-difference step of the numerical gradients.
     """
 
     K: float = 50.0
     k0_manipulability: float = 6.0
     k0_joint_limits: float = 10.0
-    k0_obstacle: float = 30.0
+    k0_obstacle: float = 5.0
     activation_distance: float = 0.15
     fd_step: float = 1e-6
 
@@ -381,9 +383,9 @@ class NullSpaceCLIK(CLIK):
         if obstacle[-1] <= 0:
             return np.zeros(self.n)  # no obstacle this episode
         d = self.clearance(q, obstacle)
-        push = g.activation_distance - d
-        if push <= 0:
+        if d >= g.activation_distance:
             return np.zeros(self.n)
+        push = (g.activation_distance - d) / max(d, 1e-3)  # grows without bound as d → 0
         grad = self._central_difference(lambda x: self.clearance(x, obstacle), q)
         return g.k0_obstacle * push * grad
 

@@ -322,7 +322,9 @@ class _RedundantIKBase(RobotEnv):
         A random instant t* ∈ [0.3, 0.8] T of the minimum-norm (pseudo-inverse) motion and a
         random point of one of the ``obstacle_links`` capsules are drawn; the obstacle overlaps
         that capsule by 5–20 mm there, on a random side. Draws that come within
-        ``radius + 0.08`` m of the task path or that collide at q(0) are rejected (30 tries).
+        ``radius + 0.08`` m of the task path, that collide at q(0), or that no self-motion at t*
+        can clear (:meth:`_self_motion_clears`: the instance would test nothing a kinematic
+        controller can do) are rejected (30 tries).
         """
         rng = self.np_random
         motion = self._min_norm_motion(q0)
@@ -344,10 +346,49 @@ class _RedundantIKBase(RobotEnv):
             centre = point + (self.capsules.radius[i] + radius - depth) * normal
             d_path = np.min(np.linalg.norm(path_pts - centre[: self.pos_dim], axis=1))
             self._forward(q0)
-            if d_path > radius + 0.08 and self.capsules.clearance(self.data, centre, radius) > 0.03:
+            if (d_path > radius + 0.08
+                    and self.capsules.clearance(self.data, centre, radius) > 0.03
+                    and self._self_motion_clears(motion[k], 5 * k, centre, radius)):
                 best = np.concatenate((centre, [radius]))
                 break
         return best
+
+    def _self_motion_clears(self, q: np.ndarray, step: int, centre: np.ndarray, radius: float,
+                            target: float = 0.03, iterations: int = 80) -> bool:
+        """Whether a self-motion from ``q`` (holding the task pose of control step ``step``)
+        reaches a configuration inside the joint limits that clears the obstacle by ``target``.
+
+        A geometric feasibility check of the instance (a static search along the null space of
+        J with the clearance's numerical gradient, 0.03 rad steps, task re-solved each step).
+        """
+        q = q.copy()
+        eye = np.eye(self.n)
+        h = 1e-5
+
+        def clearance(x: np.ndarray) -> float:
+            self._forward(x)
+            return self.capsules.clearance(self.data, centre, radius)
+
+        for _ in range(iterations):
+            if clearance(q) >= target:
+                return bool(np.all(q > self.lower) and np.all(q < self.upper))
+            grad = np.array([(clearance(q + h * eye[i]) - clearance(q - h * eye[i])) / (2 * h)
+                             for i in range(self.n)])
+            J = self._task_jacobian(q)
+            J_pinv = np.linalg.pinv(J)
+            motion = (eye - J_pinv @ J) @ grad
+            norm = float(np.linalg.norm(motion))
+            if norm < 1e-9:
+                return False
+            q = q + 0.03 * motion / norm
+            p, R = self._forward(q)
+            e = self._x_ref[step] - p
+            if self.task_dim == 6:
+                e = np.concatenate((e, orientation_error(self._R_ref[step], R)))
+            q = q + J_pinv @ e
+            if np.any(q <= self.lower) or np.any(q >= self.upper):
+                return False
+        return False
 
     def _random_normal(self, axis: np.ndarray) -> np.ndarray:
         """A random unit vector normal to ``axis`` (in the plane z = 0 for the planar arm)."""
