@@ -84,6 +84,9 @@ class Controller:
             raise ValueError(
                 f"observation must be a dict with a 'q' entry, got keys {list(observation)}"
             )
+        for key, value in observation.items():
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"observation[{key!r}] contains NaN or inf")
         batched = np.ndim(observation["q"]) == 2  # every cir_gym observation has q (n,)
         n_envs = int(np.shape(observation["q"])[0]) if batched else 1
         if state is None:

@@ -206,6 +206,10 @@ class RobustGains:
             _positive(name, getattr(self, name))
         if self.epsilon is not None:
             _positive("epsilon", self.epsilon)
+        for name in ("payload_bound", "mass_scale_bound", "error_bound", "qdd_ref_bound"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise InvalidGain(f"{name} must be a finite number >= 0, got {v!r}")
         if self.rho is not None and (not np.isfinite(self.rho) or self.rho < 0):
             raise InvalidGain(f"rho must be >= 0 or None, got {self.rho!r}")
 

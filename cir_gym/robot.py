@@ -134,6 +134,8 @@ class Robot:
             if jid < 0:
                 raise RobotFileError(f"joint {name!r} not in the model")
             ids.append(jid)
+        if not ids:
+            raise RobotFileError("the model has no hinge or slide joints: not a robot arm")
         self.joint_names = list(joints)
         self.joint_ids = np.array(ids, dtype=int)
         self.n = len(ids)
@@ -162,8 +164,10 @@ class Robot:
                     )
         self._M = np.zeros((model.nv, model.nv))
         self._vec = np.zeros(model.nv)
+        self._jac = np.zeros((6, model.nv))  # [J_P; J_O], rows filled in place by mj_jacSite
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
+        self._site_ids: dict[str, int] = {}
         self._q_key: bytes | None = None
         self._crb_done = False
 
@@ -187,7 +191,7 @@ class Robot:
     def set_armature(self, armature: np.ndarray) -> None:
         """Set the reflected rotor inertia k_r² I_m (kg m², shape (n,)) of every joint."""
         self.model.dof_armature[self.dof_adr] = armature
-        self._q_key = None
+        self.invalidate()
 
     def _numeric(self, name: str, default: float) -> np.ndarray:
         nid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
@@ -198,11 +202,18 @@ class Robot:
             raise RobotFileError(f"custom numeric {name!r} has {data.size} values, need {self.n}")
         return np.array(data, dtype=float)
 
+    def invalidate(self) -> None:
+        """Forget cached kinematics: call after changing ``self.model`` in place."""
+        self._q_key = None
+
     def site_id(self, site: str) -> int:
+        if site in self._site_ids:
+            return self._site_ids[site]
         sid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
         if sid < 0:
             names = [self.model.site(i).name for i in range(self.model.nsite)]
             raise ValueError(f"site {site!r} not in the model; sites: {names}")
+        self._site_ids[site] = sid
         return sid
 
     # ------------------------------------------------------------------ state
@@ -233,10 +244,8 @@ class Robot:
         """Geometric Jacobian (6, n) of a site, ``[J_P; J_O]`` in the world frame."""
         sid = site if isinstance(site, int) else self.site_id(site)
         self._set_q(np.asarray(q, dtype=float))
-        mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, sid)
-        if self._whole:
-            return np.vstack((self._jacp, self._jacr))
-        return np.vstack((self._jacp[:, self.dof_adr], self._jacr[:, self.dof_adr]))
+        mujoco.mj_jacSite(self.model, self.data, self._jac[:3], self._jac[3:], sid)
+        return self._jac.copy() if self._whole else self._jac[:, self.dof_adr]
 
     def jacobian_dot_qdot(self, site: str | int, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """J̇(q, q̇) q̇ (6,) of a site: the site's acceleration at q̈ = 0 (linear; angular)."""

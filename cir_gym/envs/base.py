@@ -25,7 +25,14 @@ import numpy as np
 from cir_gym.metrics import MetricSpec
 from cir_gym.robot import Robot
 
-__all__ = ["InvalidArgument", "RobotEnv", "TaskContext", "check_kwargs", "check_number"]
+__all__ = [
+    "InvalidArgument",
+    "RobotEnv",
+    "TaskContext",
+    "as_float_array",
+    "check_kwargs",
+    "check_number",
+]
 
 GL_HELP = (
     "MuJoCo could not create an OpenGL context for rendering. On a headless Debian/Ubuntu "
@@ -79,6 +86,19 @@ def check_number(
         lo = "(" if low_open else "["
         raise InvalidArgument(f"{name} must be in {lo}{low}, {high}], got {value!r}")
     return v
+
+
+def as_float_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a float array, or :class:`InvalidArgument` naming ``name``."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidArgument(
+            f"{name} must be a number or a sequence of numbers, got {value!r}"
+        ) from exc
+    if not np.all(np.isfinite(arr)):
+        raise InvalidArgument(f"{name} must be finite, got {value!r}")
+    return arr
 
 
 class EntryPoint:
@@ -182,11 +202,17 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         """
         shape = self.action_space.shape
         try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
+            raw = np.asarray(action)
+        except (TypeError, ValueError) as exc:  # ragged nested sequences
             raise ValueError(
-                f"action must be an array of shape {shape} with values in [-1, 1], got {action!r}"
+                f"action must be a numeric array of shape {shape}, got {action!r}"
             ) from exc
+        if raw.dtype.kind not in "biuf":
+            raise ValueError(
+                f"action must be a numeric array of shape {shape} with values in [-1, 1], "
+                f"got {action!r} (dtype {raw.dtype})"
+            )
+        a = raw.astype(np.float64)
         if a.shape != shape:
             if a.size == int(np.prod(shape)) and a.ndim <= 1:
                 a = a.reshape(shape)
@@ -216,9 +242,8 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         with np.errstate(all="ignore"):
             for _ in range(self.frame_skip):
                 mujoco.mj_step(self.model, d)
-                if self._instability_warnings() > warnings_before:
-                    diverged = True  # MuJoCo reset the state or zeroed a huge control
-                    break
+            # MuJoCo resets a bad state or zeroes a huge control and counts a warning
+            diverged = self._instability_warnings() > warnings_before
             if not diverged:
                 diverged = bool(
                     not np.all(np.isfinite(d.qpos))

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from cir_gym.envs.base import InvalidArgument, TaskContext
+from cir_gym.envs.base import InvalidArgument, TaskContext, as_float_array
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 from cir_gym.robot import Robot, robot_path
 
@@ -111,7 +111,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     def __init__(
         self, *args: Any, stiffness: float | list[float] | None = None, **kwargs: Any
     ) -> None:
-        k = np.asarray(DEFAULT_STIFFNESS if stiffness is None else stiffness, dtype=float)
+        k = as_float_array("stiffness", DEFAULT_STIFFNESS if stiffness is None else stiffness)
         k = np.broadcast_to(k, (7,)).copy() if k.ndim == 0 else k
         if k.shape != (7,) or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise InvalidArgument(

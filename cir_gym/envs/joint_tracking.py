@@ -8,7 +8,13 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import (
+    InvalidArgument,
+    RobotEnv,
+    TaskContext,
+    as_float_array,
+    check_number,
+)
 from cir_gym.metrics import MetricSpec
 from cir_gym.robot import ModelError, Robot, apply_model_error
 
@@ -162,7 +168,7 @@ class JointTrackingEnv(RobotEnv):
             raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
         self.randomize = bool(randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
-        scales = np.atleast_1d(np.asarray(error_scales, dtype=float))
+        scales = np.atleast_1d(as_float_array("error_scales", error_scales))
         if scales.ndim != 1 or scales.size == 0 or not np.all(scales > 0):
             raise InvalidArgument(f"error_scales must be positive numbers, got {error_scales!r}")
         self.error_scales = scales
@@ -235,11 +241,8 @@ class JointTrackingEnv(RobotEnv):
     ) -> np.ndarray:
         if value is None:
             return default.copy()
-        arr = (
-            np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
-            if np.ndim(value) == 0
-            else np.asarray(value, dtype=float)
-        )
+        arr = as_float_array(name, value)
+        arr = np.broadcast_to(arr, (n,)).copy() if arr.ndim == 0 else arr
         if (
             arr.shape != (n,)
             or not np.all(np.isfinite(arr))
@@ -295,6 +298,7 @@ class JointTrackingEnv(RobotEnv):
             self.episode_model_error = ModelError(**draw)
             _restore_inertial_arrays(self.model, self._nominal_arrays)
             apply_model_error(self.model, self.episode_model_error)
+            self.robot.invalidate()
         q0, qd0 = self._make_reference()
         if self.initial_error > 0:
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)

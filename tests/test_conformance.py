@@ -1,0 +1,805 @@
+"""Conformance of every registered environment and every reference controller.
+
+Everything is parametrised over ``cir_gym.ENVIRONMENTS`` and ``baselines.available(env_id)``,
+so a newly registered id is checked without editing this file. Each test's docstring says
+which property it protects. Known bugs are listed in ``KNOWN_BUGS`` and marked
+``xfail(strict=True)`` so that the fix turns them into failures until the entry is removed.
+"""
+
+from __future__ import annotations
+
+import ast
+import copy
+import dataclasses
+import inspect
+import json
+import math
+import pickle
+import re
+import subprocess
+import sys
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import baselines
+import cir_gym
+from cir_gym.envs.base import constructor_arguments
+from cir_gym.evaluation import evaluate
+from cir_gym.robot import ModelError, Robot, RobotFileError, apply_model_error, load_model
+
+ENV_IDS: list[str] = list(cir_gym.ENVIRONMENTS)
+SHORT_DURATION = 0.05  # s: episode length for tests that need an episode end
+
+#: Bugs found by this file: (test, *case) → reason. Remove an entry when the bug is fixed.
+KNOWN_BUGS: dict[tuple[str, ...], str] = {}
+
+#: Env ids whose ``info["diverged"]`` is False by construction (kinematic), with the reason.
+_KINEMATIC = ("kinematic env: q ← q + Δt q̇ with q̇ clipped to the velocity limits and no "
+              "physics step (the simulator state is rewritten from q every step), so "
+              "info['diverged'] is False by construction")
+NEVER_DIVERGES: dict[str, str] = {
+    "cir_gym/RedundantIK-v0": _KINEMATIC,
+    "cir_gym/RedundantIK7-v0": _KINEMATIC,
+}
+
+
+def _cls(env_id: str) -> type:
+    return cir_gym.ENVIRONMENTS[env_id][0]
+
+
+def _params(test: str, cases: list[tuple[Any, ...]]) -> list[Any]:
+    """pytest params for ``cases``, xfail(strict) where ``KNOWN_BUGS`` has (test, *case)."""
+    out = []
+    for case in cases:
+        key = (test, *(c for c in case if isinstance(c, str)))
+        reason = KNOWN_BUGS.get(key)
+        marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+        out.append(pytest.param(*case, marks=marks, id="-".join(str(c) for c in case)))
+    return out
+
+
+def _short(env_id: str) -> dict[str, Any]:
+    """Kwargs giving a short episode, when the env has an ``episode_duration``."""
+    return ({"episode_duration": SHORT_DURATION}
+            if "episode_duration" in constructor_arguments(_cls(env_id)) else {})
+
+
+def _variants(env_id: str) -> list[tuple[str, dict[str, Any]]]:
+    """Default kwargs plus each of the class's ``leaderboard_variants``."""
+    variants = getattr(_cls(env_id), "leaderboard_variants", {})
+    return [("default", {}), *((name, dict(kw)) for name, kw in variants.items())]
+
+
+def _stochastic_kwargs(env_id: str) -> dict[str, Any]:
+    """Kwargs switching on every source of randomness the env has (randomize, *_noise)."""
+    out: dict[str, Any] = {}
+    for name in constructor_arguments(_cls(env_id)):
+        if name == "randomize":
+            out[name] = True
+        elif name.endswith("_noise"):
+            out[name] = 0.01
+    return out
+
+
+def _random_actions(env: gym.Env, n: int, seed: int = 0) -> np.ndarray:
+    shape = env.action_space.shape
+    return np.random.default_rng(seed).uniform(-1, 1, (n, *shape)).astype(np.float32)
+
+
+def _flat_numeric(value: Any, prefix: str = "") -> Iterator[tuple[str, np.ndarray]]:
+    """(path, array) for every numeric leaf of an info/observation (dicts, dataclasses)."""
+    if isinstance(value, dict):
+        for k in sorted(value):
+            yield from _flat_numeric(value[k], f"{prefix}/{k}")
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        yield from _flat_numeric(dataclasses.asdict(value), prefix)
+    elif isinstance(value, (bool, int, float, np.number, np.bool_, np.ndarray)):
+        arr = np.asarray(value)
+        if arr.dtype.kind in "biuf":
+            yield prefix, arr
+
+
+def _assert_bitwise_equal(a: Any, b: Any, what: str) -> None:
+    fa, fb = dict(_flat_numeric(a)), dict(_flat_numeric(b))
+    assert fa.keys() == fb.keys(), f"{what}: different keys {fa.keys() ^ fb.keys()}"
+    for key in fa:
+        x, y = fa[key], fb[key]
+        assert x.dtype == y.dtype and x.shape == y.shape, f"{what}{key}: dtype/shape differ"
+        assert x.tobytes() == y.tobytes(), f"{what}{key}: {x} != {y}"
+
+
+def _rollout(env: gym.Env, seed: int, actions: np.ndarray) -> list[tuple[Any, ...]]:
+    """reset(seed) then the given actions, resetting (unseeded) at every episode end."""
+    obs, info = env.reset(seed=seed)
+    out: list[tuple[Any, ...]] = [(obs, info)]
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        out.append((obs, reward, terminated, truncated, info))
+        if terminated or truncated:
+            out.append(env.reset())
+    return out
+
+
+def _assert_same_rollout(r1: list[tuple[Any, ...]], r2: list[tuple[Any, ...]]) -> None:
+    assert len(r1) == len(r2)
+    for k, (s1, s2) in enumerate(zip(r1, r2, strict=True)):
+        assert len(s1) == len(s2)
+        for i, (x, y) in enumerate(zip(s1, s2, strict=True)):
+            _assert_bitwise_equal(x, y, f"step {k} item {i}")
+
+
+# ---------------------------------------------------------------------- registry
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_registry_entry_and_declarations(env_id: str) -> None:
+    """Each id is registered under its class and declares metrics, primary and variants."""
+    cls = _cls(env_id)
+    assert re.fullmatch(r"cir_gym/[A-Z]\w*-v\d+", env_id)
+    env = gym.make(env_id)
+    assert type(env.unwrapped) is cls
+    env.close()
+    names = [s.name for s in cls.metric_specs]
+    assert names and len(set(names)) == len(names)
+    assert cls.primary_metric in names
+    assert isinstance(getattr(cls, "leaderboard_variants", None), dict)
+
+
+# ---------------------------------------------------------------------- checkers
+@pytest.mark.parametrize(
+    ("env_id", "variant", "kwargs"),
+    [pytest.param(e, n, kw, id=f"{e}-{n}") for e in ENV_IDS for n, kw in _variants(e)],
+)
+def test_gymnasium_and_sb3_checkers_pass_without_warnings(env_id: str, variant: str,
+                                                         kwargs: dict[str, Any]) -> None:
+    """Gymnasium's and SB3's env checkers accept every id and variant, silently."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(env_id, **kwargs)
+        gym_check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env, warn=True)
+        env.close()
+    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
+
+
+# ---------------------------------------------------------------------- determinism
+@pytest.mark.parametrize(
+    ("env_id", "stochastic"),
+    [pytest.param(e, s, id=f"{e}-{'stochastic' if s else 'default'}")
+     for e in ENV_IDS for s in (False, True) if not s or _stochastic_kwargs(e)],
+)
+def test_same_seed_and_actions_give_bitwise_identical_rollouts(env_id: str,
+                                                                stochastic: bool) -> None:
+    """Two fresh envs, same seed, same actions: identical obs, rewards and numeric infos
+    (including across an unseeded reset, and with randomisation and noise switched on)."""
+    kwargs = {**_short(env_id), **(_stochastic_kwargs(env_id) if stochastic else {})}
+    env1, env2 = gym.make(env_id, **kwargs), gym.make(env_id, **kwargs)
+    n = 2 * env1.unwrapped.max_steps + 3 if hasattr(env1.unwrapped, "max_steps") else 60
+    actions = _random_actions(env1, min(n, 120))
+    _assert_same_rollout(_rollout(env1, 7, actions), _rollout(env2, 7, actions))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_reset_with_seed_reproduces_and_forgets_the_past(env_id: str) -> None:
+    """reset(seed=s) twice gives the same first observation; a used env then behaves like a
+    fresh one (no state leaks across episodes); different seeds give different episodes."""
+    kwargs = {**_short(env_id), **_stochastic_kwargs(env_id)}
+    used, fresh = gym.make(env_id, **kwargs), gym.make(env_id, **kwargs)
+    obs_a, info_a = used.reset(seed=11)
+    for a in _random_actions(used, 10):
+        used.step(a)
+    obs_b, info_b = used.reset(seed=11)
+    _assert_bitwise_equal((obs_a, info_a), (obs_b, info_b), "reset(seed) twice")
+    for a in _random_actions(used, 30, seed=3):
+        _, _, terminated, truncated, _ = used.step(a)
+        if terminated or truncated:
+            used.reset()
+    actions = _random_actions(used, 10, seed=5)
+    _assert_same_rollout(_rollout(used, 12, actions), _rollout(fresh, 12, actions))
+    firsts = [fresh.reset(seed=s)[0] for s in range(4)]
+    assert any(not np.array_equal(firsts[0][k], o[k]) for o in firsts[1:] for k in o)
+
+
+# ---------------------------------------------------------------------- pickling, processes
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_env_pickles_mid_episode_and_steps_identically(env_id: str) -> None:
+    """A pickled env (wrappers included, noise on) continues exactly like the original."""
+    env = gym.make(env_id, **_stochastic_kwargs(env_id))
+    env.reset(seed=3)
+    actions = _random_actions(env, 12)
+    for a in actions[:5]:
+        env.step(a)
+    clone = pickle.loads(pickle.dumps(env))
+    for a in actions[5:]:
+        _assert_bitwise_equal(env.step(a), clone.step(a), "after unpickling")
+    clone.close()
+    env.close()
+
+
+_VECTOR_SCRIPT = r"""
+import functools, json, multiprocessing, sys
+import numpy as np
+import gymnasium as gym
+from stable_baselines3.common.vec_env import SubprocVecEnv
+
+out_dir, env_ids = sys.argv[1], json.loads(sys.argv[2])
+fns = {e: [functools.partial(gym.make, "cir_gym:" + e)] * 2 for e in env_ids}
+# SB3 workers forked from this process before it imports cir_gym (unpickling a reset info
+# would): they must register the ids through the "cir_gym:" prefix.
+venvs = [SubprocVecEnv(fns[e], start_method="fork") for e in env_ids]
+assert "cir_gym" not in sys.modules
+for i, venv in enumerate(venvs):
+    venv.seed(0)
+    obs = venv.reset()
+    venv.step(np.zeros((2, *venv.action_space.shape), dtype=np.float32))
+    venv.close()
+    np.savez(f"{out_dir}/subproc{i}.npz", **obs)
+# AsyncVectorEnv builds a dummy env here, so its workers come from a fresh forkserver.
+multiprocessing.set_forkserver_preload(["gymnasium", "mujoco"])
+for i, env_id in enumerate(env_ids):
+    venv = gym.vector.AsyncVectorEnv(fns[env_id], context="forkserver")
+    obs, _ = venv.reset(seed=[0, 1])
+    step = venv.step(np.zeros((2, *venv.single_action_space.shape), dtype=np.float32))
+    assert np.all(np.isfinite(step[1])), step[1]
+    venv.close()
+    np.savez(f"{out_dir}/async{i}.npz", **obs)
+"""
+
+
+def test_vector_envs_work_from_a_fresh_process(tmp_path: Path) -> None:
+    """gymnasium's AsyncVectorEnv and SB3's SubprocVecEnv, with workers that never imported
+    cir_gym, build every id via "cir_gym:<id>" and reset to the same observations as an
+    in-process env with the same seeds."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _VECTOR_SCRIPT, str(tmp_path), json.dumps(ENV_IDS)],
+        capture_output=True, text=True, timeout=300, cwd=Path(__file__).parents[1],
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    for i, env_id in enumerate(ENV_IDS):
+        env = gym.make(env_id)
+        expected = [env.reset(seed=s)[0] for s in (0, 1)]
+        for kind in ("async", "subproc"):
+            with np.load(tmp_path / f"{kind}{i}.npz") as got:
+                for k in expected[0]:
+                    stacked = np.stack([expected[0][k], expected[1][k]])
+                    assert stacked.tobytes() == got[k].tobytes(), f"{env_id} {kind} obs[{k}]"
+
+
+# ---------------------------------------------------------------------- rewards, info
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_reward_is_the_sum_of_its_terms_and_the_last_step_reports_metrics(env_id: str) -> None:
+    """reward == Σ info["reward_*"]; observations stay in the observation space; every step
+    has a bool ``diverged``; the last step has ``is_success`` and exactly the class's
+    ``metric_specs`` in ``episode_metrics``."""
+    env = gym.make(env_id, **_short(env_id))
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    names = {s.name for s in _cls(env_id).metric_specs}
+    done, steps = False, 0
+    for a in _random_actions(env, 10_000):
+        obs, reward, terminated, truncated, info = env.step(a)
+        assert env.observation_space.contains(obs), {k: v for k, v in obs.items()}
+        terms = [v for k, v in info.items() if k.startswith("reward_")]
+        assert terms, "no reward_* terms in info"
+        assert reward == pytest.approx(math.fsum(terms), rel=1e-12, abs=1e-12)
+        assert isinstance(info["diverged"], bool)
+        steps += 1
+        done = terminated or truncated
+        if done:
+            break
+        assert "episode_metrics" not in info
+    assert done, "episode did not end (episode_duration ignored?)"
+    assert isinstance(info["is_success"], bool)
+    assert set(info["episode_metrics"]) == names
+    assert all(np.isfinite(v) for v in info["episode_metrics"].values())
+
+
+# ---------------------------------------------------------------------- documentation
+def _arguments_table(cls: type) -> tuple[dict[str, str], str | None]:
+    """(name → default cell) of the ``## Arguments`` table and the "arguments of X" base."""
+    doc = inspect.cleandoc(cls.__doc__ or "")
+    m = re.search(r"^## Arguments[ \t]*$(.*?)(?=^## |\Z)", doc, re.M | re.S)
+    assert m, f"{cls.__name__} docstring has no '## Arguments' section"
+    section = m.group(1)
+    base = re.search(r"The arguments of `?([\w/:.-]+?)`?,? plus", section)
+    rows: dict[str, str] = {}
+    for line in section.splitlines():
+        if not line.strip().startswith("|"):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 3 or cells[0] == "argument" or set(cells[0]) <= set("-: "):
+            continue
+        name = cells[0].strip("`")
+        assert name not in rows, f"{cls.__name__}: argument {name!r} listed twice"
+        rows[name] = cells[1].strip("`")
+    return rows, base.group(1) if base else None
+
+
+def _resolve_env_class(name: str) -> type:
+    for env_id, (cls, _) in cir_gym.ENVIRONMENTS.items():
+        if name in (env_id, env_id.split("/")[-1], cls.__name__):
+            return cls
+    raise AssertionError(f"'The arguments of {name}' names no registered environment")
+
+
+def _signature_defaults(cls: type) -> dict[str, Any]:
+    """Default of every constructor argument, from the first class of the MRO declaring it."""
+    out: dict[str, Any] = {}
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        params = inspect.signature(vars(klass)["__init__"]).parameters.values()
+        for p in params:
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                out.setdefault(p.name, p.default)
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
+    return out
+
+
+def _own_arguments(cls: type) -> set[str]:
+    params = inspect.signature(vars(cls)["__init__"]).parameters.values()
+    return {p.name for p in params
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+
+
+def _full_table(cls: type) -> dict[str, str]:
+    rows, base = _arguments_table(cls)
+    if base is None:
+        return rows
+    base_cls = _resolve_env_class(base)
+    assert base_cls is not cls and issubclass(cls, base_cls), f"{cls.__name__} vs {base}"
+    assert set(rows) == _own_arguments(cls), (
+        f"{cls.__name__}: extra rows {sorted(rows)} != own __init__ arguments "
+        f"{sorted(_own_arguments(cls))}")
+    return {**_full_table(base_cls), **rows}
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_arguments_table_matches_the_constructor(env_id: str) -> None:
+    """The docstring's Arguments table (with "The arguments of X, plus:" inheritance) lists
+    exactly the constructor's arguments, each default written as the Python literal."""
+    cls = _cls(env_id)
+    table = _full_table(cls)
+    defaults = _signature_defaults(cls)
+    assert set(constructor_arguments(cls)) == set(defaults)
+    assert set(table) == set(defaults), (
+        f"undocumented: {sorted(set(defaults) - set(table))}, "
+        f"not arguments: {sorted(set(table) - set(defaults))}")
+    wrong = {}
+    for name, cell in table.items():
+        try:
+            value = ast.literal_eval(cell)
+        except (ValueError, SyntaxError):
+            wrong[name] = (cell, defaults[name])
+            continue
+        if type(value) is not type(defaults[name]) or value != defaults[name]:
+            wrong[name] = (cell, defaults[name])
+    assert not wrong, f"table cell vs signature default: {wrong}"
+
+
+# ---------------------------------------------------------------------- rendering
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_rgb_array_render_returns_a_frame_of_the_requested_size(env_id: str) -> None:
+    """render_mode="rgb_array" gives a non-blank uint8 (height, width, 3) frame."""
+    env = gym.make(env_id, render_mode="rgb_array", width=64, height=48)
+    env.reset(seed=0)
+    frame = env.render()
+    env.close()
+    assert isinstance(frame, np.ndarray)
+    assert frame.dtype == np.uint8 and frame.shape == (48, 64, 3)
+    assert frame.max() > frame.min(), "blank frame"
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_missing_gl_backend_error_names_the_debian_packages(
+    env_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without a GL backend, render() raises a RuntimeError that says what to install."""
+
+    def no_gl(*args: Any, **kwargs: Any) -> None:
+        raise mujoco.FatalError("gladLoadGL error")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_gl)
+    env = gym.make(env_id, render_mode="rgb_array", width=64, height=48)
+    env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="libegl1") as exc:
+        env.render()
+    assert "libosmesa6" in str(exc.value)
+    env.close()
+
+
+# ---------------------------------------------------------------------- bad input: actions
+_ENVS: dict[str, gym.Env] = {}
+
+
+def _shared_env(env_id: str) -> gym.Env:
+    """One unwrapped env per id for the property tests (reset when needed)."""
+    if env_id not in _ENVS:
+        _ENVS[env_id] = gym.make(env_id).unwrapped
+        _ENVS[env_id].reset(seed=0)
+    return _ENVS[env_id]
+
+
+def _valid_step(env: gym.Env) -> None:
+    _, reward, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+    assert np.isfinite(reward)
+    if terminated or truncated:
+        env.reset()
+
+
+def _not_a_number(s: str) -> bool:
+    try:
+        complex(s)
+    except ValueError:
+        return True
+    return False
+
+
+_OBJECTS = st.sampled_from([None, object(), {}, {"a": 1.0}, set(), b"\x00", 1j, "x", [],
+                            slice(None)])
+
+
+def _bad_actions(shape: tuple[int, ...]) -> st.SearchStrategy[tuple[str, Any]]:
+    """(kind, action) pairs that must be rejected with ValueError."""
+    n = int(np.prod(shape))
+    finite = st.floats(-2.0, 2.0, allow_nan=False)
+    wrong_shape = hnp.arrays(
+        np.float64, hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=n + 2),
+        elements=finite,
+    ).filter(lambda a: a.shape != shape and not (a.ndim <= 1 and a.size == n))
+    words = st.text(min_size=1, max_size=5).filter(_not_a_number)
+    nested = st.lists(st.lists(finite, min_size=1, max_size=n + 1), min_size=1, max_size=3)
+    non_finite = st.tuples(
+        hnp.arrays(np.float64, shape, elements=finite),
+        st.lists(st.integers(0, n - 1), min_size=1, max_size=n),
+        st.sampled_from([np.nan, np.inf, -np.inf]),
+    ).map(lambda t: _with(t[0], t[1], t[2]))
+    return st.one_of(
+        wrong_shape.map(lambda a: ("shape", a)),
+        wrong_shape.map(lambda a: ("shape", a.tolist())),
+        words.map(lambda s: ("dtype", s)),
+        st.lists(words, min_size=n, max_size=n).map(lambda s: ("dtype", s)),
+        _OBJECTS.map(lambda o: ("dtype", o)),
+        st.lists(_OBJECTS, min_size=n, max_size=n).map(lambda o: ("dtype", o)),
+        nested.map(lambda x: ("shape", x)),
+        non_finite.map(lambda a: ("nan", a)),
+        non_finite.map(lambda a: ("nan", a.astype(np.float32))),
+    )
+
+
+def _with(a: np.ndarray, idx: list[int], value: float) -> np.ndarray:
+    a = a.copy()
+    a[np.unravel_index(idx, a.shape)] = value
+    return a
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_bad_actions_raise_a_clear_value_error_and_change_nothing(env_id: str,
+                                                                  data: st.DataObject) -> None:
+    """Wrong shape/dtype (strings, objects, nested lists) → ValueError naming the expected
+    shape; NaN/±inf → ValueError saying NaN; the env is untouched and still usable."""
+    env = _shared_env(env_id)
+    shape = env.action_space.shape
+    kind, action = data.draw(_bad_actions(shape), label="action")
+    time_before, qpos_before = env.data.time, env.data.qpos.copy()
+    with pytest.raises(ValueError) as exc:
+        env.step(action)
+    msg = str(exc.value)
+    if kind == "nan":
+        assert "NaN" in msg
+    else:
+        assert str(shape) in msg or "NaN" in msg, msg
+    assert env.data.time == time_before and np.array_equal(env.data.qpos, qpos_before)
+    _valid_step(env)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_finite_out_of_range_actions_are_clipped(env_id: str, data: st.DataObject) -> None:
+    """A finite action outside [-1, 1] acts exactly like its clipped value (no error)."""
+    env = _shared_env(env_id)
+    shape = env.action_space.shape
+    action = data.draw(hnp.arrays(np.float64, shape, elements=st.floats(-1e6, 1e6)))
+    clone = copy.deepcopy(env)
+    got = env.step(action)
+    want = clone.step(np.clip(action, -1.0, 1.0))
+    _assert_bitwise_equal(got[:2], want[:2], "clipped")
+    if got[2] or got[3]:
+        env.reset()
+
+
+@pytest.mark.parametrize("env_id", _params("numeric_string_action", [(e,) for e in ENV_IDS]))
+def test_numeric_strings_are_not_actions(env_id: str) -> None:
+    """An array of strings is the wrong dtype even when the strings parse as numbers."""
+    env = _shared_env(env_id)
+    with pytest.raises(ValueError, match=re.escape(str(env.action_space.shape))):
+        env.step(["0.1"] * int(np.prod(env.action_space.shape)))
+    _valid_step(env)
+
+
+# ---------------------------------------------------------------------- bad input: kwargs
+def _kwarg_cases(test: str, keep: Callable[[Any], bool]) -> list[Any]:
+    cases = []
+    for env_id in ENV_IDS:
+        defaults = _signature_defaults(_cls(env_id))
+        cases += [(env_id, name) for name, d in defaults.items() if keep(d)]
+    return _params(test, cases)
+
+
+def _is_number(d: Any) -> bool:
+    return isinstance(d, (int, float)) and not isinstance(d, bool)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_unknown_kwarg_is_a_value_error_listing_the_allowed_ones(env_id: str) -> None:
+    """A typo in a keyword is an error naming it, never silently ignored."""
+    with pytest.raises(ValueError, match="no_such_argument") as exc:
+        gym.make(env_id, no_such_argument=1.0)
+    assert "allowed" in str(exc.value)
+
+
+@pytest.mark.parametrize(("env_id", "name"), _kwarg_cases("kwarg_string", lambda d: True))
+def test_string_for_any_argument_is_a_value_error_naming_it(env_id: str, name: str) -> None:
+    """A nonsense string for any argument → ValueError (InvalidArgument) naming it."""
+    with pytest.raises(ValueError, match=name):
+        gym.make(env_id, **{name: "not-a-valid-value"})
+
+
+@pytest.mark.parametrize(("env_id", "name"),
+                         _kwarg_cases("kwarg_negative", lambda d: _is_number(d) and d >= 0))
+def test_negative_number_is_a_value_error_naming_it(env_id: str, name: str) -> None:
+    """Numbers that default to ≥ 0 (masses, frequencies, weights, sizes) reject -1."""
+    with pytest.raises(ValueError, match=name):
+        gym.make(env_id, **{name: -1.0})
+
+
+@pytest.mark.parametrize(("env_id", "name"), _kwarg_cases("kwarg_nan", _is_number))
+def test_nan_number_is_a_value_error_naming_it(env_id: str, name: str) -> None:
+    """NaN is never a valid numeric argument."""
+    with pytest.raises(ValueError, match=name):
+        gym.make(env_id, **{name: float("nan")})
+
+
+def test_missing_or_broken_robot_files_raise_robot_file_error(tmp_path: Path) -> None:
+    """A robot file that does not exist or does not parse → RobotFileError with its path."""
+    with pytest.raises(RobotFileError, match=re.escape("/nonexistent.xml")):
+        load_model("/nonexistent.xml")
+    for i, text in enumerate(["<mujoco><worldbody><body>", "not xml at all", ""]):
+        path = tmp_path / f"broken{i}.xml"
+        path.write_text(text)
+        with pytest.raises(RobotFileError, match=re.escape(str(path))):
+            load_model(path)
+    assert issubclass(RobotFileError, ValueError)
+
+
+def test_robot_dynamics_follow_in_place_model_errors() -> None:
+    """Robot caches kinematics per q; after apply_model_error changes its model in place (as
+    JointTracking's randomize does on env.robot.model) and ``invalidate()`` — the documented
+    contract — B(q) and g(q) must not be stale."""
+    robot = Robot.from_name("iiwa14")
+    q = np.full(robot.n, 0.3)
+    robot.inertia(q), robot.gravity(q)
+    apply_model_error(robot.model, ModelError(payload_mass=3.0))
+    robot.invalidate()
+    fresh = Robot(robot.model)
+    np.testing.assert_allclose(robot.inertia(q), fresh.inertia(q), rtol=1e-12)
+    np.testing.assert_allclose(robot.gravity(q), fresh.gravity(q), rtol=1e-12)
+
+
+# ---------------------------------------------------------------------- faults
+def _scale_actuation(base: Any, factor: float) -> Callable[[], None]:
+    """Multiply the actuator ranges and the env's action-scale arrays; return an undo."""
+    scale = np.asarray(base.controller_context().action_scale, dtype=float)
+    arrays = [v for v in vars(base).values()
+              if isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape == scale.shape
+              and np.array_equal(v, scale)]
+    assert arrays, "no attribute of the env holds the action scale of controller_context()"
+    m = base.model
+    saved = [a.copy() for a in arrays], m.actuator_ctrlrange.copy(), m.actuator_forcerange.copy()
+    for a in arrays:
+        a *= factor
+    m.actuator_ctrlrange[:] *= factor
+    m.actuator_forcerange[:] *= factor
+
+    def undo() -> None:
+        for a, s in zip(arrays, saved[0], strict=True):
+            a[:] = s
+        m.actuator_ctrlrange[:] = saved[1]
+        m.actuator_forcerange[:] = saved[2]
+
+    return undo
+
+
+@pytest.fixture
+def mujoco_warnings() -> Iterator[list[str]]:
+    """Collect MuJoCo's C warnings (instead of printing them and appending MUJOCO_LOG.TXT)."""
+    caught: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(caught.append)
+    yield caught
+    mujoco.set_mju_user_warning(previous)
+
+
+def _assert_diverged_cleanly(env: gym.Env, step: tuple[Any, ...]) -> None:
+    obs, reward, terminated, truncated, info = step
+    assert terminated and not truncated and info["diverged"] is True
+    assert all(np.all(np.isfinite(v)) for v in obs.values())
+    assert np.isfinite(reward)
+    terms = [v for k, v in info.items() if k.startswith("reward_")]
+    assert reward == pytest.approx(math.fsum(terms), rel=1e-12, abs=1e-12)
+    assert info["is_success"] is False
+    assert all(np.isfinite(v) for v in info["episode_metrics"].values())
+
+
+def _assert_recovers(env: gym.Env) -> None:
+    obs, _ = env.reset(seed=1)
+    assert all(np.all(np.isfinite(v)) for v in obs.values())
+    for _ in range(3):
+        obs, _, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+        assert not terminated and info["diverged"] is False
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("factor", [1e6, 1e12])
+def test_absurd_actuation_ends_the_episode_with_a_divergence_flag(
+    env_id: str, factor: float, mujoco_warnings: list[str]
+) -> None:
+    """Torques that blow up the physics (1e6: huge accelerations; 1e12: a control MuJoCo
+    rejects) → terminated, diverged, finite obs and reward; reset recovers."""
+    if env_id in NEVER_DIVERGES:
+        pytest.skip(NEVER_DIVERGES[env_id])
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    undo = _scale_actuation(env.unwrapped, factor)
+    _assert_diverged_cleanly(env, env.step(np.ones(env.action_space.shape)))
+    undo()
+    _assert_recovers(env)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("field", ["qvel", "qpos"])
+def test_nan_in_the_state_ends_the_episode_with_a_divergence_flag(
+    env_id: str, field: str, mujoco_warnings: list[str]
+) -> None:
+    """A NaN injected in the simulator state mid-episode → terminated, diverged, finite obs;
+    reset recovers."""
+    if env_id in NEVER_DIVERGES:
+        pytest.skip(NEVER_DIVERGES[env_id])
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    for a in _random_actions(env, 3):
+        env.step(a)
+    getattr(env.unwrapped.data, field)[0] = np.nan
+    _assert_diverged_cleanly(env, env.step(np.zeros(env.action_space.shape)))
+    assert any("Nan" in w for w in mujoco_warnings), mujoco_warnings
+    _assert_recovers(env)
+
+
+# ---------------------------------------------------------------------- controllers
+CONTROLLER_CASES = [(e, name) for e in ENV_IDS for name in baselines.available(e)]
+
+
+def _observations(env: gym.Env, seeds: tuple[int, ...]) -> list[dict[str, np.ndarray]]:
+    """One observation per seed, a few random steps into the episode."""
+    out = []
+    for s in seeds:
+        obs, _ = env.reset(seed=s)
+        for a in _random_actions(env, 3, seed=s):
+            obs, *_ = env.step(0.1 * a)
+        out.append(obs)
+    return out
+
+
+def _stack(observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    return {k: np.stack([o[k] for o in observations]) for k in observations[0]}
+
+
+@pytest.mark.parametrize(("env_id", "name"), CONTROLLER_CASES)
+def test_controller_predicts_single_and_batched_consistently(env_id: str, name: str) -> None:
+    """``predict`` gives an action of the env's shape in [-1, 1] and a state; a batch of 3
+    gives (3, n) actions and states equal to the single predictions, over two steps."""
+    env = gym.make(env_id)
+    policy = baselines.make(name, env_id, env=env)
+    shape = env.action_space.shape
+    obs = _observations(env, (0, 1, 2))
+    singles = [policy.predict(o, None, np.array([True])) for o in obs]
+    for action, state in singles:
+        assert np.shape(action) == shape and env.action_space.contains(action)
+        assert state is not None and np.all(np.isfinite(state))
+    batch_actions, batch_state = policy.predict(_stack(obs), None, np.ones(3, dtype=bool))
+    assert np.shape(batch_actions) == (3, *shape)
+    np.testing.assert_array_equal(batch_actions, np.stack([a for a, _ in singles]))
+    # second step: states carried, episode_start False
+    obs2 = _observations(env, (3, 4, 5))
+    singles2 = [policy.predict(o, s, np.array([False])) for o, (_, s) in zip(obs2, singles,
+                                                                             strict=True)]
+    batch2, _ = policy.predict(_stack(obs2), batch_state, np.zeros(3, dtype=bool))
+    np.testing.assert_array_equal(batch2, np.stack([a for a, _ in singles2]))
+    env.close()
+
+
+@pytest.mark.parametrize(("env_id", "name"), CONTROLLER_CASES)
+def test_sb3_evaluate_policy_agrees_with_our_evaluator(env_id: str, name: str) -> None:
+    """SB3's evaluate_policy on a DummyVecEnv and cir_gym.evaluation.evaluate score the same
+    episode. DummyVecEnv stores rewards as float32, so SB3's return is compared (to 1e-9)
+    with our per-step rewards rounded to float32 and summed as SB3 does."""
+    seed, short = 5, _short(env_id)
+    policy = baselines.make(name, env_id, env_kwargs=short)
+    venv = DummyVecEnv([lambda: gym.make(env_id, **short)])
+    venv.seed(seed)
+    returns, lengths = evaluate_policy(policy, venv, n_eval_episodes=1, deterministic=True,
+                                       return_episode_rewards=True, warn=False)
+    venv.close()
+    ours = evaluate(policy, env_id, n_episodes=1, seed=seed, record=True, **short)
+    episode = ours.episodes[0]
+    rewards = episode.trace["reward"]
+    assert lengths[0] == episode.length == rewards.size
+    sb3_style = 0.0
+    for r in rewards.astype(np.float32):
+        sb3_style += float(r)
+    assert returns[0] == pytest.approx(sb3_style, abs=1e-9)
+    assert episode.episode_return == pytest.approx(math.fsum(rewards), abs=1e-9)
+    float32_bound = rewards.size * np.finfo(np.float32).eps * max(1.0, np.max(np.abs(rewards)))
+    assert abs(returns[0] - episode.episode_return) <= float32_bound
+
+
+def _numeric_gain_fields(cls: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls.Gains) if "float" in str(f.type)]
+
+
+@pytest.mark.parametrize(("env_id", "name"), _params("gains", CONTROLLER_CASES))
+def test_negative_or_nan_gains_raise_invalid_gain(env_id: str, name: str) -> None:
+    """Every numeric gain rejects -1 and NaN with InvalidGain (a ValueError) naming it."""
+    env = gym.make(env_id)
+    problems = []
+    for field in _numeric_gain_fields(baselines.CONTROLLERS[name]):
+        for bad in (-1.0, float("nan")):
+            try:
+                baselines.make(name, env_id, env=env, **{field: bad})
+            except baselines.InvalidGain as exc:
+                if field not in str(exc) and "K_P" not in str(exc):
+                    problems.append(f"{field}={bad}: message does not name it: {exc}")
+            except Exception as exc:
+                problems.append(f"{field}={bad}: {type(exc).__name__}: {exc}")
+            else:
+                problems.append(f"{field}={bad}: accepted")
+    env.close()
+    assert issubclass(baselines.InvalidGain, ValueError)
+    assert not problems, problems
+
+
+@pytest.mark.parametrize(("env_id", "name"), _params("nan_observation", CONTROLLER_CASES))
+def test_nan_observation_makes_predict_raise(env_id: str, name: str) -> None:
+    """A NaN in any observation entry (a broken sensor) makes predict raise, whether or not
+    the law reads that entry; it never comes out as a NaN action."""
+    env = gym.make(env_id)
+    policy = baselines.make(name, env_id, env=env)
+    (obs,) = _observations(env, (0,))
+    silent = []
+    for key in obs:
+        bad = {k: v.copy() for k, v in obs.items()}
+        bad[key][0] = np.nan
+        try:
+            action, _ = policy.predict(bad, None, np.array([True]))
+        except (ValueError, FloatingPointError):
+            continue
+        assert np.all(np.isfinite(action)), f"NaN in {key} gave the action {action}"
+        silent.append(key)
+    env.close()
+    assert not silent, f"NaN in {silent} accepted silently"
