@@ -224,18 +224,21 @@ def cmd_train(args: argparse.Namespace) -> int:
         ) from exc
     env_id = _check_env_id(args.env)
     env_kwargs, _ = split_settings(env_id, args.residual or "", args.set or [])
-    train(
-        env_id,
-        args.algo,
-        timesteps=args.timesteps,
-        seed=args.seed,
-        residual=args.residual,
-        resume=args.resume,
-        out=args.out,
-        name=args.name,
-        env_kwargs=env_kwargs,
-        n_envs=args.n_envs,
-    )
+    try:
+        train(
+            env_id,
+            args.algo,
+            timesteps=args.timesteps,
+            seed=args.seed,
+            residual=args.residual,
+            resume=args.resume,
+            out=args.out,
+            name=args.name,
+            env_kwargs=env_kwargs,
+            n_envs=args.n_envs,
+        )
+    except ValueError as exc:  # bad residual controller, existing run without --resume, ...
+        raise CliError(str(exc)) from exc
     return 0
 
 
@@ -309,6 +312,9 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         print(f"cir-gym: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("cir-gym: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

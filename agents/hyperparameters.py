@@ -1,0 +1,250 @@
+"""Hyperparameters from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's layout, plain YAML, no eval).
+
+Each file maps an environment id (``cir_gym/JointTracking-v0``) or ``default`` to an entry::
+
+    cir_gym/JointTracking-v0:
+      policy: MlpPolicy
+      n_timesteps: 2.0e6
+      n_envs: 8
+      normalize: {norm_obs: true, norm_reward: true}   # or true / false
+      policy_kwargs: {net_arch: [64, 64], log_std_init: -1.0, activation_fn: tanh}
+      learning_rate: 3.0e-4            # or "lin_3.0e-4" (linear decay to 0)
+      ...                              # any other keyword of the SB3 algorithm
+      residual:                        # overrides applied when training a residual agent
+        scale: 0.25
+        zero_init_action: true
+
+An id without an entry uses ``default`` (so a new environment trains unchanged); an entry is
+merged over ``default`` key by key (``policy_kwargs`` and ``residual`` one level deeper).
+Strings are never evaluated: ``activation_fn`` is a name looked up in :data:`ACTIVATIONS`,
+schedules are ``lin_<float>``. Unknown keys, algorithm arguments or activation names raise
+:class:`HyperparameterError` naming the file and the allowed values.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ACTIVATIONS",
+    "ALGORITHMS",
+    "HYPERPARAMS_DIR",
+    "HyperparameterError",
+    "algorithm_class",
+    "load_hyperparams",
+    "resolve_policy_kwargs",
+    "resolve_schedule",
+]
+
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+ALGORITHMS = ("ppo", "sac", "td3")
+
+#: activation names usable in ``policy_kwargs.activation_fn`` → torch.nn class name
+ACTIVATIONS = {
+    "tanh": "Tanh",
+    "relu": "ReLU",
+    "elu": "ELU",
+    "leaky_relu": "LeakyReLU",
+    "gelu": "GELU",
+    "silu": "SiLU",
+}
+
+#: keys handled here (not passed to the SB3 algorithm's constructor)
+TRAINING_KEYS = {
+    "policy": "SB3 policy name; observations are flattened, so MlpPolicy",
+    "n_timesteps": "total environment steps",
+    "n_envs": "parallel environments (DummyVecEnv, or SubprocVecEnv with vec_env: subproc)",
+    "vec_env": "'dummy' (one process) or 'subproc' (one process per env)",
+    "normalize": "VecNormalize: true/false or {norm_obs, norm_reward, clip_obs, gamma}",
+    "policy_kwargs": "SB3 policy keywords (activation_fn by name)",
+    "eval_freq": "environment steps between evaluations",
+    "n_eval_episodes": "episodes per evaluation",
+    "checkpoint_freq": "environment steps between checkpoints",
+    "task_errors": "add k_ref - k features to the observation (true/false)",
+    "zero_init_action": "zero the last layer of the actor (the action mean starts at 0)",
+    "early_termination": "training only: {max_error, penalty} (agents/shaping.py)",
+    "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
+    "noise_std": "std of that noise (action units)",
+    "residual": "overrides used when training a residual agent",
+}
+RESIDUAL_KEYS = {"scale"}  # besides any top-level key
+NORMALIZE_KEYS = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
+POLICIES = ("MlpPolicy",)
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+
+
+class HyperparameterError(ValueError):
+    """A malformed hyperparameter file or entry (names the file and the offending key)."""
+
+
+def algorithm_class(algo: str) -> type:
+    """The SB3 class of ``algo`` ("ppo", "sac" or "td3")."""
+    import stable_baselines3 as sb3
+
+    classes = {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}
+    if algo not in classes:
+        raise HyperparameterError(f"unknown algorithm {algo!r}; available: {list(classes)}")
+    return classes[algo]
+
+
+def _yaml_loader() -> type:
+    """yaml.SafeLoader that also reads ``1e6`` / ``3.0e6`` as floats (YAML 1.2 style)."""
+    import re
+
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+        list("-+0123456789"),
+    )
+    return Loader
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    import yaml
+
+    if not path.is_file():
+        raise HyperparameterError(f"no hyperparameter file {path}")
+    try:
+        data = yaml.load(path.read_text(), Loader=_yaml_loader())  # safe: SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise HyperparameterError(f"{path}: invalid YAML ({exc})") from exc
+    if not isinstance(data, dict) or "default" not in data:
+        raise HyperparameterError(f"{path}: expected a mapping of env ids with a 'default' entry")
+    return data
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if k in ("policy_kwargs", "residual", "normalize") and isinstance(v, dict) \
+                and isinstance(out.get(k), dict):
+            out[k] = {**out[k], **v}
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def load_hyperparams(algo: str, env_id: str, *, residual: bool = False,
+                     path: Path | str | None = None) -> dict[str, Any]:
+    """Resolved hyperparameters of ``algo`` for ``env_id`` (plain data, as saved in config.yml).
+
+    Args:
+        algo: "ppo", "sac" or "td3".
+        env_id: the environment id (a ``cir_gym:`` module prefix is ignored).
+        residual: apply the entry's ``residual`` overrides (and keep ``residual_scale``).
+        path: another YAML file (default ``agents/hyperparams/<algo>.yml``).
+
+    Returns:
+        The merged entry without the ``residual`` section; for residual agents ``scale`` is
+        moved to ``residual_scale``.
+
+    Raises:
+        HyperparameterError: unknown keys, algorithm arguments, policy or activation names.
+    """
+    cls = algorithm_class(algo)
+    file = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.yml"
+    data = _read_yaml(file)
+    key = env_id.split(":")[-1]
+    entry = _merge(data["default"] or {}, data.get(key) or {})
+    res = entry.pop("residual", {}) or {}
+    if not isinstance(res, dict):
+        raise HyperparameterError(f"{file}: 'residual' must be a mapping, got {res!r}")
+    if residual:
+        scale = res.get("scale")
+        entry = _merge(entry, {k: v for k, v in res.items() if k != "scale"})
+        if scale is None:
+            raise HyperparameterError(f"{file}: residual training needs residual.scale "
+                                      f"(in {key!r} or 'default')")
+        entry["residual_scale"] = scale
+    _validate(entry, cls, file, key)
+    return entry
+
+
+def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
+    where = f"{file} [{key}]"
+    reserved = {"self", "policy", "env", "seed", "device", "verbose", "tensorboard_log",
+                "_init_setup_model"}  # set by agents.train, not by the file
+    algo_args = set(inspect.signature(cls.__init__).parameters) - reserved
+    allowed = set(TRAINING_KEYS) | algo_args | {"residual_scale"}
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise HyperparameterError(
+            f"{where}: unknown key(s) {unknown}; training keys: {sorted(TRAINING_KEYS)}; "
+            f"{cls.__name__} arguments: {sorted(algo_args)}"
+        )
+    if entry.get("policy", "MlpPolicy") not in POLICIES:
+        raise HyperparameterError(f"{where}: policy must be one of {POLICIES} (observations are "
+                                  f"flattened by agents.observation), got {entry['policy']!r}")
+    norm = entry.get("normalize", False)
+    if isinstance(norm, dict):
+        bad = sorted(set(norm) - NORMALIZE_KEYS)
+        if bad:
+            raise HyperparameterError(f"{where}: unknown normalize key(s) {bad}; allowed: "
+                                      f"{sorted(NORMALIZE_KEYS)}")
+    elif not isinstance(norm, bool):
+        raise HyperparameterError(f"{where}: normalize must be true/false or a mapping")
+    early = entry.get("early_termination")
+    if early is not None and (not isinstance(early, dict) or "max_error" not in early
+                              or set(early) - {"max_error", "penalty"}):
+        raise HyperparameterError(f"{where}: early_termination must be "
+                                  f"{{max_error: <float>, penalty: <float, optional>}}")
+    if entry.get("vec_env", "dummy") not in ("dummy", "subproc"):
+        raise HyperparameterError(f"{where}: vec_env must be 'dummy' or 'subproc'")
+    resolve_policy_kwargs(entry.get("policy_kwargs") or {}, where=where)
+    for k in SCHEDULE_KEYS:
+        if k in entry:
+            resolve_schedule(entry[k], where=f"{where} {k}")
+
+
+def resolve_policy_kwargs(kwargs: dict[str, Any], *, where: str = "policy_kwargs"
+                          ) -> dict[str, Any]:
+    """Plain policy_kwargs → SB3's: ``activation_fn`` name → torch class (whitelist only)."""
+    import torch.nn as nn
+
+    if not isinstance(kwargs, dict):
+        raise HyperparameterError(f"{where}: policy_kwargs must be a mapping, got {kwargs!r}")
+    out = dict(kwargs)
+    if "activation_fn" in out:
+        name = out["activation_fn"]
+        if not isinstance(name, str) or name not in ACTIVATIONS:
+            raise HyperparameterError(
+                f"{where}: unknown activation_fn {name!r}; allowed: {sorted(ACTIVATIONS)}"
+            )
+        out["activation_fn"] = getattr(nn, ACTIVATIONS[name])
+    return out
+
+
+def resolve_schedule(value: Any, *, where: str = "schedule") -> Any:
+    """A float, or ``"lin_<float>"`` → a linear schedule from that value to 0."""
+    if isinstance(value, bool):
+        raise HyperparameterError(f"{where}: expected a number or 'lin_<float>', got {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    if isinstance(value, str) and value.startswith("lin_"):
+        try:
+            start = float(value[4:])
+        except ValueError as exc:
+            raise HyperparameterError(f"{where}: bad schedule {value!r}") from exc
+        return LinearSchedule(start)
+    raise HyperparameterError(f"{where}: expected a number or 'lin_<float>', got {value!r}")
+
+
+class LinearSchedule:
+    """progress_remaining (1 → 0) ↦ start · progress_remaining (picklable, unlike a lambda)."""
+
+    def __init__(self, start: float) -> None:
+        self.start = start
+
+    def __call__(self, progress_remaining: float) -> float:
+        return self.start * progress_remaining
+
+    def __repr__(self) -> str:
+        return f"lin_{self.start}"

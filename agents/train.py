@@ -1,0 +1,501 @@
+"""Train an SB3 agent (from scratch or residual) on a cir_gym environment, reproducibly.
+
+    from agents.train import train
+    run = train("cir_gym/JointTracking-v0", "ppo", residual="computed_torque",
+                env_kwargs={"payload_mass": 3.0})
+
+A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
+
+* ``config.yml``: env id and kwargs, algorithm, resolved hyperparameters, seed, observation
+  layout, residual controller and scale, versions (torch, SB3, gymnasium, mujoco, cir_gym);
+* ``model.zip`` + ``vecnormalize.pkl`` + ``normalization.npz``: the final model and its frozen
+  observation statistics (``best/`` holds the same for the best evaluation);
+* ``learning_curve.csv``: timesteps, wall time, mean evaluation return, mean primary metric,
+  success rate — one row per evaluation, deterministic actions, on the episodes that
+  ``cir_gym.evaluation.evaluate(..., seed=EVAL_SEED)`` runs (the same ones every time);
+* ``meta.json``: steps, wall time, steps/s, whether it finished or was interrupted;
+* ``checkpoints/`` (model + VecNormalize every ``checkpoint_freq`` steps, and on Ctrl-C) and
+  ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint.
+
+:func:`ship` copies a run's files into ``agents/trained/`` for :func:`agents.load`.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import re
+import shutil
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import yaml
+from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import (
+    DummyVecEnv,
+    SubprocVecEnv,
+    VecEnv,
+    VecNormalize,
+)
+
+import cir_gym
+from agents import TRAINED_DIR, env_dir_name
+from agents.hyperparameters import (
+    TRAINING_KEYS,
+    HyperparameterError,
+    algorithm_class,
+    load_hyperparams,
+    resolve_policy_kwargs,
+    resolve_schedule,
+)
+from agents.observation import ObservationLayout, TaskObservation
+from agents.residual import ResidualAction, check_scale
+from agents.shaping import EarlyTermination
+
+__all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
+
+EVAL_SEED = 100_000  # evaluation episodes during training: seeds EVAL_SEED, EVAL_SEED + 1, …
+SHIPPED_FILES = ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
+                 "learning_curve.csv", "meta.json")
+
+
+class EnvFactory:
+    """Picklable ``() -> env`` for (Subproc|Dummy)VecEnv: env → residual → flat obs → Monitor."""
+
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any], layout: ObservationLayout,
+                 residual: str | None = None, scale: Any = None,
+                 controller_kwargs: dict[str, Any] | None = None,
+                 early_termination: dict[str, float] | None = None) -> None:
+        self.env_id = env_id if ":" in env_id else f"cir_gym:{env_id}"  # workers must import
+        self.env_kwargs = env_kwargs
+        self.layout = layout
+        self.residual = residual
+        self.scale = scale
+        self.controller_kwargs = controller_kwargs or {}
+        self.early_termination = early_termination  # training envs only
+
+    def __call__(self) -> gym.Env:
+        env = gym.make(self.env_id, **self.env_kwargs)
+        if self.early_termination:
+            env = EarlyTermination(env, **self.early_termination)
+        if self.residual:
+            env = ResidualAction(env, self.residual, self.scale, **self.controller_kwargs)
+        env = TaskObservation(env, self.layout)
+        return Monitor(env)
+
+
+class LearningCurveCallback(EvalCallback):
+    """EvalCallback (success from ``info["is_success"]``) that also records the env's primary
+    metric from ``info["episode_metrics"]``, re-seeds the evaluation episodes identically each
+    time, appends a row to ``learning_curve.csv`` and saves the normalisation with the best model.
+    """
+
+    def __init__(self, eval_env: VecEnv, run_dir: Path, primary: str, eval_freq: int,
+                 n_eval_episodes: int, wall_offset: float = 0.0, verbose: int = 1) -> None:
+        super().__init__(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=eval_freq,
+                         best_model_save_path=str(run_dir / "best"), deterministic=True,
+                         verbose=verbose, warn=False)
+        self.run_dir = run_dir
+        self.primary = primary
+        self.csv_path = run_dir / "learning_curve.csv"
+        self.wall_start = time.perf_counter() - wall_offset
+        self._metric: list[float] = []
+
+    def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
+        super()._log_success_callback(locals_, globals_)
+        if locals_["done"]:
+            value = locals_["info"].get("episode_metrics", {}).get(self.primary)
+            if value is not None:
+                self._metric.append(float(value))
+
+    def _on_step(self) -> bool:
+        evaluating = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+        if evaluating:
+            self._metric = []
+            # Episode i of every evaluation runs in eval env i with seed EVAL_SEED + i: the
+            # episodes cir_gym.evaluation.evaluate(..., seed=EVAL_SEED) scores.
+            self.eval_env.seed(EVAL_SEED)
+        best_before = self.best_mean_reward
+        keep_going = super()._on_step()
+        if evaluating:
+            metric = float(np.mean(self._metric)) if self._metric else float("nan")
+            success = float(np.mean(self._is_success_buffer)) if self._is_success_buffer \
+                else float("nan")
+            self.logger.record(f"eval/mean_{self.primary}", metric)
+            write_curve_row(self.csv_path, self.primary, {
+                "timesteps": self.num_timesteps,
+                "wall_time_s": round(time.perf_counter() - self.wall_start, 1),
+                "mean_return": self.last_mean_reward,
+                f"mean_{self.primary}": metric,
+                "success_rate": success,
+            })
+            if self.best_mean_reward > best_before:
+                vecnorm = self.model.get_vec_normalize_env()
+                if vecnorm is not None:
+                    save_normalization(vecnorm, self.run_dir / "best")
+        return keep_going
+
+
+def write_curve_row(path: Path, primary: str, row: dict[str, Any]) -> None:
+    fields = ["timesteps", "wall_time_s", "mean_return", f"mean_{primary}", "success_rate"]
+    new = not path.exists()
+    with path.open("a", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        if new:
+            w.writeheader()
+        w.writerow(row)
+
+
+def save_normalization(vecnorm: VecNormalize | None, directory: Path) -> None:
+    """``vecnormalize.pkl`` (SB3) and ``normalization.npz`` (plain arrays, loaded safely)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    if vecnorm is None:
+        np.savez(directory / "normalization.npz", norm_obs=False, obs_mean=np.zeros(0),
+                 obs_var=np.zeros(0), clip_obs=np.inf, epsilon=0.0)
+        return
+    vecnorm.save(str(directory / "vecnormalize.pkl"))
+    np.savez(directory / "normalization.npz", norm_obs=bool(vecnorm.norm_obs),
+             obs_mean=vecnorm.obs_rms.mean, obs_var=vecnorm.obs_rms.var,
+             clip_obs=float(vecnorm.clip_obs), epsilon=float(vecnorm.epsilon))
+
+
+def _plain(obj: Any) -> Any:
+    """Make ``obj`` safe for yaml.safe_dump (tuples/arrays → lists, numpy scalars → Python)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def versions() -> dict[str, str]:
+    import mujoco
+    import stable_baselines3
+
+    found = {"cir_gym": cir_gym.__version__, "stable_baselines3": stable_baselines3.__version__,
+             "torch": torch.__version__, "gymnasium": gym.__version__,
+             "mujoco": mujoco.__version__, "numpy": np.__version__,
+             "python": platform.python_version()}
+    return {k: str(v) for k, v in found.items()}
+
+
+def zero_action_layer(model: Any) -> None:
+    """Zero the actor's last linear layer so the action mean starts at exactly 0."""
+    policy = model.policy
+    if hasattr(policy, "action_net"):  # PPO / A2C
+        layers = [policy.action_net]
+    else:  # SAC (actor.mu Linear), TD3 (actor.mu Sequential ending in Linear, Tanh)
+        mu = policy.actor.mu
+        layers = [mu] if isinstance(mu, torch.nn.Linear) else \
+            [m for m in mu if isinstance(m, torch.nn.Linear)][-1:]
+    with torch.no_grad():
+        for layer in layers:
+            layer.weight.zero_()
+            layer.bias.zero_()
+    if getattr(policy, "actor_target", None) is not None:
+        policy.actor_target.load_state_dict(policy.actor.state_dict())
+
+
+def _last_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
+    ckpts = []
+    for f in (run_dir / "checkpoints").glob("model_*_steps.zip"):
+        m = re.fullmatch(r"model_(\d+)_steps\.zip", f.name)
+        if m:
+            ckpts.append((int(m.group(1)), f))
+    if not ckpts:
+        return None
+    steps, model = max(ckpts)
+    vn = run_dir / "checkpoints" / f"model_vecnormalize_{steps}_steps.pkl"
+    return model, (vn if vn.exists() else None)
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _term_raises_interrupt() -> Any:
+    """Make SIGTERM act like Ctrl-C (checkpoint, then exit); return the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
+def _make_vec_env(factory: EnvFactory, n_envs: int, kind: str, seed: int) -> VecEnv:
+    fns = [factory] * n_envs
+    venv: VecEnv = SubprocVecEnv(fns) if kind == "subproc" and n_envs > 1 else DummyVecEnv(fns)
+    venv.seed(seed)
+    return venv
+
+
+def _normalize_kwargs(hp: dict[str, Any], gamma: float) -> dict[str, Any] | None:
+    norm = hp.get("normalize", False)
+    if norm is False:
+        return None
+    kw = {"norm_obs": True, "norm_reward": False, "gamma": gamma}
+    if isinstance(norm, dict):
+        kw.update(norm)
+    return kw
+
+
+def train(
+    env_id: str,
+    algo: str = "ppo",
+    *,
+    timesteps: int | None = None,
+    seed: int = 0,
+    residual: str | None = None,
+    resume: bool = False,
+    out: str | Path = "runs",
+    name: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    n_envs: int | None = None,
+    residual_scale: float | list[float] | None = None,
+    hyperparams_path: str | Path | None = None,
+    progress_bar: bool = True,
+    verbose: int = 1,
+) -> Path:
+    """Train ``algo`` on ``env_id`` and return the run directory (see the module docstring).
+
+    Args:
+        env_id: a registered cir_gym id (``cir_gym/JointTracking-v0``).
+        algo: "ppo", "sac" or "td3"; hyperparameters from ``agents/hyperparams/<algo>.yml``.
+        timesteps: total environment steps (default: the entry's ``n_timesteps``).
+        seed: seed of the model and of the training environments (env i gets seed + i).
+        residual: a controller name: train a residual on it (:mod:`agents.residual`).
+        resume: continue the run in ``<out>/<Env>/<name>`` from its last checkpoint, with its
+            saved configuration, up to ``timesteps`` in total.
+        out: root of the run directories.
+        name: run name (default ``<algo>`` or ``residual_<algo>_<controller>``).
+        env_kwargs: environment arguments (e.g. ``{"payload_mass": 3.0}``).
+        n_envs: parallel environments (default: the entry's ``n_envs``).
+        residual_scale: override the entry's ``residual.scale``.
+        hyperparams_path: another hyperparameter YAML file.
+        progress_bar: SB3's progress bar (tqdm + rich).
+
+    Raises:
+        ValueError: unknown environment, bad hyperparameters, an existing run without
+            ``resume``, ``resume`` without a checkpoint.
+        KeyboardInterrupt: after saving a checkpoint, when interrupted (Ctrl-C or SIGTERM).
+    """
+    torch.set_num_threads(1)
+    key = env_id.split(":")[-1]
+    if key not in cir_gym.ENVIRONMENTS:
+        raise ValueError(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+    name = name or (f"residual_{algo}_{residual}" if residual else algo)
+    run_dir = Path(out) / env_dir_name(key) / name
+    config_path = run_dir / "config.yml"
+
+    if resume:
+        if not config_path.exists():
+            raise ValueError(f"nothing to resume: {config_path} does not exist")
+        config = yaml.safe_load(config_path.read_text())
+        if config["algo"] != algo or config["env_id"] != key:
+            raise ValueError(f"{config_path} is a {config['algo']} run on {config['env_id']}, "
+                             f"not {algo} on {key}")
+        if timesteps is not None and int(timesteps) != config["n_timesteps"]:
+            config["n_timesteps"] = int(timesteps)
+            config_path.write_text(yaml.safe_dump(config, sort_keys=False))
+    else:
+        if config_path.exists():
+            raise ValueError(f"{run_dir} already holds a run; pass resume=True (--resume) or "
+                             f"another name (--name)")
+        hp = load_hyperparams(algo, key, residual=residual is not None, path=hyperparams_path)
+        if residual_scale is not None:
+            if residual is None:
+                raise ValueError("residual_scale needs residual=<controller>")
+            hp["residual_scale"] = residual_scale
+        if n_envs is not None:
+            hp["n_envs"] = int(n_envs)
+        probe = gym.make(key, **(env_kwargs or {}))
+        layout = ObservationLayout.from_space(probe.observation_space,
+                                              task_errors=hp.get("task_errors", True))
+        res_cfg = None
+        if residual is not None:
+            import baselines
+
+            if residual not in baselines.available(key):
+                probe.close()
+                raise ValueError(f"controller {residual!r} does not apply to {key}; "
+                                 f"available: {baselines.available(key)}")
+            scale = check_scale(hp.pop("residual_scale"), probe.action_space)
+            res_cfg = {"controller": residual, "scale": scale.tolist()}
+        probe.close()
+        config = {
+            "env_id": key,
+            "env_kwargs": dict(env_kwargs or {}),
+            "algo": algo,
+            "seed": int(seed),
+            "n_timesteps": int(timesteps if timesteps is not None else hp["n_timesteps"]),
+            "hyperparams": hp,
+            "residual": res_cfg,
+            "observation": layout.to_dict(),
+            "primary_metric": cir_gym.ENVIRONMENTS[key][0].primary_metric,
+            "versions": versions(),
+            "command": " ".join(sys.argv),
+        }
+        text = yaml.safe_dump(_plain(config), sort_keys=False)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        config_path.write_text(text)
+        config = yaml.safe_load(config_path.read_text())  # train on exactly what was saved
+
+    return _run(run_dir, config, resume=resume, progress_bar=progress_bar, verbose=verbose)
+
+
+def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: bool,
+         verbose: int) -> Path:
+    hp = dict(config["hyperparams"])
+    algo_cls = algorithm_class(config["algo"])
+    layout = ObservationLayout.from_dict(config["observation"])
+    res = config.get("residual") or {}
+    gamma = float(hp.get("gamma", 0.99))
+    early = hp.get("early_termination")
+    if early:  # default penalty: staying lost forever at r = -1 per step
+        early = {"max_error": float(early["max_error"]),
+                 "penalty": float(early.get("penalty", -1.0 / (1.0 - gamma)))}
+    factory = EnvFactory(config["env_id"], config.get("env_kwargs") or {}, layout,
+                         res.get("controller"), res.get("scale"), res.get("controller_kwargs"))
+    train_factory = EnvFactory(factory.env_id, factory.env_kwargs, layout, factory.residual,
+                               factory.scale, factory.controller_kwargs, early or None)
+    n_envs = int(hp.get("n_envs", 1))
+    seed = int(config["seed"])
+    total = int(config["n_timesteps"])
+    primary = config["primary_metric"]
+
+    algo_kwargs = {k: v for k, v in hp.items() if k not in TRAINING_KEYS}
+    for k in ("learning_rate", "clip_range", "clip_range_vf"):
+        if k in algo_kwargs and algo_kwargs[k] is not None:
+            algo_kwargs[k] = resolve_schedule(algo_kwargs[k], where=k)
+    noise_type, noise_std = algo_kwargs.pop("noise_type", None), algo_kwargs.pop("noise_std", 0.1)
+
+    venv = _make_vec_env(train_factory, n_envs, hp.get("vec_env", "dummy"), seed)
+    n_eval = int(hp.get("n_eval_episodes", 5))
+    eval_env: VecEnv = DummyVecEnv([factory] * n_eval)  # one episode each: seeds EVAL_SEED + i
+    norm_kwargs = _normalize_kwargs(hp, gamma)
+    meta_path = run_dir / "meta.json"
+    meta = json.loads(meta_path.read_text()) if (resume and meta_path.exists()) else {}
+    wall_before = float(meta.get("wall_time_s", 0.0))
+
+    if resume:
+        last = _last_checkpoint(run_dir)
+        if last is None:
+            raise ValueError(f"no checkpoint to resume from in {run_dir / 'checkpoints'}")
+        model_file, vn_file = last
+        if norm_kwargs is not None:
+            if vn_file is None:
+                raise ValueError(f"checkpoint {model_file} has no VecNormalize statistics")
+            venv = VecNormalize.load(str(vn_file), venv)  # our own checkpoint: trusted pickle
+            venv.training = True
+        model = algo_cls.load(str(model_file), env=venv, device="cpu",
+                              tensorboard_log=str(run_dir / "tb"))
+        print(f"resuming {run_dir} from {model_file.name} ({model.num_timesteps} steps)",
+              file=sys.stderr)
+    else:
+        if norm_kwargs is not None:
+            venv = VecNormalize(venv, **norm_kwargs)
+        if noise_type is not None:
+            if noise_type != "normal":
+                raise HyperparameterError(f"noise_type must be 'normal', got {noise_type!r}")
+            m = venv.action_space.shape[0]
+            algo_kwargs["action_noise"] = NormalActionNoise(np.zeros(m), noise_std * np.ones(m))
+        policy_kwargs = resolve_policy_kwargs(hp.get("policy_kwargs") or {})
+        model = algo_cls(hp.get("policy", "MlpPolicy"), venv, seed=seed, device="cpu",
+                         verbose=verbose, tensorboard_log=str(run_dir / "tb"),
+                         policy_kwargs=policy_kwargs, **algo_kwargs)
+        if hp.get("zero_init_action", False):
+            zero_action_layer(model)
+    if norm_kwargs is not None:
+        eval_env = VecNormalize(eval_env, training=False, norm_obs=True, norm_reward=False)
+
+    eval_freq = max(1, int(hp.get("eval_freq", 50_000)) // n_envs)
+    ckpt_freq = max(1, int(hp.get("checkpoint_freq", 200_000)) // n_envs)
+    curve = LearningCurveCallback(eval_env, run_dir, primary, eval_freq, n_eval,
+                                  wall_offset=wall_before, verbose=verbose)
+    if resume and curve.csv_path.exists():  # keep the best model of the earlier sessions
+        with curve.csv_path.open() as f:
+            returns = [float(r["mean_return"]) for r in csv.DictReader(f)]
+        curve.best_mean_reward = max(returns, default=-np.inf)
+    ckpt = CheckpointCallback(ckpt_freq, str(run_dir / "checkpoints"), name_prefix="model",
+                              save_vecnormalize=True, verbose=0)
+    remaining = max(0, total - model.num_timesteps)
+    steps_before = model.num_timesteps
+    t0 = time.perf_counter()
+    interrupted = False
+    previous_term = _term_raises_interrupt()
+    try:
+        model.learn(remaining, callback=CallbackList([ckpt, curve]), tb_log_name="run",
+                    reset_num_timesteps=not resume, progress_bar=progress_bar)
+    except KeyboardInterrupt:
+        interrupted = True
+        ckpt_dir = run_dir / "checkpoints"
+        stem = ckpt_dir / f"model_{model.num_timesteps}_steps"
+        ckpt_dir.mkdir(parents=True, exist_ok=True)
+        model.save(str(stem) + ".zip")
+        vecnorm = model.get_vec_normalize_env()
+        if vecnorm is not None:
+            vecnorm.save(str(ckpt_dir / f"model_vecnormalize_{model.num_timesteps}_steps.pkl"))
+        print(f"\ninterrupted: checkpoint {stem}.zip saved; continue with resume=True "
+              f"(cir-gym train ... --resume)", file=sys.stderr)
+    finally:
+        if previous_term is not None:
+            signal.signal(signal.SIGTERM, previous_term)
+        wall = time.perf_counter() - t0
+        meta = {
+            "timesteps": int(model.num_timesteps),
+            "wall_time_s": round(wall_before + wall, 1),
+            "steps_per_s": round((model.num_timesteps - steps_before) / max(wall, 1e-9), 1),
+            "finished": not interrupted and model.num_timesteps >= total,
+            "interrupted": interrupted,
+            "n_envs": n_envs,
+            "cpu_count": __import__("os").cpu_count(),
+            "sessions": int(meta.get("sessions", 0)) + 1,
+        }
+        meta_path.write_text(json.dumps(meta, indent=2) + "\n")
+        if not interrupted:
+            model.save(str(run_dir / "model.zip"))
+            save_normalization(model.get_vec_normalize_env(), run_dir)
+        for e in (venv, eval_env):
+            try:
+                e.close()
+            except (EOFError, BrokenPipeError, ConnectionError):  # workers killed by Ctrl-C
+                pass
+    if interrupted:
+        raise KeyboardInterrupt
+    return run_dir
+
+
+def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None = None) -> Path:
+    """Copy a run's model ("final" or "best"), statistics, config, curve and meta into
+    ``agents/trained/<EnvName-vN>/<name>/`` (or ``dest``); return that directory."""
+    run_dir = Path(run_dir)
+    config = yaml.safe_load((run_dir / "config.yml").read_text())
+    target = Path(dest) if dest is not None else \
+        TRAINED_DIR / env_dir_name(config["env_id"]) / run_dir.name
+    if which not in ("final", "best"):
+        raise ValueError(f"which must be 'final' or 'best', got {which!r}")
+    src = run_dir if which == "final" else run_dir / "best"
+    target.mkdir(parents=True, exist_ok=True)
+    model = src / ("model.zip" if which == "final" else "best_model.zip")
+    shutil.copy2(model, target / "model.zip")
+    for f in ("vecnormalize.pkl", "normalization.npz"):
+        if (src / f).exists():
+            shutil.copy2(src / f, target / f)
+    for f in ("config.yml", "learning_curve.csv", "meta.json"):
+        shutil.copy2(run_dir / f, target / f)
+    meta = json.loads((target / "meta.json").read_text())
+    meta["shipped_model"] = which
+    (target / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return target

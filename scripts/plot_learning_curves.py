@@ -1,0 +1,129 @@
+"""Learning curves of the shipped agents, one PNG per environment, against the best controller.
+
+    python scripts/plot_learning_curves.py [--out results/learning_curves] [--env ID ...]
+
+For each environment with shipped agents (``agents/trained/<EnvName-vN>/``) the primary metric
+of every agent's ``learning_curve.csv`` is drawn against training steps. For every distinct
+training setting of those agents (e.g. the exact model and an unknown 3 kg payload) each
+applicable controller is run through :func:`cir_gym.evaluation.evaluate` on the *same* seeds
+and number of episodes as the curves' evaluations (``agents.train.EVAL_SEED``): the best one
+is drawn as a dashed horizontal line, and a residual agent's base controller as a dotted one
+in the agent's colour.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import agents
+import baselines
+import cir_gym
+from agents.train import EVAL_SEED
+from cir_gym.evaluation import evaluate
+
+
+def read_curve(agent_dir: Path, primary: str) -> tuple[list[int], list[float]]:
+    with (agent_dir / "learning_curve.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    return ([int(r["timesteps"]) for r in rows], [float(r[f"mean_{primary}"]) for r in rows])
+
+
+def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int
+                      ) -> dict[str, float]:
+    """Mean primary metric of every applicable controller on these seeds."""
+    primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
+    scores = {}
+    for name in baselines.available(env_id):
+        policy = baselines.make(name, env_id, env_kwargs=env_kwargs)
+        result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
+        scores[name] = result.summary[primary]["mean"]
+        print(f"  {name:28s} {env_kwargs or 'defaults'}: {primary} = {scores[name]:.4g}",
+              file=sys.stderr)
+    return scores
+
+
+def best_of(env_id: str, scores: dict[str, float]) -> tuple[str, float] | None:
+    """(name, score) of the best controller by the primary metric's direction."""
+    if not scores:
+        return None
+    cls = cir_gym.ENVIRONMENTS[env_id][0]
+    spec = next(s for s in cls.metric_specs if s.name == cls.primary_metric)
+    pick = min if spec.better == "lower" else max
+    name = pick(scores, key=scores.get)
+    return name, scores[name]
+
+
+def plot_env(env_id: str, out: Path) -> Path | None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = agents.available(env_id)
+    if not names:
+        return None
+    cls = cir_gym.ENVIRONMENTS[env_id][0]
+    primary = cls.primary_metric
+    unit = next(s.unit for s in cls.metric_specs if s.name == primary)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
+    bases: list[tuple[str, str, str]] = []  # (controller, setting label, colour) of residuals
+    for i, name in enumerate(names):
+        d = agents.TRAINED_DIR / agents.env_dir_name(env_id) / name
+        config = yaml.safe_load((d / "config.yml").read_text())
+        kwargs = config.get("env_kwargs") or {}
+        label = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "defaults"
+        if label not in scores:
+            episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
+            scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED)
+        color = colors[i % len(colors)]
+        steps, values = read_curve(d, primary)
+        ax.plot(steps, values, "o-", ms=3, color=color, label=f"{name} ({label})")
+        if config.get("residual"):
+            bases.append((config["residual"]["controller"], label, color))
+    for j, (label, by_name) in enumerate(scores.items()):
+        best = best_of(env_id, by_name)
+        if best is not None:
+            ax.axhline(best[1], ls="--", color=colors[(len(names) + j) % len(colors)],
+                       label=f"best controller: {best[0]} ({label})")
+    for controller, label, color in bases:
+        ax.axhline(scores[label][controller], ls=":", color=color,
+                   label=f"residual's base: {controller} ({label})")
+    ax.set_yscale("log")
+    ax.set_xlabel("training steps")
+    ax.set_ylabel(f"{primary} ({unit})" if unit else primary)
+    ax.set_title(f"{env_id}: evaluation during training (seeds {EVAL_SEED}…)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{agents.env_dir_name(env_id)}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--out", default="results/learning_curves")
+    p.add_argument("--env", action="append", help="environment id (repeatable; default: all)")
+    args = p.parse_args(argv)
+    for env_id in args.env or list(cir_gym.ENVIRONMENTS):
+        key = env_id.split(":")[-1]
+        if key not in cir_gym.ENVIRONMENTS:
+            p.error(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+        print(f"{key}:", file=sys.stderr)
+        path = plot_env(key, Path(args.out))
+        print(f"  {path or 'no shipped agents'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

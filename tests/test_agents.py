@@ -1,0 +1,315 @@
+"""Agents: hyperparameters, residual wrapper, training end to end, safe loading, shipped models."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("stable_baselines3")
+
+import agents
+import baselines
+import cir_gym
+from agents.hyperparameters import HyperparameterError, load_hyperparams
+from agents.observation import ObservationLayout, TaskObservation
+from agents.residual import ResidualAction
+from cir_gym.evaluation import evaluate
+
+ENV = "cir_gym/JointTracking-v0"
+SHORT = {"episode_duration": 0.1}  # 50 steps at 500 Hz
+
+
+def tiny_hyperparams(tmp_path: Path, **overrides) -> Path:
+    """A copy of ppo.yml whose default entry trains in seconds."""
+    default = {
+        "policy": "MlpPolicy", "n_timesteps": 256, "n_envs": 2,
+        "normalize": {"norm_obs": True, "norm_reward": True}, "n_steps": 64, "batch_size": 64,
+        "n_epochs": 2, "policy_kwargs": {"net_arch": [16, 16], "activation_fn": "tanh",
+                                         "log_std_init": -1.0},
+        "eval_freq": 128, "n_eval_episodes": 1, "checkpoint_freq": 128,
+        "residual": {"scale": 0.25, "zero_init_action": True,
+                     "policy_kwargs": {"log_std_init": -2.0}},
+        **overrides,
+    }
+    path = tmp_path / "ppo.yml"
+    path.write_text(yaml.safe_dump({"default": default}))
+    return path
+
+
+# ---------------------------------------------------------------------- hyperparameters
+def test_shipped_hyperparameter_files_load_for_every_env_and_algo():
+    for algo in ("ppo", "sac", "td3"):
+        for env_id in [*cir_gym.ENVIRONMENTS, "cir_gym/NotYetWritten-v0"]:
+            hp = load_hyperparams(algo, env_id)
+            assert hp["policy"] == "MlpPolicy" and hp["n_timesteps"] > 0
+            res = load_hyperparams(algo, env_id, residual=True)
+            assert res["residual_scale"] > 0
+
+
+def test_yaml_loader_rejects_unknown_activation_names(tmp_path):
+    path = tiny_hyperparams(tmp_path, policy_kwargs={"activation_fn": "__import__('os')"})
+    with pytest.raises(HyperparameterError, match="unknown activation_fn"):
+        load_hyperparams("ppo", ENV, path=path)
+
+
+def test_yaml_loader_rejects_unknown_keys_and_policies(tmp_path):
+    with pytest.raises(HyperparameterError, match="unknown key"):
+        load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, n_stepz=8))
+    with pytest.raises(HyperparameterError, match="policy must be"):
+        load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, policy="CnnPolicy"))
+
+
+def test_yaml_floats_in_exponent_notation_are_numbers(tmp_path):
+    path = tmp_path / "ppo.yml"
+    path.write_text("default:\n  n_timesteps: 3.0e6\n  learning_rate: 1e-4\n")
+    hp = load_hyperparams("ppo", ENV, path=path)
+    assert hp["n_timesteps"] == 3.0e6 and hp["learning_rate"] == 1e-4
+
+
+# ---------------------------------------------------------------------- observation
+def test_task_errors_are_added_for_every_key_with_a_ref():
+    env = TaskObservation(gym.make(ENV, **SHORT))
+    layout = env.layout
+    assert layout.errors == ("q", "qd")
+    raw, _ = env.unwrapped.reset(seed=3)
+    obs = layout.flatten(raw)
+    assert obs.shape == (7 * 7,)
+    i = layout.keys.index
+    np.testing.assert_allclose(obs[35:42], raw["q_ref"] - raw["q"], atol=1e-6)
+    assert obs[7 * i("q"):7 * i("q") + 7] == pytest.approx(raw["q"].astype(np.float32))
+    batch = {k: np.stack([v, v]) for k, v in raw.items()}
+    np.testing.assert_array_equal(layout.flatten(batch), np.stack([obs, obs]))
+    assert ObservationLayout.from_dict(layout.to_dict()) == layout
+
+
+# ---------------------------------------------------------------------- residual
+@pytest.mark.parametrize("controller", ["computed_torque", "adaptive", "pid"])
+def test_residual_with_zero_agent_action_reproduces_the_controller_exactly(controller):
+    kwargs = {"episode_duration": 0.06, "payload_mass": 3.0}
+    wrapped = ResidualAction(gym.make(ENV, **kwargs), controller, scale=0.25)
+    alone_env = gym.make(ENV, **kwargs)
+    alone = baselines.make(controller, ENV)
+    for seed in (0, 1):  # two episodes: the controller state must be reset at the second
+        obs_w, _ = wrapped.reset(seed=seed)
+        obs_a, _ = alone_env.reset(seed=seed)
+        state, start, done = None, True, False
+        while not done:
+            a_ctrl, state = alone.predict(obs_a, state, np.array([start]))
+            start = False
+            obs_w, _, term_w, trunc_w, info = wrapped.step(np.zeros(7, dtype=np.float32))
+            obs_a, _, term_a, trunc_a, _ = alone_env.step(a_ctrl)
+            np.testing.assert_array_equal(info["controller_action"], a_ctrl)
+            for k in obs_a:
+                np.testing.assert_array_equal(obs_w[k], obs_a[k])
+            done = term_a or trunc_a
+            assert (term_w or trunc_w) == done
+
+
+def test_residual_adds_the_scaled_action_and_clips():
+    env = ResidualAction(gym.make(ENV, **SHORT), "computed_torque", scale=0.25)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.full(7, 2.0))  # agent actions are clipped to [-1, 1]
+    np.testing.assert_allclose(info["residual_action"], 0.25)
+    with pytest.raises(ValueError, match="scale"):
+        ResidualAction(gym.make(ENV, **SHORT), "computed_torque", scale=[0.1, 0.2])
+
+
+def test_early_termination_ends_a_lost_episode_at_its_full_cost():
+    from agents.shaping import EarlyTermination
+
+    env = EarlyTermination(gym.make(ENV), max_error=0.1, penalty=-100.0)
+    env.reset(seed=0)
+    steps, terminated = 0, False
+    while not terminated and steps < 500:  # zero torque: the arm falls
+        _, reward, terminated, truncated, info = env.step(np.zeros(7))
+        steps += 1
+    assert terminated and not truncated and info["early_termination"]
+    assert info["joint_error"] > 0.1 and reward < -100.0 and steps < 200
+    with pytest.raises(ValueError, match="penalty"):
+        EarlyTermination(gym.make(ENV, **SHORT), max_error=0.1, penalty=5.0)
+
+
+# ---------------------------------------------------------------------- training
+@pytest.fixture(scope="module")
+def tiny_runs(tmp_path_factory):
+    """A from-scratch and a residual run of 256 steps each on 50-step episodes."""
+    from agents.train import train
+
+    tmp = tmp_path_factory.mktemp("runs")
+    hp = tiny_hyperparams(tmp)
+    scratch = train(ENV, "ppo", out=tmp, env_kwargs=SHORT, hyperparams_path=hp,
+                    progress_bar=False, verbose=0)
+    residual = train(ENV, "ppo", out=tmp, residual="computed_torque",
+                     env_kwargs={**SHORT, "payload_mass": 3.0}, hyperparams_path=hp,
+                     progress_bar=False, verbose=0)
+    return {"scratch": scratch, "residual": residual, "hp": hp, "out": tmp}
+
+
+def test_train_writes_model_statistics_config_curve_and_meta(tiny_runs):
+    run = tiny_runs["scratch"]
+    for f in ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
+              "learning_curve.csv", "meta.json"):
+        assert (run / f).is_file(), f
+    assert run == tiny_runs["out"] / "JointTracking-v0" / "ppo"
+    config = yaml.safe_load((run / "config.yml").read_text())
+    assert config["env_id"] == ENV and config["env_kwargs"] == SHORT and config["seed"] == 0
+    assert set(config["versions"]) >= {"torch", "stable_baselines3", "cir_gym"}
+    rows = list(csv.DictReader((run / "learning_curve.csv").open()))
+    assert [int(r["timesteps"]) for r in rows] == [128, 256]
+    assert {"mean_return", "mean_rms_error", "success_rate"} <= set(rows[0])
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["timesteps"] == 256 and meta["finished"] and meta["wall_time_s"] > 0
+    assert list((run / "checkpoints").glob("model_*_steps.zip"))
+    assert (run / "best" / "best_model.zip").is_file()
+    res_config = yaml.safe_load((tiny_runs["residual"] / "config.yml").read_text())
+    assert res_config["residual"] == {"controller": "computed_torque", "scale": [0.25] * 7}
+
+
+def test_trained_model_reloads_and_evaluates(tiny_runs):
+    for key, kwargs in (("scratch", SHORT), ("residual", {**SHORT, "payload_mass": 3.0})):
+        policy = agents.load(ENV, "tiny", path=tiny_runs[key])
+        assert policy.name == "tiny"
+        result = evaluate(policy, ENV, n_episodes=2, seed=5, **kwargs)
+        assert len(result.episodes) == 2 and np.isfinite(result.summary["rms_error"]["mean"])
+
+
+def test_residual_agent_starts_at_the_controller(tiny_runs, tmp_path):
+    """A residual agent whose last layer is still zero acts exactly like its controller."""
+    from agents.train import train
+
+    run = train(ENV, "ppo", out=tmp_path, residual="computed_torque", timesteps=0,
+                env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"], progress_bar=False,
+                verbose=0)
+    agent = agents.load(ENV, "r0", path=run)
+    ct = baselines.make("computed_torque", ENV)
+    env = gym.make(ENV, **SHORT)
+    obs, _ = env.reset(seed=0)
+    for _ in range(10):
+        a, _ = agent.predict(obs)
+        b, _ = ct.predict(obs)
+        np.testing.assert_array_equal(a, b)
+        obs, *_ = env.step(a)
+
+
+def test_batched_prediction_matches_single_and_sb3_evaluate_policy(tiny_runs):
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    policy = agents.load(ENV, "tiny", path=tiny_runs["residual"])
+    env = gym.make(ENV, **SHORT)
+    o1, _ = env.reset(seed=1)
+    o2, _ = env.reset(seed=2)
+    batch = {k: np.stack([o1[k], o2[k]]) for k in o1}
+    a_batch, _ = policy.predict(batch, None, np.ones(2, dtype=bool))
+    assert a_batch.shape == (2, 7)
+    np.testing.assert_allclose(a_batch[1], policy.predict(o2)[0], atol=1e-6)
+    venv = DummyVecEnv([lambda: gym.make(ENV, **SHORT, payload_mass=3.0)] * 2)
+    mean, _ = evaluate_policy(policy, venv, n_eval_episodes=2, warn=False)
+    assert np.isfinite(mean)
+
+
+def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
+    from agents.train import train
+
+    out = tmp_path / "out"
+    shutil.copytree(tiny_runs["out"] / "JointTracking-v0", out / "JointTracking-v0")
+    with pytest.raises(ValueError, match="already holds a run"):
+        train(ENV, "ppo", out=out, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
+              progress_bar=False, verbose=0)
+    run = train(ENV, "ppo", out=out, resume=True, timesteps=384, progress_bar=False, verbose=0)
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["timesteps"] >= 384 and meta["sessions"] == 2
+
+
+def test_ctrl_c_saves_a_checkpoint(tmp_path, monkeypatch):
+    from agents import train as train_module
+
+    def interrupt(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module.LearningCurveCallback, "_on_step", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train_module.train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, progress_bar=False,
+                           hyperparams_path=tiny_hyperparams(tmp_path), verbose=0)
+    run = tmp_path / "JointTracking-v0" / "ppo"
+    assert list((run / "checkpoints").glob("model_*_steps.zip"))
+    assert list((run / "checkpoints").glob("model_vecnormalize_*_steps.pkl"))
+    assert json.loads((run / "meta.json").read_text())["interrupted"]
+
+
+# ---------------------------------------------------------------------- safe loading
+def test_corrupted_model_file_gives_a_clear_error(tiny_runs, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(tiny_runs["scratch"], bad, ignore=shutil.ignore_patterns("checkpoints", "tb"))
+    (bad / "model.zip").write_bytes(b"not a zip file at all")
+    with pytest.raises(ValueError, match=r"model\.zip"):
+        agents.load(ENV, "bad", path=bad)
+    data = (tiny_runs["scratch"] / "model.zip").read_bytes()
+    (bad / "model.zip").write_bytes(data[: len(data) // 2])  # truncated
+    with pytest.raises(ValueError, match=r"model\.zip"):
+        agents.load(ENV, "bad", path=bad)
+    (bad / "config.yml").write_text("{{{ not yaml")
+    with pytest.raises(ValueError, match=r"config\.yml"):
+        agents.load(ENV, "bad", path=bad)
+
+
+def test_loading_checks_the_environment_id_and_version(tiny_runs):
+    with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v0"):
+        agents.load("cir_gym/ElasticJointTracking-v0", "x", path=tiny_runs["scratch"])
+    with pytest.raises(ValueError, match="no shipped agent"):
+        agents.load(ENV, "no_such_agent")
+
+
+# ---------------------------------------------------------------------- CLI
+@pytest.mark.filterwarnings("ignore::tqdm.TqdmExperimentalWarning")
+def test_cli_train_2000_steps_end_to_end(tmp_path):
+    """`cir-gym train` with the shipped ppo.yml (progress bar on): ~2-10 s here."""
+    from scripts.cli import main
+
+    code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
+                 "--out", str(tmp_path), "--set", "episode_duration=0.2"])
+    assert code == 0
+    run = tmp_path / "JointTracking-v0" / "ppo"
+    policy = agents.load(ENV, "ppo", path=run)
+    result = evaluate(policy, ENV, n_episodes=1, seed=0, episode_duration=0.2)
+    assert result.episodes[0].length == 100
+    assert json.loads((run / "meta.json").read_text())["timesteps"] >= 2000
+    # a second run into the same directory without --resume is refused with a message, exit 2
+    code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
+                 "--out", str(tmp_path), "--set", "episode_duration=0.2"])
+    assert code == 2
+
+
+def test_cli_train_rejects_an_unknown_residual_controller(tmp_path, capsys):
+    from scripts.cli import main
+
+    code = main(["train", "--env", ENV, "--residual", "no_such_controller", "--timesteps", "100",
+                 "--out", str(tmp_path)])
+    assert code == 2
+    assert "computed_torque" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- shipped agents
+def test_shipped_agents_are_listed_load_and_act():
+    shipped = {env_id: agents.available(env_id) for env_id in cir_gym.ENVIRONMENTS}
+    assert {"ppo", "residual_ppo_computed_torque"} <= set(shipped[ENV])
+    for env_id, names in shipped.items():
+        env = gym.make(env_id)
+        obs, _ = env.reset(seed=0)
+        batch = {k: np.stack([v, v, v]) for k, v in obs.items()}
+        for name in names:
+            policy = agents.load(env_id, name)
+            assert policy.name == name
+            action, _ = policy.predict(obs, deterministic=True)
+            assert action.shape == env.action_space.shape
+            assert np.all(np.abs(action) <= 1.0)
+            actions, _ = policy.predict(batch, None, np.ones(3, dtype=bool))
+            assert actions.shape == (3, *env.action_space.shape)
+        env.close()
