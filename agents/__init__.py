@@ -1,9 +1,9 @@
 """Stable-Baselines3 agents: training, residual RL, and the shipped trained models.
 
 >>> import agents
->>> agents.available("cir_gym/JointTracking-v0")          # doctest: +SKIP
+>>> agents.available("cir_gym/JointTracking-v1")          # doctest: +SKIP
 ['ppo', 'residual_ppo_computed_torque']
->>> policy = agents.load("cir_gym/JointTracking-v0", "ppo")  # doctest: +SKIP
+>>> policy = agents.load("cir_gym/JointTracking-v1", "ppo")  # doctest: +SKIP
 >>> action, state = policy.predict(obs)                      # doctest: +SKIP
 
 Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``; training is in
@@ -22,7 +22,7 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 
 def env_dir_name(env_id: str) -> str:
-    """'cir_gym:cir_gym/JointTracking-v0' → 'JointTracking-v0' (the version is part of it)."""
+    """'cir_gym:cir_gym/JointTracking-v1' → 'JointTracking-v1' (the version is part of it)."""
     return env_id.split(":")[-1].split("/")[-1]
 
 

@@ -1,8 +1,8 @@
 """Hyperparameters from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's layout, plain YAML, no eval).
 
-Each file maps an environment id (``cir_gym/JointTracking-v0``) or ``default`` to an entry::
+Each file maps an environment id (``cir_gym/JointTracking-v1``) or ``default`` to an entry::
 
-    cir_gym/JointTracking-v0:
+    cir_gym/JointTracking-v1:
       policy: MlpPolicy
       n_timesteps: 2.0e6
       n_envs: 8

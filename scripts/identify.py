@@ -1,7 +1,7 @@
 """``cir-gym identify``: least-squares identification on the true simulator, then control.
 
 1. An excitation trajectory (finite Fourier series inside the joint and speed limits) is
-   tracked on the TRUE simulator of JointTracking-v0 (with the unknown payload) by computed
+   tracked on the TRUE simulator of JointTracking-v1 (with the unknown payload) by computed
    torque on the nominal model, at 1 kHz.
 2. Measurements: q, q̇ (encoders), q̈ from the forward difference of q̇ (exact for MuJoCo's
    semi-implicit step), and the applied torque plus Gaussian noise (``noise`` N m std).
@@ -28,7 +28,7 @@ from cir_gym import dynamics
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import Robot
 
-ENV = "cir_gym/JointTracking-v0"
+ENV = "cir_gym/JointTracking-v1"
 
 
 def excitation_data(

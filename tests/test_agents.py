@@ -22,7 +22,7 @@ from agents.observation import ObservationLayout, TaskObservation
 from agents.residual import ResidualAction
 from cir_gym.evaluation import evaluate
 
-ENV = "cir_gym/JointTracking-v0"
+ENV = "cir_gym/JointTracking-v1"
 SHORT = {"episode_duration": 0.1}  # 50 steps at 500 Hz
 
 
@@ -157,7 +157,7 @@ def test_train_writes_model_statistics_config_curve_and_meta(tiny_runs):
     for f in ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
               "learning_curve.csv", "meta.json"):
         assert (run / f).is_file(), f
-    assert run == tiny_runs["out"] / "JointTracking-v0" / "ppo"
+    assert run == tiny_runs["out"] / "JointTracking-v1" / "ppo"
     config = yaml.safe_load((run / "config.yml").read_text())
     assert config["env_id"] == ENV and config["env_kwargs"] == SHORT and config["seed"] == 0
     assert set(config["versions"]) >= {"torch", "stable_baselines3", "cir_gym"}
@@ -219,7 +219,7 @@ def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
     from agents.train import train
 
     out = tmp_path / "out"
-    shutil.copytree(tiny_runs["out"] / "JointTracking-v0", out / "JointTracking-v0")
+    shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
     with pytest.raises(ValueError, match="already holds a run"):
         train(ENV, "ppo", out=out, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
               progress_bar=False, verbose=0)
@@ -238,7 +238,7 @@ def test_ctrl_c_saves_a_checkpoint(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         train_module.train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, progress_bar=False,
                            hyperparams_path=tiny_hyperparams(tmp_path), verbose=0)
-    run = tmp_path / "JointTracking-v0" / "ppo"
+    run = tmp_path / "JointTracking-v1" / "ppo"
     assert list((run / "checkpoints").glob("model_*_steps.zip"))
     assert list((run / "checkpoints").glob("model_vecnormalize_*_steps.pkl"))
     assert json.loads((run / "meta.json").read_text())["interrupted"]
@@ -261,8 +261,8 @@ def test_corrupted_model_file_gives_a_clear_error(tiny_runs, tmp_path):
 
 
 def test_loading_checks_the_environment_id_and_version(tiny_runs):
-    with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v0"):
-        agents.load("cir_gym/ElasticJointTracking-v0", "x", path=tiny_runs["scratch"])
+    with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v1"):
+        agents.load("cir_gym/ElasticJointTracking-v1", "x", path=tiny_runs["scratch"])
     with pytest.raises(ValueError, match="no shipped agent"):
         agents.load(ENV, "no_such_agent")
 
@@ -276,7 +276,7 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
     code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
                  "--out", str(tmp_path), "--set", "episode_duration=0.2"])
     assert code == 0
-    run = tmp_path / "JointTracking-v0" / "ppo"
+    run = tmp_path / "JointTracking-v1" / "ppo"
     policy = agents.load(ENV, "ppo", path=run)
     result = evaluate(policy, ENV, n_episodes=1, seed=0, episode_duration=0.2)
     assert result.episodes[0].length == 100

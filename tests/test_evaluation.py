@@ -15,7 +15,7 @@ from cir_gym.metrics import MetricSpec, aggregate, cvar
 from scripts.cli import main
 from scripts.leaderboard import run_leaderboard
 
-ENV = "cir_gym/JointTracking-v0"
+ENV = "cir_gym/JointTracking-v1"
 SHORT = {"episode_duration": 0.2}
 
 
@@ -72,7 +72,7 @@ def test_leaderboard_is_deterministic(tmp_path):
 @pytest.mark.parametrize(
     "argv, needle",
     [
-        (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v0"),
+        (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v1"),
         (["evaluate", "--env", ENV, "--policy", "lqr"], "computed_torque"),
         (["evaluate", "--env", ENV, "--policy", "pid", "--set", "foo=1"], "payload_mass"),
         (["evaluate", "--env", ENV, "--policy", "pid", "--set", "omega=-1"], "omega"),

@@ -1,4 +1,4 @@
-"""JointTracking-v0 and the joint-space controllers of chapters 4 and 5: properties from theory."""
+"""JointTracking-v1 and the joint-space controllers of chapters 4 and 5: properties from theory."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cir_gym
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import ModelError, Robot
 
-ENV = "cir_gym/JointTracking-v0"
+ENV = "cir_gym/JointTracking-v1"
 
 
 def rollout(policy, env, seed, steps=None):
@@ -136,6 +136,37 @@ def test_info_terms_sum_to_reward_and_metrics_at_episode_end():
     assert truncated and not terminated
     assert set(info["episode_metrics"]) == {s.name for s in env.unwrapped.metric_specs}
     assert "is_success" in info
+
+
+def test_following_error_monitor_stops_a_lost_episode_and_scores_the_whole_horizon():
+    env = gym.make(ENV, initial_error=0.05)
+    base = env.unwrapped
+    obs, _ = env.reset(seed=3)
+    e0 = float(np.linalg.norm(obs["q_ref"] - obs["q"]))
+    errors = []
+    for k in range(base.max_steps):  # zero torque: the arm falls
+        _, reward, terminated, truncated, info = env.step(np.zeros(7))
+        errors.append(info["joint_error"])
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info["following_error_exceeded"]
+    assert not info["diverged"] and not info["is_success"]
+    assert errors[-1] > e0 + 0.5 >= max(errors[:-1])  # trips on the first step past the bound
+    assert info["reward_following_error"] == -50.0
+    terms = sum(v for key, v in info.items() if key.startswith("reward_"))
+    assert reward == pytest.approx(terms, abs=1e-12)
+    # the last error is held for the unplayed steps: RMS over the whole horizon
+    held = base._err[k]
+    expected = np.sqrt((np.sum(base._err[: k + 1] ** 2) + (base.max_steps - k - 1) * held @ held)
+                       / (base.max_steps * 7))
+    assert info["episode_metrics"]["rms_error"] == pytest.approx(expected, rel=1e-12)
+    assert k < 0.2 * base.max_steps
+    # disabled: the same actions run to the end
+    env = gym.make(ENV, initial_error=0.05, max_following_error=None)
+    env.reset(seed=3)
+    for _ in range(k + 1):
+        _, _, terminated, _, info = env.step(np.zeros(7))
+    assert not terminated and not info["following_error_exceeded"]
 
 
 def test_bad_input_is_reported_clearly():

@@ -21,11 +21,11 @@ __all__ = [
 
 #: id → (class, one-line description)
 ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/JointTracking-v0": (
+    "cir_gym/JointTracking-v1": (
         JointTrackingEnv,
         "iiwa14 joint-space trajectory tracking with joint torques (ch. 4-5)",
     ),
-    "cir_gym/ElasticJointTracking-v0": (
+    "cir_gym/ElasticJointTracking-v1": (
         ElasticJointTrackingEnv,
         "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),

@@ -63,7 +63,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     """Track a joint trajectory with motor torques through elastic joints (iiwa 14).
 
     ## Description
-    JointTracking-v0 with each transmission modelled as in chapter 4 of the notes: a motor
+    JointTracking-v1 with each transmission modelled as in chapter 4 of the notes: a motor
     (rotor inertia reflected to the link side, N² J_m) and the link, coupled by a spring of
     stiffness k_el. In MuJoCo each joint is two hinges (``motor<i>`` on a massless rotor body
     and ``joint<i>`` on the link) and a fixed tendon θ − q with stiffness k_el and a small
@@ -72,37 +72,38 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
 
     ## Action Space
     ``Box(-1, 1, (7,), float32)``: motor torque reflected to the link side, τ = a ⊙ τ_max
-    (τ_max as in JointTracking-v0; the motor torque itself is τ / N). Clipping as there.
+    (τ_max as in JointTracking-v1; the motor torque itself is τ / N). Clipping as there.
 
     ## Observation Space
-    The keys of JointTracking-v0 (q, qd are the LINK positions and velocities) plus
+    The keys of JointTracking-v1 (q, qd are the LINK positions and velocities) plus
     ``q_motor`` and ``qd_motor`` (7,), the motor positions (rad, link units) and velocities.
 
     ## Rewards
-    As in JointTracking-v0, on the link error.
+    As in JointTracking-v1, on the link error.
 
     ## Starting State
-    As in JointTracking-v0, with the springs pre-loaded so that the arm is at rest: θ(0) =
+    As in JointTracking-v1, with the springs pre-loaded so that the arm is at rest: θ(0) =
     q(0) + K_el⁻¹ g(q(0)).
 
     ## Episode End
-    As in JointTracking-v0.
+    As in JointTracking-v1.
 
     ## Arguments
-    The arguments of JointTracking-v0, plus:
+    The arguments of JointTracking-v1, plus:
 
     | argument | default | meaning |
     |---|---|---|
     | stiffness | None | joint stiffness k_el (N m/rad), scalar or (7,); None = DEFAULT_STIFFNESS |
 
     ## Metrics
-    As in JointTracking-v0 (on the link side).
+    As in JointTracking-v1 (on the link side).
 
     ## Reference controllers
     pid, p_pi_cascade, p_pi_feedforward (on motor-side measurements, ω_cv ≈ 0.7 ω_z),
     pd_gravity and computed_torque (rigid model, link measurements).
 
     ## Version History
+    - v1: JointTracking-v1's following-error monitor (on the link error).
     - v0: initial version.
     """
 

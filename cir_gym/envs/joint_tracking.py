@@ -60,11 +60,14 @@ class JointTrackingEnv(RobotEnv):
     Values are clipped to the bounds.
 
     ## Rewards
-    r = r_tracking + r_torque + r_action_rate + r_diverged, each in ``info["reward_<name>"]``:
+    r = r_tracking + r_torque + r_action_rate + r_following_error + r_diverged, each in
+    ``info["reward_<name>"]``:
     - r_tracking = −(1 − (1/3) Σ_s exp(−‖q̃‖² / s²)), s ∈ ``error_scales`` = (1, 0.1, 0.01) rad:
       wide and narrow kernels, in [−1, 0];
     - r_torque = −``torque_weight`` ‖a‖² / 7;
     - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / 7 (against chattering);
+    - r_following_error = −``following_error_penalty`` on the step the following-error
+      monitor stops the episode, else 0;
     - r_diverged = −``divergence_penalty`` on the step the physics diverged, else 0.
 
     ## Starting State
@@ -74,7 +77,11 @@ class JointTrackingEnv(RobotEnv):
 
     ## Episode End
     Truncated after ``episode_duration`` s. Terminated when the physics diverges
-    (``info["diverged"] = True``; the last finite state is kept).
+    (``info["diverged"] = True``; the last finite state is kept) or, like the following-error
+    monitor of an industrial drive, when ‖q̄ − q‖ exceeds ‖q̄(0) − q(0)‖ +
+    ``max_following_error`` (``info["following_error_exceeded"] = True``; the initial offset of
+    ``initial_error`` or of a ``regulation`` start is not a following error). A stopped episode is scored over the whole
+    horizon: its last error is held for the steps it did not play.
 
     ## Arguments
     | argument | default | meaning |
@@ -96,6 +103,8 @@ class JointTrackingEnv(RobotEnv):
     | torque_weight | 0.01 | weight of the torque term |
     | action_rate_weight | 0.01 | weight of the action-rate term |
     | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | max_following_error | 0.5 | growth of ‖q̄ − q‖ over its initial value (rad) that ends the episode; None = never |
+    | following_error_penalty | 50.0 | reward lost when the following error ends the episode |
     | success_threshold | 0.05 | max joint error (rad) below which an episode succeeds |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
@@ -105,13 +114,17 @@ class JointTrackingEnv(RobotEnv):
     ``rms_error`` (primary, rad; RMS over joints and steps), ``max_error`` (rad),
     ``final_error`` (rad, norm at the last step), ``rms_torque`` (N m), ``saturation``
     (fraction of steps with a clipped or saturated joint). Success: no divergence and
-    ``max_error`` < ``success_threshold``.
+    ``max_error`` < ``success_threshold`` (so a stopped episode never succeeds).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/JointTracking-v0")``: pid, p_pi_cascade,
+    ``baselines.available("cir_gym/JointTracking-v1")``: pid, p_pi_cascade,
     p_pi_feedforward, decentralized_feedforward, pd_gravity, computed_torque, robust, adaptive.
 
     ## Version History
+    - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
+      From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
+      (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing
+      (docs/agents.md). Controllers are unaffected (their errors stay below 0.01 rad).
     - v0: initial version.
     """
 
@@ -148,6 +161,8 @@ class JointTrackingEnv(RobotEnv):
         torque_weight: float = 0.01,
         action_rate_weight: float = 0.01,
         divergence_penalty: float = 100.0,
+        max_following_error: float | None = 0.5,
+        following_error_penalty: float = 50.0,
         success_threshold: float = 0.05,
         render_mode: str | None = None,
         width: int = 480,
@@ -175,6 +190,15 @@ class JointTrackingEnv(RobotEnv):
         self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
         self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
         self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+        self.max_following_error = (
+            None
+            if max_following_error is None
+            else check_number("max_following_error", max_following_error, 0.0, 100.0,
+                              low_open=True)
+        )
+        self.following_error_penalty = check_number(
+            "following_error_penalty", following_error_penalty, 0.0, 1e6
+        )
         self.success_threshold = check_number(
             "success_threshold", success_threshold, 0.0, 10.0, low_open=True
         )
@@ -212,6 +236,7 @@ class JointTrackingEnv(RobotEnv):
         self._tau = np.zeros((steps, n))
         self._sat = np.zeros(steps, dtype=bool)
         self._k = 0
+        self._k_scored = 0
         self._a_prev = np.zeros(n)
         self._q_meas_prev = np.zeros(n)
         self._diverged = False
@@ -304,6 +329,10 @@ class JointTrackingEnv(RobotEnv):
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
         self._set_initial_state(q0, qd0)
         self._k = 0
+        self._k_scored = 0  # steps the metrics cover (the whole horizon once stopped)
+        self._following_error_limit = float(
+            np.linalg.norm(self._ref[0, 0] - q0) + (self.max_following_error or 0.0)
+        )
         self._a_prev[:] = 0.0
         self._diverged = False
         self._q_meas_prev[:] = self._quantize(q0)
@@ -331,19 +360,30 @@ class JointTrackingEnv(RobotEnv):
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / self.n
         r_div = -self.divergence_penalty if diverged else 0.0
+        stopped = bool(
+            not diverged
+            and self.max_following_error is not None
+            and np.sqrt(err_sq) > self._following_error_limit
+        )
+        r_follow = -self.following_error_penalty if stopped else 0.0
         self._a_prev[:] = a
-        reward = r_track + r_torque + r_rate + r_div
+        reward = r_track + r_torque + r_rate + r_follow + r_div
 
-        terminated = diverged
+        terminated = diverged or stopped
         truncated = self._k >= self.max_steps and not terminated
         info: dict[str, Any] = {
             "reward_tracking": r_track,
             "reward_torque": r_torque,
             "reward_action_rate": r_rate,
+            "reward_following_error": r_follow,
             "reward_diverged": r_div,
             "joint_error": float(np.sqrt(err_sq)),
+            "following_error_exceeded": stopped,
             "diverged": diverged,
         }
+        if stopped:  # scored over the whole horizon: the last error held (section Episode End)
+            self._err[self._k :] = q_err
+            self._k_scored = self.max_steps
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
@@ -354,8 +394,9 @@ class JointTrackingEnv(RobotEnv):
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs``)."""
-        k = max(self._k, 1)
-        err, tau = self._err[:k], self._tau[:k]
+        k = max(self._k, 1)  # steps played
+        err = self._err[: max(k, self._k_scored)]  # a stopped episode: the whole horizon
+        tau = self._tau[:k]
         return {
             "rms_error": float(np.sqrt(np.mean(err**2))),
             "max_error": float(np.max(np.abs(err))),
