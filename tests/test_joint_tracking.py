@@ -144,11 +144,12 @@ def test_following_error_monitor_stops_a_lost_episode_and_scores_the_whole_horiz
     obs, _ = env.reset(seed=3)
     e0 = float(np.linalg.norm(obs["q_ref"] - obs["q"]))
     errors = []
-    for k in range(base.max_steps):  # zero torque: the arm falls
+    for _ in range(base.max_steps):  # zero torque: the arm falls
         _, reward, terminated, truncated, info = env.step(np.zeros(7))
         errors.append(info["joint_error"])
         if terminated or truncated:
             break
+    k = len(errors) - 1
     assert terminated and not truncated and info["following_error_exceeded"]
     assert not info["diverged"] and not info["is_success"]
     assert errors[-1] > e0 + 0.5 >= max(errors[:-1])  # trips on the first step past the bound
@@ -157,8 +158,10 @@ def test_following_error_monitor_stops_a_lost_episode_and_scores_the_whole_horiz
     assert reward == pytest.approx(terms, abs=1e-12)
     # the last error is held for the unplayed steps: RMS over the whole horizon
     held = base._err[k]
-    expected = np.sqrt((np.sum(base._err[: k + 1] ** 2) + (base.max_steps - k - 1) * held @ held)
-                       / (base.max_steps * 7))
+    expected = np.sqrt(
+        (np.sum(base._err[: k + 1] ** 2) + (base.max_steps - k - 1) * held @ held)
+        / (base.max_steps * 7)
+    )
     assert info["episode_metrics"]["rms_error"] == pytest.approx(expected, rel=1e-12)
     assert k < 0.2 * base.max_steps
     # disabled: the same actions run to the end

@@ -193,8 +193,7 @@ class JointTrackingEnv(RobotEnv):
         self.max_following_error = (
             None
             if max_following_error is None
-            else check_number("max_following_error", max_following_error, 0.0, 100.0,
-                              low_open=True)
+            else check_number("max_following_error", max_following_error, 0.0, 100.0, low_open=True)
         )
         self.following_error_penalty = check_number(
             "following_error_penalty", following_error_penalty, 0.0, 1e6
