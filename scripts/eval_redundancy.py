@@ -22,7 +22,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-ENVS = {"RedundantIK": "cir_gym/RedundantIK-v0", "RedundantIK7": "cir_gym/RedundantIK7-v0"}
+ENVS = {"RedundantIK": "cir_gym/RedundantIK-v1", "RedundantIK7": "cir_gym/RedundantIK7-v1"}
 ALL = ("jacobian_transpose", "pseudo_inverse", "clik", "clik_dls", "clik_weighted",
        "clik_nullspace", "clik_augmented")
 METRICS = ("rms_task_error", "min_manipulability", "min_joint_limit_margin", "min_clearance",

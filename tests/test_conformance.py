@@ -52,8 +52,8 @@ _KINEMATIC = ("kinematic env: q ← q + Δt q̇ with q̇ clipped to the velocity
               "physics step (the simulator state is rewritten from q every step), so "
               "info['diverged'] is False by construction")
 NEVER_DIVERGES: dict[str, str] = {
-    "cir_gym/RedundantIK-v0": _KINEMATIC,
-    "cir_gym/RedundantIK7-v0": _KINEMATIC,
+    "cir_gym/RedundantIK-v1": _KINEMATIC,
+    "cir_gym/RedundantIK7-v1": _KINEMATIC,
 }
 
 

@@ -1,4 +1,4 @@
-"""RedundantIK-v0, RedundantIK7-v0 and the chapter-1 kinematic controllers: theory checks."""
+"""RedundantIK-v1, RedundantIK7-v1 and the chapter-1 kinematic controllers: theory checks."""
 
 from __future__ import annotations
 
@@ -23,8 +23,8 @@ from cir_gym.envs.redundant_ik import (
 )
 from cir_gym.robot import Robot
 
-ENV = "cir_gym/RedundantIK-v0"
-ENV7 = "cir_gym/RedundantIK7-v0"
+ENV = "cir_gym/RedundantIK-v1"
+ENV7 = "cir_gym/RedundantIK7-v1"
 CONTROLLERS = {cls.name: cls for cls in kinematic.KINEMATIC_CONTROLLERS}
 
 

@@ -41,6 +41,7 @@ OBJECTIVES = ("manipulability", "joint_limits", "obstacle")
 SHAPES = ("circle", "ellipse", "figure_eight")
 DUMMY_OBSTACLE_CENTRE = 10.0  # m, every coordinate of the far-away dummy obstacle (radius 0)
 IK_TOLERANCE = 1e-12  # m (and rad): residual of the reset IK solve
+OBSTACLE_PATH_TRIES = 20  # paths drawn for "obstacle" until an obstacle can be placed
 MANIPULABILITY_WINDOW = 0.1  # fraction of the lap excluded from min_manipulability (start-up)
 CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control period (no dynamics)
 
@@ -245,6 +246,7 @@ class _RedundantIKBase(RobotEnv):
         self._q = self.home.copy()
         self._q0 = self.home.copy()
         self._k = 0
+        self._k_scored = 0
         self._done = False
 
     # ------------------------------------------------------------------ model
@@ -410,23 +412,38 @@ class _RedundantIKBase(RobotEnv):
         self.model.geom_rgba[self._obstacle_id, 3] = 0.8 if radius > 0 else 0.0
         self._obstacle = np.concatenate((centre[: self.pos_dim], [radius]))
 
-    def _poorly_conditioned_start(self, q_home_ik: np.ndarray, candidates: int = 8
-                                  ) -> np.ndarray:
-        """objective="manipulability": the worst-conditioned of ``candidates`` IK solutions.
+    def _self_motion(self, q: np.ndarray, arc: float = np.pi, step: float = 0.05,
+                     margin: float = 0.6) -> list[np.ndarray]:
+        """Configurations on the self-motion manifold through ``q`` (at the pose x̄(0)).
 
-        IK solves from guesses home + U(±1 rad) (and the home-IK solution) on the self-motion
-        manifold at x̄(0); among those with w ≥ 30 % of the best, ≥ 0.6 rad from every joint
-        limit, the one of least manipulability w, so the redundancy starts badly used.
+        Walks both ways along the unit null vector of J (dim ker J = 1 on both robots, its sign
+        kept continuous), re-solving the task after each ``step`` (rad), up to ``arc`` rad or
+        until a joint comes within ``margin`` rad of its limit; returns every 5th point.
         """
-        rng = self.np_random
-        sols = [q_home_ik]
-        for _ in range(candidates - 1):
-            guess = self.home + rng.uniform(-1.0, 1.0, self.n)
-            q = self._solve_ik(guess, self._x_ref[0], self._R_ref[0])
-            p, _ = self._forward(q)
-            ok = np.linalg.norm(self._x_ref[0] - p) < 1e-9
-            if ok and joint_limit_margin(q, self.file_lower, self.file_upper) >= 0.6:
-                sols.append(q)
+        out = [q.copy()]
+        for sign in (1.0, -1.0):
+            x, prev = q.copy(), None
+            for i in range(1, int(arc / step) + 1):
+                v = np.linalg.svd(self._task_jacobian(x))[2][-1]
+                v = sign * v if prev is None else (v if v @ prev >= 0 else -v)
+                prev = v
+                x = self._solve_ik(x + step * v, self._x_ref[0], self._R_ref[0], iterations=20)
+                if joint_limit_margin(x, self.file_lower, self.file_upper) < margin:
+                    break
+                if i % 5 == 0:
+                    out.append(x.copy())
+        return out
+
+    def _poorly_conditioned_start(self, q_home_ik: np.ndarray) -> np.ndarray:
+        """objective="manipulability": the least manipulable posture of the self-motion.
+
+        Among the configurations of :meth:`_self_motion` through the home-IK solution (all at
+        x̄(0), ≥ 0.6 rad from every joint limit) with w ≥ 30 % of the best of them, the one of
+        least manipulability w, so the redundancy starts badly used. (v0 took the worst of 8
+        IK solutions from guesses within ±1 rad of home: they clustered near home, and on the
+        iiwa often at a stationary point of w along the self-motion.)
+        """
+        sols = self._self_motion(q_home_ik)
         w = np.array([manipulability(self._task_jacobian(q)) for q in sols])
         allowed = np.flatnonzero(w >= 0.3 * np.max(w))
         return sols[int(allowed[np.argmin(w[allowed])])]
@@ -453,12 +470,17 @@ class _RedundantIKBase(RobotEnv):
         rng = self.np_random
         self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
         self._set_obstacle(np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0]))
-        self._draw_path()
-        q0 = self._solve_ik(self.home.copy(), self._x_ref[0], self._R_ref[0])
+        for _ in range(OBSTACLE_PATH_TRIES):  # "obstacle": a new path until one is placed
+            self._draw_path()
+            q0 = self._solve_ik(self.home.copy(), self._x_ref[0], self._R_ref[0])
+            if self.objective != "obstacle":
+                break
+            box = self._draw_obstacle(q0)
+            if box[-1] > 0:
+                self._set_obstacle(box)
+                break
         if self.objective == "manipulability":
             q0 = self._poorly_conditioned_start(q0)
-        if self.objective == "obstacle":
-            self._set_obstacle(self._draw_obstacle(q0))
         if self.initial_error > 0:
             d = rng.standard_normal(self.pos_dim)
             offset = self.initial_error * d / np.linalg.norm(d)
@@ -471,6 +493,7 @@ class _RedundantIKBase(RobotEnv):
         self._q0 = q0.copy()
         self._forward(q0)
         self._k = 0
+        self._k_scored = 0
         self._done = False
         self._trace[:] = 0.0
         info = {"obstacle": self._obstacle.copy(), "q_lower": self.lower.copy(),
@@ -523,6 +546,9 @@ class _RedundantIKBase(RobotEnv):
         }
         if self.task_dim == 6:
             info["orientation_error"] = e_rot
+        if terminated:  # scored over the whole lap: the stopped arm's last values held
+            self._trace[:, k + 1 :] = self._trace[:, k : k + 1]
+            self._k_scored = self.max_steps
         if self._done:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
@@ -550,7 +576,7 @@ class _RedundantIKBase(RobotEnv):
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs``)."""
-        k = max(self._k, 1)
+        k = max(self._k, self._k_scored, 1)
         e, r, w, margin, clear = self._trace[:5, :k]
         metrics = {
             "rms_task_error": float(np.sqrt(np.mean(e**2))),
@@ -663,20 +689,22 @@ class RedundantIKEnv(_RedundantIKBase):
       exp(−max(clearance, 0) / 0.05 m) for "obstacle";
     - r_velocity = −``velocity_weight`` ‖a‖² / 3;
     - r_termination = −``termination_penalty`` on the step that violates a joint limit or
-      collides, else 0 (the default exceeds the return of any full episode).
+      collides, else 0 (the default, 50 ≈ 1/(1 − γ) for γ = 0.98, charges a lost episode
+      the cost of staying lost; v0's 1000 dominated every return and an agent's value scale).
 
     ## Starting State
     At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
     steps q ← q + J†(x̄(0) − k(q)) (residual < 1e-12 m). For "manipulability" the redundancy
-    starts badly used: q(0) is the least manipulable of 8 IK solutions (from home and from
-    home + U(±1 rad) guesses) with w ≥ 30 % of the best of them and ≥ 0.6 rad from every joint
-    limit, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
+    starts badly used: q(0) is the least manipulable posture of the self-motion through that
+    solution (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit) with
+    w ≥ 30 % of the best of them, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
     at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
     narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
     the file's range; ``q_lower``/``q_upper`` in the observation). For "obstacle" the
     obstacle (radius 4–7 cm) overlaps a link capsule by 5–20 mm at a random instant of the
     minimum-norm (pseudo-inverse CLIK) motion, at least radius + 8 cm away from the path and
-    3 cm away from the arm at q(0).
+    3 cm away from the arm at q(0), where a self-motion can clear it; a new path is drawn
+    until such an obstacle exists (every "obstacle" episode has one).
 
     ## Episode End
     Truncated after ``episode_duration`` s (one lap). Terminated when a step would cross a
@@ -697,7 +725,7 @@ class RedundantIKEnv(_RedundantIKBase):
     | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
-    | termination_penalty | 1000.0 | reward lost on a joint-limit violation or a collision |
+    | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
     | success_threshold | 0.001 | max position error (m) below which an episode succeeds |
     | render_mode | None | None, "human" or "rgb_array" (camera "top" looks down on the plane) |
     | width | 480 | frame width (px) |
@@ -707,15 +735,20 @@ class RedundantIKEnv(_RedundantIKBase):
     ``rms_task_error`` (primary, m), ``max_task_error`` (m), ``min_manipulability`` (m², higher
     is better; over t ≥ 0.1 T: the start-up tenth of the lap, where the reference barely moves
     and a controller may reconfigure the arm, is excluded), ``min_joint_limit_margin`` (rad, higher is better), ``min_clearance`` (m,
-    higher is better; about 14 m to the dummy obstacle), ``joint_drift`` (‖q(T) − q(0)‖ after
-    the closed path, rad). Every metric is over the steps taken. Success: no termination and
+    higher is better; about 14 m to the far-away dummy obstacle of the other objectives),
+    ``joint_drift`` (‖q(T) − q(0)‖ after the closed path, rad). A terminated episode is scored
+    over the whole lap with the stopped arm's last values held (the reference moves on, so
+    this under-states its error). Success: no termination and
     ``max_task_error`` < ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK-v0")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK-v1")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
+    - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
+      "manipulability" start is the worst posture of the whole self-motion;
+      ``termination_penalty`` 1000 → 50; terminated episodes are scored over the whole lap.
     - v0: initial version.
     """
 
@@ -745,7 +778,7 @@ class RedundantIKEnv(_RedundantIKBase):
         error_scales: tuple[float, ...] = (0.1, 0.01, 0.001),
         secondary_weight: float = 0.1,
         velocity_weight: float = 0.01,
-        termination_penalty: float = 1000.0,
+        termination_penalty: float = 50.0,
         success_threshold: float = 0.001,
         render_mode: str | None = None,
         width: int = 480,
@@ -797,7 +830,7 @@ class RedundantIK7Env(_RedundantIKBase):
     R̄(t) = Rot(r, α sin 2πσ(t)) R_home (world axis r random, α ∈ [0.1, 0.3] rad), closed as
     well; ω̄ = r α 2π cos(2πσ) σ̇. The orientation error is the rotation vector of R̄ Rᵀ
     (through its quaternion), never an Euler-angle difference. ``objective`` as in
-    ``RedundantIK-v0``; the obstacle is a sphere on the sweep of links 3–5 (around the
+    ``RedundantIK-v1``; the obstacle is a sphere on the sweep of links 3–5 (around the
     elbow), and the clearance is computed analytically (centre to capsule segments, minus the
     radii).
 
@@ -823,16 +856,16 @@ class RedundantIK7Env(_RedundantIKBase):
     | obstacle | (4,) | sphere centre and radius; (10, 10, 10, 0) when there is none | ±20 | m |
 
     ## Rewards
-    As ``RedundantIK-v0``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
+    As ``RedundantIK-v1``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
     orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
     exp(−w / 0.05).
 
     ## Starting State
-    As ``RedundantIK-v0``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
+    As ``RedundantIK-v1``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
     (x̄(0), R̄(0)); ``initial_error`` offsets the position only.
 
     ## Episode End
-    As ``RedundantIK-v0``.
+    As ``RedundantIK-v1``.
 
     ## Arguments
     | argument | default | meaning |
@@ -845,23 +878,26 @@ class RedundantIK7Env(_RedundantIKBase):
     | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
-    | termination_penalty | 1000.0 | reward lost on a joint-limit violation or a collision |
+    | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
     | success_threshold | 0.001 | max position error (m); the orientation must stay below 10× (rad) |
     | render_mode | None | None, "human" or "rgb_array" (MuJoCo's free camera) |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
 
     ## Metrics
-    As ``RedundantIK-v0`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
+    As ``RedundantIK-v1`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
     manipulability of the 6×7 Jacobian (mixed units). Success: no termination,
     ``max_task_error`` < ``success_threshold`` and ``max_orientation_error`` <
     10 ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK7-v0")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK7-v1")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
+    - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
+      "manipulability" start is the worst posture of the whole self-motion;
+      ``termination_penalty`` 1000 → 50; terminated episodes are scored over the whole lap.
     - v0: initial version.
     """
 
@@ -893,7 +929,7 @@ class RedundantIK7Env(_RedundantIKBase):
         error_scales: tuple[float, ...] = (0.1, 0.01, 0.001),
         secondary_weight: float = 0.1,
         velocity_weight: float = 0.01,
-        termination_penalty: float = 1000.0,
+        termination_penalty: float = 50.0,
         success_threshold: float = 0.001,
         render_mode: str | None = None,
         width: int = 480,
@@ -936,12 +972,12 @@ class RedundantIK7Env(_RedundantIKBase):
 
 
 REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/RedundantIK-v0": (
+    "cir_gym/RedundantIK-v1": (
         RedundantIKEnv,
         "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
         "objective (ch. 1)",
     ),
-    "cir_gym/RedundantIK7-v0": (
+    "cir_gym/RedundantIK7-v1": (
         RedundantIK7Env,
         "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
     ),
