@@ -14,6 +14,7 @@ from gymnasium.utils.env_checker import check_env
 import cir_gym  # noqa: F401  (registers the environments it knows)
 from baselines import kinematic
 from baselines.base import InvalidGain
+from cir_gym.envs import redundant_ik as env_module
 from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.redundant_ik import (
     REDUNDANT_IK_ENVIRONMENTS,
@@ -210,6 +211,48 @@ def test_joint_limit_is_hard_and_terminates():
             break
     assert info["joint_limit_violation"] and terminated
     assert np.all(base._q <= base.upper) and np.any(base._q == base.upper)
+
+
+def test_terminated_episode_is_scored_over_the_whole_lap():
+    env = gym.make(ENV, objective="joint_limits")
+    env.reset(seed=0)
+    base = env.unwrapped
+    errors = []
+    for _ in range(base.max_steps):
+        _, _, terminated, _, info = env.step(np.ones(3))
+        errors.append(info["task_error"])
+        if terminated:
+            break
+    k = len(errors)
+    assert terminated and k < base.max_steps and info["reward_termination"] == -50.0
+    assert not info["is_success"]
+    e = np.array(errors + [errors[-1]] * (base.max_steps - k))  # the stopped arm's error held
+    assert info["episode_metrics"]["rms_task_error"] == pytest.approx(np.sqrt(np.mean(e**2)))
+
+
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_every_obstacle_episode_has_an_obstacle_clear_of_the_start(env_id):
+    env = gym.make(env_id, objective="obstacle")
+    for seed in range(12):
+        obs, _ = env.reset(seed=seed)
+        assert obs["obstacle"][-1] > 0, seed
+        _, _, _, _, info = env.step(np.zeros(env.action_space.shape))
+        assert info["clearance"] > 0.0, seed
+
+
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_manipulability_start_is_on_the_path_and_not_better_than_the_home_solution(env_id):
+    env = gym.make(env_id)
+    base = env.unwrapped
+    for seed in range(4):
+        obs, _ = env.reset(seed=seed)
+        np.testing.assert_allclose(obs["x"], obs["x_ref"], atol=1e-9)
+        q_home = base._solve_ik(base.home.copy(), base._x_ref[0], base._R_ref[0])
+        w0 = kinematic.manipulability(base._task_jacobian(obs["q"]))
+        assert w0 <= kinematic.manipulability(base._task_jacobian(q_home)) + 1e-12
+        margin = env_module.joint_limit_margin
+        lower, upper = obs["q_lower"], obs["q_upper"]
+        assert margin(obs["q"], lower, upper) >= min(0.6, margin(q_home, lower, upper)) - 1e-9
 
 
 def test_unknown_objective_names_the_allowed_ones():

@@ -437,7 +437,7 @@ class _RedundantIKBase(RobotEnv):
     def _poorly_conditioned_start(self, q_home_ik: np.ndarray) -> np.ndarray:
         """objective="manipulability": the least manipulable posture of the self-motion.
 
-        Among the configurations of :meth:`_self_motion` through the home-IK solution (all at
+        Among the home-IK solution and the configurations of its :meth:`_self_motion` (all at
         x̄(0), ≥ 0.6 rad from every joint limit) with w ≥ 30 % of the best of them, the one of
         least manipulability w, so the redundancy starts badly used. (v0 took the worst of 8
         IK solutions from guesses within ±1 rad of home: they clustered near home, and on the
@@ -695,8 +695,8 @@ class RedundantIKEnv(_RedundantIKBase):
     ## Starting State
     At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
     steps q ← q + J†(x̄(0) − k(q)) (residual < 1e-12 m). For "manipulability" the redundancy
-    starts badly used: q(0) is the least manipulable posture of the self-motion through that
-    solution (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit) with
+    starts badly used: q(0) is the least manipulable of that solution and the postures of its
+    self-motion (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit) with
     w ≥ 30 % of the best of them, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
     at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
     narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
