@@ -41,6 +41,7 @@ OBJECTIVES = ("manipulability", "joint_limits", "obstacle")
 SHAPES = ("circle", "ellipse", "figure_eight")
 DUMMY_OBSTACLE_CENTRE = 10.0  # m, every coordinate of the far-away dummy obstacle (radius 0)
 IK_TOLERANCE = 1e-12  # m (and rad): residual of the reset IK solve
+SELF_MOTION_SHARE = 0.1  # min |v_j| (unit null vector) of a joint narrowed for "joint_limits"
 OBSTACLE_PATH_TRIES = 20  # paths drawn for "obstacle" until an obstacle can be placed
 MANIPULABILITY_WINDOW = 0.1  # fraction of the lap excluded from min_manipulability (start-up)
 CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control period (no dynamics)
@@ -454,9 +455,15 @@ class _RedundantIKBase(RobotEnv):
         q(0) sits 10–25 % of the window from a random side of it, so minimum-norm motion runs
         into that limit on many paths, while the self-motion can move the joint towards the
         window's centre. The other joints keep the file's ranges; all are clipped to them.
+        Only a joint that the self-motion moves is narrowed (|v_j| ≥ 0.1 for the unit null
+        vector v of J at q(0)): on the iiwa the elbow q4 is fixed by the shoulder–wrist
+        distance, which the pose task fixes, so no kinematic controller could keep a narrowed
+        q4 in range (v0 drew such instances).
         """
         rng = self.np_random
-        j = int(rng.integers(self.n))
+        v = np.linalg.svd(self._task_jacobian(q0))[2][-1]
+        movable = np.flatnonzero(np.abs(v) >= SELF_MOTION_SHARE)
+        j = int(movable[rng.integers(movable.size)])
         frac = float(rng.uniform(0.1, 0.25))
         frac = frac if rng.random() < 0.5 else 1.0 - frac
         self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
@@ -700,7 +707,8 @@ class RedundantIKEnv(_RedundantIKBase):
     w ≥ 30 % of the best of them, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
     at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
     narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
-    the file's range; ``q_lower``/``q_upper`` in the observation). For "obstacle" the
+    the file's range; ``q_lower``/``q_upper`` in the observation); only a joint that the
+    self-motion moves is drawn (|v_j| ≥ 0.1 for the unit null vector v of J at q(0)). For "obstacle" the
     obstacle (radius 4–7 cm) overlaps a link capsule by 5–20 mm at a random instant of the
     minimum-norm (pseudo-inverse CLIK) motion, at least radius + 8 cm away from the path and
     3 cm away from the arm at q(0), where a self-motion can clear it; a new path is drawn
@@ -747,7 +755,8 @@ class RedundantIKEnv(_RedundantIKBase):
 
     ## Version History
     - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
-      "manipulability" start is the worst posture of the whole self-motion;
+      "manipulability" start is the worst posture of the whole self-motion; "joint_limits"
+      narrows only a joint the self-motion moves;
       ``termination_penalty`` 1000 → 50; terminated episodes are scored over the whole lap.
     - v0: initial version.
     """
@@ -896,7 +905,8 @@ class RedundantIK7Env(_RedundantIKBase):
 
     ## Version History
     - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
-      "manipulability" start is the worst posture of the whole self-motion;
+      "manipulability" start is the worst posture of the whole self-motion; "joint_limits"
+      narrows only a joint the self-motion moves;
       ``termination_penalty`` 1000 → 50; terminated episodes are scored over the whole lap.
     - v0: initial version.
     """
