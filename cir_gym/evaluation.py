@@ -32,7 +32,8 @@ class Policy(Protocol):
 
 @dataclass
 class EpisodeResult:
-    """One episode: its seed, return, length, success, divergence, metrics, and (optionally)
+    """One episode: its seed, return, length, success, divergence, metrics, whether it ended
+    by termination (rather than truncation at the time limit), and (optionally)
     the recorded trajectory ``trace`` (dict of arrays (T, ...): observations, actions, rewards,
     and the policy state when it has one)."""
 
@@ -43,6 +44,7 @@ class EpisodeResult:
     diverged: bool
     metrics: dict[str, float]
     trace: dict[str, np.ndarray] | None = None
+    terminated: bool = False
 
 
 @dataclass
@@ -172,6 +174,7 @@ def evaluate(
                     diverged=bool(info.get("diverged", False)),
                     metrics=metrics,
                     trace=_stack(trace) if trace is not None else None,
+                    terminated=bool(terminated),
                 )
             )
     finally:

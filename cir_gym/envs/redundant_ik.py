@@ -419,8 +419,11 @@ class _RedundantIKBase(RobotEnv):
 
         Walks both ways along the unit null vector of J (dim ker J = 1 on both robots, its sign
         kept continuous), re-solving the task after each ``step`` (rad), up to ``arc`` rad or
-        until a joint comes within ``margin`` rad of its limit; returns every 5th point.
+        until a joint comes within ``margin`` rad of its limit (or, when ``q`` itself is
+        closer, within q's own margin: the iiwa's elbow q4 does not move along the self-motion);
+        returns ``q`` and every 5th point.
         """
+        margin = min(margin, joint_limit_margin(q, self.file_lower, self.file_upper) - 1e-9)
         out = [q.copy()]
         for sign in (1.0, -1.0):
             x, prev = q.copy(), None
@@ -439,7 +442,8 @@ class _RedundantIKBase(RobotEnv):
         """objective="manipulability": the least manipulable posture of the self-motion.
 
         Among the home-IK solution and the configurations of its :meth:`_self_motion` (all at
-        x̄(0), ≥ 0.6 rad from every joint limit) with w ≥ 30 % of the best of them, the one of
+        x̄(0), ≥ 0.6 rad from every joint limit or no closer than the home-IK solution) with
+        w ≥ 30 % of the best of them, the one of
         least manipulability w, so the redundancy starts badly used. (v0 took the worst of 8
         IK solutions from guesses within ±1 rad of home: they clustered near home, and on the
         iiwa often at a stationary point of w along the self-motion.)
@@ -703,7 +707,8 @@ class RedundantIKEnv(_RedundantIKBase):
     At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
     steps q ← q + J†(x̄(0) − k(q)) (residual < 1e-12 m). For "manipulability" the redundancy
     starts badly used: q(0) is the least manipulable of that solution and the postures of its
-    self-motion (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit) with
+    self-motion (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit or
+    no closer than that solution) with
     w ≥ 30 % of the best of them, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
     at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
     narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
