@@ -172,6 +172,25 @@ def test_augmented_jacobian_reports_its_smallest_singular_value():
     assert 0 < state[0, 1] == policy.last_sigma_min < np.inf
 
 
+def test_augmented_jacobian_detects_an_algorithmic_singularity_and_stays_finite():
+    """Planar arm, constraint c = (1, 1, 1) (the last link's absolute angle): at q2 = 0 the
+    wrist point's Jacobian is rank 1 while J (2×3) has full rank, so J_aug = [J; cᵀ] is
+    singular although the task is not (an *algorithmic* singularity)."""
+    env = gym.make(ENV)
+    policy = controller("clik_augmented", env)
+    obs, _ = env.reset(seed=0)
+    obs = {k: v.copy() for k, v in obs.items()}
+    obs["q"] = np.array([0.3, 0.0, 0.8])
+    J = env.unwrapped._task_jacobian(obs["q"])
+    assert np.linalg.svd(J, compute_uv=False)[-1] > 0.1  # the task Jacobian is fine
+    obs["x"] = env.unwrapped._forward(obs["q"])[0]
+    obs["x_ref"] = obs["x"] + np.array([0.01, -0.01])
+    action, state = policy.predict(obs)
+    assert policy.last_sigma_min < policy.gains.region and policy.singular_steps == 1
+    assert state[0, 1] == policy.last_sigma_min
+    assert np.all(np.isfinite(action))
+
+
 # ---------------------------------------------------------------------- env contract
 @pytest.mark.parametrize("env_id", [ENV, ENV7])
 @pytest.mark.parametrize("objective", ["manipulability", "joint_limits", "obstacle"])
