@@ -70,7 +70,9 @@ def make(
             :class:`~cir_gym.robot.Robot`, e.g. an identified model).
 
     Raises:
-        ValueError: unknown controller, a controller that does not apply, unknown gain.
+        ValueError: unknown controller, a controller that does not apply.
+        InvalidGain: (a ValueError) an unknown gain, a gain of the wrong type (a float gain
+            takes an int or float, not a bool, str or list) or out of its range.
     """
     if name not in CONTROLLERS:
         raise ValueError(f"unknown controller {name!r}; available: {sorted(CONTROLLERS)}")

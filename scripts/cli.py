@@ -28,6 +28,19 @@ class CliError(Exception):
     """A user error: printed without a traceback, exit status 2."""
 
 
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def _check_suffix(option: str, path: str | None, allowed: tuple[str, ...]) -> None:
+    """Reject an output path whose extension the writer does not support (before any work)."""
+    if path is not None and Path(path).suffix.lower() not in allowed:
+        raise CliError(
+            f"{option} {path!r}: unsupported extension {Path(path).suffix or '(none)'!r}; "
+            f"allowed: {', '.join(allowed)}"
+        )
+
+
 def _parse_value(text: str) -> Any:
     try:
         return ast.literal_eval(text)
@@ -98,7 +111,7 @@ def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dic
         return ag.load(env_id, policy.split(":", 1)[1])
     try:
         return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:  # bad gain (InvalidGain) or environment argument
         raise CliError(str(exc)) from exc
 
 
@@ -156,6 +169,8 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     env_id = _check_env_id(args.env)
+    _check_suffix("--plot", args.plot, PLOT_SUFFIXES)
+    _check_suffix("--video", args.video, VIDEO_SUFFIXES)
     env_kwargs, gains = split_settings(env_id, args.policy, args.set or [])
     policy = make_policy(env_id, args.policy, env_kwargs, gains)
     try:
@@ -168,15 +183,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             policy_name=args.policy,
             **env_kwargs,
         )
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:  # bad environment argument, wrong action shape
         raise CliError(str(exc)) from exc
     print(format_table([result], markdown=False))
-    if args.plot:
-        from cir_gym.plotting import plot_episode
+    try:
+        if args.plot:
+            from cir_gym.plotting import plot_episode
 
-        print(f"plot: {plot_episode(result, args.plot)}")
-    if args.video:
-        print(f"video: {record_video(policy, env_id, args.video, args.seed, env_kwargs)}")
+            print(f"plot: {plot_episode(result, args.plot)}")
+        if args.video:
+            try:
+                video = record_video(policy, env_id, args.video, args.seed, env_kwargs)
+            except RuntimeError as exc:  # no OpenGL context (headless: MUJOCO_GL=egl), no MP4
+                raise CliError(f"cannot write the video {args.video}: {exc}") from exc
+            print(f"video: {video}")
+    except ImportError as exc:  # the plots extra (matplotlib, imageio) is not installed
+        raise CliError(str(exc)) from exc
     return 0
 
 
@@ -271,8 +293,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="environment argument or controller gain (repeatable)",
     )
-    e.add_argument("--plot", metavar="OUT.png")
-    e.add_argument("--video", metavar="OUT.gif|OUT.mp4")
+    e.add_argument(
+        "--plot", metavar="OUT.png", help=f"plot of episode 0 ({', '.join(PLOT_SUFFIXES)})"
+    )
+    e.add_argument(
+        "--video", metavar="OUT.gif", help=f"video of episode 0 ({', '.join(VIDEO_SUFFIXES)})"
+    )
     e.set_defaults(func=cmd_evaluate)
 
     lb = sub.add_parser("leaderboard", help="every policy on every environment (the main job)")

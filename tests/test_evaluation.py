@@ -20,14 +20,53 @@ SHORT = {"episode_duration": 0.2}
 
 
 def test_evaluate_and_sb3_evaluate_policy_give_the_same_returns():
+    """Three episodes on seeds 7, 8, 9 on both sides.
+
+    SB3 passes a seed only at the first reset, so one environment would run its later episodes
+    unseeded; instead each episode gets its own environment: ``venv.seed(7)`` seeds env i with
+    7 + i, the seed ``evaluate`` gives episode i, and ``evaluate_policy`` runs one episode per
+    environment (``n_eval_episodes == n_envs``) through the controller's batched ``predict``.
+    The episodes all end on the time limit, at the same step, so SB3 lists them in env order.
+    """
+    n = 3
     policy = baselines.make("computed_torque", ENV)
-    ours = evaluate(policy, ENV, n_episodes=1, seed=7, **SHORT)
-    venv = DummyVecEnv([lambda: Monitor(gym.make(ENV, **SHORT))])
-    venv.seed(7)
-    returns, lengths = evaluate_policy(policy, venv, n_eval_episodes=1, return_episode_rewards=True)
-    assert lengths[0] == ours.episodes[0].length
+    ours = evaluate(policy, ENV, n_episodes=n, seed=7, **SHORT)
+    assert [e.seed for e in ours.episodes] == [7, 8, 9]
+    venv = DummyVecEnv([lambda: Monitor(gym.make(ENV, **SHORT)) for _ in range(n)])
+    assert venv.seed(7) == [7, 8, 9]
+    returns, lengths = evaluate_policy(policy, venv, n_eval_episodes=n, return_episode_rewards=True)
+    assert lengths == [e.length for e in ours.episodes]
     # Monitor reports the return rounded to 6 decimals
-    assert returns[0] == pytest.approx(ours.episodes[0].episode_return, abs=1e-6)
+    assert returns == pytest.approx([e.episode_return for e in ours.episodes], abs=1e-6)
+    assert len(set(returns)) == n  # the seeds differ, so do the episodes
+
+
+@pytest.mark.parametrize(
+    "name, env_id, gain",
+    [("computed_torque", ENV, "omega_n"), ("clik", "cir_gym/RedundantIK-v1", "K")],
+)
+@pytest.mark.parametrize("value", [0, "abc", [1, 2], True, float("nan")])
+def test_a_gain_of_the_wrong_type_or_range_raises_invalid_gain_naming_it(name, env_id, gain, value):
+    with pytest.raises(baselines.InvalidGain) as info:
+        baselines.make(name, env_id, **{gain: value})
+    message = str(info.value)
+    assert isinstance(info.value, ValueError)
+    assert gain in message and repr(value) in message
+    if value != 0:  # 0 has the right type: its Gains rejects the range
+        assert "finite real number (int or float)" in message
+
+
+@pytest.mark.parametrize("value", [30, 30.0, np.float32(30.0)])
+def test_an_int_or_numpy_gain_is_stored_as_a_float(value):
+    gains = baselines.make("computed_torque", ENV, omega_n=value).gains
+    assert type(gains.omega_n) is float and gains.omega_n == 30.0
+
+
+def test_optional_and_string_gains_keep_their_types():
+    assert baselines.make("p_pi_cascade", ENV, omega_cv=None).gains.omega_cv is None
+    assert baselines.make("adaptive", ENV, adapt="last_link").gains.adapt == "last_link"
+    with pytest.raises(baselines.InvalidGain, match=r"'adapt'.*must be a str.*got 1"):
+        baselines.make("adaptive", ENV, adapt=1)
 
 
 def test_stateful_controller_state_is_reset_at_episode_start():
@@ -66,7 +105,8 @@ def test_leaderboard_is_deterministic(tmp_path):
         tmp_path / "b", episodes=1, seed=5, envs=[ENV], workers=2, env_overrides=SHORT
     ).read_text()
     assert md1 == md2
-    assert "computed_torque" in md1 and (tmp_path / "a").glob("*.png")
+    assert "computed_torque" in md1
+    assert any((tmp_path / "a").glob("*.png"))
 
 
 @pytest.mark.parametrize(

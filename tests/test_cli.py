@@ -1,0 +1,115 @@
+"""The ``cir-gym`` command line through ``scripts.cli.main``: list, evaluate, leaderboard.
+
+Episodes last 0.1 s and runs have one episode: the command line is under test, not the
+controllers.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering for --video (conftest agrees)
+
+import pytest
+
+import baselines
+import cir_gym
+import scripts.cli
+from scripts.cli import main
+from scripts.leaderboard import run_leaderboard
+
+ENV = "cir_gym/JointTracking-v1"
+SHORT = ["--episodes", "1", "--set", "episode_duration=0.1"]
+
+
+def evaluate_argv(*extra: str, policy: str = "computed_torque") -> list[str]:
+    return ["evaluate", "--env", ENV, "--policy", policy, *SHORT, *extra]
+
+
+def test_list_prints_every_environment_and_its_controllers(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for env_id in cir_gym.ENVIRONMENTS:
+        assert env_id in out
+        block = out.split(env_id, 1)[1].split("\ncir_gym/", 1)[0]  # this id's lines only
+        for controller in baselines.available(env_id):
+            assert controller in block, (env_id, controller)
+
+
+def test_evaluate_writes_the_plot_and_the_video(tmp_path, capsys):
+    plot, video = tmp_path / "x.png", tmp_path / "x.gif"
+    assert main(evaluate_argv("--plot", str(plot), "--video", str(video))) == 0
+    assert plot.stat().st_size > 0 and video.stat().st_size > 0
+    out = capsys.readouterr().out
+    assert f"plot: {plot}" in out and f"video: {video}" in out
+
+
+@pytest.mark.parametrize(
+    "option, path, allowed",
+    [
+        ("--video", "x.avi", ".mp4, .gif"),
+        ("--video", "x", ".mp4, .gif"),
+        ("--plot", "x.jpg", ".png"),
+    ],
+)
+def test_a_bad_output_extension_exits_2_before_evaluating(
+    option, path, allowed, tmp_path, monkeypatch, capsys
+):
+    def no_evaluation(*args, **kwargs):
+        raise AssertionError("the extension must be checked before evaluating")
+
+    monkeypatch.setattr(scripts.cli, "evaluate", no_evaluation)
+    assert main(evaluate_argv(option, str(tmp_path / path))) == 2
+    err = capsys.readouterr().err
+    assert option in err and allowed in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "setting, needle",
+    [
+        ("omega_n=abc", "'omega_n'"),
+        ("omega_n=[1, 2]", "'omega_n'"),
+        ("omega_n=True", "'omega_n'"),
+        ("episode_duration=abc", "episode_duration"),
+    ],
+)
+def test_a_setting_of_the_wrong_type_exits_2_with_a_message(setting, needle, capsys):
+    assert main(evaluate_argv("--set", setting)) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cir-gym: error:") and needle in err
+
+
+def test_a_rendering_failure_exits_2_with_a_message(tmp_path, monkeypatch, capsys):
+    def no_gl(*args, **kwargs):
+        raise RuntimeError("MuJoCo could not create an OpenGL context")
+
+    monkeypatch.setattr(scripts.cli, "record_video", no_gl)
+    assert main(evaluate_argv("--video", str(tmp_path / "x.mp4"))) == 2
+    err = capsys.readouterr().err
+    assert "x.mp4" in err and "OpenGL context" in err
+
+
+def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
+    """The command's wiring; the job itself (too long at full episode length) is tested below."""
+    calls = []
+    monkeypatch.setattr(
+        "scripts.leaderboard.run_leaderboard", lambda out, **kwargs: calls.append((out, kwargs))
+    )
+    argv = ["leaderboard", "--episodes", "1", "--seed", "3", "--out", str(tmp_path)]
+    assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v1", "--env", ENV]) == 0
+    assert calls == [
+        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v1", ENV]})
+    ]
+    assert main([*argv, "--env", "cir_gym/Nope-v1"]) == 2
+
+
+def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
+    env_id = "cir_gym/ElasticJointTracking-v1"
+    md = run_leaderboard(
+        tmp_path, episodes=1, envs=[env_id], workers=2, env_overrides={"episode_duration": 0.1}
+    ).read_text()
+    assert f"## {env_id}" in md
+    for controller in baselines.available(env_id):
+        assert f"| {controller} |" in md
+    variants = cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants
+    assert len(list(tmp_path.glob("*.png"))) == len(variants)
