@@ -7,12 +7,15 @@ deliberate parameter error (unknown payload, link-mass scale, friction) for the 
 
 Conventions: joint positions ``q`` (n,) in rad (m for slide joints), velocities ``qd`` (n,),
 geometric Jacobians (6, n) stacked as ``[J_P; J_O]`` in the world frame, rotations (3, 3)
-from the site frame to the world frame.
+from the site frame to the world frame. Every ``q``, ``qd`` and ``qdd`` argument must have
+shape (n,) exactly (a scalar or a (1,) array is not broadcast) and be real and finite; anything
+else raises ``ValueError`` naming the argument and the joints.
 """
 
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +26,8 @@ __all__ = ["ASSETS", "ModelError", "Robot", "RobotFileError", "robot_path"]
 
 ASSETS = Path(__file__).parent / "assets"
 ROBOTS = ("iiwa14", "planar2r", "planar3r")
+_FLOAT64 = np.dtype(np.float64)
+_REAL_KINDS = ("f", "i", "u")  # numpy dtype kinds accepted as joint values (float, int, uint)
 
 
 class RobotFileError(ValueError):
@@ -170,6 +175,9 @@ class Robot:
         self._site_ids: dict[str, int] = {}
         self._q_key: bytes | None = None
         self._crb_done = False
+        self._shape = (self.n,)
+        names = self.joint_names
+        self._joint_text = names[0] if self.n == 1 else f"{names[0]}..{names[-1]}"
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -217,10 +225,40 @@ class Robot:
         return sid
 
     # ------------------------------------------------------------------ state
+    def _vector(self, name: str, value: np.ndarray) -> np.ndarray:
+        """``value`` as a float64 array of shape (n,); ValueError if not real or not (n,).
+
+        Finiteness is checked separately (:meth:`_check_finite`) so that ``_set_q`` can skip it
+        for the cached configuration. Cheap on the common path (a float64 array).
+        """
+        array = np.asarray(value)
+        if array.dtype is not _FLOAT64:
+            if array.dtype.kind not in _REAL_KINDS:
+                raise ValueError(
+                    f"{name} has dtype {array.dtype}, expected real numbers "
+                    f"(joints: {self._joint_text})"
+                )
+            array = array.astype(np.float64)
+        if array.shape != self._shape:
+            raise ValueError(
+                f"{name} has shape {array.shape}, expected ({self.n},) (joints: {self._joint_text})"
+            )
+        return array
+
+    @staticmethod
+    def _check_finite(name: str, array: np.ndarray) -> None:
+        # all(map(math.isfinite, list)) is exact and ~4x cheaper than np.isfinite(a).all() on a
+        # short vector (0.4 µs against 1.8 µs here; a raw MuJoCo call costs ~2.3 µs).
+        if not all(map(math.isfinite, array.tolist())):
+            raise ValueError(f"{name} contains NaN or inf; expected finite values")
+
     def _set_q(self, q: np.ndarray) -> None:
+        """Validate q (see :meth:`_vector`) and run the position-dependent computations."""
+        q = self._vector("q", q)
         key = q.tobytes()
-        if key == self._q_key:
+        if key == self._q_key:  # same shape (checked above) and bytes: validated already
             return
+        self._check_finite("q", q)
         if self._whole:
             self.data.qpos[:] = q
         else:
@@ -237,21 +275,21 @@ class Robot:
     def site_pose(self, site: str | int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Forward kinematics of a site: position (3,) m and rotation (3, 3) site→world."""
         sid = site if isinstance(site, int) else self.site_id(site)
-        self._set_q(np.asarray(q, dtype=float))
+        self._set_q(q)
         return self.data.site_xpos[sid].copy(), self.data.site_xmat[sid].reshape(3, 3).copy()
 
     def jacobian(self, site: str | int, q: np.ndarray) -> np.ndarray:
         """Geometric Jacobian (6, n) of a site, ``[J_P; J_O]`` in the world frame."""
         sid = site if isinstance(site, int) else self.site_id(site)
-        self._set_q(np.asarray(q, dtype=float))
+        self._set_q(q)
         mujoco.mj_jacSite(self.model, self.data, self._jac[:3], self._jac[3:], sid)
         return self._jac.copy() if self._whole else self._jac[:, self.dof_adr]
 
     def jacobian_dot_qdot(self, site: str | int, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """J̇(q, q̇) q̇ (6,) of a site: the site's acceleration at q̈ = 0 (linear; angular)."""
         sid = site if isinstance(site, int) else self.site_id(site)
-        self._set_q(np.asarray(q, dtype=float))
-        self._set_qd(np.asarray(qd, dtype=float))
+        self._set_q(q)
+        self._set_qd(qd)
         body = int(self.model.site_bodyid[sid])
         mujoco.mj_jacDot(
             self.model, self.data, self._jacp, self._jacr, self.data.site_xpos[sid], body
@@ -280,6 +318,9 @@ class Robot:
 
     # ------------------------------------------------------------------ dynamics
     def _set_qd(self, qd: np.ndarray) -> None:
+        """Validate q̇ (shape (n,), real, finite) and compute the body velocities."""
+        qd = self._vector("qd", qd)
+        self._check_finite("qd", qd)
         if self._whole:
             self.data.qvel[:] = qd
         else:
@@ -289,7 +330,7 @@ class Robot:
 
     def inertia(self, q: np.ndarray) -> np.ndarray:
         """Inertia matrix B(q) (n, n), armature included (kg m²)."""
-        self._set_q(np.asarray(q, dtype=float))
+        self._set_q(q)
         if not self._crb_done:
             mujoco.mj_crb(self.model, self.data)
             self._crb_done = True
@@ -300,14 +341,14 @@ class Robot:
 
     def bias(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """n(q, q̇) = C(q, q̇) q̇ + g(q) (n,), N m. No friction."""
-        self._set_q(np.asarray(q, dtype=float))
-        self._set_qd(np.asarray(qd, dtype=float))
+        self._set_q(q)
+        self._set_qd(qd)
         mujoco.mj_rne(self.model, self.data, 0, self._vec)
         return self._take(self._vec)
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Gravity torque g(q) (n,), N m."""
-        self._set_q(np.asarray(q, dtype=float))
+        self._set_q(q)
         self.data.qvel[:] = 0.0
         mujoco.mj_comVel(self.model, self.data)
         mujoco.mj_rne(self.model, self.data, 0, self._vec)
@@ -315,10 +356,15 @@ class Robot:
 
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """τ = B(q) q̈ + n(q, q̇) (n,), N m (no friction)."""
-        return self.inertia(q) @ qdd + self.bias(q, qd)
+        B, n = self.inertia(q), self.bias(q, qd)  # validate q, q̇, then q̈
+        qdd = self._vector("qdd", qdd)
+        self._check_finite("qdd", qdd)
+        return B @ qdd + n
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
         """Joint friction F_v q̇ + f_s sign(q̇) (n,) from the model's damping and frictionloss."""
+        qd = self._vector("qd", qd)
+        self._check_finite("qd", qd)
         fv = self.model.dof_damping[self.dof_adr]
         fs = self.model.dof_frictionloss[self.dof_adr]
         return fv * qd + fs * np.sign(qd)

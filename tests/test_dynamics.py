@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -272,37 +273,80 @@ def test_inertia_matrix_derivatives_match_finite_differences(model_id: str):
 
 @pytest.mark.parametrize("model_id", MODEL_IDS)
 def test_b_dot_minus_2c_is_skew_symmetric(model_id: str):
+    """N = Ḃ − 2C skew-symmetric at several random states, Ḃ by central differences of B.
+
+    Central differences along q̇ err by ~step² (truncation) plus ~eps |B| / step (rounding),
+    about 1e-9 · max |Ḃ| here: the bound 1e-6 · max |Ḃ| (+ 1e-12 for Ḃ ≈ 0) leaves a margin
+    of ~300 and still catches a wrong Christoffel term (an O(1) relative error).
+    """
     model = load(model_id)
-    q, qd, _ = (state[0] for state in random_states(model, 1, seed=6))
+    rng = np.random.default_rng(7)
     step = 1e-6
-    B_dot = (inertia_matrix(model, q + step * qd) - inertia_matrix(model, q - step * qd)) / (
-        2 * step
-    )
-    N = B_dot - 2 * coriolis_matrix(model, q, qd)
-    scale = np.max(np.abs(B_dot)) + 1.0
-    assert np.max(np.abs(N + N.T)) <= 1e-6 * scale
-    w = np.random.default_rng(7).normal(size=model.nv)
-    assert abs(w @ N @ w) <= 1e-6 * scale * (w @ w)
+    for q, qd, _ in zip(*random_states(model, 5, seed=6), strict=True):
+        B_dot = (inertia_matrix(model, q + step * qd) - inertia_matrix(model, q - step * qd)) / (
+            2 * step
+        )
+        N = B_dot - 2 * coriolis_matrix(model, q, qd)
+        bound = 1e-6 * np.max(np.abs(B_dot)) + 1e-12
+        assert np.max(np.abs(N + N.T)) <= bound
+        w = rng.normal(size=model.nv)
+        assert abs(w @ N @ w) <= bound * (w @ w)
 
 
 def test_planar2r_matches_the_textbook_closed_form():
+    """B(q) and g(q) of planar2r against the two-link planar arm of Siciliano et al. (2009),
+    sec. 7.3.2, for the shipped values and for random parameters written into the model.
+
+    Textbook (link ℓ, motor m, reduction k_r, motor 2 mounted on link 1 at distance a1):
+        b11 = I_ℓ1 + m_ℓ1 ℓ1² + k_r1² I_m1 + I_ℓ2 + m_ℓ2 (a1² + ℓ2² + 2 a1 ℓ2 c2) + I_m2 + m_m2 a1²
+        b12 = I_ℓ2 + m_ℓ2 (ℓ2² + a1 ℓ2 c2) + k_r2 I_m2
+        b22 = I_ℓ2 + m_ℓ2 ℓ2² + k_r2² I_m2
+        g1 = (m_ℓ1 ℓ1 + m_m2 a1 + m_ℓ2 a1) g c1 + m_ℓ2 ℓ2 g c12,  g2 = m_ℓ2 ℓ2 g c12
+    What the MJCF represents (see the comment in planar2r.xml): the link masses, COM distances
+    and inertias about the axis (``body_mass``, ``body_ipos`` x, ``body_inertia`` y), a1 as
+    ``body_pos`` x of link2, and the rotors only as ``dof_armature`` = k_r² I_m on the diagonal.
+    It has no motor masses (m_m2 = 0) and no rotor inertia carried by link 1 (I_m2 in b11 = 0);
+    the cross term k_r2 I_m2 in b12 cannot be written with MuJoCo's armature (diagonal only).
+    """
     model = load("planar2r")
     link1, link2 = model.body("link1").id, model.body("link2").id
-    m1, m2 = model.body_mass[link1], model.body_mass[link2]
-    a1 = model.body_pos[link2][0]
-    l1, l2 = model.body_ipos[link1][0], model.body_ipos[link2][0]
-    I1, I2 = model.body_inertia[link1][1], model.body_inertia[link2][1]  # about the y axis
-    arm1, arm2 = model.dof_armature
     g0 = -model.opt.gravity[2]
-    for q in random_states(model, 5, seed=8)[0]:
-        c2 = np.cos(q[1])
-        b11 = I1 + m1 * l1**2 + I2 + m2 * (a1**2 + l2**2 + 2 * a1 * l2 * c2) + arm1
-        b12 = I2 + m2 * (l2**2 + a1 * l2 * c2)
-        b22 = I2 + m2 * l2**2 + arm2
-        assert_close(inertia_matrix(model, q), np.array([[b11, b12], [b12, b22]]), 1e-12)
-        g1 = (m1 * l1 + m2 * a1) * g0 * np.cos(q[0]) + m2 * l2 * g0 * np.cos(q[0] + q[1])
-        g2 = m2 * l2 * g0 * np.cos(q[0] + q[1])
-        assert_close(gravity_torque(model, q), np.array([g1, g2]), 1e-12)
+    m_m2 = I_m2 = kr2_I_m2 = 0.0  # the textbook terms the MJCF does not represent
+    rng = np.random.default_rng(8)
+    for trial in range(6):
+        if trial > 0:  # trial 0: the shipped values (the book's numbers)
+            a1 = rng.uniform(0.3, 1.5)
+            m1, m2 = rng.uniform(1.0, 60.0, 2)
+            l1, l2 = rng.uniform(0.05, 1.0) * a1, rng.uniform(0.05, 1.0)
+            Iy1, Iy2 = rng.uniform(0.1, 15.0, 2)
+            model.body_pos[link2] = (a1, 0.0, 0.0)
+            model.body_mass[[link1, link2]] = m1, m2
+            model.body_ipos[link1], model.body_ipos[link2] = (l1, 0.0, 0.0), (l2, 0.0, 0.0)
+            for body, Iy in ((link1, Iy1), (link2, Iy2)):  # a slender rod: Ix small, Iz = Iy
+                model.body_inertia[body] = (0.1 * Iy, Iy, Iy)
+            model.dof_armature[:] = rng.uniform(0.0, 2.0, 2)
+            mujoco.mj_setConst(model, mujoco.MjData(model))
+        m1, m2 = model.body_mass[link1], model.body_mass[link2]
+        a1 = model.body_pos[link2][0]
+        l1, l2 = model.body_ipos[link1][0], model.body_ipos[link2][0]
+        I1, I2 = model.body_inertia[link1][1], model.body_inertia[link2][1]  # about the y axis
+        kr1_sq_I_m1, kr2_sq_I_m2 = model.dof_armature
+        for q in random_states(model, 4, seed=trial)[0]:
+            c1, c2, c12 = np.cos(q[0]), np.cos(q[1]), np.cos(q[0] + q[1])
+            b11 = (
+                I1 + m1 * l1**2 + kr1_sq_I_m1
+                + I2 + m2 * (a1**2 + l2**2 + 2 * a1 * l2 * c2) + I_m2 + m_m2 * a1**2
+            )  # fmt: skip
+            b12 = I2 + m2 * (l2**2 + a1 * l2 * c2) + kr2_I_m2
+            b22 = I2 + m2 * l2**2 + kr2_sq_I_m2
+            B = np.array([[b11, b12], [b12, b22]])
+            g1 = (m1 * l1 + m_m2 * a1 + m2 * a1) * g0 * c1 + m2 * l2 * g0 * c12
+            g2 = m2 * l2 * g0 * c12
+            M, g_mujoco, _ = mujoco_terms(model, q, np.zeros(2), np.zeros(2))
+            assert_close(inertia_matrix(model, q), B, 1e-12)
+            assert_close(M, B, 1e-12)
+            assert_close(gravity_torque(model, q), np.array([g1, g2]), 1e-12)
+            assert_close(g_mujoco, np.array([g1, g2]), 1e-12)
 
 
 # ------------------------------------------------------------------------ regressor
@@ -385,6 +429,8 @@ def test_base_parameter_structure_reproduces_the_regressor(model_id: str):
 
 @pytest.mark.parametrize("model_id", ("iiwa14", "iiwa14+payload", "random1"))
 def test_identification_recovers_noise_free_torques(model_id: str):
+    """Noise-free torques are recovered to numerical precision: measured ~1e-15 relative (the
+    base regressor's condition number is ~1e2), asserted at 1e-11."""
     model = load(model_id.split("+")[0])
     if model_id.endswith("+payload"):
         payload = model.body("payload").id
@@ -398,30 +444,49 @@ def test_identification_recovers_noise_free_torques(model_id: str):
     nominal.body_mass[:] *= 0.5
     result = identify(nominal, q, qd, qdd, tau)
     assert np.isfinite(result.condition_number) and result.condition_number > 1.0
-    assert result.residual_rms / np.sqrt(np.mean(tau**2)) < 1e-8
+    assert result.residual_rms / np.sqrt(np.mean(tau**2)) < 1e-11
     assert len(result.base_parameter_names) == result.base_indices.size
     q_test, qd_test, qdd_test = random_states(model, 50, seed=17)
     truth = rnea(model, q_test, qd_test, qdd_test)
     predicted = result.predict_torque(q_test, qd_test, qdd_test)
-    assert _relative_rms(predicted - truth, truth) < 1e-8
-    assert_close(result.predict_torque(q_test[0], qd_test[0], qdd_test[0]), truth[0], 1e-8)
+    assert _relative_rms(predicted - truth, truth) < 1e-11
+    assert_close(result.predict_torque(q_test[0], qd_test[0], qdd_test[0]), truth[0], 1e-11)
     for prior in (None, inertial_parameters(nominal)):
         pi = result.to_full_parameters(prior)
         plugged = rnea(nominal, q_test, qd_test, qdd_test, parameters=pi)
-        assert _relative_rms(plugged - truth, truth) < 1e-8
+        assert _relative_rms(plugged - truth, truth) < 1e-11
 
 
 def test_identification_with_friction():
+    """Measured: torques ~4e-15 relative, friction coefficients ~7e-13 relative."""
     model = load("random0")
     q, qd, qdd = _excitation_data(model, seed=18, dt=0.02)
     viscous = np.linspace(0.5, 1.5, model.nv)
     coulomb = np.linspace(0.2, 0.8, model.nv)
     tau = rnea(model, q, qd, qdd) + viscous * qd + coulomb * np.sign(qd)
     result = identify(model, q, qd, qdd, tau, friction=True)
-    assert result.residual_rms / np.sqrt(np.mean(tau**2)) < 1e-8
-    np.testing.assert_allclose(result.viscous_friction, viscous, rtol=1e-6)
-    np.testing.assert_allclose(result.coulomb_friction, coulomb, rtol=1e-6)
-    assert_close(result.predict_torque(q, qd, qdd), tau, 1e-8)
+    assert result.residual_rms / np.sqrt(np.mean(tau**2)) < 1e-11
+    np.testing.assert_allclose(result.viscous_friction, viscous, rtol=1e-9)
+    np.testing.assert_allclose(result.coulomb_friction, coulomb, rtol=1e-9)
+    assert_close(result.predict_torque(q, qd, qdd), tau, 1e-11)
+
+
+def test_identification_needs_as_many_equations_as_base_parameters():
+    model = load("iiwa14")
+    base, _ = base_parameter_structure(model)
+    needed = int(np.ceil(base.size / model.nv))
+    assert (needed - 1) * model.nv < base.size <= needed * model.nv
+    q, qd, qdd = random_states(model, needed, seed=26)
+    tau = rnea(model, q, qd, qdd)
+    few = needed - 1
+    with pytest.raises(
+        ValueError,
+        match=rf"^{few} samples give {few * model.nv} equations for {base.size} base "
+        rf"parameters; need at least {needed} samples$",
+    ):
+        identify(model, q[:few], qd[:few], qdd[:few], tau[:few])
+    result = identify(model, q, qd, qdd, tau)  # exactly enough: accepted
+    assert result.n_samples == needed
 
 
 def test_identification_error_shrinks_with_more_samples():
@@ -516,6 +581,36 @@ def test_bad_shapes_and_values_are_rejected():
         excitation_trajectory(model, duration=-1.0)
 
 
+def test_complex_input_is_rejected_not_truncated():
+    """np.asarray(z, dtype=float) would keep the real part with only a ComplexWarning."""
+    model = load("iiwa14")
+    q, z = np.zeros(7), np.full(7, 0.1 + 0.2j)
+    calls = {
+        "q": (
+            lambda: inertia_matrix(model, z),
+            lambda: gravity_torque(model, z[None]),
+            lambda: inertia_matrix_derivatives(model, z),
+            lambda: rnea(model, z, q, q),
+        ),
+        "qd": (lambda: coriolis_matrix(model, q, z), lambda: regressor(model, q, z, q)),
+        "qdd": (lambda: rnea(model, q, q, z.astype(np.complex64)),),
+        "qd_r": (lambda: regressor(model, q, q, q, qd_r=z),),
+        "f_ext": (lambda: rnea(model, q, q, q, f_ext=np.zeros(6, dtype=complex)),),
+        "parameters": (lambda: inertia_matrix(model, q, parameters=np.zeros(77, dtype=complex)),),
+        "tau": (lambda: identify(model, *(np.zeros((20, 7)),) * 3, np.zeros((20, 7)) + 0j),),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning before the error
+        for name, functions in calls.items():
+            for function in functions:
+                with pytest.raises(ValueError, match=rf"^{name} is complex \(complex"):
+                    function()
+        with pytest.raises(ValueError, match=r"^qd is complex"):
+            identify(model, *(np.zeros((20, 7)),) * 4).predict_torque(q, [z[0]] + [0] * 6, q)
+        with pytest.raises(ValueError, match=r"q must be a real array of shape \(7,\)"):
+            inertia_matrix(model, ["x"] * 7)
+
+
 _BODY = '<inertial pos="0 0 0" mass="1" diaginertia="0.1 0.1 0.1"/>'
 
 BAD_MODELS = {
@@ -526,6 +621,12 @@ BAD_MODELS = {
         f'<body name="b0"><joint name="j0"/>{_BODY}'
         f'<body name="b1"><joint name="j1"/>{_BODY}</body>'
         f'<body name="b2" pos="1 0 0"><joint name="j2"/>{_BODY}</body></body>'
+    ),
+    # a chain under a mocap body is not fixed to the world (data.mocap_pos moves it)
+    "mocap": f'<body name="m" mocap="true"><body name="b"><joint name="j"/>{_BODY}</body></body>',
+    "mocap body": (
+        f'<body name="m" mocap="true" pos="0 0 1">{_BODY}<body name="spacer" pos="0 0 0.1">'
+        f'<body name="b"><joint name="j"/>{_BODY}</body></body></body>'
     ),
 }
 
@@ -548,3 +649,18 @@ def test_equality_constraints_are_rejected():
     model = mujoco.MjModel.from_xml_string(xml)
     with pytest.raises(ValueError, match="equality constraint"):
         rnea(model, np.zeros(2), np.zeros(2), np.zeros(2))
+
+
+def test_a_mocap_body_beside_the_chain_is_allowed():
+    """A mocap target (as in the scenes) that does not carry the chain is ignored."""
+    xml = (
+        f'<mujoco><worldbody><body name="target" mocap="true" pos="1 0 0">{_BODY}</body>'
+        f'<body name="b0"><joint name="j0" axis="0 1 0"/>{_BODY}'
+        f'<body name="b1" pos="0.5 0 0"><joint name="j1" axis="0 1 0"/>{_BODY}</body></body>'
+        "</worldbody></mujoco>"
+    )
+    model = mujoco.MjModel.from_xml_string(xml)
+    q, qd, qdd = (state[0] for state in random_states(model, 1, seed=27))
+    M, _, inverse = mujoco_terms(model, q, qd, qdd)
+    assert_close(inertia_matrix(model, q), M, 1e-12)
+    assert_close(rnea(model, q, qd, qdd), inverse, 1e-12)

@@ -116,3 +116,99 @@ def test_bad_robot_files_and_arguments_are_reported():
         ModelError(payload_mass=-1.0)
     with pytest.raises(ValueError, match="site 'nope' not in the model"):
         Robot.from_name("planar3r").jacobian("nope", np.zeros(3))
+
+
+# Every Robot method that takes joint values, as f(robot, q, qd); each validates q and/or qd.
+JOINT_CALLS = {
+    "inertia": lambda r, q, qd: r.inertia(q),
+    "bias": lambda r, q, qd: r.bias(q, qd),
+    "gravity": lambda r, q, qd: r.gravity(q),
+    "inverse_dynamics": lambda r, q, qd: r.inverse_dynamics(q, qd, qd),
+    "jacobian": lambda r, q, qd: r.jacobian("tcp", q),
+    "jacobian_by_id": lambda r, q, qd: r.jacobian(r.site_id("tcp"), q),
+    "analytic_jacobian": lambda r, q, qd: r.analytic_jacobian("tcp", q),
+    "site_pose": lambda r, q, qd: r.site_pose("flange", q),
+    "jacobian_dot_qdot": lambda r, q, qd: r.jacobian_dot_qdot("tcp", q, qd),
+}
+TAKES_QD = ("bias", "inverse_dynamics", "jacobian_dot_qdot")
+
+BAD_SHAPES = {
+    "too short": (np.zeros(6), r"has shape \(6,\), expected \(7,\) \(joints: joint1\.\.joint7\)"),
+    "one entry": (np.zeros(1), r"has shape \(1,\), expected \(7,\)"),
+    "scalar": (0.3, r"has shape \(\), expected \(7,\)"),
+    "row": (np.zeros((1, 7)), r"has shape \(1, 7\), expected \(7,\)"),
+    "column": (np.zeros((7, 1)), r"has shape \(7, 1\), expected \(7,\)"),
+    "batch": (np.zeros((2, 7)), r"has shape \(2, 7\), expected \(7,\)"),
+}
+BAD_VALUES = {
+    "nan": (np.array([0, 0.6, 0, np.nan, 0, 0.9, 0]), "contains NaN or inf"),
+    "inf": (np.array([0, 0.6, 0, -1.4, 0, 0.9, np.inf]), "contains NaN or inf"),
+    "complex": (np.full(7, 0.1 + 0.2j), r"has dtype complex128, expected real numbers"),
+    "complex, zero imaginary": (np.full(7, 0.1 + 0j), r"has dtype complex128, expected real"),
+    "strings": (np.array(["0"] * 7), r"has dtype <U1, expected real numbers"),
+    "objects": (np.array([None] * 7), r"has dtype object, expected real numbers"),
+}
+
+
+@pytest.mark.parametrize("call", sorted(JOINT_CALLS))
+@pytest.mark.parametrize("bad", sorted(BAD_SHAPES) + sorted(BAD_VALUES))
+def test_joint_arguments_must_be_real_finite_vectors_of_n(call, bad):
+    robot = Robot.from_name("iiwa14")
+    good = robot.model.key("home").qpos.copy()
+    value, message = {**BAD_SHAPES, **BAD_VALUES}[bad]
+    with pytest.raises(ValueError, match=rf"^q {message}"):
+        JOINT_CALLS[call](robot, value, np.zeros(7))
+    if call in TAKES_QD:
+        with pytest.raises(ValueError, match=rf"^qd {message}"):
+            JOINT_CALLS[call](robot, good, value)
+    # the robot still works after a rejected call
+    np.testing.assert_allclose(
+        robot.inertia(good), Robot.from_name("iiwa14").inertia(good), rtol=1e-12
+    )
+
+
+def test_qdd_and_friction_velocities_are_validated():
+    robot, q = Robot.from_name("iiwa14"), np.zeros(7)
+    with pytest.raises(ValueError, match=r"^qdd has shape \(1,\), expected \(7,\)"):
+        robot.inverse_dynamics(q, q, np.ones(1))
+    with pytest.raises(ValueError, match=r"^qdd contains NaN or inf"):
+        robot.inverse_dynamics(q, q, np.full(7, np.nan))
+    with pytest.raises(ValueError, match=r"^qd has shape \(\), expected \(7,\)"):
+        robot.friction(1.0)
+    with pytest.raises(ValueError, match=r"^qd has dtype complex128"):
+        robot.friction(np.ones(7, dtype=complex))
+
+
+def test_the_cached_configuration_does_not_let_a_reshaped_copy_through():
+    """The cache compares the bytes of q: a (1, n) array has the same bytes as its (n,) row."""
+    robot = Robot.from_name("iiwa14")
+    q = robot.model.key("home").qpos.copy()
+    robot.inertia(q)
+    with pytest.raises(ValueError, match=r"q has shape \(1, 7\)"):
+        robot.inertia(q[None, :])
+
+
+def test_real_inputs_of_any_real_dtype_and_lists_are_accepted():
+    robot = Robot.from_name("planar3r")
+    q = np.array([0.2, 0.8, 0.6])
+    reference = robot.inertia(q), robot.jacobian("ee", q), robot.bias(q, np.ones(3))
+    for same in (q.tolist(), tuple(q), np.asarray(q, dtype=">f8")):
+        np.testing.assert_array_equal(robot.inertia(same), reference[0])
+        np.testing.assert_array_equal(robot.jacobian("ee", same), reference[1])
+    np.testing.assert_allclose(robot.inertia(q.astype(np.float32)), reference[0], rtol=1e-6)
+    np.testing.assert_array_equal(robot.bias(q, np.ones(3, dtype=int)), reference[2])
+    np.testing.assert_array_equal(robot.bias(q, [1, 1, 1]), reference[2])
+    np.testing.assert_array_equal(
+        robot.inertia(np.zeros(3, dtype=np.uint8)), robot.inertia([0.0] * 3)
+    )
+
+
+def test_a_one_joint_robot_names_its_joint_and_rejects_a_scalar():
+    xml = (
+        '<mujoco><worldbody><body name="b"><joint name="hinge"/>'
+        '<inertial pos="0.1 0 0" mass="1" diaginertia="0.1 0.1 0.1"/></body></worldbody></mujoco>'
+    )
+    robot = Robot(mujoco.MjModel.from_xml_string(xml))
+    assert robot.inertia(np.array([0.3])).shape == (1, 1)
+    with pytest.raises(ValueError, match=r"q has shape \(\), expected \(1,\) \(joints: hinge\)"):
+        robot.inertia(0.3)

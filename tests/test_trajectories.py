@@ -237,7 +237,17 @@ def test_trapezoidal_respects_limits_and_reaches_goal(q0, q1, v_max, a_max, stre
     np.testing.assert_allclose(p[-1], q1, atol=1e-9)
     np.testing.assert_allclose(v[[0, -1]], 0.0, atol=1e-9)
     # Continuous position: steps between samples bounded by the speed limit.
-    assert np.all(np.abs(np.diff(p, axis=0)) <= v_max * (t[1] - t[0]) + 1e-9)
+    dt = t[1] - t[0]
+    assert np.all(np.abs(np.diff(p, axis=0)) <= v_max * dt + 1e-9)
+    # Continuous velocity: steps bounded by the acceleration limit, on the grid and on a fine
+    # grid straddling each dimension's switch times t_c and t_f − t_c.
+    assert np.all(np.abs(np.diff(v, axis=0)) <= a_max * dt + 1e-9)
+    fine = 1e-6 * traj.duration
+    for i, t_c in enumerate(traj.accel_time):
+        for t_switch in (t_c, traj.duration - t_c):
+            t_fine = t_switch + fine * np.arange(-5, 6)
+            v_fine = traj.evaluate(t_fine)[1][:, i]
+            assert np.all(np.abs(np.diff(v_fine)) <= a_max[i] * fine + 1e-9)
 
 
 def test_trapezoidal_synchronises_on_the_slowest_dimension():

@@ -4,8 +4,8 @@ Supported models: a serial chain fixed to the world — every body with a joint 
 hinge or slide joint and hangs from the previous such body (directly or through bodies without
 joints); bodies without joints are welded to their link and merged into it (mass, COM and
 inertia by the parallel-axis theorem); bodies without joints fixed to the world are ignored.
-Anything else (free or ball joints, branching trees, several joints in a body, equality
-constraints) raises ``ValueError``.
+Anything else (free or ball joints, branching trees, several joints in a body, a chain hanging
+from a mocap body, equality constraints) raises ``ValueError``.
 
 Everything is read from the model arrays (``body_pos``, ``body_quat``, ``jnt_pos``,
 ``jnt_axis``, ``qpos0``, ``body_ipos``, ``body_iquat``, ``body_mass``, ``body_inertia``,
@@ -13,7 +13,8 @@ Everything is read from the model arrays (``body_pos``, ``body_quat``, ``jnt_pos
 avoids recomputing the constant parts — so changing e.g. a payload mass at run time is seen by
 the next call. Only MuJoCo's passive forces (damping, springs) and constraints are left out.
 
-Functions (q, q̇, q̈ of shape (n,) or a batch (N, n); SI units):
+Functions (q, q̇, q̈ of shape (n,) or a batch (N, n), real and finite, else ``ValueError``; SI
+units):
 
 - ``inertia_matrix(model, q)`` → B(q) (n, n), armature on the diagonal
 - ``inertia_matrix_derivatives(model, q)`` → ∂B/∂q_k stacked over k (n, n, n)

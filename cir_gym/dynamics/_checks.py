@@ -1,9 +1,34 @@
-"""Validation of the array arguments of the dynamics functions (shape, finiteness)."""
+"""Validation of the array arguments of the dynamics functions (real, shape, finiteness)."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+
+def as_real_array(name: str, value: ArrayLike, shape: str) -> np.ndarray:
+    """Return ``value`` as a float array (any shape); complex or non-numeric input is an error.
+
+    ``np.asarray(value, dtype=float)`` alone would drop the imaginary part of a complex input
+    with only a ``ComplexWarning``.
+
+    Args:
+        name: argument name used in error messages.
+        value: the argument.
+        shape: the expected shape, for the error messages (e.g. "(7,) or (N, 7)").
+    """
+    try:
+        array = np.asarray(value)
+    except ValueError as error:  # e.g. ragged nested lists
+        raise ValueError(f"{name} must be a real array of shape {shape}") from error
+    if np.iscomplexobj(array):
+        raise ValueError(
+            f"{name} is complex ({array.dtype}); expected a real array of shape {shape}"
+        )
+    try:
+        return array.astype(float, copy=False)
+    except (TypeError, ValueError) as error:  # objects that are not real numbers
+        raise ValueError(f"{name} must be a real array of shape {shape}") from error
 
 
 def as_batch(
@@ -18,12 +43,9 @@ def as_batch(
         per_joint: say "one entry per joint" in error messages.
 
     Raises:
-        ValueError: wrong shape, or NaN/inf entries.
+        ValueError: not real (e.g. complex), wrong shape, or NaN/inf entries.
     """
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a real array of shape ({n},) or (N, {n})") from error
+    array = as_real_array(name, value, f"({n},) or (N, {n})")
     if array.ndim == 1 and array.shape[0] == n:
         single = True
         array = array[None, :]
@@ -51,10 +73,7 @@ def matching_batch(
 
 def as_vector(name: str, value: ArrayLike, size: int) -> np.ndarray:
     """Return ``value`` as a finite float vector of shape (size,)."""
-    try:
-        array = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a real array of shape ({size},)") from error
+    array = as_real_array(name, value, f"({size},)")
     if array.shape != (size,):
         raise ValueError(f"{name} has shape {array.shape}, expected ({size},)")
     if not np.all(np.isfinite(array)):

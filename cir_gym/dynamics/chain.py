@@ -27,7 +27,8 @@ _JOINT_TYPE_NAMES = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
 SUPPORTED = (
     "cir_gym.dynamics supports serial chains fixed to the world: one hinge or slide joint per "
     "moving body, each moving body hanging from the previous one (directly or through bodies "
-    "without joints, which are welded to their link), no equality constraints"
+    "without joints, which are welded to their link), no mocap body in the chain, no equality "
+    "constraints"
 )
 
 
@@ -180,6 +181,15 @@ def _topology(model: mujoco.MjModel) -> ChainTopology:
             )
         link_paths.append(path(ancestor, body))
         previous = body
+    # A mocap body (a child of the world moved by data.mocap_pos/quat) is not fixed: a chain
+    # hanging from one would be treated as fixed to the world, with wrong dynamics.
+    for bodies in link_paths:
+        mocap = [body for body in bodies if model.body_mocapid[body] >= 0]
+        if mocap:
+            raise ValueError(
+                f"body {_body_name(model, mocap[0])} is a mocap body and the chain hangs from "
+                f"it: its base is not fixed to the world; {SUPPORTED}"
+            )
     joints = np.array([model.body_jntadr[body] for body in link_bodies], dtype=int)
     if np.any(model.jnt_dofadr[joints] != np.arange(len(joints))) or np.any(
         model.jnt_qposadr[joints] != np.arange(len(joints))
@@ -346,7 +356,8 @@ def chain_topology(model: mujoco.MjModel) -> ChainTopology:
     """The chain's bodies and joints (cached per model object).
 
     Raises:
-        ValueError: the model is not a serial chain of hinge and slide joints fixed to the world.
+        ValueError: the model is not a serial chain of hinge and slide joints fixed to the world
+            (e.g. it hangs from a mocap body).
     """
     topology = _TOPOLOGY.get(model)
     if topology is None:

@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cir_gym.dynamics._checks import as_vector
+from cir_gym.dynamics._checks import as_real_array, as_vector
 from cir_gym.dynamics.chain import chain_model
 from cir_gym.dynamics.dynamic_regressor import regressor
 from cir_gym.dynamics.parameters import parameter_names
@@ -165,8 +165,8 @@ class IdentificationResult:
         Returns:
             predicted joint torques/forces.  # (n,) or (N, n)
         """
+        Y = regressor(self.model, q, qd, qdd)  # validates q, qd, qdd (real, shapes, finite)
         q_array = np.asarray(q, dtype=float)
-        Y = regressor(self.model, q, qd, qdd)
         if self.friction:
             qd_array = np.asarray(qd, dtype=float)
             Y = np.concatenate([Y, _friction_columns(qd_array)], axis=-1)
@@ -246,12 +246,13 @@ def identify(
         The estimate; see ``IdentificationResult``.
 
     Raises:
-        ValueError: wrong shapes, NaN/inf, or fewer equations than base parameters.
+        ValueError: complex values, wrong shapes, NaN/inf, or fewer equations than base
+            parameters.
     """
     n = chain_model(model).n
     arrays = []
     for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("tau", tau)):
-        array = np.asarray(value, dtype=float)
+        array = as_real_array(name, value, f"(N, {n})")
         if array.ndim != 2 or array.shape[1] != n:
             raise ValueError(f"{name} has shape {array.shape}, expected (N, {n}) samples")
         if not np.isfinite(array).all():

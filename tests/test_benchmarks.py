@@ -1,0 +1,43 @@
+"""Smoke tests of the benchmarks: they run, check their own numbers, and report honestly."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH_ROBOT = Path(__file__).parents[1] / "benchmarks" / "bench_robot.py"
+QUICK = ["--calls", "3", "--repeat", "2"]
+
+
+def _load_bench_robot():
+    spec = importlib.util.spec_from_file_location("bench_robot", BENCH_ROBOT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_robot_runs_as_a_script():
+    """A few calls, no ratio target (timing a loaded machine is not what this tests)."""
+    result = subprocess.run(
+        [sys.executable, str(BENCH_ROBOT), *QUICK, "--target", "inf"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    out = result.stdout
+    for row in ("inertia(q)", "bias(q, qd)", "jacobian('flange', q)", "dynamics.rnea"):
+        assert row in out
+    # the raw side says what it measures
+    assert "mj_kinematics + mj_comPos + mj_crb + mj_fullM" in out
+    assert "mj_comVel + mj_rne" in out and "mj_jacSite" in out
+    assert "skipped" not in out
+
+
+def test_bench_robot_main_returns_1_when_a_ratio_misses_the_target(capsys):
+    bench = _load_bench_robot()
+    assert bench.main([*QUICK, "--target", "1e-9"]) == 1
+    assert "MISSED" in capsys.readouterr().out
