@@ -16,6 +16,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 import cir_gym
 from cir_gym.evaluation import EvaluationResult, evaluate
 
@@ -102,8 +104,14 @@ def run_leaderboard(
     for env_id in env_ids:
         cls, description = cir_gym.ENVIRONMENTS[env_id]
         lines += [f"## {env_id}", "", description, ""]
-        for variant, kwargs in getattr(cls, "leaderboard_variants", {"default": {}}).items():
-            rows = [r for (e, v, _), r in sorted(results.items()) if e == env_id and v == variant]
+        variants = getattr(cls, "leaderboard_variants", {"default": {}})
+        by_variant = {
+            v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
+            for v in variants
+        }
+        lines += [rl_summary(by_variant), ""]
+        for variant, kwargs in variants.items():
+            rows = by_variant[variant]
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
             lines += [f"### {variant} ({setting})", "", format_table(rows), ""]
             fig = out / f"{env_id.split('/')[-1]}_{_slug(variant)}.png"
@@ -118,6 +126,56 @@ def run_leaderboard(
     )
     print(md.read_text())
     return md
+
+
+def _best(group: list[EvaluationResult]) -> EvaluationResult | None:
+    """The best result of ``group`` on its primary metric's mean (NaN never wins)."""
+    if not group:
+        return None
+    primary = group[0].primary_metric
+    higher = group[0].spec(primary).better == "higher"
+    finite = [r for r in group if np.isfinite(r.summary[primary]["mean"])]
+    if not finite:
+        return None
+    return (max if higher else min)(finite, key=lambda r: r.summary[primary]["mean"])
+
+
+def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
+    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse)."""
+    if r is None:
+        return "–"
+    primary = r.primary_metric
+    s = r.summary[primary]
+    text = (f"{r.policy_name}: {s['mean']:.3g} (worst {s['worst']:.3g}, "
+            f"{100 * r.success_rate:.0f} % success)")
+    if reference is not None:
+        c = reference.summary[primary]["mean"]
+        if np.isfinite(c) and c != 0 and s["mean"] != 0:
+            higher = r.spec(primary).better == "higher"
+            factor = c / s["mean"] if higher else s["mean"] / c
+            text += f", **{factor:.3g}×** the best controller's"
+    return text
+
+
+def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
+    """Per variant: the best controller, the best from-scratch agent and the best residual
+    agent on the primary metric (mean), with success, worst episode and the factor to the
+    best controller (> 1: worse than it, in the metric's own direction)."""
+    lines = ["| variant | best controller | best from-scratch RL | best residual RL |",
+             "|---|---|---|---|"]
+    primary = ""
+    for variant, rows in by_variant.items():
+        if not rows:
+            continue
+        primary = rows[0].primary_metric
+        ctrl = _best([r for r in rows if not r.policy_name.startswith("agent:")])
+        agents_ = [r for r in rows if r.policy_name.startswith("agent:")]
+        scratch = _best([r for r in agents_ if "residual" not in r.policy_name])
+        residual = _best([r for r in agents_ if "residual" in r.policy_name])
+        lines.append(f"| {variant} | {_summary_cell(ctrl, None)} | "
+                     f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |")
+    return "\n".join([f"Controllers vs RL on `{primary}` (mean over the same seeds):", "",
+                      *lines])
 
 
 def _slug(text: str) -> str:
