@@ -6,8 +6,13 @@ Without ``--env`` the slowest registered environment (measured on a few hundred 
 Actions are uniform in [-1, 1]; the env is reset at every episode end and, to exercise resets
 mid-episode too, after a random number of steps drawn uniformly in [1, 2 ``--reset-every``].
 Reported: steps/s, resident memory (VmRSS) growth between 10 % and 100 % of the run (target
-< ``--max-growth-mb``), Python warnings (target 0), episodes and divergences. Exits with
-status 1 when a target is missed.
+< ``--max-growth-mb``), Python warnings (target 0), MuJoCo's own warnings (target 0: the
+messages of its ``mju_user_warning`` hook, which also keeps them out of MUJOCO_LOG.TXT, and the
+``MjData.warning`` counters, read before every reset), episodes and divergences. Exits with
+status 1 when a target is missed, 2 on bad arguments. From Python::
+
+    from benchmarks.soak import main
+    main(["--steps", "5000", "--env", "cir_gym/JointTracking-v1"])  # -> exit status
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import warnings
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 import cir_gym
@@ -66,10 +72,18 @@ def slowest_env() -> str:
     return max(costs, key=costs.__getitem__)
 
 
+def mujoco_warning_counts(data: mujoco.MjData) -> dict[str, int]:
+    """Non-zero ``data.warning`` counters by name (``mjWARN_*``); mj_resetData clears them."""
+    return {mujoco.mjtWarning(i).name: int(w.number)
+            for i, w in enumerate(data.warning) if w.number}
+
+
 def soak(env_id: str, steps: int, reset_every: int, seed: int) -> dict[str, Any]:
     """Run the soak; return the measurements."""
     caught: list[str] = []
     n_warnings = 0
+    mj_messages: list[str] = []
+    mj_counts: dict[str, int] = {}
 
     def record(message: Any, category: type, filename: str, lineno: int, *_: Any) -> None:
         nonlocal n_warnings
@@ -77,46 +91,72 @@ def soak(env_id: str, steps: int, reset_every: int, seed: int) -> dict[str, Any]
         if len(caught) < 5:
             caught.append(f"{category.__name__}: {message} ({filename}:{lineno})")
 
+    def count_mujoco(data: mujoco.MjData) -> None:
+        for name, number in mujoco_warning_counts(data).items():
+            mj_counts[name] = mj_counts.get(name, 0) + number
+
     rng = np.random.default_rng(seed)
-    with warnings.catch_warnings():
-        warnings.simplefilter("always")
-        warnings.showwarning = record
-        env = gym.make(env_id)
-        shape = env.action_space.shape
-        env.reset(seed=seed)
-        ended = forced = diverged = since_reset = 0
-        cap = int(rng.integers(1, 2 * reset_every + 1))
-        rss_10 = rss_start = rss_mb()
-        t_start = time.perf_counter()
-        t_10 = t_start
-        mark = max(1, steps // 10)
-        actions = rng.uniform(-1, 1, (CHUNK, *shape)).astype(np.float32)
-        for k in range(steps):
-            if k % CHUNK == 0 and k:
-                actions = rng.uniform(-1, 1, (CHUNK, *shape)).astype(np.float32)
-            _, _, terminated, truncated, info = env.step(actions[k % CHUNK])
-            since_reset += 1
-            if terminated or truncated or since_reset >= cap:
-                if terminated or truncated:
-                    ended += 1
-                    diverged += bool(info.get("diverged", False))
-                    assert "episode_metrics" in info, "episode end without episode_metrics"
-                else:
-                    forced += 1
-                env.reset()
-                since_reset = 0
-                cap = int(rng.integers(1, 2 * reset_every + 1))
-            if (k + 1) % mark == 0:
-                gc.collect()
-                now, rss = time.perf_counter(), rss_mb()
-                if k + 1 == mark:
-                    rss_10, t_10 = rss, now
-                print(f"  {100 * (k + 1) // steps:3d} %  {k + 1:>9d} steps  "
-                      f"{(k + 1) / (now - t_start):8.0f} steps/s  RSS {rss:7.1f} MB", flush=True)
-        t_end = time.perf_counter()
-        gc.collect()
-        rss_end = rss_mb()
-        env.close()
+    previous_hook = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(mj_messages.append)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            warnings.showwarning = record
+            r = _run(env_id, steps, reset_every, seed, rng, count_mujoco)
+    finally:
+        mujoco.set_mju_user_warning(previous_hook)
+    return {
+        **r,
+        "warnings": n_warnings,
+        "first_warnings": caught,
+        "mujoco_messages": len(mj_messages),
+        "first_mujoco_messages": [m.strip() for m in mj_messages[:5]],
+        "mujoco_counters": mj_counts,
+    }
+
+
+def _run(env_id: str, steps: int, reset_every: int, seed: int, rng: np.random.Generator,
+         count_mujoco: Any) -> dict[str, Any]:
+    """The stepping loop of :func:`soak`; ``count_mujoco(base.data)`` before every reset."""
+    env = gym.make(env_id)
+    base = env.unwrapped
+    shape = env.action_space.shape
+    env.reset(seed=seed)
+    ended = forced = diverged = since_reset = 0
+    cap = int(rng.integers(1, 2 * reset_every + 1))
+    rss_10 = rss_start = rss_mb()
+    t_start = time.perf_counter()
+    t_10 = t_start
+    mark = max(1, steps // 10)
+    actions = rng.uniform(-1, 1, (CHUNK, *shape)).astype(np.float32)
+    for k in range(steps):
+        if k % CHUNK == 0 and k:
+            actions = rng.uniform(-1, 1, (CHUNK, *shape)).astype(np.float32)
+        _, _, terminated, truncated, info = env.step(actions[k % CHUNK])
+        since_reset += 1
+        if terminated or truncated or since_reset >= cap:
+            if terminated or truncated:
+                ended += 1
+                diverged += bool(info.get("diverged", False))
+                assert "episode_metrics" in info, "episode end without episode_metrics"
+            else:
+                forced += 1
+            count_mujoco(base.data)
+            env.reset()
+            since_reset = 0
+            cap = int(rng.integers(1, 2 * reset_every + 1))
+        if (k + 1) % mark == 0:
+            gc.collect()
+            now, rss = time.perf_counter(), rss_mb()
+            if k + 1 == mark:
+                rss_10, t_10 = rss, now
+            print(f"  {100 * (k + 1) // steps:3d} %  {k + 1:>9d} steps  "
+                  f"{(k + 1) / (now - t_start):8.0f} steps/s  RSS {rss:7.1f} MB", flush=True)
+    t_end = time.perf_counter()
+    count_mujoco(base.data)
+    gc.collect()
+    rss_end = rss_mb()
+    env.close()
     return {
         "env_id": env_id,
         "steps": steps,
@@ -127,8 +167,6 @@ def soak(env_id: str, steps: int, reset_every: int, seed: int) -> dict[str, Any]
         "rss_10_mb": rss_10,
         "rss_end_mb": rss_end,
         "growth_mb": rss_end - rss_10,
-        "warnings": n_warnings,
-        "first_warnings": caught,
         "episodes_ended": ended,
         "forced_resets": forced,
         "diverged": diverged,
@@ -143,23 +181,27 @@ def main(argv: list[str] | None = None) -> int:
                         help="mean number of steps before a forced mid-episode reset")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-growth-mb", type=float, default=10.0)
-    args = parser.parse_args(argv)
-    if args.steps < 10:
-        parser.error("--steps must be >= 10")
+    try:
+        args = parser.parse_args(argv)
+        if args.steps < 10:
+            parser.error("--steps must be >= 10")
+        env_id = args.env
+        if env_id is None:
+            print("measuring the step cost of every registered environment:")
+            env_id = slowest_env()
+        env_id = env_id.split(":")[-1]
+        if env_id not in cir_gym.ENVIRONMENTS:
+            parser.error(f"unknown env {env_id!r}; registered: {sorted(cir_gym.ENVIRONMENTS)}")
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
+        return exc.code if isinstance(exc.code, int) else 2
 
-    env_id = args.env
-    if env_id is None:
-        print("measuring the step cost of every registered environment:")
-        env_id = slowest_env()
-    env_id = env_id.split(":")[-1]
-    if env_id not in cir_gym.ENVIRONMENTS:
-        parser.error(f"unknown env {env_id!r}; registered: {sorted(cir_gym.ENVIRONMENTS)}")
     print(f"soak: {args.steps} random steps of {env_id} (reset at episode end or after "
           f"U[1, {2 * args.reset_every}] steps), seed {args.seed}")
     r = soak(env_id, args.steps, args.reset_every, args.seed)
 
     ok_mem = r["growth_mb"] < args.max_growth_mb
     ok_warn = r["warnings"] == 0
+    ok_mj = r["mujoco_messages"] == 0 and not r["mujoco_counters"]
     print()
     print("| quantity | value | target |")
     print("|---|---|---|")
@@ -173,11 +215,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f"| RSS growth 10 % → 100 % | {r['growth_mb']:+.2f} MB | < {args.max_growth_mb} MB "
           f"{'ok' if ok_mem else 'MISSED'} |")
     print(f"| Python warnings | {r['warnings']} | 0 {'ok' if ok_warn else 'MISSED'} |")
+    counters = ", ".join(f"{k} {v}" for k, v in r["mujoco_counters"].items()) or "none"
+    print(f"| MuJoCo warnings (messages; counters) | {r['mujoco_messages']}; {counters} | 0 "
+          f"{'ok' if ok_mj else 'MISSED'} |")
     print(f"| episodes ended / forced resets | {r['episodes_ended']} / {r['forced_resets']} | |")
     print(f"| diverged episodes | {r['diverged']} | |")
     for w in r["first_warnings"]:
         print(f"warning: {w}")
-    return 0 if ok_mem and ok_warn else 1
+    for w in r["first_mujoco_messages"]:
+        print(f"MuJoCo warning: {w}")
+    return 0 if ok_mem and ok_warn and ok_mj else 1
 
 
 if __name__ == "__main__":

@@ -6,12 +6,22 @@
 
 from __future__ import annotations
 
+import ctypes.util as _ctypes_util
 import os as _os
 
-# Headless machines: software EGL unless the user chose a backend or has a display.
+# MuJoCo's GL backend on a machine without a display (before mujoco is imported): EGL if
+# libEGL is installed, else OSMesa if libOSMesa is, else none. Forcing a backend whose library
+# is missing makes `import mujoco` crash inside PyOpenGL; with MUJOCO_GL=disable only
+# `render()` fails, with a RuntimeError naming the Debian packages to install (envs/base.py
+# GL_HELP). A backend chosen by the user (MUJOCO_GL) or a display (DISPLAY: GLFW) is kept.
 if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
-    _os.environ["MUJOCO_GL"] = "egl"
-    _os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    for _gl, _library in (("egl", "EGL"), ("osmesa", "OSMesa")):
+        if _ctypes_util.find_library(_library):
+            _os.environ["MUJOCO_GL"] = _gl
+            _os.environ.setdefault("PYOPENGL_PLATFORM", _gl)
+            break
+    else:
+        _os.environ["MUJOCO_GL"] = "disable"
 
 from cir_gym.envs import ENVIRONMENTS, register_envs
 from cir_gym.robot import ModelError, Robot

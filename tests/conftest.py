@@ -1,9 +1,6 @@
-"""Test-session setup: choose a headless GL backend before anything imports mujoco."""
+"""Test-session setup: let cir_gym choose the headless GL backend before anything imports mujoco
+(EGL if libEGL is installed, else OSMesa, else rendering disabled with a clear error)."""
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-if os.environ["MUJOCO_GL"] == "egl":
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+import cir_gym  # noqa: F401  (sets MUJOCO_GL when the user has not)

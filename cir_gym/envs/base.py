@@ -9,12 +9,15 @@ metrics. The base class owns what every task does the same way:
   detection (non-finite state, MuJoCo's bad-acceleration warning, absurd speeds) that
   restores the last finite state so observations stay finite;
 * rendering with ``mujoco.Renderer`` (shadows, reflections, skybox and MSAA off: software
-  GL on headless machines is ~100× faster that way), a lazy human viewer.
+  GL on headless machines is ~100× faster that way), a lazy human viewer; both raise a
+  RuntimeError saying what is missing (GL libraries, a display) instead of crashing.
 """
 
 from __future__ import annotations
 
 import inspect
+import os
+import sys
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -39,8 +42,25 @@ GL_HELP = (
     "machine install Mesa (apt-get install -y libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6) "
     "and set MUJOCO_GL=egl (or MUJOCO_GL=osmesa) before importing mujoco."
 )
+DISPLAY_HELP = (
+    'render_mode="human" opens a window and needs a display, but neither DISPLAY nor '
+    'WAYLAND_DISPLAY is set. On a headless machine use render_mode="rgb_array" (render() '
+    "returns the frames; gymnasium.wrappers.RecordVideo writes them to a video)."
+)
+#: MUJOCO_GL values with which mujoco creates no GL context (cir_gym sets "disable" on a
+#: headless machine without libEGL and libOSMesa, see cir_gym/__init__.py).
+GL_DISABLED = ("disable", "disabled", "off", "false", "0")
+
+MIN_CONTROL_FREQ = 1.0  # Hz: below, one step would hold ≥ 1 s of physics (1e-9 Hz hangs)
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverged
+
+
+def _has_display() -> bool:
+    """False on Linux/BSD without an X11 or Wayland display (macOS and Windows always have one)."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class InvalidArgument(ValueError, TypeError):
@@ -173,9 +193,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.model = model
         self.data = mujoco.MjData(model)
         timestep = model.opt.timestep
-        control_freq = check_number(
-            "control_freq", control_freq, 0.0, 1.0 / timestep, low_open=True
-        )
+        control_freq = check_number("control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / timestep)
         self.frame_skip = max(1, round(1.0 / (control_freq * timestep)))
         self.dt = self.frame_skip * timestep  # s, control period
         episode_duration = check_number(
@@ -286,6 +304,8 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             return self._renderer.render()
         if self.render_mode == "human":
             if self._viewer is None:
+                if not _has_display():  # else mujoco.viewer exits the whole process
+                    raise RuntimeError(DISPLAY_HELP)
                 import mujoco.viewer
 
                 self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
@@ -293,6 +313,12 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         return None
 
     def _make_renderer(self) -> mujoco.Renderer:
+        backend = os.environ.get("MUJOCO_GL", "").strip().lower()
+        if backend in GL_DISABLED:
+            raise RuntimeError(
+                f"{GL_HELP} (rendering is disabled: MUJOCO_GL={backend!r}; cir_gym sets it on "
+                f"a machine without a display when it finds neither libEGL nor libOSMesa)"
+            )
         self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, self.width)
         self.model.vis.global_.offheight = max(self.model.vis.global_.offheight, self.height)
         self.model.vis.quality.offsamples = 0
