@@ -1,9 +1,10 @@
 """Chapter 4: independent-joint (decentralized) control seen from the motors.
 
-Each joint is a motor of rotor inertia J_m behind a gear of ratio n: q_m = n q, τ = n τ_m.
-The load seen by motor i is J_eff = J_m + J_l / n², J_l the link inertia about joint i at the
-home pose (B̂_ii minus the armature): the one model number the course's design uses. The
-rest of the manipulator (coupling, Coriolis, gravity) is the disturbance d, rejected by the
+Each joint is a motor of rotor inertia J_m behind a gear of ratio n: q_m = n q, τ = n τ_m
+(:mod:`cir_gym.motor`). The load seen by motor i is J_eff = J_m + B̄_r,ii = J_m + J_l / n²,
+J_l = B̄_ii the link inertia about joint i at the home pose (B̂_ii minus the armature): the one
+model number the course's design uses. The rest of the manipulator (coupling, Coriolis,
+gravity) is the disturbance d of :func:`cir_gym.motor.motor_side_disturbance`, rejected by the
 loop; ``decentralized_feedforward`` also feeds the nominal d̂ forward.
 
 Design (control-laws.md §4): speed PI R_PI = k_pv (1 + s t_iv)/(s t_iv) with
@@ -20,6 +21,13 @@ import numpy as np
 
 from baselines.base import Controller, InvalidGain, Observation
 from cir_gym.envs.base import TaskContext
+from cir_gym.motor import (
+    average_inertia,
+    joint_torques,
+    motor_positions,
+    motor_side_inertia,
+    motor_torques,
+)
 from cir_gym.robot import Robot
 
 __all__ = [
@@ -40,10 +48,10 @@ MAX_OMEGA_DT = 0.25
 def effective_motor_inertia(
     robot: Robot, gear_ratio: np.ndarray, rotor_inertia: np.ndarray
 ) -> np.ndarray:
-    """J_eff = J_m + J_l / n² (n,) in kg m² (motor side), J_l from B̂_ii(q_home) − armature."""
-    home = robot.model.key("home").qpos if robot.model.nkey else np.zeros(robot.n)
-    J_l = np.diag(robot.inertia(home)) - robot.model.dof_armature[robot.dof_adr]
-    return rotor_inertia + J_l / gear_ratio**2
+    """J_eff = J_m + B̄_r,ii = J_m + J_l / n² (n,) in kg m² (motor side), B̄_r = N⁻¹B̄N⁻¹ with
+    J_l = B̄_ii = B̂_ii(q_home) − armature (:func:`cir_gym.motor.average_inertia`)."""
+    B_bar_r = motor_side_inertia(average_inertia(robot), gear_ratio)
+    return rotor_inertia + np.diag(B_bar_r)
 
 
 class _Decentralized(Controller):
@@ -99,11 +107,11 @@ class IndependentPID(_Decentralized):
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         w, J = self.gains.omega, self.J_eff
         q, qd = self.measured(obs)
-        e_m = self.N * (obs["q_ref"] - q)  # q̃_m = n q̃
-        ed_m = self.N * (obs["qd_ref"] - qd)
+        e_m = motor_positions(obs["q_ref"] - q, self.N)  # q̃_m = n q̃
+        ed_m = motor_positions(obs["qd_ref"] - qd, self.N)
         state += self.dt * e_m
         tau_m = 3 * w**2 * J * e_m + w**3 * J * state + 3 * w * J * ed_m
-        return self.N * tau_m
+        return joint_torques(tau_m, self.N)
 
 
 @dataclass(frozen=True)
@@ -171,11 +179,12 @@ class PCascade(_Decentralized):
         g = self.gains
         q, qd = self.measured(obs)
         inv_tiv = g.integral_ratio * self.omega_cv
+        # ω_ref = k_pp q̃_m + k_ff q̄̇_m with q_m = N q (products kept in their original order)
         w_ref = self.omega_cp * self.N * (obs["q_ref"] - q) + g.k_ff * self.N * obs["qd_ref"]
-        e_v = w_ref - self.N * qd
+        e_v = w_ref - motor_positions(qd, self.N)
         state += self.dt * e_v
         tau_m = self.k_pv * (e_v + inv_tiv * state) + self.feedforward(obs)
-        return self.N * tau_m
+        return joint_torques(tau_m, self.N)
 
 
 class PPIFeedforward(PCascade):
@@ -193,11 +202,13 @@ class PPIFeedforward(PCascade):
 class DecentralizedFeedforward(PPIFeedforward):
     """P/PI with speed feed-forward plus the computed torque feed-forward of the notes:
     τ_m,ff = (J_m + B̄_r) q̄̈_m + d̂ = n⁻¹ (B̂(q̄) q̄̈ + n̂(q̄, q̄̇)), from the nominal model at
-    the reference (not the measured state), so the loop stays decentralized."""
+    the reference (not the measured state), so the loop stays decentralized. (B̂ includes
+    the armature n² J_m, so n⁻¹ B̂ q̄̈ = (J_m + B̄_r) q̄̈_m + n⁻¹ΔB q̄̈; d̂ is
+    :func:`cir_gym.motor.motor_side_disturbance` at the reference.)"""
 
     name = "decentralized_feedforward"
 
     def feedforward(self, obs: Observation) -> np.ndarray:
         q_ref = obs["q_ref"]
         tau_ff = self.robot.inertia(q_ref) @ obs["qdd_ref"] + self.robot.bias(q_ref, obs["qd_ref"])
-        return tau_ff / self.N
+        return motor_torques(tau_ff, self.N)

@@ -39,7 +39,15 @@ class JointTrackingEnv(RobotEnv):
     nominal model through :meth:`controller_context` and only see the observation, so the
     model-error arguments (payload, mass scale, friction) are unknown to them. Each joint
     has a motor of gear ratio N and rotor inertia J_m (chapter 4): the reflected inertia
-    N² J_m is the joint's ``armature`` in both the simulator and the nominal model.
+    N² J_m is the joint's ``armature`` in both the simulator and the nominal model (the motor
+    side of the notes, q_m = N q, τ_m = N⁻¹τ, B̄_r and d, is in :mod:`cir_gym.motor`).
+
+    With ``randomize=True`` each reset draws the payload, the mass scale and the viscous and
+    Coulomb frictions uniformly from ``RANDOM_RANGES`` (from the episode's ``np_random``) and
+    uses them instead of the ``payload_mass``, ``mass_scale``, ``viscous_friction`` and
+    ``coulomb_friction`` arguments, which are then ignored; nothing else is randomized:
+    ``torque_noise`` and ``encoder_resolution`` (and every other argument) stay as given. The
+    draw is returned in ``info["model_error"]`` by ``reset`` (the fixed arguments otherwise).
 
     ## Action Space
     ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320, 176, 176, 110, 40,
@@ -95,7 +103,7 @@ class JointTrackingEnv(RobotEnv):
     | coulomb_friction | 0.0 | true joint Coulomb friction (N m), unmodelled |
     | torque_noise | 0.0 | std of Gaussian noise added to the applied torque (N m) |
     | encoder_resolution | 0.0 | position quantum of the encoders (rad); 0 = exact |
-    | randomize | False | draw payload, mass scale and friction per episode (``RANDOM_RANGES``) |
+    | randomize | False | per reset, draw payload_mass, mass_scale, viscous_friction, coulomb_friction from ``RANDOM_RANGES`` (uniform), overriding those 4 arguments; torque_noise, encoder_resolution stay as given |
     | gear_ratio | None | gear ratio N, scalar or (7,); None = the robot file's (160 ×4, 100 ×3) |
     | rotor_inertia | None | motor rotor inertia J_m (kg m²), scalar or (7,); None = file's |
     | initial_error | 0.0 | max initial joint offset from the reference (rad) |
@@ -208,7 +216,9 @@ class JointTrackingEnv(RobotEnv):
         self.rotor_inertia = self._per_joint(
             "rotor_inertia", rotor_inertia, self.robot.rotor_inertia, n, low_open=False
         )
-        self.armature = self.gear_ratio**2 * self.rotor_inertia  # B̄_r: reflected rotor inertia
+        # N² J_m: the reflected rotor inertia (MuJoCo's armature), the motor seen from the link;
+        # not the notes' B̄_r = N⁻¹B̄N⁻¹, the link seen from the motor (cir_gym.motor)
+        self.armature = self.gear_ratio**2 * self.rotor_inertia
         self._set_motor_inertia(self.armature)
         self._nominal_arrays = _inertial_arrays(self.robot.model)
         apply_model_error(self.robot.model, self.model_error)
