@@ -279,7 +279,9 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
     run = tmp_path / "JointTracking-v1" / "ppo"
     policy = agents.load(ENV, "ppo", path=run)
     result = evaluate(policy, ENV, n_episodes=1, seed=0, episode_duration=0.2)
-    assert result.episodes[0].length == 100
+    episode = result.episodes[0]  # 100 steps, or stopped by v1's following-error monitor
+    assert episode.length == 100 or (episode.terminated and 0 < episode.length < 100)
+    assert np.isfinite(episode.metrics["rms_error"])
     assert json.loads((run / "meta.json").read_text())["timesteps"] >= 2000
     # a second run into the same directory without --resume is refused with a message, exit 2
     code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
