@@ -15,6 +15,10 @@ from cir_gym.robot import Robot, robot_path
 #: Joint stiffness k_el (N m/rad) per joint — an ASSUMPTION of harmonic-drive order of magnitude
 #: (the data sheet publishes none), scaled down toward the wrist where the links are light.
 DEFAULT_STIFFNESS = (4000.0, 4000.0, 2000.0, 2000.0, 1000.0, 300.0, 300.0)
+#: Softest joint spring accepted (N m/rad): gravity alone deflects a softer one by radians.
+MIN_STIFFNESS = 10.0
+#: Largest ω Δt allowed for the rotor–spring–link mode (stability needs < 2).
+MAX_OMEGA_DT = 1.0
 #: Damping ratio of each spring with the link inertia at home (structural damping, small).
 SPRING_DAMPING_RATIO = 0.05
 
@@ -93,7 +97,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
 
     | argument | default | meaning |
     |---|---|---|
-    | stiffness | None | joint stiffness k_el (N m/rad), scalar or (7,); None = DEFAULT_STIFFNESS |
+    | stiffness | None | joint stiffness k_el (N m/rad, ≥ 10, with ω Δt ≤ 1 for the rotor–spring–link mode), scalar or (7,); None = DEFAULT_STIFFNESS |
 
     ## Metrics
     As in JointTracking-v1 (on the link side).
@@ -114,9 +118,10 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     ) -> None:
         k = as_float_array("stiffness", DEFAULT_STIFFNESS if stiffness is None else stiffness)
         k = np.broadcast_to(k, (7,)).copy() if k.ndim == 0 else k
-        if k.shape != (7,) or not np.all(np.isfinite(k)) or np.any(k <= 0):
+        if k.shape != (7,) or not np.all(np.isfinite(k)) or np.any(k < MIN_STIFFNESS):
             raise InvalidArgument(
-                f"stiffness must be a positive scalar or 7 values, got {stiffness!r}"
+                f"stiffness must be a scalar or 7 values ≥ {MIN_STIFFNESS:g} N m/rad (softer "
+                f"springs deflect by radians under gravity), got {stiffness!r}"
             )
         self.stiffness = k
         super().__init__(*args, **kwargs)
@@ -151,6 +156,18 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         # spring damping: ζ = 0.05 with the link inertia at home, d = 2ζ sqrt(k J_l)
         self._rigid.set_armature(np.zeros(7))
         J_l = np.diag(self._rigid.inertia(self._home_q))
+        # the spring's fastest mode, rotor against link: ω² = k (1/(N² J_m) + 1/J_l); the
+        # semi-implicit Euler step is stable for ω Δt < 2, so ask for ω Δt ≤ 1
+        with np.errstate(divide="ignore", over="ignore"):
+            omega_dt = np.sqrt(self.stiffness * (1 / armature + 1 / J_l)) * m.opt.timestep
+        if not np.all(omega_dt <= MAX_OMEGA_DT):
+            raise InvalidArgument(
+                f"stiffness, gear_ratio and rotor_inertia give a spring mode the "
+                f"{m.opt.timestep * 1e3:g}-ms physics step cannot resolve: ω Δt = "
+                f"{np.array2string(omega_dt, precision=2)} on the joints, ω² = k_el "
+                f"(1/(N² J_m) + 1/J_link); allowed: ω Δt ≤ {MAX_OMEGA_DT} (a softer spring, a "
+                f"larger gear ratio or rotor inertia)"
+            )
         m.tendon_damping[:] = 2 * SPRING_DAMPING_RATIO * np.sqrt(self.stiffness * J_l)
         mujoco.mj_setConst(m, mujoco.MjData(m))
 

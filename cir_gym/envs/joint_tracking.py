@@ -19,6 +19,7 @@ from cir_gym.metrics import MetricSpec
 from cir_gym.robot import ModelError, Robot, apply_model_error
 
 REFERENCES = ("random", "regulation", "quintic", "sine")
+MAX_GEAR_RATIO = 1.0e4
 
 # Ranges drawn per episode when randomize=True (uniform).
 RANDOM_RANGES = {
@@ -102,12 +103,12 @@ class JointTrackingEnv(RobotEnv):
     | viscous_friction | 0.0 | true joint viscous friction (N m s/rad), unmodelled |
     | coulomb_friction | 0.0 | true joint Coulomb friction (N m), unmodelled |
     | torque_noise | 0.0 | std of Gaussian noise added to the applied torque (N m) |
-    | encoder_resolution | 0.0 | position quantum of the encoders (rad); 0 = exact |
+    | encoder_resolution | 0.0 | position quantum of the encoders (rad, 0 = exact, else in [1e-12, 0.1]) |
     | randomize | False | per reset, draw payload_mass, mass_scale, viscous_friction, coulomb_friction from ``RANDOM_RANGES`` (uniform), overriding those 4 arguments; torque_noise, encoder_resolution stay as given |
-    | gear_ratio | None | gear ratio N, scalar or (7,); None = the robot file's (160 ×4, 100 ×3) |
-    | rotor_inertia | None | motor rotor inertia J_m (kg m²), scalar or (7,); None = file's |
+    | gear_ratio | None | gear ratio N (≤ 1e4), scalar or (7,); None = the robot file's (160 ×4, 100 ×3) |
+    | rotor_inertia | None | motor rotor inertia J_m (kg m², ≤ 1), scalar or (7,); None = file's |
     | initial_error | 0.0 | max initial joint offset from the reference (rad) |
-    | error_scales | (1.0, 0.1, 0.01) | reward kernel widths (rad) |
+    | error_scales | (1.0, 0.1, 0.01) | reward kernel widths (rad, each in [1e-9, 1e3]) |
     | torque_weight | 0.01 | weight of the torque term |
     | action_rate_weight | 0.01 | weight of the action-rate term |
     | divergence_penalty | 100.0 | reward lost when the physics diverges |
@@ -187,13 +188,24 @@ class JointTrackingEnv(RobotEnv):
         )
         self.torque_noise = check_number("torque_noise", torque_noise, 0.0, 1000.0)
         self.encoder_resolution = check_number("encoder_resolution", encoder_resolution, 0.0, 0.1)
+        if 0.0 < self.encoder_resolution < 1e-12:
+            raise InvalidArgument(
+                f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, "
+                f"got {encoder_resolution!r}"
+            )
         if not isinstance(randomize, (bool, np.bool_)):
             raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
         self.randomize = bool(randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
         scales = np.atleast_1d(as_float_array("error_scales", error_scales))
-        if scales.ndim != 1 or scales.size == 0 or not np.all(scales > 0):
-            raise InvalidArgument(f"error_scales must be positive numbers, got {error_scales!r}")
+        if (
+            scales.ndim != 1
+            or scales.size == 0
+            or not np.all((scales >= 1e-9) & (scales <= 1e3))
+        ):
+            raise InvalidArgument(
+                f"error_scales must be numbers in [1e-9, 1e3] rad, got {error_scales!r}"
+            )
         self.error_scales = scales
         self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
         self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
@@ -212,9 +224,11 @@ class JointTrackingEnv(RobotEnv):
 
         self.robot = self._build_robot()  # the simulator's (true) robot
         n = self.robot.n
-        self.gear_ratio = self._per_joint("gear_ratio", gear_ratio, self.robot.gear_ratio, n)
+        self.gear_ratio = self._per_joint(
+            "gear_ratio", gear_ratio, self.robot.gear_ratio, n, upper=MAX_GEAR_RATIO
+        )
         self.rotor_inertia = self._per_joint(
-            "rotor_inertia", rotor_inertia, self.robot.rotor_inertia, n, low_open=False
+            "rotor_inertia", rotor_inertia, self.robot.rotor_inertia, n, upper=1.0, low_open=False
         )
         # N² J_m: the reflected rotor inertia (MuJoCo's armature), the motor seen from the link;
         # not the notes' B̄_r = N⁻¹B̄N⁻¹, the link seen from the motor (cir_gym.motor)
@@ -271,7 +285,7 @@ class JointTrackingEnv(RobotEnv):
 
     @staticmethod
     def _per_joint(
-        name: str, value: Any, default: np.ndarray, n: int, low_open: bool = True
+        name: str, value: Any, default: np.ndarray, n: int, upper: float, low_open: bool = True
     ) -> np.ndarray:
         if value is None:
             return default.copy()
@@ -282,8 +296,12 @@ class JointTrackingEnv(RobotEnv):
             or not np.all(np.isfinite(arr))
             or np.any(arr < 0)
             or (low_open and np.any(arr <= 0))
+            or np.any(arr > upper)
         ):
-            raise InvalidArgument(f"{name} must be a positive scalar or {n} values, got {value!r}")
+            raise InvalidArgument(
+                f"{name} must be a positive scalar or {n} values, each at most {upper:g}, "
+                f"got {value!r}"
+            )
         return arr
 
     # ------------------------------------------------------------------ reference

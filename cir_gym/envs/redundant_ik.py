@@ -196,8 +196,10 @@ class _RedundantIKBase(RobotEnv):
         except (TypeError, ValueError) as exc:
             raise InvalidArgument(f"error_scales must be positive numbers (m), got "
                                   f"{error_scales!r}") from exc
-        if scales.ndim != 1 or scales.size == 0 or not np.all(scales > 0):
-            raise InvalidArgument(f"error_scales must be positive numbers (m), got {error_scales!r}")
+        if (scales.ndim != 1 or scales.size == 0
+                or not np.all((scales >= 1e-9) & (scales <= 1e3))):
+            raise InvalidArgument(f"error_scales must be numbers in [1e-9, 1e3] m, got "
+                                  f"{error_scales!r}")
         self.error_scales = scales
         self.orientation_scales = scales * 10.0  # rad: 1 mm ↔ 0.01 rad
         self.secondary_weight = check_number("secondary_weight", secondary_weight, 0.0, 10.0)
@@ -735,7 +737,7 @@ class RedundantIKEnv(_RedundantIKBase):
     | episode_duration | 5.0 | s: one lap of the path (quintic timing law, at rest at both ends) |
     | initial_error | 0.0 | initial task-position offset (m) in a random direction |
     | joint_window | 1.4 | width (rad) of the narrowed joint range for "joint_limits" |
-    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
+    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m, each in [1e-9, 1e3]) |
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
     | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
@@ -889,7 +891,7 @@ class RedundantIK7Env(_RedundantIKBase):
     | episode_duration | 6.0 | s: one lap of the path (quintic timing law, at rest at both ends) |
     | initial_error | 0.0 | initial task-position offset (m) in a random direction |
     | joint_window | 0.6 | width (rad) of the narrowed joint range for "joint_limits" |
-    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m) |
+    | error_scales | (0.1, 0.01, 0.001) | tracking-reward kernel widths (m, each in [1e-9, 1e3]) |
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
     | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
