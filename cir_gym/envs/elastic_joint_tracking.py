@@ -111,7 +111,10 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     - v0: initial version.
     """
 
-    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {"nominal stiffness": {}}
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "nominal stiffness": {},
+        "unknown 3 kg payload": {"payload_mass": 3.0},
+    }
 
     def __init__(
         self, *args: Any, stiffness: float | list[float] | None = None, **kwargs: Any
