@@ -105,6 +105,24 @@ def variable_damping(sigma_min: float, damping: float, region: float) -> float:
     return damping * float(np.sqrt(1.0 - (sigma_min / region) ** 2))
 
 
+def null_space_scale(qd_task: np.ndarray, qd_null: np.ndarray, qd_max: np.ndarray) -> float:
+    """Largest s ∈ [0, 1] with |q̇_task + s q̇_null| ≤ q̇_max on every joint (task priority).
+
+    The environment clips each joint's command to its velocity limit, which bends a command
+    that exceeds it away from the task; scaling the null-space part first keeps the primary
+    task (the saturation-in-the-null-space idea of Flacco, De Luca and Khatib, ICRA 2012, in its
+    simplest form). If q̇_task alone exceeds a limit, s = 0 and the env clips as before.
+    """
+    s = 1.0
+    for a, b, m in zip(qd_task, qd_null, qd_max, strict=True):
+        if abs(a + b) <= m or b == 0.0:
+            continue
+        if abs(a) >= m:
+            return 0.0
+        s = min(s, ((m if b > 0 else -m) - a) / b)
+    return max(s, 0.0)
+
+
 def null_space_projector(J: np.ndarray, J_pinv: np.ndarray) -> np.ndarray:
     """I − J† J (n, n): J (I − J†J) q̇₀ = 0 for every q̇₀ (internal motion)."""
     return np.eye(J.shape[1]) - J_pinv @ J
@@ -339,7 +357,12 @@ class NullSpaceCLIKGains:
 
 
 class NullSpaceCLIK(CLIK):
-    """CLIK with a projected gradient: q̇ = J†(x̄̇ + K e) + (I − J†J) k₀ ∇w(q).
+    """CLIK with a projected gradient: q̇ = J†(x̄̇ + K e) + s (I − J†J) k₀ ∇w(q), where
+    s ∈ [0, 1] (:func:`null_space_scale`) shrinks the secondary motion just enough to keep the
+    command within the velocity limits, so the task is not the one that gives way (on
+    RedundantIK-v1, 30 seeds: RMS task error 4.5e-4 → 3.5e-5 m with "manipulability"). Not
+    with "obstacle", where a collision ends the episode and the clearance barrier must be able
+    to override the task (scaled, 9 instead of 5 of 30 planar episodes collided).
 
     w is the environment's objective (``context.extras["objective"]``): manipulability,
     distance from the joint limits (analytic gradient, ranges from the observation) or
@@ -414,7 +437,11 @@ class NullSpaceCLIK(CLIK):
         qd0 = self.objective_gradient(obs)
         J = self.task_jacobian(obs["q"])
         J_pinv = pseudo_inverse(J)
-        return J_pinv @ self.task_velocity(obs) + null_space_projector(J, J_pinv) @ qd0
+        qd_task = J_pinv @ self.task_velocity(obs)
+        qd_null = null_space_projector(J, J_pinv) @ qd0
+        if self.objective == "obstacle":  # a collision ends the episode: the barrier may win
+            return qd_task + qd_null
+        return qd_task + null_space_scale(qd_task, qd_null, self.context.action_scale) * qd_null
 
 
 # ---------------------------------------------------------------------- augmented Jacobian

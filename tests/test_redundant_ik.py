@@ -119,6 +119,20 @@ def test_null_space_motion_does_not_move_the_end_effector(robot_name, site, rows
         assert np.linalg.norm(J @ kinematic.null_space_projector(J, J_pinv) @ qd0) <= 1e-10
 
 
+def test_null_space_scale_is_the_largest_that_respects_the_velocity_limits():
+    rng = np.random.default_rng(0)
+    qd_max = np.array([2.0, 1.5, 1.0])
+    for _ in range(200):
+        qd_task = rng.uniform(-0.9, 0.9) * qd_max * rng.uniform(0, 1, 3)
+        qd_null = rng.normal(0, 2, 3)
+        s = kinematic.null_space_scale(qd_task, qd_null, qd_max)
+        qd = qd_task + s * qd_null
+        assert 0.0 <= s <= 1.0 and np.all(np.abs(qd) <= qd_max + 1e-12)
+        if s < 1.0:  # maximal: some joint sits exactly at its limit
+            assert np.any(np.isclose(np.abs(qd), qd_max, rtol=0, atol=1e-12))
+    assert kinematic.null_space_scale(np.array([2.5, 0, 0]), np.ones(3), qd_max) == 0.0
+
+
 def test_weighted_pseudo_inverse_is_a_generalised_inverse():
     robot = Robot.from_name("iiwa14")
     J = robot.jacobian("tcp", robot.model.key("home").qpos)
