@@ -129,15 +129,17 @@ def run_leaderboard(
 
 
 def _best(group: list[EvaluationResult]) -> EvaluationResult | None:
-    """The best result of ``group`` on its primary metric's mean (NaN never wins)."""
+    """The best result of ``group``: the highest success rate, then the best primary-metric
+    mean (NaN never wins). Success first, because an episode that ends early — at a joint
+    limit, on an obstacle — can still show a small tracking error."""
     if not group:
         return None
     primary = group[0].primary_metric
-    higher = group[0].spec(primary).better == "higher"
+    sign = -1.0 if group[0].spec(primary).better == "higher" else 1.0
     finite = [r for r in group if np.isfinite(r.summary[primary]["mean"])]
     if not finite:
         return None
-    return (max if higher else min)(finite, key=lambda r: r.summary[primary]["mean"])
+    return min(finite, key=lambda r: (-r.success_rate, sign * r.summary[primary]["mean"]))
 
 
 def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
@@ -174,8 +176,8 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
         residual = _best([r for r in agents_ if "residual" in r.policy_name])
         lines.append(f"| {variant} | {_summary_cell(ctrl, None)} | "
                      f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |")
-    return "\n".join([f"Controllers vs RL on `{primary}` (mean over the same seeds):", "",
-                      *lines])
+    return "\n".join([f"Controllers vs RL on `{primary}` (mean over the same seeds; best = "
+                       f"highest success rate, then lowest mean):", "", *lines])
 
 
 def _slug(text: str) -> str:
