@@ -178,6 +178,26 @@ def test_controllers_never_return_nan_at_the_stretched_arm(name):
         assert np.linalg.norm(qd) <= np.linalg.norm(v) / (2 * policy.gains.damping) + 1e-9
 
 
+@pytest.mark.parametrize("name", sorted(CONTROLLERS))
+def test_controllers_raise_or_stay_finite_at_the_upright_iiwa(name):
+    """q = 0: the iiwa stands straight up, axes 1, 3, 5, 7 aligned — J (6×7) loses rank.
+    A controller either raises SingularJacobian (documented) or returns a finite action."""
+    env = gym.make(ENV7)
+    obs, _ = env.reset(seed=0)
+    obs = {k: v.copy() for k, v in obs.items()}
+    obs["q"] = np.zeros(7)
+    obs["x"] = env.unwrapped._forward(obs["q"])[0]
+    J = env.unwrapped._task_jacobian(obs["q"])
+    assert np.linalg.svd(J, compute_uv=False)[-1] < 1e-9
+    policy = controller(name, env)
+    try:
+        action, _ = policy.predict(obs)
+    except kinematic.SingularJacobian as exc:
+        assert "singular" in str(exc)
+        return
+    assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)
+
+
 def test_augmented_jacobian_reports_its_smallest_singular_value():
     env = gym.make(ENV)
     policy = controller("clik_augmented", env)
