@@ -133,7 +133,10 @@ class JointTrackingEnv(RobotEnv):
     - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
       From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
       (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing
-      (docs/agents.md). Controllers are unaffected (their errors stay below 0.01 rad).
+      (docs/agents.md). On this env no controller of the leaderboard comes near it (worst
+      0.33 rad, PD + gravity under the 3 kg payload); a controller that loses the arm (nominal
+      computed torque at direct drive under a payload, rigid-model control of the elastic
+      joints) is now stopped and scored with its last error held.
     - v0: initial version.
     """
 
