@@ -711,17 +711,13 @@ def test_nan_number_is_a_value_error_naming_it(env_id: str, name: str) -> None:
 
 def _numeric_arguments(cls: type) -> list[str]:
     """Constructor arguments annotated as taking numbers (float, int, per-joint lists, tuples)."""
-    out: list[str] = []
-    for klass in cls.__mro__:
-        if "__init__" not in vars(klass):
-            continue
-        params = inspect.signature(vars(klass)["__init__"]).parameters.values()
-        out += [p.name for p in params if p.name != "self" and p.name not in out
-                and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-                and re.search(r"\b(float|int)\b", str(p.annotation))]
-        if not any(p.kind == p.VAR_KEYWORD for p in params):
-            break
-    return out
+    annotations: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):  # a subclass's annotation wins
+        if "__init__" in vars(klass):
+            params = inspect.signature(vars(klass)["__init__"]).parameters.values()
+            annotations |= {p.name: str(p.annotation) for p in params}
+    return [name for name in constructor_arguments(cls)
+            if re.search(r"\b(float|int)\b", annotations.get(name, ""))]
 
 
 def _as_floats(value: Any) -> np.ndarray | None:
