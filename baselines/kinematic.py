@@ -328,7 +328,11 @@ class NullSpaceCLIKGains:
     """K (1/s) as CLIK; k₀ of q̇₀ = k₀ ∇w for each objective (the env's ``objective``):
 
     - k0_manipulability (rad² s⁻¹): w = sqrt(det J Jᵀ), ascended along ∇ ln w = ∇w / w (the
-      same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian);
+      same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian). Chosen by
+      a sweep on the v2 "manipulability" episodes (seeds 0–29, gain in mean minimum w over
+      ``clik``): iiwa 6 → +9.5 %, 20 → +19.7 %, 30 → +21 %, 60 → +22.9 % with 1/30 episodes
+      driven into a joint limit (w peaks near the q2/q6 limits on the iiwa); RMS task error
+      +12 % at 20. The plane is insensitive (6 → +49.8 %, 20 → +50.7 %, equal task error);
     - k0_joint_limits (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))²;
     - in every objective, a barrier of k0_limit_barrier (rad/s) times (m_act − m_i)₊ / m_i on
       each joint whose margin m_i to a limit is below ``limit_activation`` m_act (rad), pushing
@@ -342,7 +346,7 @@ class NullSpaceCLIKGains:
     """
 
     K: float = 50.0
-    k0_manipulability: float = 6.0
+    k0_manipulability: float = 20.0
     k0_joint_limits: float = 10.0
     k0_limit_barrier: float = 1.0
     limit_activation: float = 0.15

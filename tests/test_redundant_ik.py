@@ -1,4 +1,4 @@
-"""RedundantIK-v1, RedundantIK7-v1 and the chapter-1 kinematic controllers: theory checks."""
+"""RedundantIK-v2, RedundantIK7-v2 and the chapter-1 kinematic controllers: theory checks."""
 
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ from cir_gym.envs.redundant_ik import (
 )
 from cir_gym.robot import Robot
 
-ENV = "cir_gym/RedundantIK-v1"
-ENV7 = "cir_gym/RedundantIK7-v1"
+ENV = "cir_gym/RedundantIK-v2"
+ENV7 = "cir_gym/RedundantIK7-v2"
 CONTROLLERS = {cls.name: cls for cls in kinematic.KINEMATIC_CONTROLLERS}
 
 
@@ -294,18 +294,31 @@ def test_every_obstacle_episode_has_an_obstacle_clear_of_the_start(env_id):
 
 
 @pytest.mark.parametrize("env_id", [ENV, ENV7])
-def test_manipulability_start_is_on_the_path_and_not_better_than_the_home_solution(env_id):
+def test_manipulability_start_is_the_worst_feasible_lap_of_the_self_motion(env_id):
+    """v2: q(0) on the path, ≥ START_MARGIN inside the limits, its minimum-norm lap inside the
+    limits and no more manipulable than the home-IK solution's (when that lap is feasible)."""
     env = gym.make(env_id)
     base = env.unwrapped
+    start = int(env_module.MANIPULABILITY_WINDOW * base.max_steps / 10)
+
+    def lap(q):
+        motion, w = base._min_norm_motion(q, stride=10)
+        inside = np.all(motion >= base.file_lower) and np.all(motion <= base.file_upper)
+        return bool(inside), float(np.min(w[start:]))
+
     for seed in range(4):
         obs, _ = env.reset(seed=seed)
         np.testing.assert_allclose(obs["x"], obs["x_ref"], atol=1e-9)
         q_home = base._solve_ik(base.home.copy(), base._x_ref[0], base._R_ref[0])
-        w0 = kinematic.manipulability(base._task_jacobian(obs["q"]))
-        assert w0 <= kinematic.manipulability(base._task_jacobian(q_home)) + 1e-12
         margin = env_module.joint_limit_margin
         lower, upper = obs["q_lower"], obs["q_upper"]
-        assert margin(obs["q"], lower, upper) >= min(0.6, margin(q_home, lower, upper)) - 1e-9
+        assert margin(obs["q"], lower, upper) >= min(
+            env_module.START_MARGIN, margin(q_home, lower, upper)) - 1e-9
+        inside, w_start = lap(obs["q"])
+        home_inside, w_home = lap(q_home)
+        assert inside
+        if home_inside:
+            assert w_start <= w_home + 1e-12
 
 
 def test_unknown_objective_names_the_allowed_ones():

@@ -44,6 +44,7 @@ IK_TOLERANCE = 1e-12  # m (and rad): residual of the reset IK solve
 SELF_MOTION_SHARE = 0.1  # min |v_j| (unit null vector) of a joint narrowed for "joint_limits"
 OBSTACLE_PATH_TRIES = 20  # paths drawn for "obstacle" until an obstacle can be placed
 MANIPULABILITY_WINDOW = 0.1  # fraction of the lap excluded from min_manipulability (start-up)
+START_MARGIN = 0.3  # rad: "manipulability" start candidates keep this far from the limits
 CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control period (no dynamics)
 
 
@@ -296,16 +297,20 @@ class _RedundantIKBase(RobotEnv):
             q = q + (dq * (0.2 / step) if step > 0.2 else dq)
         return q
 
-    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5) -> np.ndarray:
-        """Joint path (k, n) of minimum-norm CLIK along the reference, every ``stride`` steps.
+    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Minimum-norm CLIK along the reference, every ``stride`` steps: the joint path
+        (k + 1, n) and the manipulability at each of its first k points (k,).
 
-        Used only to place the obstacle where the pseudo-inverse motion would hit it.
+        Used only to set up an episode (where the obstacle goes, which posture starts
+        "manipulability"); the joint limits are not enforced.
         """
         q = q0.copy()
-        path = [q.copy()]
+        path, w = [q.copy()], []
         dt = self.dt * stride
         for k in range(0, self.max_steps, stride):
             J = self._task_jacobian(q)
+            w.append(manipulability(J))
             p, R = self._forward(q)
             e = self._x_ref[k] - p
             v = self._xd_ref[k]
@@ -314,7 +319,7 @@ class _RedundantIKBase(RobotEnv):
                 v = np.concatenate((v, self._omega_ref[k]))
             q = q + dt * np.linalg.lstsq(J, v + e / dt, rcond=None)[0]
             path.append(q.copy())
-        return np.array(path)
+        return np.array(path), np.array(w)
 
     # ------------------------------------------------------------------ episode setup
     def _draw_path(self) -> None:
@@ -332,7 +337,7 @@ class _RedundantIKBase(RobotEnv):
         controller can do) are rejected (30 tries).
         """
         rng = self.np_random
-        motion = self._min_norm_motion(q0)
+        motion, _ = self._min_norm_motion(q0)
         bodies = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
                   for b in self.obstacle_links]
         pick = [i for i, g in enumerate(self.capsules.geom_ids)
@@ -416,8 +421,9 @@ class _RedundantIKBase(RobotEnv):
         self._obstacle = np.concatenate((centre[: self.pos_dim], [radius]))
 
     def _self_motion(self, q: np.ndarray, arc: float = np.pi, step: float = 0.05,
-                     margin: float = 0.6) -> list[np.ndarray]:
-        """Configurations on the self-motion manifold through ``q`` (at the pose x̄(0)).
+                     margin: float = 0.6, k: int = 0) -> list[np.ndarray]:
+        """Configurations on the self-motion manifold through ``q`` at the reference pose of
+        control step ``k`` (x̄(0) by default).
 
         Walks both ways along the unit null vector of J (dim ker J = 1 on both robots, its sign
         kept continuous), re-solving the task after each ``step`` (rad), up to ``arc`` rad or
@@ -433,7 +439,7 @@ class _RedundantIKBase(RobotEnv):
                 v = np.linalg.svd(self._task_jacobian(x))[2][-1]
                 v = sign * v if prev is None else (v if v @ prev >= 0 else -v)
                 prev = v
-                x = self._solve_ik(x + step * v, self._x_ref[0], self._R_ref[0], iterations=20)
+                x = self._solve_ik(x + step * v, self._x_ref[k], self._R_ref[k], iterations=20)
                 if joint_limit_margin(x, self.file_lower, self.file_upper) < margin:
                     break
                 if i % 5 == 0:
@@ -441,19 +447,29 @@ class _RedundantIKBase(RobotEnv):
         return out
 
     def _poorly_conditioned_start(self, q_home_ik: np.ndarray) -> np.ndarray:
-        """objective="manipulability": the least manipulable posture of the self-motion.
+        """objective="manipulability": the posture whose minimum-norm lap is least manipulable.
 
-        Among the home-IK solution and the configurations of its :meth:`_self_motion` (all at
-        x̄(0), ≥ 0.6 rad from every joint limit or no closer than the home-IK solution) with
-        w ≥ 30 % of the best of them, the one of
-        least manipulability w, so the redundancy starts badly used. (v0 took the worst of 8
-        IK solutions from guesses within ±1 rad of home: they clustered near home, and on the
-        iiwa often at a stationary point of w along the self-motion.)
+        Candidates: the home-IK solution and the configurations of its :meth:`_self_motion`
+        at x̄(0) (≥ ``START_MARGIN`` rad from every joint limit, or no closer than the home-IK
+        solution). From each, the minimum-norm (pseudo-inverse CLIK) motion along the whole
+        reference is run (:meth:`_min_norm_motion`); candidates whose motion leaves the joint
+        limits are dropped (plain CLIK could not finish the lap, so the comparison would not be
+        at equal task error), and of the rest the one whose motion reaches the least
+        manipulability over t ≥ 0.1 T is returned: the redundancy starts badly used for the
+        whole lap, as the metric measures it. v1 took the least manipulable posture at t = 0:
+        on the iiwa that is an interior minimum of w along the self-motion, a stationary point
+        no gradient method leaves, and postures that are poor at t = 0 need not be poor later.
         """
-        sols = self._self_motion(q_home_ik)
-        w = np.array([manipulability(self._task_jacobian(q)) for q in sols])
-        allowed = np.flatnonzero(w >= 0.3 * np.max(w))
-        return sols[int(allowed[np.argmin(w[allowed])])]
+        sols = self._self_motion(q_home_ik, margin=START_MARGIN)
+        best, start = np.inf, q_home_ik
+        for q in sols:
+            motion, w = self._min_norm_motion(q, stride=10)
+            if np.any(motion < self.file_lower) or np.any(motion > self.file_upper):
+                continue
+            w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * w.size):]))
+            if w_lap < best:
+                best, start = w_lap, q
+        return start
 
     def _set_joint_window(self, q0: np.ndarray) -> None:
         """objective="joint_limits": one random joint gets a range of width ``joint_window``.
@@ -708,10 +724,12 @@ class RedundantIKEnv(_RedundantIKBase):
     ## Starting State
     At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
     steps q ← q + J†(x̄(0) − k(q)) (residual < 1e-12 m). For "manipulability" the redundancy
-    starts badly used: q(0) is the least manipulable of that solution and the postures of its
-    self-motion (sampled every 0.25 rad of arc up to ±π, ≥ 0.6 rad from every joint limit or
-    no closer than that solution) with
-    w ≥ 30 % of the best of them, so the metric shows whether a controller improves it. With ``initial_error`` the arm starts
+    starts badly used: of that solution and the postures of its self-motion at x̄(0) (every
+    0.25 rad of arc up to ±π, ≥ 0.3 rad from every joint limit or no closer than that
+    solution), q(0) is the one from which minimum-norm CLIK (q̇ = J†(x̄̇ + e/Δt)) would trace
+    the lap inside the joint limits with the least manipulability over t ≥ 0.1 T, so the
+    metric shows whether a controller uses the redundancy (plain CLIK can finish the lap, so
+    the comparison is at equal task error). With ``initial_error`` the arm starts
     at x̄(0) + δ, ‖δ‖ = ``initial_error``. For "joint_limits" one random joint's range is
     narrowed to width ``joint_window`` with q(0) at 10–25 % of it from a random side (within
     the file's range; ``q_lower``/``q_upper`` in the observation); only a joint that the
@@ -757,10 +775,14 @@ class RedundantIKEnv(_RedundantIKBase):
     ``max_task_error`` < ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK-v1")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK-v2")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
+    - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
+      whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
+      manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
+      self-motion that no gradient method leaves, and on the plane said little about the lap).
     - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
       "manipulability" start is the worst posture of the whole self-motion; "joint_limits"
       narrows only a joint the self-motion moves;
@@ -846,7 +868,7 @@ class RedundantIK7Env(_RedundantIKBase):
     R̄(t) = Rot(r, α sin 2πσ(t)) R_home (world axis r random, α ∈ [0.1, 0.3] rad), closed as
     well; ω̄ = r α 2π cos(2πσ) σ̇. The orientation error is the rotation vector of R̄ Rᵀ
     (through its quaternion), never an Euler-angle difference. ``objective`` as in
-    ``RedundantIK-v1``; the obstacle is a sphere on the sweep of links 3–5 (around the
+    ``RedundantIK-v2``; the obstacle is a sphere on the sweep of links 3–5 (around the
     elbow), and the clearance is computed analytically (centre to capsule segments, minus the
     radii).
 
@@ -872,16 +894,16 @@ class RedundantIK7Env(_RedundantIKBase):
     | obstacle | (4,) | sphere centre and radius; (10, 10, 10, 0) when there is none | ±20 | m |
 
     ## Rewards
-    As ``RedundantIK-v1``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
+    As ``RedundantIK-v2``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
     orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
     exp(−w / 0.05).
 
     ## Starting State
-    As ``RedundantIK-v1``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
+    As ``RedundantIK-v2``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
     (x̄(0), R̄(0)); ``initial_error`` offsets the position only.
 
     ## Episode End
-    As ``RedundantIK-v1``.
+    As ``RedundantIK-v2``.
 
     ## Arguments
     | argument | default | meaning |
@@ -901,16 +923,20 @@ class RedundantIK7Env(_RedundantIKBase):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    As ``RedundantIK-v1`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
+    As ``RedundantIK-v2`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
     manipulability of the 6×7 Jacobian (mixed units). Success: no termination,
     ``max_task_error`` < ``success_threshold`` and ``max_orientation_error`` <
     10 ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK7-v1")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK7-v2")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
+    - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
+      whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
+      manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
+      self-motion that no gradient method leaves, and on the plane said little about the lap).
     - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
       "manipulability" start is the worst posture of the whole self-motion; "joint_limits"
       narrows only a joint the self-motion moves;
@@ -925,6 +951,7 @@ class RedundantIK7Env(_RedundantIKBase):
     obstacle_type: ClassVar[int] = int(mujoco.mjtGeom.mjGEOM_SPHERE)
     manipulability_scale: ClassVar[float] = 0.05
     obstacle_links: ClassVar[tuple[str, ...]] = ("link3", "link4", "link5")
+    centre_spread: ClassVar[float] = 0.03  # m: path centre within ± this of the home tcp
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
         MetricSpec("rms_task_error", "m", "lower", "RMS tcp position error"),
         MetricSpec("max_task_error", "m", "lower", "max tcp position error"),
@@ -964,7 +991,7 @@ class RedundantIK7Env(_RedundantIKBase):
         rng = self.np_random
         p_home, R_home = self._forward(self.home)
         normal = rng.standard_normal(3)
-        centre = p_home + rng.uniform(-0.03, 0.03, 3)
+        centre = p_home + rng.uniform(-self.centre_spread, self.centre_spread, 3)
         shape = SHAPES[int(rng.integers(len(SHAPES)))]
         size = float(rng.uniform(0.05, 0.15))
         aspect = float(rng.uniform(0.5, 1.0))
@@ -989,12 +1016,12 @@ class RedundantIK7Env(_RedundantIKBase):
 
 
 REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/RedundantIK-v1": (
+    "cir_gym/RedundantIK-v2": (
         RedundantIKEnv,
         "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
         "objective (ch. 1)",
     ),
-    "cir_gym/RedundantIK7-v1": (
+    "cir_gym/RedundantIK7-v2": (
         RedundantIK7Env,
         "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
     ),
