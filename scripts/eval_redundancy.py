@@ -36,9 +36,10 @@ def self_motion_bound(env_name: str, episodes: int, samples: int = 21) -> np.nda
 
     At ``samples`` instants of t ∈ [0.1 T, T], the self-motion through the minimum-norm
     (pseudo-inverse CLIK) posture is walked both ways (≥ 0.1 rad inside the joint limits) and
-    its best w taken; the least of those is what a null-space controller that always sat at the
-    best posture would score (an optimistic bound: instants in between are not checked and
-    the arm's speed to get there is ignored).
+    its best w taken; the least of those estimates what a null-space controller that always
+    sat at the best posture would score. Not a bound: instants in between are not checked,
+    the arm's speed is ignored, and the walk (±π rad of arc from the minimum-norm posture)
+    may miss postures a controller reaches (on the plane clik_nullspace beats it).
     """
     _register()
     from cir_gym.envs.redundant_ik import MANIPULABILITY_WINDOW, manipulability
@@ -188,7 +189,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"- what the self-motion offers: always at its best posture (checked at 21 "
                 f"instants of t ≥ 0.1 T, ≥ 0.1 rad inside the limits), the mean minimum "
                 f"manipulability would be {np.mean(bound):.4f}, **{bound_inc:.1f} %** over "
-                f"clik (an optimistic bound for any null-space controller).",
+                f"clik (an estimate, not a bound: the walk is local and 21 instants are checked).",
                 ""]
         lines += ["| objective | controller | success | RMS task error (m): mean / worst | "
                   "min manipulability | limit hits | collisions | median min clearance (m) | "
