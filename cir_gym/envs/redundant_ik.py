@@ -933,15 +933,8 @@ class RedundantIK7Env(_RedundantIKBase):
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
-    - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
-      whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
-      manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
-      self-motion that no gradient method leaves, and on the plane said little about the lap).
-    - v1: every "obstacle" episode has an obstacle (v0 left 7 % of them without); the
-      "manipulability" start is the worst posture of the whole self-motion; "joint_limits"
-      narrows only a joint the self-motion moves;
-      ``termination_penalty`` 1000 → 50; terminated episodes are scored over the whole lap.
-    - v0: initial version.
+    As ``RedundantIK-v2`` (v2: the "manipulability" start; v1: obstacles, joint windows,
+    termination penalty; v0: initial version).
     """
 
     robot_name: ClassVar[str] = "iiwa14"
