@@ -27,7 +27,9 @@ from cir_gym.envs.redundant_ik import (
     LinkCapsules,
     joint_limit_objective_gradient,
     manipulability,
+    orientation_error,
     quat_orientation_error,
+    walk_self_motion,
 )
 from cir_gym.robot import Robot
 
@@ -49,6 +51,7 @@ __all__ = [
 
 KINEMATIC_TASKS = ("RedundantIK", "RedundantIK7")
 SINGULAR_TOLERANCE = 1e-9  # σ_min(J) below which J† does not exist (SingularJacobian)
+SEARCH_HYSTERESIS = 0.02  # a self-motion target must beat the current w by 2 % to be taken
 
 
 class SingularJacobian(FloatingPointError):
@@ -343,6 +346,19 @@ class NullSpaceCLIKGains:
       without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d let 16/20 planar episodes
       collide; this barrier with k₀ = 5: 3/10 on the first 10 seeds, vs 9/10 for ``clik``).
     ``fd_step`` (rad): central-difference step of the numerical gradients.
+
+    Self-motion search ("manipulability" only; ``search_arc`` = 0 leaves the gradient alone):
+    every ``search_period`` control steps the self-motion through the measured q (holding its
+    pose) is walked ± ``search_arc`` rad in ``search_step`` rad steps, and the most
+    manipulable posture with every joint ≥ ``search_margin`` rad inside its limits, at arc
+    length s* (rad), becomes the target: q̇₀ = k_search s* v (v the unit null vector, 1/s)
+    until the next search, the gradient taking over when the current posture is the best
+    (within 2 %). Why: w along the iiwa's self-motion has several local maxima (a plateau in
+    the middle of the arc, the best postures 2–3 rad away), and the gradient alone stops at
+    the nearest one: on the v2 "manipulability" episodes (100 seeds) it gained +16.6 % over
+    ``clik``, with the search +50 % (seeds 0–19: +50.7 %; ``search_margin`` 0.2 or 0.3, k_search
+    2 or 5, a search every 10 or 25 steps: all within 0.1 %; 0.45 rad: +44.7 %). On the plane
+    w is unimodal along the self-motion and both reach ≈ +50 %.
     """
 
     K: float = 50.0
@@ -353,11 +369,22 @@ class NullSpaceCLIKGains:
     k0_obstacle: float = 5.0
     activation_distance: float = 0.15
     fd_step: float = 1e-6
+    search_arc: float = np.pi
+    search_step: float = 0.1
+    search_margin: float = 0.3
+    k_search: float = 5.0
+    search_period: int = 10
 
     def __post_init__(self) -> None:
         for name in ("K", "k0_manipulability", "k0_joint_limits", "k0_limit_barrier",
-                     "limit_activation", "k0_obstacle", "activation_distance", "fd_step"):
+                     "limit_activation", "k0_obstacle", "activation_distance", "fd_step",
+                     "search_step", "search_margin", "k_search"):
             _positive(name, getattr(self, name))
+        if not np.isfinite(self.search_arc) or self.search_arc < 0:
+            raise InvalidGain(f"search_arc must be a finite number ≥ 0 (0: no search), got "
+                              f"{self.search_arc!r}")
+        if self.search_period < 1:
+            raise InvalidGain(f"search_period must be an integer ≥ 1, got {self.search_period!r}")
 
 
 class NullSpaceCLIK(CLIK):
@@ -372,7 +399,9 @@ class NullSpaceCLIK(CLIK):
     distance from the joint limits (analytic gradient, ranges from the observation) or
     obstacle clearance (analytic capsule distance of the nominal robot to ``obs["obstacle"]``).
     Numerical gradients by central differences. The projection leaves the task untouched:
-    J (I − J†J) = 0.
+    J (I − J†J) = 0. With "manipulability", q̇₀ also comes from a search along the
+    self-motion (:meth:`self_motion_search`), which leaves the local maxima of w the gradient
+    stops at; its target travels in ``state`` = [steps to the next search, s*, v (n,)].
     """
 
     name = "clik_nullspace"
@@ -437,8 +466,65 @@ class NullSpaceCLIK(CLIK):
         grad = self._central_difference(lambda x: self.clearance(x, obstacle), q)
         return g.k0_obstacle * push * grad
 
+    @property
+    def state_size(self) -> int:
+        return 2 + self.n
+
+    def self_motion_search(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+                           ) -> tuple[float, np.ndarray]:
+        """Arc length s* (rad) to the most manipulable posture of the self-motion through q,
+        and the null vector v (n,) whose direction is s > 0.
+
+        The walk holds q's own task pose (one Newton step back to it after each step) and
+        goes on through postures closer than ``search_margin`` to a limit only while it moves
+        away from that limit; such postures are not targets. s* = 0 when q is a target and no
+        posture beats it by ``SEARCH_HYSTERESIS``.
+        """
+        g = self.gains
+        p0, R0 = self.robot.site_pose(self.site_id, q)
+
+        def restore_pose(x: np.ndarray) -> np.ndarray:
+            p, R = self.robot.site_pose(self.site_id, x)
+            e = (p0 - p)[: self.pos_dim]
+            if self.task_dim == 6:
+                e = np.concatenate((e, orientation_error(R0, R)))
+            return x + pseudo_inverse(self.task_jacobian(x)) @ e
+
+        def margin(x: np.ndarray) -> float:
+            return float(min(np.min(x - lower), np.min(upper - x)))
+
+        def stop(x: np.ndarray, x_next: np.ndarray) -> bool:
+            return margin(x_next) < min(g.search_margin, margin(x))
+
+        w_here = self.manipulability(q) if margin(q) >= g.search_margin else -np.inf
+        best, s_best = w_here, 0.0
+        for s, x in walk_self_motion(q, self.task_jacobian, restore_pose, stop,
+                                     g.search_arc, g.search_step):
+            if margin(x) >= g.search_margin and (w := self.manipulability(x)) > best:
+                best, s_best = w, s
+        if np.isfinite(w_here) and best < (1 + SEARCH_HYSTERESIS) * w_here:
+            s_best = 0.0
+        return s_best, np.linalg.svd(self.task_jacobian(q))[2][-1]
+
+    def preferred_velocity(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """q̇₀ (n,), rad/s: the objective's gradient, or the pull k_search s* v towards the
+        self-motion search's target; plus the joint-limit barrier."""
+        g = self.gains
+        if self.objective != "manipulability" or g.search_arc == 0:
+            return self.objective_gradient(obs)
+        q = obs["q"]
+        if state[0] <= 0:
+            state[1], state[2:] = self.self_motion_search(q, obs["q_lower"], obs["q_upper"])
+            state[0] = g.search_period
+        state[0] -= 1
+        v = np.linalg.svd(self.task_jacobian(q))[2][-1]
+        state[2:] = v if v @ state[2:] >= 0 else -v  # the same direction as the search's
+        if state[1] == 0:
+            return self.objective_gradient(obs)
+        return g.k_search * state[1] * state[2:] + self.limit_barrier(obs)
+
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        qd0 = self.objective_gradient(obs)
+        qd0 = self.preferred_velocity(obs, state)
         J = self.task_jacobian(obs["q"])
         J_pinv = pseudo_inverse(J)
         qd_task = J_pinv @ self.task_velocity(obs)

@@ -3,8 +3,9 @@
     python scripts/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 4
 
 On the same seeds for every controller it reports
-* ``clik_nullspace`` vs ``clik``: minimum manipulability (% increase) at their task errors, and
-  what the self-motion offers at all (:func:`self_motion_bound`);
+* ``clik_nullspace`` vs ``clik``: minimum manipulability (% increase) at their task errors,
+  with its self-motion search (the default) and with the projected gradient alone
+  (``search_arc=0``, the row "clik_nullspace, gradient only");
 * obstacle: collisions (episodes ending with clearance < 0) and the median minimum clearance;
 * joint limits: episodes that hit a joint limit, per controller, with ``objective="joint_limits"``;
 * joint drift ‖q(T) − q(0)‖ of the closed path, per controller, over the completed laps;
@@ -27,36 +28,10 @@ import numpy as np
 ENVS = {"RedundantIK": "cir_gym/RedundantIK-v2", "RedundantIK7": "cir_gym/RedundantIK7-v2"}
 ALL = ("jacobian_transpose", "pseudo_inverse", "clik", "clik_dls", "clik_weighted",
        "clik_nullspace", "clik_augmented")
+GRADIENT_ONLY = "clik_nullspace, gradient only"  # the textbook law: no self-motion search
+VARIANTS = {GRADIENT_ONLY: ("clik_nullspace", {"search_arc": 0.0})}
 METRICS = ("rms_task_error", "min_manipulability", "min_joint_limit_margin", "min_clearance",
            "joint_drift")
-
-
-def self_motion_bound(env_name: str, episodes: int, samples: int = 21) -> np.ndarray:
-    """Per seed: the least, over the lap, of the best manipulability the self-motion offers.
-
-    At ``samples`` instants of t ∈ [0.1 T, T], the self-motion through the minimum-norm
-    (pseudo-inverse CLIK) posture is walked both ways (≥ 0.1 rad inside the joint limits) and
-    its best w taken; the least of those estimates what a null-space controller that always
-    sat at the best posture would score. Not a bound: instants in between are not checked,
-    the arm's speed is ignored, and the walk (±π rad of arc from the minimum-norm posture)
-    may miss postures a controller reaches (on the plane clik_nullspace beats it).
-    """
-    _register()
-    from cir_gym.envs.redundant_ik import MANIPULABILITY_WINDOW, manipulability
-
-    env = gym.make(ENVS[env_name]).unwrapped
-    bounds = []
-    for seed in range(episodes):
-        obs, _ = env.reset(seed=seed)
-        motion, _ = env._min_norm_motion(obs["q"], stride=1)
-        best = np.inf
-        for k in np.linspace(MANIPULABILITY_WINDOW * env.max_steps, env.max_steps,
-                             samples).astype(int):
-            w = [manipulability(env._task_jacobian(q))
-                 for q in env._self_motion(motion[k], margin=0.1, k=k)]
-            best = min(best, max(w))
-        bounds.append(best)
-    return np.array(bounds)
 
 
 def _register() -> None:
@@ -77,8 +52,9 @@ def run(job: tuple[str, str, str, int]) -> tuple[tuple[str, str, str], dict[str,
 
     env_name, objective, name, episodes = job
     env = gym.make(ENVS[env_name], objective=objective)
-    cls = next(c for c in KINEMATIC_CONTROLLERS if c.name == name)
-    policy = cls(env.unwrapped.controller_context())
+    controller, gains = VARIANTS.get(name, (name, {}))
+    cls = next(c for c in KINEMATIC_CONTROLLERS if c.name == controller)
+    policy = cls(env.unwrapped.controller_context(), **gains)
     try:
         result = evaluate(policy, ENVS[env_name], n_episodes=episodes, seed=0, env=env)
     except FloatingPointError as exc:  # a singular Jacobian: reported, not hidden
@@ -158,6 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     envs = [e for e in args.envs.split(",") if e]
     jobs = [(e, "manipulability", c, args.episodes) for e in envs for c in ALL]
+    jobs += [(e, "manipulability", GRADIENT_ONLY, args.episodes) for e in envs]
     jobs += [(e, "joint_limits", c, args.episodes) for e in envs for c in ALL]
     jobs += [(e, "obstacle", c, args.episodes) for e in envs
              for c in ("clik", "clik_dls", "clik_nullspace")]
@@ -174,23 +151,19 @@ def main(argv: list[str] | None = None) -> None:
         plain = results[(e, "manipulability", "clik")]
         ns = results[(e, "manipulability", "clik_nullspace")]
         if plain and ns:
-            ratio = ns["min_manipulability"] / plain["min_manipulability"]
-            inc = 100 * (np.mean(ns["min_manipulability"]) / np.mean(plain["min_manipulability"])
-                         - 1)
-            bound = self_motion_bound(e, args.episodes)
-            bound_inc = 100 * (np.mean(bound) / np.mean(plain["min_manipulability"]) - 1)
-            lines += [
-                f"- manipulability: clik_nullspace raises the mean minimum manipulability by "
-                f"**{inc:.1f} %** (median per seed {100 * (np.median(ratio) - 1):.1f} %, "
-                f"higher on {int(np.sum(ratio > 1.001))}/{ratio.size} seeds, lower on "
-                f"{int(np.sum(ratio < 0.999))}); RMS task error "
-                f"{np.mean(plain['rms_task_error']):.2e} m (clik) vs "
-                f"{np.mean(ns['rms_task_error']):.2e} m (clik_nullspace).",
-                f"- what the self-motion offers: always at its best posture (checked at 21 "
-                f"instants of t ≥ 0.1 T, ≥ 0.1 rad inside the limits), the mean minimum "
-                f"manipulability would be {np.mean(bound):.4f}, **{bound_inc:.1f} %** over "
-                f"clik (an estimate, not a bound: the walk is local and 21 instants are checked).",
-                ""]
+            for label, r in (("clik_nullspace", ns),
+                             (GRADIENT_ONLY, results[(e, "manipulability", GRADIENT_ONLY)])):
+                ratio = r["min_manipulability"] / plain["min_manipulability"]
+                inc = 100 * (np.mean(r["min_manipulability"])
+                             / np.mean(plain["min_manipulability"]) - 1)
+                lines.append(
+                    f"- manipulability: {label} raises the mean minimum manipulability by "
+                    f"**{inc:.1f} %** (median per seed {100 * (np.median(ratio) - 1):.1f} %, "
+                    f"higher on {int(np.sum(ratio > 1.001))}/{ratio.size} seeds, lower on "
+                    f"{int(np.sum(ratio < 0.999))}); RMS task error "
+                    f"{np.mean(plain['rms_task_error']):.2e} m (clik) vs "
+                    f"{np.mean(r['rms_task_error']):.2e} m.")
+            lines.append("")
         lines += ["| objective | controller | success | RMS task error (m): mean / worst | "
                   "min manipulability | limit hits | collisions | median min clearance (m) | "
                   "joint drift (rad), completed laps | algorithmic-singular steps |",

@@ -149,6 +149,72 @@ def test_nullspace_raises_the_manipulability_at_equal_task_error():
     assert ns["rms_task_error"] < 2e-4
 
 
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_self_motion_walk_holds_the_task_pose_and_stops_at_the_margin(env_id):
+    """walk_self_motion: every point has q's task pose (the walk is internal motion), arc
+    lengths step by ``step`` each way, and ``stop`` ends a side before a rejected point."""
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=3)
+    policy = controller("clik_nullspace", env)
+    q, lower, upper = obs["q"], obs["q_lower"], obs["q_upper"]
+    p0, R0 = policy.robot.site_pose(policy.site_id, q)
+
+    def restore(x):
+        for _ in range(3):
+            p, R = policy.robot.site_pose(policy.site_id, x)
+            e = (p0 - p)[: policy.pos_dim]
+            if policy.task_dim == 6:
+                e = np.concatenate((e, env_module.orientation_error(R0, R)))
+            x = x + kinematic.pseudo_inverse(policy.task_jacobian(x)) @ e
+        return x
+
+    def stop(_, x):
+        return env_module.joint_limit_margin(x, lower, upper) < 0.1
+
+    points = env_module.walk_self_motion(q, policy.task_jacobian, restore, stop, np.pi, 0.1)
+    arcs = np.array([s for s, _ in points])
+    assert arcs[0] == pytest.approx(0.1) and np.any(arcs < 0)
+    for side in (arcs[arcs > 0], -arcs[arcs < 0]):
+        np.testing.assert_allclose(np.diff(side), 0.1)
+    for s, x in points:
+        p, R = policy.robot.site_pose(policy.site_id, x)
+        np.testing.assert_allclose(p[: policy.pos_dim], p0[: policy.pos_dim], atol=1e-8)
+        if policy.task_dim == 6:
+            np.testing.assert_allclose(R @ R0.T, np.eye(3), atol=1e-7)
+        assert env_module.joint_limit_margin(x, lower, upper) >= 0.1
+    # consecutive postures are about one step of arc apart (a unit-speed walk of the manifold)
+    side = np.array([x for s, x in points if s > 0])
+    np.testing.assert_allclose(np.linalg.norm(np.diff(side, axis=0), axis=1), 0.1, rtol=0.05)
+
+
+def test_self_motion_search_leaves_the_local_maximum_the_gradient_stops_at():
+    """RedundantIK7-v2 seed 1 starts on a plateau of w along the self-motion (a local
+    maximum, the best postures ≈ 3 rad of arc away): the projected gradient alone
+    (search_arc = 0) cannot improve on clik there; the self-motion search does, and its
+    target is more manipulable than the start, inside the search margin, on the same pose."""
+    env = gym.make(ENV7)
+    plain = rollout(controller("clik", env), env, 1)[-1][2]["episode_metrics"]
+    local = rollout(controller("clik_nullspace", env, search_arc=0.0), env, 1)[-1][2]
+    ns = rollout(controller("clik_nullspace", env), env, 1)[-1][2]["episode_metrics"]
+    assert local["episode_metrics"]["min_manipulability"] < 1.05 * plain["min_manipulability"]
+    assert ns["min_manipulability"] > 1.15 * plain["min_manipulability"]
+    assert ns["rms_task_error"] < 2e-4
+
+    obs, _ = env.reset(seed=1)
+    policy = controller("clik_nullspace", env)
+    s_target, v = policy.self_motion_search(obs["q"], obs["q_lower"], obs["q_upper"])
+    assert abs(s_target) > 1.0
+    assert abs(np.linalg.norm(v) - 1) < 1e-12
+    np.testing.assert_allclose(policy.task_jacobian(obs["q"]) @ v, 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("gain", "value"), [("search_arc", -1.0), ("search_period", 0)])
+def test_self_motion_search_gains_are_checked(gain, value):
+    env = gym.make(ENV)
+    with pytest.raises(InvalidGain, match=gain):
+        controller("clik_nullspace", env, **{gain: value})
+
+
 # ---------------------------------------------------------------------- singularities
 def _stretched_observation(env: gym.Env) -> dict:
     """An observation at q = 0 (planar arm stretched: J has rank 1) with a reference move."""

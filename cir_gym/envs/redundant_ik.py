@@ -12,6 +12,7 @@ the SO(3) orientation error, and the analytic capsule–obstacle clearance.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import mujoco
@@ -35,6 +36,7 @@ __all__ = [
     "manipulability",
     "orientation_error",
     "quat_orientation_error",
+    "walk_self_motion",
 ]
 
 OBJECTIVES = ("manipulability", "joint_limits", "obstacle")
@@ -70,6 +72,36 @@ def joint_limit_objective_gradient(q: np.ndarray, lower: np.ndarray, upper: np.n
 def joint_limit_margin(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
     """min_i min(q_i − q_im, q_iM − q_i) (rad): distance to the nearest joint limit."""
     return float(min(np.min(q - lower), np.min(upper - q)))
+
+
+def walk_self_motion(
+    q: np.ndarray,
+    jacobian: Callable[[np.ndarray], np.ndarray],
+    project: Callable[[np.ndarray], np.ndarray],
+    stop: Callable[[np.ndarray, np.ndarray], bool],
+    arc: float,
+    step: float,
+) -> list[tuple[float, np.ndarray]]:
+    """Points (s, q_s) of the self-motion through ``q``: s (rad) the signed arc length.
+
+    Walks each way (s > 0 first) along the unit null vector v of J(q) (the last right singular
+    vector: dim ker J = 1 on both robots; its sign kept continuous along the walk), taking
+    q ← project(q + step v) (``project`` restores the task pose, e.g. by Newton steps),
+    until ``stop(q_previous, q)`` or |s| would exceed ``arc``. ``q`` itself is not included.
+    """
+    v0 = np.linalg.svd(jacobian(q))[2][-1]
+    points = []
+    for sign in (1.0, -1.0):
+        x, prev = q.copy(), sign * v0
+        for i in range(1, int(arc / step) + 1):
+            v = np.linalg.svd(jacobian(x))[2][-1]
+            prev = v if v @ prev >= 0 else -v
+            x_next = project(x + step * prev)
+            if stop(x, x_next):
+                break
+            x = x_next
+            points.append((sign * i * step, x.copy()))
+    return points
 
 
 def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -432,19 +464,12 @@ class _RedundantIKBase(RobotEnv):
         returns ``q`` and every 5th point.
         """
         margin = min(margin, joint_limit_margin(q, self.file_lower, self.file_upper) - 1e-9)
-        out = [q.copy()]
-        for sign in (1.0, -1.0):
-            x, prev = q.copy(), None
-            for i in range(1, int(arc / step) + 1):
-                v = np.linalg.svd(self._task_jacobian(x))[2][-1]
-                v = sign * v if prev is None else (v if v @ prev >= 0 else -v)
-                prev = v
-                x = self._solve_ik(x + step * v, self._x_ref[k], self._R_ref[k], iterations=20)
-                if joint_limit_margin(x, self.file_lower, self.file_upper) < margin:
-                    break
-                if i % 5 == 0:
-                    out.append(x.copy())
-        return out
+        points = walk_self_motion(
+            q, self._task_jacobian,
+            lambda x: self._solve_ik(x, self._x_ref[k], self._R_ref[k], iterations=20),
+            lambda _, x: joint_limit_margin(x, self.file_lower, self.file_upper) < margin,
+            arc, step)
+        return [q.copy()] + [x for s, x in points if round(abs(s) / step) % 5 == 0]
 
     def _poorly_conditioned_start(self, q_home_ik: np.ndarray) -> np.ndarray:
         """objective="manipulability": the posture whose minimum-norm lap is least manipulable.
