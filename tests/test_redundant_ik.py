@@ -176,7 +176,7 @@ def test_self_motion_walk_holds_the_task_pose_and_stops_at_the_margin(env_id):
     assert arcs[0] == pytest.approx(0.1) and np.any(arcs < 0)
     for side in (arcs[arcs > 0], -arcs[arcs < 0]):
         np.testing.assert_allclose(np.diff(side), 0.1)
-    for s, x in points:
+    for _, x in points:
         p, R = policy.robot.site_pose(policy.site_id, x)
         np.testing.assert_allclose(p[: policy.pos_dim], p0[: policy.pos_dim], atol=1e-8)
         if policy.task_dim == 6:
@@ -213,6 +213,39 @@ def test_self_motion_search_gains_are_checked(gain, value):
     env = gym.make(ENV)
     with pytest.raises(InvalidGain, match=gain):
         controller("clik_nullspace", env, **{gain: value})
+
+
+def test_saturation_in_the_null_space_holds_the_joint_and_keeps_the_task():
+    """saturate_joint_limits: a joint beyond its bound is held at it and the other six
+    still give J q̇ = v exactly where they can (random iiwa postures; without joint j the arm
+    may be singular, e.g. joints 1 and 3 aligned); within bounds, q̇ is untouched."""
+    robot = Robot.from_name("iiwa14")
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = rng.uniform(-1.5, 1.5, 7)
+        J = robot.jacobian("tcp", q)
+        v = rng.normal(size=6)
+        qd = kinematic.pseudo_inverse(J) @ v
+        wide = np.full(7, 1e3)
+        np.testing.assert_array_equal(kinematic.saturate_joint_limits(J, v, qd, -wide, wide), qd)
+        j = int(rng.integers(7))
+        upper = wide.copy()
+        upper[j] = qd[j] - 0.5  # joint j must give up 0.5 rad/s
+        out = kinematic.saturate_joint_limits(J, v, qd, -wide, upper)
+        assert out[j] == pytest.approx(upper[j])
+        if np.linalg.svd(np.delete(J, j, axis=1), compute_uv=False)[-1] > 1e-3:
+            np.testing.assert_allclose(J @ out, v, atol=1e-8)
+
+
+def test_nullspace_holds_the_joint_limit_clik_runs_into():
+    """RedundantIK-v2 "joint_limits", seed 1: clik ends the episode at the narrowed joint's
+    limit; clik_nullspace finishes the lap inside the limits."""
+    env = gym.make(ENV, objective="joint_limits")
+    plain = rollout(controller("clik", env), env, 1)
+    ns = rollout(controller("clik_nullspace", env), env, 1)
+    assert plain[-1][2]["episode_metrics"]["min_joint_limit_margin"] <= 0
+    assert len(ns) == env.unwrapped.max_steps
+    assert ns[-1][2]["episode_metrics"]["min_joint_limit_margin"] > 0
 
 
 # ---------------------------------------------------------------------- singularities
