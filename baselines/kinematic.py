@@ -383,9 +383,10 @@ class NullSpaceCLIKGains:
     (within 2 %). Why: w along the iiwa's self-motion has several local maxima (a plateau in
     the middle of the arc, the best postures 2–3 rad away), and the gradient alone stops at
     the nearest one: on the v2 "manipulability" episodes (100 seeds) it gained +16.6 % over
-    ``clik``, with the search +50 % (seeds 0–19: +50.7 %; ``search_margin`` 0.2 or 0.3, k_search
-    2 or 5, a search every 10 or 25 steps: all within 0.1 %; 0.45 rad: +44.7 %). On the plane
-    w is unimodal along the self-motion and both reach ≈ +50 %.
+    ``clik``, with the search +39.9 % (higher on 100/100; seeds 0–19: +50.7 %;
+    ``search_margin`` 0.2 or 0.3, k_search 2 or 5, a search every 10 or 25 steps: all within
+    0.1 %; 0.45 rad: +44.7 %). On the plane w is unimodal along the self-motion and both
+    reach ≈ +50 %.
     """
 
     K: float = 50.0

@@ -161,7 +161,8 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         J_l = np.diag(self._rigid.inertia(self._home_q))
         # the spring's fastest mode, rotor against link: ω² = k (1/(N² J_m) + 1/J_l); the
         # semi-implicit Euler step is stable for ω Δt < 2, so ask for ω Δt ≤ 1
-        with np.errstate(divide="ignore", over="ignore"):
+        # (a zero rotor inertia, −0.0 included, gives ω = inf or NaN: rejected below)
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
             omega_dt = np.sqrt(self.stiffness * (1 / armature + 1 / J_l)) * m.opt.timestep
         if not np.all(omega_dt <= MAX_OMEGA_DT):
             raise InvalidArgument(
