@@ -25,8 +25,10 @@ from cir_gym.envs.base import TaskContext
 from cir_gym.envs.redundant_ik import (
     OBJECTIVES,
     LinkCapsules,
+    joint_limit_margin,
     joint_limit_objective_gradient,
     manipulability,
+    null_vector,
     orientation_error,
     quat_orientation_error,
     walk_self_motion,
@@ -524,7 +526,7 @@ class NullSpaceCLIK(CLIK):
             return x + pseudo_inverse(self.task_jacobian(x)) @ e
 
         def margin(x: np.ndarray) -> float:
-            return float(min(np.min(x - lower), np.min(upper - x)))
+            return joint_limit_margin(x, lower, upper)
 
         def stop(x: np.ndarray, x_next: np.ndarray) -> bool:
             return margin(x_next) < min(g.search_margin, margin(x))
@@ -537,7 +539,7 @@ class NullSpaceCLIK(CLIK):
                 best, s_best = w, s
         if np.isfinite(w_here) and best < (1 + SEARCH_HYSTERESIS) * w_here:
             s_best = 0.0
-        return s_best, np.linalg.svd(self.task_jacobian(q))[2][-1]
+        return s_best, null_vector(self.task_jacobian(q))
 
     def preferred_velocity(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """q̇₀ (n,), rad/s: the objective's gradient, or the pull k_search s* v towards the
@@ -550,7 +552,7 @@ class NullSpaceCLIK(CLIK):
             state[1], state[2:] = self.self_motion_search(q, obs["q_lower"], obs["q_upper"])
             state[0] = g.search_period
         state[0] -= 1
-        v = np.linalg.svd(self.task_jacobian(q))[2][-1]
+        v = null_vector(self.task_jacobian(q))
         state[2:] = v if v @ state[2:] >= 0 else -v  # the same direction as the search's
         if state[1] == 0:
             return self.objective_gradient(obs)

@@ -34,6 +34,7 @@ __all__ = [
     "joint_limit_margin",
     "joint_limit_objective",
     "manipulability",
+    "null_vector",
     "orientation_error",
     "quat_orientation_error",
     "walk_self_motion",
@@ -74,6 +75,12 @@ def joint_limit_margin(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> f
     return float(min(np.min(q - lower), np.min(upper - q)))
 
 
+def null_vector(J: np.ndarray) -> np.ndarray:
+    """Unit vector (n,) spanning ker J (m, n) when dim ker J = 1: the last right singular
+    vector (its sign is arbitrary)."""
+    return np.linalg.svd(J)[2][-1]
+
+
 def walk_self_motion(
     q: np.ndarray,
     jacobian: Callable[[np.ndarray], np.ndarray],
@@ -89,12 +96,12 @@ def walk_self_motion(
     q ← project(q + step v) (``project`` restores the task pose, e.g. by Newton steps),
     until ``stop(q_previous, q)`` or |s| would exceed ``arc``. ``q`` itself is not included.
     """
-    v0 = np.linalg.svd(jacobian(q))[2][-1]
+    v0 = null_vector(jacobian(q))
     points = []
     for sign in (1.0, -1.0):
         x, prev = q.copy(), sign * v0
         for i in range(1, int(arc / step) + 1):
-            v = np.linalg.svd(jacobian(x))[2][-1]
+            v = null_vector(jacobian(x))
             prev = v if v @ prev >= 0 else -v
             x_next = project(x + step * prev)
             if stop(x, x_next):
@@ -508,7 +515,7 @@ class _RedundantIKBase(RobotEnv):
         q4 in range (v0 drew such instances).
         """
         rng = self.np_random
-        v = np.linalg.svd(self._task_jacobian(q0))[2][-1]
+        v = null_vector(self._task_jacobian(q0))
         movable = np.flatnonzero(np.abs(v) >= SELF_MOTION_SHARE)
         j = int(movable[rng.integers(movable.size)])
         frac = float(rng.uniform(0.1, 0.25))
