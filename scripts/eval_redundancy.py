@@ -25,7 +25,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-ENVS = {"RedundantIK": "cir_gym/RedundantIK-v2", "RedundantIK7": "cir_gym/RedundantIK7-v2"}
+ENVS = {"RedundantIK": "cir_gym/RedundantIK-v3", "RedundantIK7": "cir_gym/RedundantIK7-v3"}
 ALL = ("jacobian_transpose", "pseudo_inverse", "clik", "clik_dls", "clik_weighted",
        "clik_nullspace", "clik_augmented")
 GRADIENT_ONLY = "clik_nullspace, gradient only"  # the textbook law: no self-motion search

@@ -96,9 +96,9 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
         "scripts.leaderboard.run_leaderboard", lambda out, **kwargs: calls.append((out, kwargs))
     )
     argv = ["leaderboard", "--episodes", "1", "--seed", "3", "--out", str(tmp_path)]
-    assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v2", "--env", ENV]) == 0
+    assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v3", "--env", ENV]) == 0
     assert calls == [
-        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v2", ENV]})
+        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v3", ENV]})
     ]
     assert main([*argv, "--env", "cir_gym/Nope-v1"]) == 2
 

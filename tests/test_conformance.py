@@ -69,8 +69,8 @@ _KINEMATIC = ("kinematic env: q ← q + Δt q̇ with q̇ clipped to the velocity
               "physics step (the simulator state is rewritten from q every step), so "
               "info['diverged'] is False by construction")
 NEVER_DIVERGES: dict[str, str] = {
-    "cir_gym/RedundantIK-v2": _KINEMATIC,
-    "cir_gym/RedundantIK7-v2": _KINEMATIC,
+    "cir_gym/RedundantIK-v3": _KINEMATIC,
+    "cir_gym/RedundantIK7-v3": _KINEMATIC,
 }
 
 

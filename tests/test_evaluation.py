@@ -43,7 +43,7 @@ def test_evaluate_and_sb3_evaluate_policy_give_the_same_returns():
 
 @pytest.mark.parametrize(
     "name, env_id, gain",
-    [("computed_torque", ENV, "omega_n"), ("clik", "cir_gym/RedundantIK-v2", "K")],
+    [("computed_torque", ENV, "omega_n"), ("clik", "cir_gym/RedundantIK-v3", "K")],
 )
 @pytest.mark.parametrize("value", [0, "abc", [1, 2], True, float("nan")])
 def test_a_gain_of_the_wrong_type_or_range_raises_invalid_gain_naming_it(name, env_id, gain, value):

@@ -13,6 +13,7 @@ the SO(3) orientation error, and the analytic capsule–obstacle clearance.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import mujoco
@@ -33,6 +34,7 @@ __all__ = [
     "RedundantIKEnv",
     "joint_limit_margin",
     "joint_limit_objective",
+    "lap_witness",
     "manipulability",
     "null_vector",
     "orientation_error",
@@ -49,6 +51,10 @@ OBSTACLE_PATH_TRIES = 20  # paths drawn for "obstacle" until an obstacle can be 
 MANIPULABILITY_WINDOW = 0.1  # fraction of the lap excluded from min_manipulability (start-up)
 START_MARGIN = 0.3  # rad: "manipulability" start candidates keep this far from the limits
 CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control period (no dynamics)
+LAP_STRIDE = 5  # control steps between the samples of the self-motion lap (obstacle placement)
+LAP_CLEARANCE = 0.005  # m, clearance the witness motion keeps at every sample
+LAP_TASK_TOLERANCE = 1e-3  # m, task error above which a transported configuration is unusable
+LAP_WINDOW = 8  # neighbouring self-motion nodes a witness may move to in one sample
 
 
 # ---------------------------------------------------------------------- kinematic measures
@@ -109,6 +115,43 @@ def walk_self_motion(
             x = x_next
             points.append((sign * i * step, x.copy()))
     return points
+
+
+def lap_witness(q: np.ndarray, usable: np.ndarray, bound: np.ndarray, start: int,
+                window: int = LAP_WINDOW) -> np.ndarray | None:
+    """A motion through sampled configurations, or None when none exists.
+
+    ``q`` (K, N, n) holds N configurations at each of K sample times (N nodes of a
+    self-motion, ordered along it), ``usable`` (K, N) which of them may be visited. Returns
+    node indices (K,) starting at ``start`` with every node usable and every step between
+    consecutive samples within ``bound`` (n,) per joint (|Δq_j| ≤ bound_j), moving at most
+    ``window`` nodes along the ordering per sample. Forward reachability with parent
+    pointers (dynamic programming), O(K N window).
+    """
+    K, N, _ = q.shape
+    if not usable[0, start]:
+        return None
+    reach = np.zeros(N, dtype=bool)
+    reach[start] = True
+    parent = np.full((K, N), -1)
+    nodes = np.arange(N)
+    for k in range(1, K):
+        new = np.zeros(N, dtype=bool)
+        for offset in range(-window, window + 1):
+            j = nodes - offset
+            inside = (j >= 0) & (j < N)
+            j = np.clip(j, 0, N - 1)
+            ok = inside & reach[j] & ~new & np.all(np.abs(q[k] - q[k - 1, j]) <= bound, axis=1)
+            parent[k, ok] = j[ok]
+            new |= ok
+        reach = new & usable[k]
+        if not reach.any():
+            return None
+    path = np.empty(K, dtype=int)
+    path[-1] = int(np.flatnonzero(reach)[0])
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = parent[k, path[k]]
+    return path
 
 
 def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -179,11 +222,33 @@ def _all_numbers(action: Any) -> bool:
 
 
 def _point_segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (k,) from the point c (3,) to the segments [a_i, b_i] (k, 3)."""
+    """Distance (...,) from the point c (3,) to the segments [a, b] (..., 3)."""
     ab = b - a
-    t = np.einsum("ij,ij->i", c - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
-    closest = a + np.clip(t, 0.0, 1.0)[:, None] * ab
-    return np.linalg.norm(c - closest, axis=1)
+    t = np.einsum("...j,...j->...", c - a, ab) / np.maximum(np.einsum("...j,...j->...", ab, ab),
+                                                          1e-18)
+    closest = a + np.clip(t, 0.0, 1.0)[..., None] * ab
+    return np.linalg.norm(c - closest, axis=-1)
+
+
+@dataclass(frozen=True)
+class SelfMotionLap:
+    """Configurations of the self-motion through q(0), each carried along the reference.
+
+    Attributes:
+        q: (K, N, n) rad, N nodes ordered along the self-motion at x̄(0), sampled every
+            ``LAP_STRIDE`` control steps (K samples).
+        a, b: (K, N, c, 3) m, end points of the c link capsules at each configuration.
+        usable: (K, N) inside the joint limits and on the task.
+        start: the node that is q(0).
+        bound: (n,) rad, the most each joint moves between samples at its velocity limit.
+    """
+
+    q: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    usable: np.ndarray
+    start: int
+    bound: np.ndarray
 
 
 # ---------------------------------------------------------------------- environment base
@@ -288,6 +353,7 @@ class _RedundantIKBase(RobotEnv):
         self._obstacle = np.zeros(p + 1)
         self._q = self.home.copy()
         self._q0 = self.home.copy()
+        self._witness: np.ndarray | None = None
         self._k = 0
         self._k_scored = 0
         self._done = False
@@ -338,27 +404,78 @@ class _RedundantIKBase(RobotEnv):
 
     def _min_norm_motion(self, q0: np.ndarray, stride: int = 5
                          ) -> tuple[np.ndarray, np.ndarray]:
-        """Minimum-norm CLIK along the reference, every ``stride`` steps: the joint path
-        (k + 1, n) and the manipulability at each of its first k points (k,).
+        """Minimum-norm CLIK along the reference from each row of ``q0`` (N, n), every
+        ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods. Returns
+        the joint paths (k + 1, N, n) and the manipulability at each of their first k points
+        (k, N).
 
-        Used only to set up an episode (where the obstacle goes, which posture starts
-        "manipulability"); the joint limits are not enforced.
+        Used only to set up an episode (where the obstacle goes and which motions avoid it,
+        which posture starts "manipulability"); the joint limits are not enforced.
         """
-        q = q0.copy()
-        path, w = [q.copy()], []
+        q = np.array(q0, dtype=float)
+        paths, w = [q.copy()], []
         dt = self.dt * stride
+        J = np.empty((len(q), self.task_dim, self.n))
+        e = np.empty((len(q), self.task_dim))
         for k in range(0, self.max_steps, stride):
-            J = self._task_jacobian(q)
-            w.append(manipulability(J))
-            p, R = self._forward(q)
-            e = self._x_ref[k] - p
+            for i, qi in enumerate(q):
+                J[i] = self._task_jacobian(qi)
+                p, R = self._forward(qi)
+                e[i, : self.pos_dim] = self._x_ref[k] - p
+                if self.task_dim == 6:
+                    e[i, 3:] = orientation_error(self._R_ref[k], R)
             v = self._xd_ref[k]
             if self.task_dim == 6:
-                e = np.concatenate((e, orientation_error(self._R_ref[k], R)))
                 v = np.concatenate((v, self._omega_ref[k]))
-            q = q + dt * np.linalg.lstsq(J, v + e / dt, rcond=None)[0]
-            path.append(q.copy())
-        return np.array(path), np.array(w)
+            w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
+            q = q + dt * np.einsum("nij,nj->ni", np.linalg.pinv(J), v + e / dt)
+            paths.append(q.copy())
+        return np.array(paths), np.array(w)
+
+    def _self_motion_lap(self, q0: np.ndarray) -> SelfMotionLap:
+        """The self-motion through q(0) at x̄(0), carried along the whole reference.
+
+        Nodes are taken along the self-motion (:func:`walk_self_motion`, spaced 0.9 of what
+        the slowest joint moves in ``LAP_STRIDE`` control periods, up to π rad each way and
+        inside the joint limits) and each is moved along the reference by minimum-norm CLIK
+        (:meth:`_min_norm_motion`). A configuration is usable inside the limits and on the task
+        (error < ``LAP_TASK_TOLERANCE``; orientation ten times that in rad).
+        """
+        bound = self.velocity_limit * self.dt * LAP_STRIDE
+        points = walk_self_motion(
+            q0, self._task_jacobian,
+            lambda x: self._solve_ik(x, self._x_ref[0], self._R_ref[0], iterations=20),
+            lambda _, x: joint_limit_margin(x, self.file_lower, self.file_upper) <= 0.0,
+            np.pi, 0.9 * float(np.min(bound)))
+        points.append((0.0, q0.copy()))
+        points.sort(key=lambda point: point[0])
+        start = next(i for i, (arc, _) in enumerate(points) if arc == 0.0)
+        q, _ = self._min_norm_motion(np.array([x for _, x in points]), LAP_STRIDE)
+        K, N = q.shape[:2]
+        c = len(self.capsules.radius)
+        a, b = np.empty((K, N, c, 3)), np.empty((K, N, c, 3))
+        on_task = np.empty((K, N), dtype=bool)
+        for kk in range(K):
+            k = min(kk * LAP_STRIDE, self.max_steps)
+            for i in range(N):
+                p, R = self._forward(q[kk, i])
+                a[kk, i], b[kk, i] = self.capsules.segments(self.data)
+                ok = np.linalg.norm(self._x_ref[k] - p) < LAP_TASK_TOLERANCE
+                if self.task_dim == 6:
+                    ok = ok and (np.linalg.norm(orientation_error(self._R_ref[k], R))
+                                 < 10.0 * LAP_TASK_TOLERANCE)
+                on_task[kk, i] = ok
+        inside = np.all((q > self.file_lower) & (q < self.file_upper), axis=2)
+        return SelfMotionLap(q, a, b, inside & on_task, start, bound)
+
+    def _clearing_motion(self, lap: SelfMotionLap, centre: np.ndarray, radius: float
+                         ) -> np.ndarray | None:
+        """A joint path (K, n) through ``lap`` that clears the obstacle by ``LAP_CLEARANCE``
+        at every sample, within the joint and velocity limits; None when the lap has none."""
+        clear = np.min(_point_segment_distance(centre, lap.a, lap.b) - self.capsules.radius,
+                       axis=-1) - radius
+        path = lap_witness(lap.q, lap.usable & (clear > LAP_CLEARANCE), lap.bound, lap.start)
+        return None if path is None else lap.q[np.arange(len(path)), path]
 
     # ------------------------------------------------------------------ episode setup
     def _draw_path(self) -> None:
@@ -371,18 +488,21 @@ class _RedundantIKBase(RobotEnv):
         A random instant t* ∈ [0.3, 0.8] T of the minimum-norm (pseudo-inverse) motion and a
         random point of one of the ``obstacle_links`` capsules are drawn; the obstacle overlaps
         that capsule by 5–20 mm there, on a random side. Draws that come within
-        ``radius + 0.08`` m of the task path, that collide at q(0), or that no self-motion at t*
-        can clear (:meth:`_self_motion_clears`: the instance would test nothing a kinematic
-        controller can do) are rejected (30 tries).
+        ``radius + 0.08`` m of the task path, that collide at q(0), or that no motion along the
+        self-motion lap clears (:meth:`_clearing_motion`: within the joint and velocity
+        limits, ``LAP_CLEARANCE`` at every sample of the whole lap) are rejected (30 tries).
+        The clearing motion found is kept (:meth:`clearing_motion`).
         """
         rng = self.np_random
-        motion, _ = self._min_norm_motion(q0)
+        lap = self._self_motion_lap(q0)
+        motion = lap.q[:, lap.start]  # the minimum-norm motion from q(0)
         bodies = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
                   for b in self.obstacle_links]
         pick = [i for i, g in enumerate(self.capsules.geom_ids)
                 if self.model.geom_bodyid[g] in bodies]
         path_pts = self._x_ref
         best = np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
+        self._witness = None
         for _ in range(30):
             k = int(rng.integers(int(0.3 * len(motion)), int(0.8 * len(motion))))
             self._forward(motion[k])
@@ -396,48 +516,22 @@ class _RedundantIKBase(RobotEnv):
             d_path = np.min(np.linalg.norm(path_pts - centre[: self.pos_dim], axis=1))
             self._forward(q0)
             if (d_path > radius + 0.08
-                    and self.capsules.clearance(self.data, centre, radius) > 0.03
-                    and self._self_motion_clears(motion[k], 5 * k, centre, radius)):
-                best = np.concatenate((centre, [radius]))
-                break
+                    and self.capsules.clearance(self.data, centre, radius) > 0.03):
+                witness = self._clearing_motion(lap, centre, radius)
+                if witness is not None:
+                    best = np.concatenate((centre, [radius]))
+                    self._witness = witness
+                    break
         return best
 
-    def _self_motion_clears(self, q: np.ndarray, step: int, centre: np.ndarray, radius: float,
-                            target: float = 0.03, iterations: int = 80) -> bool:
-        """Whether a self-motion from ``q`` (holding the task pose of control step ``step``)
-        reaches a configuration inside the joint limits that clears the obstacle by ``target``.
-
-        A geometric feasibility check of the instance (a static search along the null space of
-        J with the clearance's numerical gradient, 0.03 rad steps, task re-solved each step).
+    def clearing_motion(self) -> np.ndarray | None:
+        """objective="obstacle": the joint path (K, n) that showed this episode's obstacle can
+        be cleared, one configuration every ``LAP_STRIDE`` control steps from q(0) (on the task,
+        inside the joint limits, |Δq_j| ≤ q̇_j,max · ``LAP_STRIDE`` Δt, clearance ≥
+        ``LAP_CLEARANCE`` at every sample). It needs the whole reference in advance, so it is a
+        certificate of the instance, not a policy. None for the other objectives.
         """
-        q = q.copy()
-        eye = np.eye(self.n)
-        h = 1e-5
-
-        def clearance(x: np.ndarray) -> float:
-            self._forward(x)
-            return self.capsules.clearance(self.data, centre, radius)
-
-        for _ in range(iterations):
-            if clearance(q) >= target:
-                return bool(np.all(q > self.lower) and np.all(q < self.upper))
-            grad = np.array([(clearance(q + h * eye[i]) - clearance(q - h * eye[i])) / (2 * h)
-                             for i in range(self.n)])
-            J = self._task_jacobian(q)
-            J_pinv = np.linalg.pinv(J)
-            motion = (eye - J_pinv @ J) @ grad
-            norm = float(np.linalg.norm(motion))
-            if norm < 1e-9:
-                return False
-            q = q + 0.03 * motion / norm
-            p, R = self._forward(q)
-            e = self._x_ref[step] - p
-            if self.task_dim == 6:
-                e = np.concatenate((e, orientation_error(self._R_ref[step], R)))
-            q = q + J_pinv @ e
-            if np.any(q <= self.lower) or np.any(q >= self.upper):
-                return False
-        return False
+        return None if self._witness is None else self._witness.copy()
 
     def _random_normal(self, axis: np.ndarray) -> np.ndarray:
         """A random unit vector normal to ``axis`` (in the plane z = 0 for the planar arm)."""
@@ -495,10 +589,10 @@ class _RedundantIKBase(RobotEnv):
         sols = self._self_motion(q_home_ik, margin=START_MARGIN)
         best, start = np.inf, q_home_ik
         for q in sols:
-            motion, w = self._min_norm_motion(q, stride=10)
+            motion, w = self._min_norm_motion(q[None], stride=10)
             if np.any(motion < self.file_lower) or np.any(motion > self.file_upper):
                 continue
-            w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * w.size):]))
+            w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * len(w)):]))
             if w_lap < best:
                 best, start = w_lap, q
         return start
@@ -531,6 +625,7 @@ class _RedundantIKBase(RobotEnv):
         rng = self.np_random
         self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
         self._set_obstacle(np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0]))
+        self._witness = None
         for _ in range(OBSTACLE_PATH_TRIES):  # "obstacle": a new path until one is placed
             self._draw_path()
             q0 = self._solve_ik(self.home.copy(), self._x_ref[0], self._R_ref[0])
@@ -807,10 +902,14 @@ class RedundantIKEnv(_RedundantIKBase):
     ``max_task_error`` < ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK-v2")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK-v3")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
+    - v3: an "obstacle" is kept only if a motion along the self-motion clears it over the
+      whole lap within the joint and velocity limits (:meth:`clearing_motion`); v2 checked one
+      instant, and 16 of 100 episodes had no such motion (a dynamic-programming check
+      of the lap). "manipulability" and "joint_limits" episodes are identical to v2's.
     - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
       whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
       manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
@@ -900,7 +999,7 @@ class RedundantIK7Env(_RedundantIKBase):
     R̄(t) = Rot(r, α sin 2πσ(t)) R_home (world axis r random, α ∈ [0.1, 0.3] rad), closed as
     well; ω̄ = r α 2π cos(2πσ) σ̇. The orientation error is the rotation vector of R̄ Rᵀ
     (through its quaternion), never an Euler-angle difference. ``objective`` as in
-    ``RedundantIK-v2``; the obstacle is a sphere on the sweep of links 3–5 (around the
+    ``RedundantIK-v3``; the obstacle is a sphere on the sweep of links 3–5 (around the
     elbow), and the clearance is computed analytically (centre to capsule segments, minus the
     radii).
 
@@ -926,16 +1025,16 @@ class RedundantIK7Env(_RedundantIKBase):
     | obstacle | (4,) | sphere centre and radius; (10, 10, 10, 0) when there is none | ±20 | m |
 
     ## Rewards
-    As ``RedundantIK-v2``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
+    As ``RedundantIK-v3``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
     orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
     exp(−w / 0.05).
 
     ## Starting State
-    As ``RedundantIK-v2``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
+    As ``RedundantIK-v3``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
     (x̄(0), R̄(0)); ``initial_error`` offsets the position only.
 
     ## Episode End
-    As ``RedundantIK-v2``.
+    As ``RedundantIK-v3``.
 
     ## Arguments
     | argument | default | meaning |
@@ -955,18 +1054,19 @@ class RedundantIK7Env(_RedundantIKBase):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    As ``RedundantIK-v2`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
+    As ``RedundantIK-v3`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
     manipulability of the 6×7 Jacobian (mixed units). Success: no termination,
     ``max_task_error`` < ``success_threshold`` and ``max_orientation_error`` <
     10 ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK7-v2")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK7-v3")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
 
     ## Version History
-    As ``RedundantIK-v2`` (v2: the "manipulability" start; v1: obstacles, joint windows,
-    termination penalty; v0: initial version).
+    As ``RedundantIK-v3`` (v3: obstacles clearable over the whole lap; v2: the
+    "manipulability" start; v1: obstacles, joint windows, termination penalty; v0: initial
+    version).
     """
 
     robot_name: ClassVar[str] = "iiwa14"
@@ -1041,12 +1141,12 @@ class RedundantIK7Env(_RedundantIKBase):
 
 
 REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/RedundantIK-v2": (
+    "cir_gym/RedundantIK-v3": (
         RedundantIKEnv,
         "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
         "objective (ch. 1)",
     ),
-    "cir_gym/RedundantIK7-v2": (
+    "cir_gym/RedundantIK7-v3": (
         RedundantIK7Env,
         "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
     ),
