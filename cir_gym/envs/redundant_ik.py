@@ -908,8 +908,9 @@ class RedundantIKEnv(_RedundantIKBase):
     ## Version History
     - v3: an "obstacle" is kept only if a motion along the self-motion clears it over the
       whole lap within the joint and velocity limits (:meth:`clearing_motion`); v2 checked one
-      instant, and 16 of 100 episodes had no such motion (a dynamic-programming check
-      of the lap). "manipulability" and "joint_limits" episodes are identical to v2's.
+      instant: 15 of the 21 planar and 13 of the 16 iiwa episodes (of 100) that
+      clik_nullspace collided in had no such motion. "manipulability" and "joint_limits"
+      episodes are identical to v2's.
     - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
       whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
       manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
