@@ -863,8 +863,10 @@ class RedundantIKEnv(_RedundantIKBase):
     self-motion moves is drawn (|v_j| ≥ 0.1 for the unit null vector v of J at q(0)). For "obstacle" the
     obstacle (radius 4–7 cm) overlaps a link capsule by 5–20 mm at a random instant of the
     minimum-norm (pseudo-inverse CLIK) motion, at least radius + 8 cm away from the path and
-    3 cm away from the arm at q(0), where a self-motion can clear it; a new path is drawn
-    until such an obstacle exists (every "obstacle" episode has one).
+    3 cm away from the arm at q(0), and only if a motion along the self-motion clears it by
+    5 mm over the whole lap within the joint and velocity limits (``clearing_motion()`` returns
+    that motion); a new path is drawn until such an obstacle exists (every "obstacle" episode
+    has one).
 
     ## Episode End
     Truncated after ``episode_duration`` s (one lap). Terminated when a step would cross a
