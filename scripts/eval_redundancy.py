@@ -51,19 +51,20 @@ class ClearingMotion:
     ``state`` counts the control steps."""
 
     def __init__(self, env: gym.Env) -> None:
+        from cir_gym.envs.redundant_ik import LAP_STRIDE
+
         self.env = env.unwrapped
+        self.stride = LAP_STRIDE  # control steps between the path's points
         self.path = np.zeros((0, 0))
 
     def predict(self, obs: dict, state: np.ndarray | None = None,
                 episode_start: np.ndarray | None = None, deterministic: bool = True
                 ) -> tuple[np.ndarray, np.ndarray]:
-        from cir_gym.envs.redundant_ik import LAP_STRIDE
-
         k = 0 if state is None else int(state[0])
         if k == 0:
             self.path = self.env.clearing_motion()
-        i = k // LAP_STRIDE
-        qd = (self.path[i + 1] - self.path[i]) / (LAP_STRIDE * self.env.dt)
+        i = k // self.stride
+        qd = (self.path[i + 1] - self.path[i]) / (self.stride * self.env.dt)
         return np.clip(qd / self.env.velocity_limit, -1.0, 1.0), np.array([k + 1.0])
 
 

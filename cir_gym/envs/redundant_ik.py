@@ -210,8 +210,12 @@ class LinkCapsules:
 
     def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:
         """Minimum distance (m) between the obstacle sphere and the capsules (< 0: collision)."""
-        a, b = self.segments(data)
-        return float(np.min(_point_segment_distance(centre, a, b) - self.radius)) - radius
+        return float(self.segment_clearance(*self.segments(data), centre, radius))
+
+    def segment_clearance(self, a: np.ndarray, b: np.ndarray, centre: np.ndarray,
+                          radius: float) -> np.ndarray:
+        """:meth:`clearance` of stored capsule end points a, b (..., k, 3): shape (...)."""
+        return np.min(_point_segment_distance(centre, a, b) - self.radius, axis=-1) - radius
 
 
 def _all_numbers(action: Any) -> bool:
@@ -402,12 +406,14 @@ class _RedundantIKBase(RobotEnv):
             q = q + (dq * (0.2 / step) if step > 0.2 else dq)
         return q
 
-    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5
+    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5,
+                         visit: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
         """Minimum-norm CLIK along the reference from each row of ``q0`` (N, n), every
         ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods. Returns
         the joint paths (k + 1, N, n) and the manipulability at each of their first k points
-        (k, N).
+        (k, N). ``visit(sample, path, p, R)``, when given, is called at every point of every
+        path (the last included) with the forward kinematics done there (site pose p, R).
 
         Used only to set up an episode (where the obstacle goes and which motions avoid it,
         which posture starts "manipulability"); the joint limits are not enforced.
@@ -417,10 +423,12 @@ class _RedundantIKBase(RobotEnv):
         dt = self.dt * stride
         J = np.empty((len(q), self.task_dim, self.n))
         e = np.empty((len(q), self.task_dim))
-        for k in range(0, self.max_steps, stride):
+        for sample, k in enumerate(range(0, self.max_steps, stride)):
             for i, qi in enumerate(q):
                 J[i] = self._task_jacobian(qi)
                 p, R = self._forward(qi)
+                if visit is not None:
+                    visit(sample, i, p, R)
                 e[i, : self.pos_dim] = self._x_ref[k] - p
                 if self.task_dim == 6:
                     e[i, 3:] = orientation_error(self._R_ref[k], R)
@@ -430,6 +438,9 @@ class _RedundantIKBase(RobotEnv):
             w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
             q = q + dt * np.einsum("nij,nj->ni", np.linalg.pinv(J), v + e / dt)
             paths.append(q.copy())
+        if visit is not None:
+            for i, qi in enumerate(q):
+                visit(len(paths) - 1, i, *self._forward(qi))
         return np.array(paths), np.array(w)
 
     def _self_motion_lap(self, q0: np.ndarray) -> SelfMotionLap:
@@ -450,21 +461,21 @@ class _RedundantIKBase(RobotEnv):
         points.append((0.0, q0.copy()))
         points.sort(key=lambda point: point[0])
         start = next(i for i, (arc, _) in enumerate(points) if arc == 0.0)
-        q, _ = self._min_norm_motion(np.array([x for _, x in points]), LAP_STRIDE)
-        K, N = q.shape[:2]
+        K, N = len(range(0, self.max_steps, LAP_STRIDE)) + 1, len(points)
         c = len(self.capsules.radius)
         a, b = np.empty((K, N, c, 3)), np.empty((K, N, c, 3))
         on_task = np.empty((K, N), dtype=bool)
-        for kk in range(K):
-            k = min(kk * LAP_STRIDE, self.max_steps)
-            for i in range(N):
-                p, R = self._forward(q[kk, i])
-                a[kk, i], b[kk, i] = self.capsules.segments(self.data)
-                ok = np.linalg.norm(self._x_ref[k] - p) < LAP_TASK_TOLERANCE
-                if self.task_dim == 6:
-                    ok = ok and (np.linalg.norm(orientation_error(self._R_ref[k], R))
-                                 < 10.0 * LAP_TASK_TOLERANCE)
-                on_task[kk, i] = ok
+
+        def visit(sample: int, i: int, p: np.ndarray, R: np.ndarray) -> None:
+            k = min(sample * LAP_STRIDE, self.max_steps)
+            a[sample, i], b[sample, i] = self.capsules.segments(self.data)
+            ok = np.linalg.norm(self._x_ref[k] - p) < LAP_TASK_TOLERANCE
+            if self.task_dim == 6:
+                ok = ok and (np.linalg.norm(orientation_error(self._R_ref[k], R))
+                             < 10.0 * LAP_TASK_TOLERANCE)
+            on_task[sample, i] = ok
+
+        q, _ = self._min_norm_motion(np.array([x for _, x in points]), LAP_STRIDE, visit)
         inside = np.all((q > self.file_lower) & (q < self.file_upper), axis=2)
         return SelfMotionLap(q, a, b, inside & on_task, start, bound)
 
@@ -472,8 +483,7 @@ class _RedundantIKBase(RobotEnv):
                          ) -> np.ndarray | None:
         """A joint path (K, n) through ``lap`` that clears the obstacle by ``LAP_CLEARANCE``
         at every sample, within the joint and velocity limits; None when the lap has none."""
-        clear = np.min(_point_segment_distance(centre, lap.a, lap.b) - self.capsules.radius,
-                       axis=-1) - radius
+        clear = self.capsules.segment_clearance(lap.a, lap.b, centre, radius)
         path = lap_witness(lap.q, lap.usable & (clear > LAP_CLEARANCE), lap.bound, lap.start)
         return None if path is None else lap.q[np.arange(len(path)), path]
 
@@ -502,7 +512,6 @@ class _RedundantIKBase(RobotEnv):
                 if self.model.geom_bodyid[g] in bodies]
         path_pts = self._x_ref
         best = np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
-        self._witness = None
         for _ in range(30):
             k = int(rng.integers(int(0.3 * len(motion)), int(0.8 * len(motion))))
             self._forward(motion[k])
