@@ -10,7 +10,10 @@ metrics. The base class owns what every task does the same way:
   restores the last finite state so observations stay finite;
 * rendering with ``mujoco.Renderer`` (shadows, reflections, skybox and MSAA off: software
   GL on headless machines is ~100× faster that way), a lazy human viewer; both raise a
-  RuntimeError saying what is missing (GL libraries, a display) instead of crashing.
+  RuntimeError saying what is missing (GL libraries, a display) instead of crashing. Both
+  show the task: :meth:`RobotEnv.draw_task` adds visual-only markers (cir_gym.rendering) and
+  ``rgb_array`` frames carry :meth:`RobotEnv.caption`; the robot files hold the checker floor
+  and the free camera's framing.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from cir_gym import rendering
 from cir_gym.metrics import MetricSpec
 from cir_gym.robot import Robot
 
@@ -296,12 +300,32 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self._safe_act[:] = self.data.act
 
     # ------------------------------------------------------------------ rendering
+    #: render() draws the task's markers (:meth:`draw_task`) and the :meth:`caption`; set False
+    #: on an instance for the bare robot (e.g. an image observation, a benchmark)
+    draw_markers: bool = True
+
+    def draw_task(self, scene: mujoco.MjvScene) -> None:
+        """Append the task's visual-only markers to ``scene`` (default: none).
+
+        Called by :meth:`render` after ``update_scene``; use the ``add_*`` functions of
+        :mod:`cir_gym.rendering` (the reference, the target frame, obstacles, force arrows).
+        Never touch the physics here: ``self.data`` is read only.
+        """
+
+    def caption(self) -> str:
+        """One line drawn on ``rgb_array`` frames: the time and the task's primary error."""
+        return f"t = {self.data.time:5.2f} s"
+
     def render(self) -> np.ndarray | None:
         if self.render_mode == "rgb_array":
             if self._renderer is None:
                 self._renderer = self._make_renderer()
             self._renderer.update_scene(self.data, camera=self.camera)
-            return self._renderer.render()
+            if not self.draw_markers:
+                return self._renderer.render()
+            self.draw_task(self._renderer.scene)
+            frame = self._renderer.render()
+            return rendering.draw_caption(frame, self.caption())
         if self.render_mode == "human":
             if self._viewer is None:
                 if not _has_display():  # else mujoco.viewer exits the whole process
@@ -309,6 +333,10 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                 import mujoco.viewer
 
                 self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+            if self.draw_markers:
+                with self._viewer.lock():
+                    self._viewer.user_scn.ngeom = 0
+                    self.draw_task(self._viewer.user_scn)
             self._viewer.sync()
         return None
 

@@ -1,0 +1,350 @@
+"""Pictures of the task: visual-only markers for a ``mujoco.MjvScene`` and a caption on the frame.
+
+Every function here appends *decoration* geoms (``mjCAT_DECOR``) to a scene after
+``mjv_updateScene`` (``mujoco.Renderer.update_scene``) and before it is drawn: they are never in
+the ``MjModel``, never collide and never change the physics. An environment draws its task in
+:meth:`cir_gym.envs.base.RobotEnv.draw_task`::
+
+    def draw_task(self, scene: mujoco.MjvScene) -> None:
+        rendering.add_polyline(scene, self._path, 0.004, rendering.REFERENCE)
+        rendering.add_frame(scene, self._x_ref[self._k], self._R_ref[self._k], 0.1)
+
+Units: positions and lengths in metres (world frame), rotations as (3, 3) matrices whose columns
+are the frame's axes in the world, colours as RGBA in [0, 1] (alpha < 1: translucent). Every
+``add_*`` returns how many geoms it appended; when the scene is full (``scene.ngeom ==
+scene.maxgeom``) the rest is dropped silently, so a marker never raises in the middle of a video
+(``mujoco.Renderer`` makes room for ``max_geom`` = 10 000 geoms).
+
+:func:`draw_caption` writes one line of text into an RGB frame (``mujoco.Renderer`` has no text
+overlay) with a built-in 5 × 7 pixel font: ASCII plus ° ± × · Δ θ τ µ ≤ ≥ ω ‖ →; combining marks
+(q̄) are dropped, any other character is drawn as "?".
+
+Rendering cost: software GL draws a capsule (a few hundred triangles) in ~10 µs; a polyline is
+subsampled to ``max_segments`` capsules. ``benchmarks/bench_render.py`` measures the cost per
+frame with and without the task's markers.
+
+The second half of the module draws the shipped environments' tasks (their ``draw_task`` and
+``caption`` call these), so that each env module keeps one short method.
+"""
+
+from __future__ import annotations
+
+import itertools
+import unicodedata
+from typing import Any
+
+import mujoco
+import numpy as np
+
+__all__ = [
+    "BLUE",
+    "GREEN",
+    "OBSTACLE",
+    "RED",
+    "REFERENCE",
+    "TARGET",
+    "WARNING",
+    "add_arrow",
+    "add_box",
+    "add_capsule",
+    "add_frame",
+    "add_ghost",
+    "add_line",
+    "add_polyline",
+    "add_sphere",
+    "caption_scale",
+    "draw_caption",
+    "limit_colour",
+    "text_mask",
+]
+
+RGBA = "tuple[float, float, float, float] | np.ndarray"
+
+RED = (0.9, 0.15, 0.1, 1.0)
+GREEN = (0.1, 0.8, 0.2, 1.0)
+BLUE = (0.15, 0.35, 0.95, 1.0)
+#: the reference (path, ghost arm): translucent cyan
+REFERENCE = (0.1, 0.8, 0.95, 0.35)
+#: the target point / frame origin: opaque yellow
+TARGET = (1.0, 0.85, 0.1, 1.0)
+#: an obstacle: translucent red
+OBSTACLE = (0.9, 0.1, 0.1, 0.55)
+#: a warning (joint near its limit, contact): opaque red
+WARNING = (1.0, 0.1, 0.05, 1.0)
+
+_EYE = np.eye(3).ravel()
+_DECOR = int(mujoco.mjtCatBit.mjCAT_DECOR)
+
+
+# ---------------------------------------------------------------------------- geoms
+def _next(scene: mujoco.MjvScene) -> Any:
+    """The next free geom of ``scene`` (and count it), or None when the scene is full."""
+    if scene.ngeom >= scene.maxgeom:
+        return None
+    geom = scene.geoms[scene.ngeom]
+    scene.ngeom += 1
+    return geom
+
+
+def _vec3(value: Any) -> np.ndarray:
+    return np.asarray(value, dtype=np.float64).reshape(3)
+
+
+def _rgba(value: Any) -> np.ndarray:
+    return np.asarray(value, dtype=np.float32).reshape(4)
+
+
+def _init(geom: Any, rgba: Any) -> None:
+    """mjv_initGeom with defaults (a decor sphere at the origin) and the colour."""
+    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_SPHERE), np.zeros(3), np.zeros(3), _EYE,
+                        _rgba(rgba))
+    geom.category = _DECOR
+
+
+def add_sphere(scene: mujoco.MjvScene, pos: Any, radius: float, rgba: Any = TARGET) -> int:
+    """A sphere at ``pos`` (3,) m of ``radius`` m."""
+    geom = _next(scene)
+    if geom is None:
+        return 0
+    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_SPHERE), np.full(3, float(radius)),
+                        _vec3(pos), _EYE, _rgba(rgba))
+    geom.category = _DECOR
+    return 1
+
+
+def add_box(scene: mujoco.MjvScene, pos: Any, half_size: Any, rgba: Any = OBSTACLE,
+            mat: Any = None) -> int:
+    """A box centred at ``pos`` (3,) m with half sizes ``half_size`` (3,) m, axes ``mat`` (3, 3)."""
+    geom = _next(scene)
+    if geom is None:
+        return 0
+    rot = _EYE if mat is None else np.asarray(mat, dtype=np.float64).reshape(9)
+    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_BOX), _vec3(half_size), _vec3(pos), rot,
+                        _rgba(rgba))
+    geom.category = _DECOR
+    return 1
+
+
+def _connector(scene: mujoco.MjvScene, kind: int, p0: Any, p1: Any, width: float, rgba: Any
+               ) -> int:
+    a, b = _vec3(p0), _vec3(p1)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return 0
+    geom = _next(scene)
+    if geom is None:
+        return 0
+    _init(geom, rgba)
+    mujoco.mjv_connector(geom, kind, float(width), a, b)
+    return 1
+
+
+def add_capsule(scene: mujoco.MjvScene, p0: Any, p1: Any, radius: float, rgba: Any = REFERENCE
+                ) -> int:
+    """A capsule (a thick line segment) from ``p0`` to ``p1`` (3,) m, ``radius`` m."""
+    return _connector(scene, int(mujoco.mjtGeom.mjGEOM_CAPSULE), p0, p1, radius, rgba)
+
+
+def add_line(scene: mujoco.MjvScene, p0: Any, p1: Any, width_px: float = 2.0,
+             rgba: Any = REFERENCE) -> int:
+    """A GL line from ``p0`` to ``p1`` (3,) m, ``width_px`` pixels wide (cheapest marker)."""
+    return _connector(scene, int(mujoco.mjtGeom.mjGEOM_LINE), p0, p1, width_px, rgba)
+
+
+def add_arrow(scene: mujoco.MjvScene, start: Any, vector: Any, radius: float, rgba: Any = RED
+              ) -> int:
+    """An arrow from ``start`` (3,) m along ``vector`` (3,) m (its length is ``|vector|``).
+
+    A vector shorter than ``radius`` draws nothing (an arrow has no direction then); scale
+    forces to lengths before calling (e.g. 0.01 m per N).
+    """
+    v = _vec3(vector)
+    if not np.all(np.isfinite(v)) or np.linalg.norm(v) < radius:
+        return 0
+    s = _vec3(start)
+    return _connector(scene, int(mujoco.mjtGeom.mjGEOM_ARROW), s, s + v, radius, rgba)
+
+
+def add_frame(scene: mujoco.MjvScene, pos: Any, mat: Any, length: float,
+              radius: float | None = None, alpha: float = 1.0) -> int:
+    """A coordinate frame: x, y, z axes (columns of ``mat`` (3, 3)) as red, green, blue capsules.
+
+    Args:
+        pos: (3,) origin (m).
+        mat: (3, 3) rotation, columns = the frame's axes in the world.
+        length: axis length (m).
+        radius: axis radius (m); default ``length / 20``.
+        alpha: opacity of the axes.
+    """
+    r = length / 20.0 if radius is None else radius
+    p = _vec3(pos)
+    R = np.asarray(mat, dtype=np.float64).reshape(3, 3)
+    added = 0
+    for i, colour in enumerate((RED, GREEN, BLUE)):
+        added += add_capsule(scene, p, p + length * R[:, i], r, (*colour[:3], alpha))
+    return added
+
+
+def add_polyline(scene: mujoco.MjvScene, points: Any, radius: float, rgba: Any = REFERENCE,
+                 max_segments: int = 80) -> int:
+    """Capsules joining consecutive ``points`` (k, 3) m; at most ``max_segments`` of them.
+
+    Longer polylines are subsampled evenly (first and last point kept). Non-finite points
+    break the line. ``radius == 0`` draws 2-pixel GL lines instead of capsules (cheaper).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) < 2:
+        return 0
+    if len(pts) - 1 > max_segments:
+        idx = np.unique(np.linspace(0, len(pts) - 1, max_segments + 1).round().astype(int))
+        pts = pts[idx]
+    added = 0
+    for a, b in itertools.pairwise(pts):
+        if radius > 0:
+            added += add_capsule(scene, a, b, radius, rgba)
+        else:
+            added += add_line(scene, a, b, 2.0, rgba)
+    return added
+
+
+def add_ghost(scene: mujoco.MjvScene, model: mujoco.MjModel, data: mujoco.MjData,
+              rgba: Any = REFERENCE, option: mujoco.MjvOption | None = None,
+              inflate: float = 1.03) -> int:
+    """A translucent copy of the robot's moving geoms at the pose held in ``data``.
+
+    ``data`` is a second ``MjData`` of ``model`` (not the simulation's) on which the caller ran
+    ``mj_kinematics`` at the pose to show (e.g. the reference q̄). Its moving geoms are appended
+    in colour ``rgba`` as decoration; primitive sizes are scaled by ``inflate`` so that the
+    ghost does not flicker against the arm when they coincide.
+    """
+    start = scene.ngeom
+    mujoco.mjv_addGeoms(model, data, option or _default_option(), _default_perturb(),
+                        int(mujoco.mjtCatBit.mjCAT_DYNAMIC), scene)
+    colour = _rgba(rgba)
+    mesh = int(mujoco.mjtGeom.mjGEOM_MESH)
+    for i in range(start, scene.ngeom):
+        geom = scene.geoms[i]
+        geom.rgba[:] = colour
+        geom.category = _DECOR
+        geom.objtype = int(mujoco.mjtObj.mjOBJ_UNKNOWN)
+        geom.objid = -1
+        geom.segid = -1
+        geom.matid = -1
+        geom.emission = 0.2
+        if geom.type != mesh:
+            geom.size[:] = np.asarray(geom.size) * inflate
+    return scene.ngeom - start
+
+
+_OPTION: mujoco.MjvOption | None = None
+_PERTURB: mujoco.MjvPerturb | None = None
+
+
+def _default_option() -> mujoco.MjvOption:
+    global _OPTION
+    if _OPTION is None:
+        _OPTION = mujoco.MjvOption()
+        _OPTION.sitegroup[:] = 0  # the ghost shows geoms only
+    return _OPTION
+
+
+def _default_perturb() -> mujoco.MjvPerturb:
+    global _PERTURB
+    if _PERTURB is None:
+        _PERTURB = mujoco.MjvPerturb()
+    return _PERTURB
+
+
+def limit_colour(margin: float, base: Any, warn_below: float = 0.1) -> np.ndarray:
+    """``base`` RGBA blended toward :data:`WARNING` as a joint nears its limit.
+
+    Args:
+        margin: distance to the nearest limit as a fraction of the range, in [0, 0.5].
+        base: the joint's normal colour.
+        warn_below: margins at or above it keep ``base``; at 0 the colour is :data:`WARNING`.
+    """
+    w = float(np.clip(1.0 - margin / warn_below, 0.0, 1.0)) if warn_below > 0 else 0.0
+    b = _rgba(base)
+    out = (1.0 - w) * b + w * _rgba(WARNING)
+    out[3] = max(b[3], w)
+    return out
+
+
+# ---------------------------------------------------------------------------- caption
+# 5 × 7 glyphs, written for cir_gym: each glyph is its character followed by 7 rows, top to
+# bottom, one base-32 digit per row (bit 4 = leftmost pixel).
+_GLYPHS = (
+    ' 0000000!4444404"aa00000#aavavaa$4fke5u4%op248j3&cik8lid\'4400000(2488842)8422248'
+    '*04lel40+044v440,0000c48-000v000.00000cc/01248g00ehjlphe14c4444e2eh1248v3v2421he'
+    '426aiv225vgu11he668guhhe7v1248888ehhehhe9ehhf12c:0cc0cc0;0cc0c48<248g842=00v0v00'
+    '>8421248?eh12404@eh1dlleAehhvhhhBuhhuhhuCehgggheDsihhhisEvgguggvFvggugggGehgnhhf'
+    'HhhhvhhhIe44444eJ72222icKhikokihLggggggvMhrllhhhNhhpljhhOehhhhhePuhhugggQehhhlid'
+    'RuhhukihSfgge11uTv444444UhhhhhheVhhhhha4WhhhlllaXhha4ahhYhha4444Zv1248gv[e88888e'
+    '\\0g84210]e22222e^4ah0000_000000v`8400000a00e1fhfbggmphhuc00egghed11djhhfe00ehvge'
+    'f698s888g0fhhf1ehggmphhhi40c444ej20622ickggikokilc44444em00qllhhn00mphhho00ehhhe'
+    'p00uhuggq00djf11r00mpgggs00ege1ut88s8896u00hhhjdv00hhha4w00hhllax00ha4ahy00hhf1e'
+    'z00v248v{2448442|4444444}8442448~008l200°ciic000±44v440v×0ha4ah0·0004000Δ044aahv'
+    'θehhvhheτ00v4442µ00hhjtg≤248420f≥842480uω00ahlla‖aaaaaaa→042v240'
+)
+GLYPH_W, GLYPH_H = 5, 7
+
+
+def _decode_glyphs() -> dict[str, np.ndarray]:
+    bits = 1 << np.arange(GLYPH_W - 1, -1, -1)
+    font = {}
+    for i in range(0, len(_GLYPHS), 1 + GLYPH_H):
+        rows = np.array([int(c, 32) for c in _GLYPHS[i + 1 : i + 1 + GLYPH_H]])
+        font[_GLYPHS[i]] = (rows[:, None] & bits) > 0
+    return font
+
+
+_FONT = _decode_glyphs()
+
+
+def _printable(text: str) -> str:
+    """Drop combining marks (q̄ → q); replace characters the font lacks by "?"."""
+    decomposed = unicodedata.normalize("NFD", text)
+    chars = (c for c in decomposed if not unicodedata.combining(c))
+    return "".join(c if c in _FONT else "?" for c in chars)
+
+
+def text_mask(text: str, scale: int = 1) -> np.ndarray:
+    """Boolean ink mask (7 s, 6 s · len) of one line of ``text`` at integer ``scale`` s."""
+    line = _printable(text.replace("\n", " "))
+    if not line:
+        return np.zeros((GLYPH_H * scale, 0), dtype=bool)
+    gap = np.zeros((GLYPH_H, 1), dtype=bool)
+    mask = np.hstack([m for c in line for m in (_FONT[c], gap)])
+    if scale > 1:
+        mask = mask.repeat(scale, axis=0).repeat(scale, axis=1)
+    return mask
+
+
+def caption_scale(height: int) -> int:
+    """Font scale for a frame ``height`` px tall: 1 below 300 px, then one more per 240 px."""
+    return max(1, 1 + (int(height) - 60) // 240)
+
+
+def draw_caption(image: np.ndarray, text: str, scale: int | None = None,
+                 colour: tuple[int, int, int] = (255, 255, 255), background: float = 0.55,
+                 margin: int = 4) -> np.ndarray:
+    """Write ``text`` at the top-left of ``image`` (h, w, 3) uint8, in place; return ``image``.
+
+    The text sits on a dark band (the pixels under it are multiplied by ``1 - background``)
+    and is clipped at the right edge. ``scale`` defaults to :func:`caption_scale`.
+    """
+    if not text:
+        return image
+    s = caption_scale(image.shape[0]) if scale is None else max(1, int(scale))
+    mask = text_mask(text, s)
+    h, w = image.shape[:2]
+    y0 = x0 = margin
+    mh = min(mask.shape[0], h - y0)
+    mw = min(mask.shape[1], w - x0)
+    if mh <= 0 or mw <= 0:
+        return image
+    pad = s
+    band = image[max(0, y0 - pad): y0 + mh + pad, max(0, x0 - pad): x0 + mw + pad]
+    band[:] = (band * (1.0 - background)).astype(image.dtype)
+    region = image[y0: y0 + mh, x0: x0 + mw]
+    region[mask[:mh, :mw]] = colour
+    return image
