@@ -1,0 +1,235 @@
+"""Vision science for visual servoing (chapter 7): pinhole camera, point features, pose.
+
+Conventions (stated once, used everywhere):
+
+* **Optical frame** (the textbook's and OpenCV's): origin at the optical centre, z along the
+  optical axis (forward, points in front have Z > 0), x to the right of the image, y *down*
+  the image. Every point, pose and twist in this module is in an optical frame.
+* **MuJoCo camera frame**: the camera looks along its local −z with y up, so
+  p_optical = diag(1, −1, −1) p_mujoco (:data:`MUJOCO_TO_OPTICAL`, a rotation by π about x);
+  :func:`optical_pose` converts a MuJoCo camera's world pose.
+* **Pixels** (u, v): column and row of the image as ``mujoco.Renderer`` returns it (row 0 at
+  the top), pixel centres at integers, so the principal point of an ideal camera is
+  ((W − 1)/2, (H − 1)/2). Projection: u = c_u + f_u X/Z, v = c_v + f_v Y/Z.
+* **Features** s: (k, 2) pixel coordinates of k points (or flattened (2k,) as (u₁, v₁, u₂, …)).
+* **Camera twist** (v, ω) (6,): linear velocity of the optical centre (m/s) and angular
+  velocity (rad/s), both in the optical frame of the moving camera.
+
+The interaction matrix is the notes' point-feature form (control-laws.md §7): for a point at
+depth Z with image coordinates x = u − c_u, y = v − c_v (px, relative to the principal point)
+and focal length λ (px),
+
+    [ẋ; ẏ] = [[−λ/Z, 0, x/Z, xy/λ, −(λ² + x²)/λ, y], [0, −λ/Z, y/Z, (λ² + y²)/λ, −xy/λ, −x]] [v; ω]
+
+(with f_u ≠ f_v the rows are scaled by f_u and f_v of the normalised form x_n = X/Z).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import mujoco
+import numpy as np
+
+from cir_gym import trajectories as traj
+
+__all__ = [
+    "MUJOCO_TO_OPTICAL",
+    "Camera",
+    "homography",
+    "interaction_matrix",
+    "normalise",
+    "optical_pose",
+    "planar_pose",
+    "pose_error",
+    "project",
+    "transform_points",
+    "twist_between",
+]
+
+#: p_optical = MUJOCO_TO_OPTICAL @ p_mujoco: MuJoCo cameras look along −z with y up.
+MUJOCO_TO_OPTICAL = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics (no distortion) and the image size.
+
+    Attributes:
+        width, height: image size (px).
+        fu, fv: focal lengths (px) along u and v.
+        cu, cv: principal point (px, pixel centres at integers).
+    """
+
+    width: int
+    height: int
+    fu: float
+    fv: float
+    cu: float
+    cv: float
+
+    @classmethod
+    def from_fovy(cls, fovy: float, width: int, height: int) -> Camera:
+        """An ideal camera with MuJoCo's vertical field of view ``fovy`` (deg), square pixels:
+        f = (H/2) / tan(fovy/2), principal point at the image centre."""
+        if not 0.0 < fovy < 180.0:
+            raise ValueError(f"fovy must be in (0, 180) deg, got {fovy!r}")
+        f = 0.5 * height / np.tan(np.deg2rad(fovy) / 2.0)
+        return cls(int(width), int(height), f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel, camera: str | int, width: int, height: int
+                   ) -> Camera:
+        """The intrinsics MuJoCo renders camera ``camera`` of ``model`` with at width × height."""
+        cid = camera if isinstance(camera, int) else mujoco.mj_name2id(
+            model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        if cid < 0 or cid >= model.ncam:
+            raise ValueError(f"camera {camera!r} not in the model")
+        return cls.from_fovy(float(model.cam_fovy[cid]), width, height)
+
+    @property
+    def K(self) -> np.ndarray:
+        """Intrinsic matrix (3, 3)."""
+        return np.array([[self.fu, 0.0, self.cu], [0.0, self.fv, self.cv], [0.0, 0.0, 1.0]])
+
+    def with_error(self, focal_scale: float = 1.0, principal_offset: tuple[float, float] = (0.0, 0.0)
+                   ) -> Camera:
+        """This camera with its focal lengths scaled and its principal point moved (px)."""
+        return replace(self, fu=self.fu * focal_scale, fv=self.fv * focal_scale,
+                       cu=self.cu + principal_offset[0], cv=self.cv + principal_offset[1])
+
+    def inside(self, s: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(k,) True where the features s (k, 2) are at least ``margin`` px inside the image
+        (the image spans [−0.5, W − 0.5] × [−0.5, H − 0.5])."""
+        s = np.asarray(s, dtype=float).reshape(-1, 2)
+        lo = -0.5 + margin
+        return ((s[:, 0] >= lo) & (s[:, 0] <= self.width - 0.5 - margin)
+                & (s[:, 1] >= lo) & (s[:, 1] <= self.height - 0.5 - margin))
+
+
+def optical_pose(xpos: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World pose (p (3,), R (3, 3) optical→world) of a MuJoCo camera from ``cam_xpos`` and
+    ``cam_xmat`` (camera→world): R = R_mujoco · MUJOCO_TO_OPTICAL (its own inverse)."""
+    return np.asarray(xpos, dtype=float).copy(), np.asarray(xmat, dtype=float).reshape(3, 3) \
+        @ MUJOCO_TO_OPTICAL
+
+
+def transform_points(R: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """R p + t for each row of ``points`` (k, 3)."""
+    return np.asarray(points, dtype=float) @ np.asarray(R).T + np.asarray(t)
+
+
+def project(points_camera: np.ndarray, camera: Camera) -> np.ndarray:
+    """Pixel coordinates (k, 2) of points (k, 3) in the optical frame.
+
+    Raises:
+        ValueError: a point at or behind the optical centre (Z ≤ 0), which has no image.
+    """
+    P = np.asarray(points_camera, dtype=float).reshape(-1, 3)
+    Z = P[:, 2]
+    if np.any(Z <= 0.0):
+        raise ValueError(f"points behind the camera (Z ≤ 0) have no image: Z = {Z}")
+    return np.column_stack((camera.cu + camera.fu * P[:, 0] / Z,
+                            camera.cv + camera.fv * P[:, 1] / Z))
+
+
+def normalise(s: np.ndarray, camera: Camera) -> np.ndarray:
+    """Normalised image coordinates (k, 2) x_n = X/Z, y_n = Y/Z of pixel features s."""
+    s = np.asarray(s, dtype=float).reshape(-1, 2)
+    return np.column_stack(((s[:, 0] - camera.cu) / camera.fu, (s[:, 1] - camera.cv) / camera.fv))
+
+
+def interaction_matrix(s: np.ndarray, depth: np.ndarray | float, camera: Camera) -> np.ndarray:
+    """Interaction matrix L (2k, 6) of k point features: ṡ = L (v, ω), ṡ in px/s.
+
+    Args:
+        s: (k, 2) or (2k,) pixel features.
+        depth: (k,) or scalar depths Z (m) of the points in the optical frame (> 0).
+        camera: the intrinsics (the notes' λ is f_u = f_v).
+
+    Rows 2i, 2i+1 are the notes' L(λ, x, y, Z) of point i (module docstring): the normalised
+    form [[−1/Z, 0, x/Z, xy, −(1 + x²), y], [0, −1/Z, y/Z, 1 + y², −xy, −x]] with the u row
+    scaled by f_u and the v row by f_v.
+    """
+    xn = normalise(s, camera)
+    k = xn.shape[0]
+    Z = np.broadcast_to(np.asarray(depth, dtype=float), (k,))
+    if np.any(~np.isfinite(Z)) or np.any(Z <= 0.0):
+        raise ValueError(f"depth must be finite and > 0, got {Z}")
+    x, y = xn[:, 0], xn[:, 1]
+    L = np.empty((k, 2, 6))
+    zero = np.zeros(k)
+    L[:, 0] = np.column_stack((-1.0 / Z, zero, x / Z, x * y, -(1.0 + x * x), y)) * camera.fu
+    L[:, 1] = np.column_stack((zero, -1.0 / Z, y / Z, 1.0 + y * y, -x * y, -x)) * camera.fv
+    return L.reshape(2 * k, 6)
+
+
+def homography(plane_points: np.ndarray, image_points: np.ndarray) -> np.ndarray:
+    """Homography H (3, 3), ‖H‖_F = 1, with (x, y, 1) ∝ H (X, Y, 1) for k ≥ 4 correspondences
+    of plane points (k, 2) and normalised image points (k, 2): the direct linear transform
+    (the null vector of the 2k × 9 system, exact for 4 points in general position)."""
+    P = np.asarray(plane_points, dtype=float)
+    m = np.asarray(image_points, dtype=float)
+    rows = []
+    for (X, Y), (x, y) in zip(P, m, strict=True):
+        rows.append([X, Y, 1.0, 0.0, 0.0, 0.0, -x * X, -x * Y, -x])
+        rows.append([0.0, 0.0, 0.0, X, Y, 1.0, -y * X, -y * Y, -y])
+    return np.linalg.svd(np.array(rows))[2][-1].reshape(3, 3)
+
+
+def planar_pose(model_points: np.ndarray, s: np.ndarray, camera: Camera
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (R, t) of a planar target in the optical frame from k ≥ 4 of its points.
+
+    ``model_points`` (k, 3) lie in the target's plane z = 0 (target frame); ``s`` (k, 2) are
+    their pixel features. The homography H ∝ [r₁ r₂ t] (normalised coordinates) is
+    decomposed: scale 1/‖h₁‖ (mean of ‖h₁‖, ‖h₂‖) with the sign that puts the target in front
+    (t_z > 0), r₃ = r₁ × r₂, and the nearest rotation (SVD). Exact on noise-free points.
+
+    Returns:
+        R (3, 3) target→camera and t (3,) the target origin in the optical frame (m).
+    """
+    P = np.asarray(model_points, dtype=float).reshape(-1, 3)
+    if np.any(np.abs(P[:, 2]) > 1e-12):
+        raise ValueError("planar_pose needs model points in the plane z = 0")
+    H = homography(P[:, :2], normalise(s, camera))
+    scale = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
+    H = H * scale
+    if H[2, 2] < 0.0:  # t_z = H[2, 2] must be > 0 (target in front of the camera)
+        H = -H
+    r1, r2, t = H[:, 0], H[:, 1], H[:, 2]
+    U, _, Vt = np.linalg.svd(np.column_stack((r1, r2, np.cross(r1, r2))))
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return R, t.copy()
+
+
+def pose_error(R: np.ndarray, t: np.ndarray, R_ref: np.ndarray, t_ref: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of the current camera in the desired camera's frame from the target's pose in
+    both: (R, t) target→current camera, (R_ref, t_ref) target→desired camera.
+
+    Returns:
+        t_e (3,): the current optical centre in the desired frame, c*t_c = t_ref − R_e t (m);
+        θu (3,): the rotation vector of c*R_c = R_ref Rᵀ (rad, θ ∈ [0, π]).
+    """
+    R_e = np.asarray(R_ref) @ np.asarray(R).T
+    axis, theta = traj.axis_angle_from_matrix(R_e)
+    return np.asarray(t_ref) - R_e @ np.asarray(t), axis * theta
+
+
+def twist_between(R_e: np.ndarray, t_e: np.ndarray) -> np.ndarray:
+    """W (6, 6) = [[R, [t]× R], [0, R]]: a rigid motion's twist described in frame b → in a.
+
+    The pose of frame b in frame a is (R_e, t_e). With (v_b, ω_b) the velocity of b's origin
+    and the angular velocity, in b's axes, the same motion described by the velocity of the
+    point at a's origin and the angular velocity, in a's axes, is
+    v_a = R v_b + t × (R ω_b), ω_a = R ω_b (since v_a = v_b + ω × (p_a − p_b)).
+    """
+    R = np.asarray(R_e, dtype=float)
+    t = np.asarray(t_e, dtype=float)
+    skew = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    W = np.zeros((6, 6))
+    W[:3, :3] = R
+    W[:3, 3:] = skew @ R
+    W[3:, 3:] = R
+    return W

@@ -1,0 +1,146 @@
+"""cir_gym.vision: projection, interaction matrix, planar pose (chapter 7's science)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from cir_gym import trajectories as traj
+from cir_gym.vision import (
+    MUJOCO_TO_OPTICAL,
+    Camera,
+    interaction_matrix,
+    optical_pose,
+    planar_pose,
+    pose_error,
+    project,
+    transform_points,
+    twist_between,
+)
+
+CAMERA = Camera.from_fovy(60.0, 640, 480)
+SQUARE = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
+
+
+def _random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A target pose in front of the camera: tilt ≤ 0.6 rad, any roll, depth 0.5-1.5 m."""
+    axis = rng.standard_normal(3)
+    R = traj.matrix_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, 0.6))
+    R = R @ traj.matrix_from_axis_angle(np.array([0.0, 0.0, 1.0]), rng.uniform(-np.pi, np.pi))
+    t = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.5, 1.5)])
+    return R, t
+
+
+def _moved(points: np.ndarray, twist: np.ndarray, h: float) -> np.ndarray:
+    """Points (fixed in the world) seen from the camera after it moves with a constant twist
+    (v, ω) (optical frame) for h seconds: the camera's new pose in its old frame is
+    (exp(h ω), its centre after the screw motion); points map by the inverse."""
+    v, w = twist[:3], twist[3:]
+    theta = np.linalg.norm(w) * h
+    axis = w / np.linalg.norm(w)
+    R = traj.matrix_from_axis_angle(axis, theta)
+    # centre of a constant twist: ∫ R(τ) v dτ, by fine quadrature
+    taus = np.linspace(0.0, h, 2001)
+    Rs = [traj.matrix_from_axis_angle(axis, np.linalg.norm(w) * tau) for tau in taus]
+    c = np.trapezoid(np.array([Ri @ v for Ri in Rs]), taus, axis=0)
+    return (points - c) @ R  # Rᵀ (P − c) row-wise
+
+
+def test_interaction_matrix_equals_finite_differences_of_the_projection() -> None:
+    """ṡ = L (v, ω): central differences of the pixels under a small camera twist."""
+    rng = np.random.default_rng(0)
+    cam = Camera(640, 480, 500.0, 470.0, 330.0, 250.0)  # f_u ≠ f_v, off-centre
+    for _ in range(20):
+        R, t = _random_pose(rng)
+        P = transform_points(R, t, SQUARE)
+        s = project(P, cam)
+        L = interaction_matrix(s, P[:, 2], cam)
+        twist = rng.standard_normal(6)
+        h = 1e-5
+        fd = (project(_moved(P, twist, h), cam) - project(_moved(P, twist, -h), cam)) / (2 * h)
+        np.testing.assert_allclose(L @ twist, fd.ravel(), rtol=1e-5, atol=1e-4)
+
+
+def test_interaction_matrix_is_the_notes_form_in_pixels() -> None:
+    """With f_u = f_v = λ and x, y relative to the principal point: the notes' L(λ, x, y, Z)."""
+    lam = CAMERA.fu
+    s = np.array([[400.0, 100.0], [12.0, 470.0]])
+    Z = np.array([0.8, 1.7])
+    L = interaction_matrix(s, Z, CAMERA)
+    for i, ((u, v), z) in enumerate(zip(s, Z, strict=True)):
+        x, y = u - CAMERA.cu, v - CAMERA.cv
+        notes = np.array([
+            [-lam / z, 0, x / z, x * y / lam, -(lam**2 + x**2) / lam, y],
+            [0, -lam / z, y / z, (lam**2 + y**2) / lam, -x * y / lam, -x]])
+        np.testing.assert_allclose(L[2 * i:2 * i + 2], notes, rtol=1e-12)
+    # the rotational part does not depend on the depth; one point leaves a 4-D null space
+    np.testing.assert_allclose(interaction_matrix(s, 5.0, CAMERA)[:, 3:], L[:, 3:])
+    assert np.linalg.matrix_rank(L[:2]) == 2
+    assert np.linalg.matrix_rank(interaction_matrix(project(
+        transform_points(np.eye(3), [0, 0, 1], SQUARE), CAMERA), 1.0, CAMERA)) == 6
+
+
+def test_planar_pose_is_exact_on_noise_free_points() -> None:
+    """Four coplanar points → the target pose to 1e-9, from any pose in front of the camera."""
+    rng = np.random.default_rng(1)
+    cam = Camera(640, 480, 500.0, 470.0, 330.0, 250.0)
+    for _ in range(50):
+        R, t = _random_pose(rng)
+        s = project(transform_points(R, t, SQUARE), cam)
+        R_hat, t_hat = planar_pose(SQUARE, s, cam)
+        np.testing.assert_allclose(R_hat, R, atol=1e-9)
+        np.testing.assert_allclose(t_hat, t, atol=1e-9)
+
+
+def test_pose_error_and_twist_transform() -> None:
+    """pose_error is zero at the desired pose and gives the camera's pose in the desired frame;
+    twist_between moves a rigid motion's description between frames."""
+    rng = np.random.default_rng(2)
+    R_ref, t_ref = _random_pose(rng)
+    t_e, tu = pose_error(R_ref, t_ref, R_ref, t_ref)
+    np.testing.assert_allclose(np.concatenate((t_e, tu)), 0.0, atol=1e-12)
+    # camera displaced by (R_d, t_d) in the desired frame sees the target at R_dᵀ (R_ref, t_ref − t_d)
+    R_d = traj.matrix_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.7)
+    t_d = np.array([0.1, -0.2, 0.3])
+    R, t = R_d.T @ R_ref, R_d.T @ (t_ref - t_d)
+    t_e, tu = pose_error(R, t, R_ref, t_ref)
+    np.testing.assert_allclose(t_e, t_d, atol=1e-12)
+    np.testing.assert_allclose(tu, [0.0, 0.0, 0.7], atol=1e-12)
+    # twist_between: point velocities agree
+    v_b, w_b = rng.standard_normal(3), rng.standard_normal(3)
+    W = twist_between(R_d, t_d)
+    v_a, w_a = np.split(W @ np.concatenate((v_b, w_b)), 2)
+    p_a = rng.standard_normal(3)  # any point, in frame a
+    vel_a = v_a + np.cross(w_a, p_a)  # its velocity from a's description
+    p_b = R_d.T @ (p_a - t_d)
+    np.testing.assert_allclose(vel_a, R_d @ (v_b + np.cross(w_b, p_b)), atol=1e-12)
+
+
+def test_mujoco_camera_convention() -> None:
+    """A MuJoCo camera looks along its −z with y up: a point ahead projects to the principal
+    point, a point above the axis to a smaller row v, right of it to a larger column u."""
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><camera name="c" pos="0 0 1" xyaxes="0 1 0 -1 0 0" fovy="60"/>'
+        "</worldbody></mujoco>")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    p, R = optical_pose(data.cam_xpos[0], data.cam_xmat[0])
+    cam = Camera.from_model(model, "c", 640, 480)
+    mj_axes = data.cam_xmat[0].reshape(3, 3)
+    ahead = p - 2.0 * mj_axes[:, 2]
+    up = ahead + 0.1 * mj_axes[:, 1]
+    right = ahead + 0.1 * mj_axes[:, 0]
+    s = project(transform_points(R.T, -R.T @ p, np.array([ahead, up, right])), cam)
+    np.testing.assert_allclose(s[0], [cam.cu, cam.cv], atol=1e-9)
+    assert s[1, 1] < cam.cv and s[2, 0] > cam.cu
+    np.testing.assert_allclose(MUJOCO_TO_OPTICAL @ MUJOCO_TO_OPTICAL, np.eye(3))
+
+
+def test_bad_inputs_raise() -> None:
+    with pytest.raises(ValueError, match="behind"):
+        project(np.array([[0.0, 0.0, -1.0]]), CAMERA)
+    with pytest.raises(ValueError, match="depth"):
+        interaction_matrix(np.zeros((1, 2)), 0.0, CAMERA)
+    with pytest.raises(ValueError, match="fovy"):
+        Camera.from_fovy(180.0, 640, 480)
