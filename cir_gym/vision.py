@@ -92,8 +92,8 @@ class Camera:
         """Intrinsic matrix (3, 3)."""
         return np.array([[self.fu, 0.0, self.cu], [0.0, self.fv, self.cv], [0.0, 0.0, 1.0]])
 
-    def with_error(self, focal_scale: float = 1.0, principal_offset: tuple[float, float] = (0.0, 0.0)
-                   ) -> Camera:
+    def with_error(self, focal_scale: float = 1.0,
+                   principal_offset: tuple[float, float] = (0.0, 0.0)) -> Camera:
         """This camera with its focal lengths scaled and its principal point moved (px)."""
         return replace(self, fu=self.fu * focal_scale, fv=self.fv * focal_scale,
                        cu=self.cu + principal_offset[0], cv=self.cv + principal_offset[1])

@@ -100,7 +100,8 @@ def test_pose_error_and_twist_transform() -> None:
     R_ref, t_ref = _random_pose(rng)
     t_e, tu = pose_error(R_ref, t_ref, R_ref, t_ref)
     np.testing.assert_allclose(np.concatenate((t_e, tu)), 0.0, atol=1e-12)
-    # camera displaced by (R_d, t_d) in the desired frame sees the target at R_dᵀ (R_ref, t_ref − t_d)
+    # a camera displaced by (R_d, t_d) in the desired frame sees the target at
+    # (R_dᵀ R_ref, R_dᵀ (t_ref − t_d))
     R_d = traj.matrix_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.7)
     t_d = np.array([0.1, -0.2, 0.3])
     R, t = R_d.T @ R_ref, R_d.T @ (t_ref - t_d)
