@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 import unicodedata
+import weakref
 from typing import Any
 
 import mujoco
@@ -38,6 +39,7 @@ import numpy as np
 
 __all__ = [
     "BLUE",
+    "GHOST",
     "GREEN",
     "OBSTACLE",
     "RED",
@@ -65,6 +67,8 @@ GREEN = (0.1, 0.8, 0.2, 1.0)
 BLUE = (0.15, 0.35, 0.95, 1.0)
 #: the reference (path, ghost arm): translucent cyan
 REFERENCE = (0.1, 0.8, 0.95, 0.35)
+#: a ghost arm at the reference pose: fainter than REFERENCE (it covers the arm)
+GHOST = (0.1, 0.8, 0.95, 0.22)
 #: the target point / frame origin: opaque yellow
 TARGET = (1.0, 0.85, 0.1, 1.0)
 #: an obstacle: translucent red
@@ -330,11 +334,15 @@ def draw_caption(image: np.ndarray, text: str, scale: int | None = None,
     """Write ``text`` at the top-left of ``image`` (h, w, 3) uint8, in place; return ``image``.
 
     The text sits on a dark band (the pixels under it are multiplied by ``1 - background``)
-    and is clipped at the right edge. ``scale`` defaults to :func:`caption_scale`.
+    and is clipped at the right edge. ``scale`` defaults to :func:`caption_scale`, reduced
+    (down to 1) until the line fits the width.
     """
     if not text:
         return image
     s = caption_scale(image.shape[0]) if scale is None else max(1, int(scale))
+    width = (GLYPH_W + 1) * len(_printable(text))
+    while s > 1 and scale is None and width * s > image.shape[1] - 2 * margin:
+        s -= 1  # the default scale shrinks until the line fits
     mask = text_mask(text, s)
     h, w = image.shape[:2]
     y0 = x0 = margin
@@ -348,3 +356,202 @@ def draw_caption(image: np.ndarray, text: str, scale: int | None = None,
     region = image[y0: y0 + mh, x0: x0 + mw]
     region[mask[:mh, :mw]] = colour
     return image
+
+
+# ---------------------------------------------------------------------------- task pictures
+def tint_bodies(scene: mujoco.MjvScene, model: mujoco.MjModel, colours: dict[int, Any]) -> int:
+    """Recolour the model geoms already in ``scene`` that belong to the bodies in ``colours``.
+
+    ``colours`` maps a body id to an RGBA. Only the scene's copy changes (``model.geom_rgba``
+    does not); returns the number of geoms recoloured.
+    """
+    if not colours:
+        return 0
+    kind = int(mujoco.mjtObj.mjOBJ_GEOM)
+    changed = 0
+    for i in range(scene.ngeom):
+        geom = scene.geoms[i]
+        if geom.objtype != kind or geom.objid < 0:
+            continue
+        rgba = colours.get(int(model.geom_bodyid[geom.objid]))
+        if rgba is not None:
+            geom.rgba[:] = _rgba(rgba)
+            changed += 1
+    return changed
+
+
+def place_world_geoms(scene: mujoco.MjvScene, model: mujoco.MjModel) -> int:
+    """Put the scene's copies of world-body geoms at ``model.geom_pos``/``geom_quat``.
+
+    ``mj_kinematics`` does not recompute the poses of geoms on the world body, so a world geom
+    moved at run time through ``model.geom_pos`` (an obstacle placed per episode) is drawn
+    where it was compiled. Returns the number of geoms placed.
+    """
+    kind = int(mujoco.mjtObj.mjOBJ_GEOM)
+    mat = np.empty(9)
+    placed = 0
+    for i in range(scene.ngeom):
+        geom = scene.geoms[i]
+        if geom.objtype != kind or geom.objid < 0 or model.geom_bodyid[geom.objid] != 0:
+            continue
+        geom.pos[:] = model.geom_pos[geom.objid]
+        mujoco.mju_quat2Mat(mat, model.geom_quat[geom.objid])
+        geom.mat[:] = mat.reshape(3, 3)
+        placed += 1
+    return placed
+
+
+def joint_margins(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Distance of each joint to its nearest limit as a fraction of its range, (n,) in [0, 0.5]."""
+    span = np.maximum(np.asarray(upper) - np.asarray(lower), 1e-12)
+    return np.clip(np.minimum(q - lower, upper - q) / span, 0.0, 0.5)
+
+
+def tint_joint_limits(scene: mujoco.MjvScene, model: mujoco.MjModel, joint_ids: np.ndarray,
+                      q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                      warn_below: float = 0.1) -> int:
+    """Colour each link toward red as its joint (``joint_ids``, (n,)) nears a limit.
+
+    A link whose joint is at least ``warn_below`` of its range from both limits keeps its
+    colour; see :func:`limit_colour`.
+    """
+    margins = joint_margins(q, lower, upper)
+    colours = {}
+    for j, m in zip(joint_ids, margins, strict=True):
+        if m < warn_below:
+            body = int(model.jnt_bodyid[j])
+            base = model.geom_rgba[model.geom_bodyid == body]
+            colours[body] = limit_colour(float(m), base[0] if len(base) else WARNING, warn_below)
+    return tint_bodies(scene, model, colours)
+
+
+class _Ghost:
+    """A second MjData of a model, for drawing poses other than the simulated one."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.key: tuple[Any, ...] = ()
+        self.trace = np.zeros((0, 3))
+
+    def pose(self, qpos: np.ndarray, adr: np.ndarray, q: np.ndarray) -> mujoco.MjData:
+        self.data.qpos[:] = qpos
+        self.data.qpos[adr] = q
+        mujoco.mj_kinematics(self.model, self.data)
+        return self.data
+
+    def site_path(self, qpos: np.ndarray, adr: np.ndarray, qs: np.ndarray, site: int
+                  ) -> np.ndarray:
+        """World positions (k, 3) of ``site`` along the joint path ``qs`` (k, n)."""
+        out = np.empty((len(qs), 3))
+        for i, q in enumerate(qs):
+            out[i] = self.pose(qpos, adr, q).site_xpos[site]
+        return out
+
+
+_GHOSTS: weakref.WeakKeyDictionary[Any, _Ghost] = weakref.WeakKeyDictionary()
+
+
+def _ghost(env: Any) -> _Ghost:
+    ghost = _GHOSTS.get(env)
+    if ghost is None or ghost.model is not env.model:
+        ghost = _GHOSTS[env] = _Ghost(env.model)
+    return ghost
+
+
+def _site(model: mujoco.MjModel, names: tuple[str, ...]) -> int:
+    for name in names:
+        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name)
+        if i >= 0:
+            return i
+    return -1
+
+
+#: samples of a reference drawn as a polyline
+TRACE_SAMPLES = 120
+
+
+def draw_joint_tracking(env: Any, scene: mujoco.MjvScene) -> None:
+    """JointTracking(-like) task: a translucent ghost arm at q̄(t) and the flange's reference path.
+
+    Reads ``env.model``, ``env.data``, ``env.robot.qpos_adr``, ``env._ref`` (3, K+1, n) and
+    ``env._k``; the flange path (site ``flange``, else ``ee``) is computed once per episode.
+    """
+    ghost = _ghost(env)
+    adr = env.robot.qpos_adr
+    ref = env._ref[0]
+    k = min(env._k, len(ref) - 1)
+    site = _site(env.model, ("flange", "ee", "tcp"))
+    if site >= 0:
+        key = (ref[0].tobytes(), ref[-1].tobytes(), ref[len(ref) // 2].tobytes())
+        if key != ghost.key:
+            idx = np.unique(np.linspace(0, len(ref) - 1, TRACE_SAMPLES).round().astype(int))
+            ghost.trace = ghost.site_path(env.data.qpos, adr, ref[idx], site)
+            ghost.key = key
+        add_polyline(scene, ghost.trace, 0.006, REFERENCE, max_segments=TRACE_SAMPLES)
+    data = ghost.pose(env.data.qpos, adr, ref[k])
+    add_ghost(scene, env.model, data, GHOST)
+    if site >= 0:
+        add_sphere(scene, data.site_xpos[site], 0.02, TARGET)
+        add_sphere(scene, env.data.site_xpos[site], 0.015, GREEN)
+
+
+def joint_tracking_caption(env: Any) -> str:
+    """``t``, the joint error ‖q̄ − q‖ now and its RMS so far (rad)."""
+    k = min(env._k, env.max_steps)
+    q = env.data.qpos[env.robot.qpos_adr]
+    err = float(np.linalg.norm(env._ref[0, k] - q))
+    rms = float(np.sqrt(np.mean(env._err[:k] ** 2))) if k > 0 else 0.0
+    return f"t {k * env.dt:5.2f} s  |q_ref-q| {err:.4f} rad  rms {rms:.4f}"
+
+
+def _as_3d(points: np.ndarray, z: float = 0.0) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.shape[-1] == 3:
+        return pts
+    return np.concatenate((pts, np.full((*pts.shape[:-1], 3 - pts.shape[-1]), z)), axis=-1)
+
+
+def draw_redundant_ik(env: Any, scene: mujoco.MjvScene) -> None:
+    """RedundantIK task: the closed reference path, the target (frame), joint-limit warnings.
+
+    The obstacle is a geom of the model already (moved per episode); it gets a translucent
+    halo when the arm comes within 5 cm. Reads ``env._x_ref``, ``env._R_ref``, ``env._k``,
+    ``env._q``, ``env.lower``/``upper``, ``env.site``, ``env.task_dim``.
+    """
+    k = min(env._k, len(env._x_ref) - 1)
+    path = _as_3d(env._x_ref)
+    add_polyline(scene, path, 0.004, REFERENCE, max_segments=TRACE_SAMPLES)
+    target = path[k]
+    if env.task_dim == 6:
+        add_frame(scene, target, env._R_ref[k], 0.12, 0.006)
+        add_sphere(scene, target, 0.015, TARGET)
+    else:
+        add_sphere(scene, target, 0.025, TARGET)
+    tint_joint_limits(scene, env.model, env.robot.joint_ids, env._q, env.lower, env.upper)
+    place_world_geoms(scene, env.model)  # the obstacle, moved per episode
+    radius = float(getattr(env, "_obstacle_radius", 0.0))
+    if radius > 0 and k > 0:
+        clear = float(env._trace[4, k - 1])
+        if clear < 0.05:  # a halo out to the arm: orange, more opaque as it closes in
+            centre = _as_3d(np.asarray(env._obstacle_centre))
+            add_sphere(scene, centre, radius + max(clear, 0.0),
+                       (1.0, 0.6, 0.1, 0.15 + 0.35 * (1.0 - max(clear, 0.0) / 0.05)))
+
+
+def redundant_ik_caption(env: Any) -> str:
+    """``t``, the task error (mm) and the objective's quantity (w, margin or clearance)."""
+    k = min(env._k, env.max_steps)
+    if k == 0:
+        return f"t {0.0:5.2f} s  {env.objective}"
+    e_pos, e_rot, w, margin, clear = env._trace[:5, k - 1]
+    text = f"t {k * env.dt:5.2f} s  e {1e3 * e_pos:5.2f} mm"
+    if env.task_dim == 6:
+        text += f" {np.degrees(e_rot):5.2f}°"
+    if env.objective == "manipulability":
+        text += f"  w {w:.3f}"
+    elif env.objective == "joint_limits":
+        text += f"  margin {margin:.3f} rad"
+    else:
+        text += f"  clear {100 * clear:4.1f} cm"
+    return text

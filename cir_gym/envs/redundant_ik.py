@@ -764,6 +764,17 @@ class _RedundantIKBase(RobotEnv):
         mujoco.mj_camlight(self.model, self.data)  # kinematics alone leaves cameras/lights unset
         return super().render()
 
+    def draw_task(self, scene: mujoco.MjvScene) -> None:
+        """The reference path, the target (frame), joint-limit warnings (cir_gym.rendering)."""
+        from cir_gym import rendering
+
+        rendering.draw_redundant_ik(self, scene)
+
+    def caption(self) -> str:
+        from cir_gym import rendering
+
+        return rendering.redundant_ik_caption(self)
+
     # ------------------------------------------------------------------ observation
     def _obs(self) -> dict[str, np.ndarray]:
         k = self._k
