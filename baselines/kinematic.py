@@ -7,7 +7,7 @@ saturated by the environment's action scaling.
 
 Notation: x̄, x̄̇ the reference (``x_ref``, ``xd_ref``; for 6-D also ``quat_ref``,
 ``omega_ref``), e = [x̄ − x; e_O] the task error with e_O the rotation vector of R̄ Rᵀ
-(:func:`cir_gym.envs.redundant_ik.quat_orientation_error`), J (m, n) the geometric task Jacobian
+(:func:`cir_gym.redundancy.quat_orientation_error`), J (m, n) the geometric task Jacobian
 of the controller's own nominal robot at the measured q (rows [J_P; J_O], the first two rows
 of J_P on the plane). CLIK: q̇ = J†(x̄̇ + K e) gives ė + K e = 0, e(t) = e(0) exp(−K t);
 with the control period Δt the discrete loop is e_{k+1} = (1 − K Δt) e_k (stable for
@@ -22,7 +22,7 @@ import numpy as np
 
 from baselines.base import Controller, InvalidGain, Observation
 from cir_gym.envs.base import TaskContext
-from cir_gym.envs.redundant_ik import (
+from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,
     joint_limit_margin,

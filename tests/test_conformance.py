@@ -47,8 +47,8 @@ import cir_gym
 from agents.policy import AgentFileError
 from cir_gym.envs.base import constructor_arguments
 from cir_gym.envs.joint_tracking import REFERENCES
-from cir_gym.envs.redundant_ik import OBJECTIVES
 from cir_gym.evaluation import evaluate
+from cir_gym.redundancy import OBJECTIVES
 from cir_gym.robot import (
     ASSETS,
     ModelError,

@@ -14,13 +14,13 @@ from gymnasium.utils.env_checker import check_env
 import cir_gym  # noqa: F401  (registers the environments it knows)
 from baselines import kinematic
 from baselines.base import InvalidGain
+from cir_gym import redundancy
 from cir_gym.envs import redundant_ik as env_module
 from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.redundant_ik import (
     REDUNDANT_IK_ENVIRONMENTS,
     RedundantIK7Env,
     RedundantIKEnv,
-    orientation_error,
 )
 from cir_gym.robot import Robot
 
@@ -164,14 +164,14 @@ def test_self_motion_walk_holds_the_task_pose_and_stops_at_the_margin(env_id):
             p, R = policy.robot.site_pose(policy.site_id, x)
             e = (p0 - p)[: policy.pos_dim]
             if policy.task_dim == 6:
-                e = np.concatenate((e, env_module.orientation_error(R0, R)))
+                e = np.concatenate((e, redundancy.orientation_error(R0, R)))
             x = x + kinematic.pseudo_inverse(policy.task_jacobian(x)) @ e
         return x
 
     def stop(_, x):
-        return env_module.joint_limit_margin(x, lower, upper) < 0.1
+        return redundancy.joint_limit_margin(x, lower, upper) < 0.1
 
-    points = env_module.walk_self_motion(q, policy.task_jacobian, restore, stop, np.pi, 0.1)
+    points = redundancy.walk_self_motion(q, policy.task_jacobian, restore, stop, np.pi, 0.1)
     arcs = np.array([s for s, _ in points])
     assert arcs[0] == pytest.approx(0.1) and np.any(arcs < 0)
     for side in (arcs[arcs > 0], -arcs[arcs < 0]):
@@ -181,7 +181,7 @@ def test_self_motion_walk_holds_the_task_pose_and_stops_at_the_margin(env_id):
         np.testing.assert_allclose(p[: policy.pos_dim], p0[: policy.pos_dim], atol=1e-8)
         if policy.task_dim == 6:
             np.testing.assert_allclose(R @ R0.T, np.eye(3), atol=1e-7)
-        assert env_module.joint_limit_margin(x, lower, upper) >= 0.1
+        assert redundancy.joint_limit_margin(x, lower, upper) >= 0.1
     # consecutive postures are about one step of arc apart (a unit-speed walk of the manifold)
     side = np.array([x for s, x in points if s > 0])
     np.testing.assert_allclose(np.linalg.norm(np.diff(side, axis=0), axis=1), 0.1, rtol=0.05)
@@ -424,15 +424,15 @@ def test_lap_witness_follows_a_moving_free_interval_only_as_fast_as_the_bound():
     q = np.tile((0.1 * np.arange(N))[None, :, None], (K, 1, 1))
     centre = 10 + np.arange(K)
     usable = np.abs(np.arange(N)[None, :] - centre[:, None]) <= 3
-    path = env_module.lap_witness(q, usable, np.array([0.1 + 1e-12]), start=10)
+    path = redundancy.lap_witness(q, usable, np.array([0.1 + 1e-12]), start=10)
     assert path is not None and path[0] == 10
     assert np.all(usable[np.arange(K), path])
     assert np.all(np.abs(np.diff(q[np.arange(K), path, 0])) <= 0.1 + 1e-12)
-    assert env_module.lap_witness(q, usable, np.array([0.05]), start=10) is None
+    assert redundancy.lap_witness(q, usable, np.array([0.05]), start=10) is None
     closed = usable.copy()
     closed[20] = False
-    assert env_module.lap_witness(q, closed, np.array([0.1 + 1e-12]), start=10) is None
-    assert env_module.lap_witness(q, usable, np.array([0.1 + 1e-12]), start=20) is None
+    assert redundancy.lap_witness(q, closed, np.array([0.1 + 1e-12]), start=10) is None
+    assert redundancy.lap_witness(q, usable, np.array([0.1 + 1e-12]), start=20) is None
 
 
 @pytest.mark.parametrize("env_id", [ENV, ENV7])
@@ -452,7 +452,7 @@ def test_manipulability_start_is_the_worst_feasible_lap_of_the_self_motion(env_i
         obs, _ = env.reset(seed=seed)
         np.testing.assert_allclose(obs["x"], obs["x_ref"], atol=1e-9)
         q_home = base._solve_ik(base.home.copy(), base._x_ref[0], base._R_ref[0])
-        margin = env_module.joint_limit_margin
+        margin = redundancy.joint_limit_margin
         lower, upper = obs["q_lower"], obs["q_upper"]
         assert margin(obs["q"], lower, upper) >= min(
             env_module.START_MARGIN, margin(q_home, lower, upper)) - 1e-9
@@ -487,5 +487,5 @@ def test_orientation_error_is_the_rotation_vector():
 
     R = matrix_from_axis_angle([1.0, 2.0, 3.0], 0.7)
     axis = np.array([0.0, 0.6, 0.8])
-    np.testing.assert_allclose(orientation_error(matrix_from_axis_angle(axis, 2.9) @ R, R),
-                               2.9 * axis, atol=1e-12)
+    R_ref = matrix_from_axis_angle(axis, 2.9) @ R
+    np.testing.assert_allclose(redundancy.orientation_error(R_ref, R), 2.9 * axis, atol=1e-12)

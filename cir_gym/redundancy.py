@@ -1,0 +1,206 @@
+"""Redundancy science (chapter 1): what a redundant arm's self-motion can be used for.
+
+Kinematic measures shared by the RedundantIK environments (:mod:`cir_gym.envs.redundant_ik`)
+and the controllers of :mod:`baselines.kinematic`: Yoshikawa's manipulability, the
+joint-limit objective, its gradient and the joint-limit margin, the null vector of J and the
+self-motion through a configuration, the SO(3) orientation error (through unit quaternions),
+the analytic capsule–obstacle clearance of the robot's links, and the search for a motion
+through sampled self-motion configurations (:func:`lap_witness`). Nothing here knows a task:
+the environment draws references and scores episodes, the controllers choose q̇.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+__all__ = [
+    "OBJECTIVES",
+    "LinkCapsules",
+    "joint_limit_margin",
+    "joint_limit_objective",
+    "joint_limit_objective_gradient",
+    "lap_witness",
+    "manipulability",
+    "null_vector",
+    "orientation_error",
+    "point_segment_distance",
+    "quat_orientation_error",
+    "walk_self_motion",
+]
+
+OBJECTIVES = ("manipulability", "joint_limits", "obstacle")  # what the self-motion serves
+LAP_WINDOW = 8  # neighbouring self-motion nodes a witness may move to in one sample
+
+
+# ---------------------------------------------------------------------- kinematic measures
+def manipulability(J: np.ndarray) -> float:
+    """Yoshikawa's manipulability w = sqrt(det(J Jᵀ)) of a task Jacobian J (m, n)."""
+    return float(np.sqrt(max(np.linalg.det(J @ J.T), 0.0)))
+
+
+def joint_limit_objective(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """w(q) = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))², q̄ the range midpoint; in [−1/8, 0]."""
+    u = (q - 0.5 * (lower + upper)) / (upper - lower)
+    return float(-0.5 * (u @ u) / q.size)
+
+
+def joint_limit_objective_gradient(q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+                                   ) -> np.ndarray:
+    """∂w/∂q (n,) of :func:`joint_limit_objective`: −(q_i − q̄_i) / (n (q_iM − q_im)²)."""
+    r = upper - lower
+    return -(q - 0.5 * (lower + upper)) / (q.size * r * r)
+
+
+def joint_limit_margin(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """min_i min(q_i − q_im, q_iM − q_i) (rad): distance to the nearest joint limit."""
+    return float(min(np.min(q - lower), np.min(upper - q)))
+
+
+def null_vector(J: np.ndarray) -> np.ndarray:
+    """Unit vector (n,) spanning ker J (m, n) when dim ker J = 1: the last right singular
+    vector (its sign is arbitrary)."""
+    return np.linalg.svd(J)[2][-1]
+
+
+def walk_self_motion(
+    q: np.ndarray,
+    jacobian: Callable[[np.ndarray], np.ndarray],
+    project: Callable[[np.ndarray], np.ndarray],
+    stop: Callable[[np.ndarray, np.ndarray], bool],
+    arc: float,
+    step: float,
+) -> list[tuple[float, np.ndarray]]:
+    """Points (s, q_s) of the self-motion through ``q``: s (rad) the signed arc length.
+
+    Walks each way (s > 0 first) along the unit null vector v of J(q) (the last right singular
+    vector: dim ker J = 1 on both robots; its sign kept continuous along the walk), taking
+    q ← project(q + step v) (``project`` restores the task pose, e.g. by Newton steps),
+    until ``stop(q_previous, q)`` or |s| would exceed ``arc``. ``q`` itself is not included.
+    """
+    v0 = null_vector(jacobian(q))
+    points = []
+    for sign in (1.0, -1.0):
+        x, prev = q.copy(), sign * v0
+        for i in range(1, int(arc / step) + 1):
+            v = null_vector(jacobian(x))
+            prev = v if v @ prev >= 0 else -v
+            x_next = project(x + step * prev)
+            if stop(x, x_next):
+                break
+            x = x_next
+            points.append((sign * i * step, x.copy()))
+    return points
+
+
+def lap_witness(q: np.ndarray, usable: np.ndarray, bound: np.ndarray, start: int,
+                window: int = LAP_WINDOW) -> np.ndarray | None:
+    """A motion through sampled configurations, or None when none exists.
+
+    ``q`` (K, N, n) holds N configurations at each of K sample times (N nodes of a
+    self-motion, ordered along it), ``usable`` (K, N) which of them may be visited. Returns
+    node indices (K,) starting at ``start`` with every node usable and every step between
+    consecutive samples within ``bound`` (n,) per joint (|Δq_j| ≤ bound_j), moving at most
+    ``window`` nodes along the ordering per sample. Forward reachability with parent
+    pointers (dynamic programming), O(K N window).
+    """
+    K, N, _ = q.shape
+    if not usable[0, start]:
+        return None
+    reach = np.zeros(N, dtype=bool)
+    reach[start] = True
+    parent = np.full((K, N), -1)
+    nodes = np.arange(N)
+    for k in range(1, K):
+        new = np.zeros(N, dtype=bool)
+        for offset in range(-window, window + 1):
+            j = nodes - offset
+            inside = (j >= 0) & (j < N)
+            j = np.clip(j, 0, N - 1)
+            ok = inside & reach[j] & ~new & np.all(np.abs(q[k] - q[k - 1, j]) <= bound, axis=1)
+            parent[k, ok] = j[ok]
+            new |= ok
+        reach = new & usable[k]
+        if not reach.any():
+            return None
+    path = np.empty(K, dtype=int)
+    path[-1] = int(np.flatnonzero(reach)[0])
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = parent[k, path[k]]
+    return path
+
+
+def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Rotation vector θ r (3,) of R_ref Rᵀ (world frame), θ ∈ [0, π] (rad).
+
+    Computed through unit quaternions (:func:`quat_orientation_error`), so it is defined on
+    SO(3) (no Euler angles) and d(θ r)/dt ≈ ω_ref − ω for small errors.
+    """
+    quat_ref, quat = np.empty(4), np.empty(4)
+    mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    return quat_orientation_error(quat_ref, quat)
+
+
+def quat_orientation_error(quat_ref: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """Rotation vector θ r (3,) of Q_ref ⊗ Q⁻¹ (quaternions (w, x, y, z), world frame).
+
+    With Q_e = (η, ε) = Q_ref ⊗ Q⁻¹: θ r = 2 atan2(‖ε‖, η) ε/‖ε‖, wrapped to θ ∈ [0, π] (the
+    shorter rotation, so Q and −Q give the same error). MuJoCo's C helpers do the arithmetic.
+    """
+    conj, err, vec = np.empty(4), np.empty(4), np.empty(3)
+    mujoco.mju_negQuat(conj, quat)
+    mujoco.mju_mulQuat(err, quat_ref, conj)
+    mujoco.mju_quat2Vel(vec, err, 1.0)
+    return vec
+
+
+class LinkCapsules:
+    """The robot's moving capsule geoms as segments, for an analytic clearance.
+
+    Each capsule is the set of points within ``radius`` of a segment [a, b] along the geom's z
+    axis (half length ``size[1]``). The clearance to a spherical obstacle (centre c, radius
+    ρ; a cylinder along z for the planar arm, whose links lie in the plane of c) is
+    min_i (dist(c, [a_i, b_i]) − r_i) − ρ: negative when they intersect.
+
+    Args:
+        model: a model holding the robot (its capsules on bodies with joints).
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        capsule = int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+        moving = model.body_dofnum > 0
+        ids = [g for g in range(model.ngeom)
+               if int(model.geom_type[g]) == capsule and moving[model.geom_bodyid[g]]
+               and model.geom_contype[g] != 0]
+        self.geom_ids = np.array(ids, dtype=int)
+        self.radius = model.geom_size[self.geom_ids, 0].copy()  # (k,) m
+        self.half_length = model.geom_size[self.geom_ids, 1].copy()  # (k,) m
+
+    def segments(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """End points a, b (k, 3) in the world frame (after ``mj_kinematics``)."""
+        centre = data.geom_xpos[self.geom_ids]
+        axis = data.geom_xmat[self.geom_ids][:, 6:9]  # geom z axis (third column of R)
+        half = self.half_length[:, None] * axis
+        return centre - half, centre + half
+
+    def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:
+        """Minimum distance (m) between the obstacle sphere and the capsules (< 0: collision)."""
+        return float(self.segment_clearance(*self.segments(data), centre, radius))
+
+    def segment_clearance(self, a: np.ndarray, b: np.ndarray, centre: np.ndarray,
+                          radius: float) -> np.ndarray:
+        """:meth:`clearance` of stored capsule end points a, b (..., k, 3): shape (...)."""
+        return np.min(point_segment_distance(centre, a, b) - self.radius, axis=-1) - radius
+
+
+def point_segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (...,) from the point c (3,) to the segments [a, b] (..., 3)."""
+    ab = b - a
+    t = np.einsum("...j,...j->...", c - a, ab) / np.maximum(np.einsum("...j,...j->...", ab, ab),
+                                                          1e-18)
+    closest = a + np.clip(t, 0.0, 1.0)[..., None] * ab
+    return np.linalg.norm(c - closest, axis=-1)
+
