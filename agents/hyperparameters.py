@@ -1,28 +1,45 @@
-"""Hyperparameters from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's layout, plain YAML, no eval).
+"""Hyperparameters from ``agents/hyperparams/<algo>.yml``: rl-zoo3's own format, plus two
+project sections rl-zoo3 never reads. Plain YAML, nothing evaluated here.
 
-Each file maps an environment id (``cir_gym/JointTracking-v1``) or ``default`` to an entry::
+rl-zoo3 reads one entry of the file, the env id's (or ``default``), and passes every key it
+does not know to the algorithm. So every entry is complete by itself (YAML merge keys,
+``<<: *default``, copy ``default`` into it) and holds only keys rl-zoo3 understands::
 
-    cir_gym/JointTracking-v1:
+    default: &default
       policy: MlpPolicy
-      n_timesteps: 2.0e6
-      n_envs: 8
-      normalize: {norm_obs: true, norm_reward: true}   # or true / false
-      policy_kwargs: {net_arch: [64, 64], log_std_init: -1.0, activation_fn: tanh}
-      learning_rate: 3.0e-4            # or "lin_3.0e-4" (linear decay to 0)
-      ...                              # any other keyword of the SB3 algorithm
-      residual:                        # overrides applied when training a residual agent
-        scale: 0.25
-        zero_init_action: true
+      n_timesteps: 1000000            # an int or 1.0e+6 (YAML 1.1 reads 1.0e6 as a string)
+      n_envs: 16
+      normalize: {norm_obs: true, norm_reward: true}
+      env_wrapper: agents.observation.TaskObservation     # Dict -> flat vector (+ k_ref - k)
+      policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh, log_std_init=-1.0)"
+      learning_rate: 3.0e-4           # or "lin_3.0e-4" (linear decay to 0)
+      ...                             # any other keyword of the SB3 algorithm
+    cir_gym/JointTracking-v1:
+      <<: *default
+      n_timesteps: 5000000
 
-An id without an entry uses ``default`` (so a new environment trains unchanged); an entry is
-merged over ``default`` key by key (``policy_kwargs`` and ``residual`` one level deeper).
-Strings are never evaluated: ``activation_fn`` is a name looked up in :data:`ACTIVATIONS`,
-schedules are ``lin_<float>``. Unknown keys, algorithm arguments or activation names raise
+    training:                         # agents.train only: evaluation, checkpoints, vec env
+      default: {vec_env: dummy, eval_freq: 50000, n_eval_episodes: 5, checkpoint_freq: 250000}
+      cir_gym/JointTracking-v1: {eval_freq: 150000}
+    residual:                         # agents.train only: overrides for --residual CONTROLLER
+      default: {scale: 0.25, zero_init_action: true}
+
+``python -m rl_zoo3.train --algo ppo --env cir_gym/JointTracking-v1 --gym-packages cir_gym
+--conf-file agents/hyperparams/ppo.yml`` trains from the file as it is.
+
+For the project an entry is merged over ``default`` key by key (``policy_kwargs``,
+``normalize`` and ``residual`` one level deeper), then the ``training`` section's ``default``
+and id entries, then (residual agents) the ``residual`` section's. The older layout — the
+training keys and a ``residual:`` mapping inside the entries, ``policy_kwargs`` as a mapping
+with ``activation_fn: tanh`` — is still read. ``policy_kwargs`` strings are parsed, never
+evaluated: only ``dict(...)`` with literal values and ``nn.<activation>`` from
+:data:`ACTIVATIONS`. Unknown keys, algorithm arguments, wrappers or activation names raise
 :class:`HyperparameterError` naming the file and the allowed values.
 """
 
 from __future__ import annotations
 
+import ast
 import copy
 import inspect
 from pathlib import Path
@@ -35,6 +52,8 @@ __all__ = [
     "HyperparameterError",
     "algorithm_class",
     "load_hyperparams",
+    "observation_options",
+    "parse_policy_kwargs",
     "resolve_policy_kwargs",
     "resolve_schedule",
 ]
@@ -69,7 +88,14 @@ TRAINING_KEYS = {
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",
+    "env_wrapper": "rl-zoo3's observation wrapper: agents.observation.TaskObservation, with "
+                   "optional {task_errors, features} (the project applies it itself)",
 }
+#: the observation wrapper rl-zoo3 must apply (the project's own EnvFactory applies it too)
+ENV_WRAPPER = "agents.observation.TaskObservation"
+WRAPPER_KEYS = {"task_errors", "features"}
+#: top-level sections of a file that rl-zoo3 never reads (not environment ids)
+SECTIONS = ("training", "residual")
 RESIDUAL_KEYS = {"scale"}  # besides any top-level key
 NORMALIZE_KEYS = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
 POLICIES = ("MlpPolicy",)
@@ -124,6 +150,8 @@ def _read_yaml(path: Path) -> dict[str, Any]:
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(base)
     for k, v in over.items():
+        if k == "policy_kwargs" and isinstance(v, str):
+            v = parse_policy_kwargs(v)
         if k in ("policy_kwargs", "residual", "normalize") and isinstance(v, dict) \
                 and isinstance(out.get(k), dict):
             out[k] = {**out[k], **v}
@@ -153,10 +181,19 @@ def load_hyperparams(algo: str, env_id: str, *, residual: bool = False,
     file = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.yml"
     data = _read_yaml(file)
     key = env_id.split(":")[-1]
-    entry = _merge(data["default"] or {}, data.get(key) or {})
-    res = entry.pop("residual", {}) or {}
-    if not isinstance(res, dict):
-        raise HyperparameterError(f"{file}: 'residual' must be a mapping, got {res!r}")
+    try:
+        entry = _merge(_parsed(data["default"]), _parsed(data.get(key)))
+        training = _section(data, "training", file)
+        entry = _merge(_merge(entry, _parsed(training.get("default"))),
+                       _parsed(training.get(key)))
+        res = entry.pop("residual", {}) or {}
+        if not isinstance(res, dict):
+            raise HyperparameterError(f"{file}: 'residual' must be a mapping, got {res!r}")
+        section = _section(data, "residual", file)
+        res = _merge(_merge(_parsed(res), _parsed(section.get("default"))),
+                     _parsed(section.get(key)))
+    except HyperparameterError as exc:
+        raise HyperparameterError(f"{file} [{key}]: {exc}") from exc
     if residual:
         scale = res.get("scale")
         entry = _merge(entry, {k: v for k, v in res.items() if k != "scale"})
@@ -166,6 +203,89 @@ def load_hyperparams(algo: str, env_id: str, *, residual: bool = False,
         entry["residual_scale"] = scale
     _validate(entry, cls, file, key)
     return entry
+
+
+def _parsed(entry: Any) -> dict[str, Any]:
+    """An entry (or None) with a ``policy_kwargs`` string parsed into a mapping."""
+    if entry is None:
+        return {}
+    if not isinstance(entry, dict):
+        raise HyperparameterError(f"expected a mapping, got {entry!r}")
+    out = dict(entry)
+    if isinstance(out.get("policy_kwargs"), str):
+        out["policy_kwargs"] = parse_policy_kwargs(out["policy_kwargs"])
+    return out
+
+
+def _section(data: dict[str, Any], name: str, file: Path) -> dict[str, Any]:
+    """A top-level project section ({default, <env id>: {...}}), or {} if absent."""
+    section = data.get(name) or {}
+    if not isinstance(section, dict) or not all(isinstance(v, dict) or v is None
+                                                for v in section.values()):
+        raise HyperparameterError(f"{file}: top-level {name!r} must map 'default' and env ids "
+                                  f"to mappings")
+    return section
+
+
+def parse_policy_kwargs(text: str) -> dict[str, Any]:
+    """rl-zoo3's ``policy_kwargs`` string, parsed without evaluation.
+
+    Only ``dict(key=value, ...)`` is accepted, with literal values (numbers, strings, lists,
+    nested ``dict(...)``) and activations ``nn.<Name>`` of :data:`ACTIVATIONS`, which come
+    back by their short name: ``"dict(net_arch=[64], activation_fn=nn.Tanh)"`` →
+    ``{"net_arch": [64], "activation_fn": "tanh"}``.
+    """
+    by_class = {v: k for k, v in ACTIVATIONS.items()}
+
+    def value(node: ast.AST) -> Any:
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id == "dict" and not node.args:
+            return {kw.arg: value(kw.value) for kw in node.keywords if kw.arg is not None}
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                and node.value.id == "nn":
+            if node.attr not in by_class:
+                raise HyperparameterError(f"policy_kwargs: activation nn.{node.attr} not "
+                                          f"allowed; allowed: {sorted(by_class)}")
+            return by_class[node.attr]
+        if isinstance(node, (ast.List, ast.Tuple)):
+            return [value(e) for e in node.elts]
+        if isinstance(node, ast.Dict):
+            return {value(k): value(v) for k, v in zip(node.keys, node.values, strict=True)}
+        try:
+            return ast.literal_eval(node)
+        except ValueError as exc:
+            raise HyperparameterError(f"policy_kwargs: {ast.unparse(node)!r} is not a literal, "
+                                      f"dict(...) or nn.<activation>") from exc
+
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise HyperparameterError(f"policy_kwargs: not a Python expression: {text!r}") from exc
+    out = value(tree.body)
+    if not isinstance(out, dict):
+        raise HyperparameterError(f"policy_kwargs must be dict(...), got {text!r}")
+    return out
+
+
+def observation_options(hp: dict[str, Any], where: str = "hyperparameters"
+                        ) -> dict[str, Any]:
+    """{task_errors, features} of the observation, from ``env_wrapper`` (rl-zoo3's key) and
+    the older ``task_errors`` training key."""
+    opts: dict[str, Any] = {"task_errors": hp.get("task_errors", True), "features": []}
+    wrapper = hp.get("env_wrapper")
+    if wrapper is None:
+        return opts
+    if isinstance(wrapper, list) and len(wrapper) == 1:
+        wrapper = wrapper[0]
+    name, kwargs = (wrapper, {}) if isinstance(wrapper, str) else \
+        (next(iter(wrapper)), next(iter(wrapper.values())) or {}) \
+        if isinstance(wrapper, dict) and len(wrapper) == 1 else (None, None)
+    if name != ENV_WRAPPER or not isinstance(kwargs, dict) or set(kwargs) - WRAPPER_KEYS:
+        raise HyperparameterError(f"{where}: env_wrapper must be {ENV_WRAPPER!r} or "
+                                  f"{{{ENV_WRAPPER}: {{task_errors, features}}}}, got {wrapper!r}")
+    opts.update(kwargs)
+    opts["features"] = list(opts.get("features") or [])
+    return opts
 
 
 def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
@@ -196,6 +316,13 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
                               or set(early) - {"max_error", "penalty"}):
         raise HyperparameterError(f"{where}: early_termination must be "
                                   f"{{max_error: <float>, penalty: <float, optional>}}")
+    from agents.observation import FEATURES
+
+    features = observation_options(entry, where)["features"]
+    if set(features) - set(FEATURES):
+        raise HyperparameterError(f"{where}: unknown observation feature(s) "
+                                  f"{sorted(set(features) - set(FEATURES))}; allowed: "
+                                  f"{sorted(FEATURES)}")
     if entry.get("vec_env", "dummy") not in ("dummy", "subproc"):
         raise HyperparameterError(f"{where}: vec_env must be 'dummy' or 'subproc'")
     resolve_policy_kwargs(entry.get("policy_kwargs") or {}, where=where)

@@ -5,10 +5,21 @@ Rule (generic, so new environments work unchanged): for every key ``k`` of the D
 q̃ = q̄ − q and q̃̇ = q̄̇ − q̇). The layout — the keys in order, then the errors — is an
 :class:`ObservationLayout`, saved in each agent's ``config.yml`` so a loaded agent builds the same
 vector from the env's raw observation (single or batched) without any wrapper.
+
+Optional *features* computed from the observation with the task's nominal model (what a
+controller may know, :meth:`RobotEnv.controller_context`), appended after the errors:
+
+* ``gravity``: ĝ(q) ⊘ τ_max, the nominal gravity torque in action units (joint-torque tasks).
+  With it, PD + gravity, a = ĝ(q)/τ_max + K_P q̃ + K_D q̃̇, is a *linear* function of the
+  agent's observation (issue 20's observation review).
+
+They are bound to an environment with :meth:`ObservationLayout.bind` (a loaded agent binds to
+the env it is built for); a layout without features needs no binding.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,7 +27,38 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["ObservationLayout", "TaskObservation"]
+__all__ = ["FEATURES", "ObservationLayout", "TaskObservation", "gravity_feature"]
+
+#: optional observation features → what they are (see the module docstring)
+FEATURES = {
+    "gravity": "nominal gravity torque / tau_max (joint-torque tasks; needs an observation 'q')",
+}
+
+Feature = Callable[[Any], np.ndarray]
+
+
+def gravity_feature(env: gym.Env) -> Feature:
+    """obs ↦ ĝ(q) ⊘ τ_max from ``env``'s nominal model (single or batched observation)."""
+    base = env.unwrapped
+    if not hasattr(base, "controller_context"):
+        raise ValueError("the 'gravity' feature needs a cir_gym RobotEnv (controller_context)")
+    ctx = base.controller_context()
+    if ctx.action_kind != "joint_torque":
+        raise ValueError(f"the 'gravity' feature needs joint-torque actions, not "
+                         f"{ctx.action_kind!r}")
+    robot = ctx.nominal_robot()
+    scale = np.asarray(ctx.action_scale, dtype=np.float64)
+
+    def gravity(obs: Any) -> np.ndarray:
+        q = np.asarray(obs["q"], dtype=np.float64)
+        if q.ndim == 1:
+            return robot.gravity(q) / scale
+        return np.stack([robot.gravity(row) for row in q]) / scale
+
+    return gravity
+
+
+FEATURE_FACTORIES: dict[str, Callable[[gym.Env], Feature]] = {"gravity": gravity_feature}
 
 
 @dataclass(frozen=True)
@@ -27,31 +69,54 @@ class ObservationLayout:
         keys: Dict keys concatenated in this order.
         shapes: shape of each key's array (without the batch dimension).
         errors: keys ``k`` whose error ``k_ref − k`` is appended, in this order.
+        features: names from :data:`FEATURES` appended last (each of the size of ``q``).
     """
 
     keys: tuple[str, ...]
     shapes: tuple[tuple[int, ...], ...]
     errors: tuple[str, ...] = ()
+    features: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        unknown = [f for f in self.features if f not in FEATURES]
+        if unknown:
+            raise ValueError(f"unknown observation feature(s) {unknown}; allowed: "
+                             f"{sorted(FEATURES)}")
+        if self.features and "q" not in self.keys:
+            raise ValueError(f"features {list(self.features)} need an observation key 'q'")
 
     @classmethod
-    def from_space(cls, space: spaces.Space, task_errors: bool = True) -> ObservationLayout:
-        """The layout of a Dict space (``task_errors``: add every ``k_ref − k``)."""
+    def from_space(cls, space: spaces.Space, task_errors: bool = True,
+                   features: tuple[str, ...] | list[str] = ()) -> ObservationLayout:
+        """The layout of a Dict space (``task_errors``: add every ``k_ref − k``; ``features``:
+        names from :data:`FEATURES`)."""
         if not isinstance(space, spaces.Dict):
             if isinstance(space, spaces.Box):
+                if features:
+                    raise ValueError("observation features need a Dict observation with 'q'")
                 return cls(keys=(), shapes=(tuple(space.shape),), errors=())
             raise TypeError(f"agents support Dict or Box observations, got {space}")
         keys = tuple(space.spaces)
         shapes = tuple(tuple(space[k].shape) for k in keys)
         errors = tuple(k for k in keys if f"{k}_ref" in space.spaces
                        and space[f"{k}_ref"].shape == space[k].shape) if task_errors else ()
-        return cls(keys=keys, shapes=shapes, errors=errors)
+        return cls(keys=keys, shapes=shapes, errors=errors, features=tuple(features))
 
     @property
     def size(self) -> int:
         sizes = {k: int(np.prod(s)) for k, s in zip(self.keys, self.shapes, strict=True)}
         if not self.keys:
             return int(np.prod(self.shapes[0]))
-        return sum(sizes.values()) + sum(sizes[k] for k in self.errors)
+        return (sum(sizes.values()) + sum(sizes[k] for k in self.errors)
+                + len(self.features) * sizes.get("q", 0))
+
+    def bind(self, env: gym.Env) -> Callable[[Any], np.ndarray]:
+        """``obs ↦ flat vector`` with this layout's features computed from ``env``'s nominal
+        model (for a layout without features, just :meth:`flatten`)."""
+        if not self.features:
+            return self.flatten
+        fns = [FEATURE_FACTORIES[f](env) for f in self.features]
+        return lambda obs: self.flatten(obs, fns)
 
     def space(self) -> spaces.Box:
         return spaces.Box(-np.inf, np.inf, (self.size,), dtype=np.float32)
@@ -60,8 +125,12 @@ class ObservationLayout:
         first = obs[self.keys[0]] if self.keys else obs
         return np.ndim(first) == len(self.shapes[0]) + 1
 
-    def flatten(self, obs: Any) -> np.ndarray:
-        """(size,) for one observation, (n_envs, size) for a batch; float32."""
+    def flatten(self, obs: Any, features: list[Feature] | None = None) -> np.ndarray:
+        """(size,) for one observation, (n_envs, size) for a batch; float32. ``features``: the
+        bound feature functions (:meth:`bind`), needed when the layout has features."""
+        if self.features and (features is None or len(features) != len(self.features)):
+            raise ValueError(f"this layout appends features {list(self.features)}: use "
+                             f"layout.bind(env)(obs)")
         if not self.keys:
             return np.asarray(obs, dtype=np.float32)
         missing = [k for k in self.keys if k not in obs]
@@ -74,17 +143,21 @@ class ObservationLayout:
         parts += [np.reshape(np.asarray(obs[f"{k}_ref"], dtype=np.float64)
                              - np.asarray(obs[k], dtype=np.float64), (*lead, -1))
                   for k in self.errors]
+        parts += [np.reshape(f(obs), (*lead, -1)) for f in features or ()]
         return np.concatenate(parts, axis=-1).astype(np.float32)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"keys": list(self.keys), "shapes": [list(s) for s in self.shapes],
-                "errors": list(self.errors)}
+        d = {"keys": list(self.keys), "shapes": [list(s) for s in self.shapes],
+             "errors": list(self.errors)}
+        if self.features:  # absent in the configs of agents trained without features
+            d["features"] = list(self.features)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservationLayout:
         return cls(keys=tuple(d["keys"]), shapes=tuple(tuple(int(x) for x in s)
                                                        for s in d["shapes"]),
-                   errors=tuple(d.get("errors", ())))
+                   errors=tuple(d.get("errors", ())), features=tuple(d.get("features", ())))
 
     def check_space(self, space: spaces.Space) -> None:
         """Raise ValueError if ``space`` is not the Dict this layout was made from."""
@@ -101,14 +174,20 @@ class ObservationLayout:
 
 
 class TaskObservation(gym.ObservationWrapper):
-    """Flatten a Dict observation by an :class:`ObservationLayout` (keys, then k_ref − k)."""
+    """Flatten a Dict observation by an :class:`ObservationLayout` (keys, k_ref − k, features).
+
+    Without ``layout`` the layout is made from the env's space with ``task_errors`` and
+    ``features``: that is how rl-zoo3 uses it (``env_wrapper:`` in agents/hyperparams/*.yml).
+    """
 
     def __init__(self, env: gym.Env, layout: ObservationLayout | None = None,
-                 task_errors: bool = True) -> None:
+                 task_errors: bool = True, features: tuple[str, ...] | list[str] = ()) -> None:
         super().__init__(env)
-        self.layout = layout or ObservationLayout.from_space(env.observation_space, task_errors)
+        self.layout = layout or ObservationLayout.from_space(env.observation_space, task_errors,
+                                                             features)
         self.layout.check_space(env.observation_space)
         self.observation_space = self.layout.space()
+        self._flatten = self.layout.bind(env)
 
     def observation(self, observation: Any) -> np.ndarray:
-        return self.layout.flatten(observation)
+        return self._flatten(observation)

@@ -51,7 +51,8 @@ class TrainedAgent:
 
     def __init__(self, name: str, env_id: str, config: dict[str, Any], policy: Any,
                  layout: ObservationLayout, normalization: dict[str, Any],
-                 controller: Any = None, scale: np.ndarray | None = None) -> None:
+                 controller: Any = None, scale: np.ndarray | None = None,
+                 flatten: Any = None) -> None:
         self.name = name
         self.env_id = env_id
         self.config = config
@@ -60,6 +61,7 @@ class TrainedAgent:
         self.norm = normalization
         self.controller = controller
         self.scale = scale
+        self.flatten = flatten or layout.flatten  # layout.bind(env) when it has features
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
         """VecNormalize's observation transform with the frozen training statistics."""
@@ -72,7 +74,7 @@ class TrainedAgent:
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """SB3's protocol: (action in [-1, 1] of the env's shape, state); single or batched."""
-        x = self.normalize(self.layout.flatten(observation))
+        x = self.normalize(self.flatten(observation))
         a_agent, _ = self.policy.predict(x, deterministic=deterministic)
         if self.controller is None:
             return np.asarray(a_agent, dtype=np.float32), None
@@ -172,6 +174,10 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
             layout.check_space(env.observation_space)
         except ValueError as exc:
             raise AgentFileError(f"agent {path} no longer matches {trained_id}: {exc}") from exc
+        try:
+            flatten = layout.bind(env)
+        except ValueError as exc:
+            raise AgentFileError(f"{path / CONFIG}: {exc}") from exc
         action_space = env.action_space
         residual = config.get("residual")
         controller, scale = None, None
@@ -210,4 +216,4 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
         raise AgentFileError(f"{path / NORMALIZATION}: statistics of size "
                              f"{norm['obs_mean'].shape} for an observation of size {layout.size}")
     return TrainedAgent(name or path.name, trained_id, config, policy, layout, norm,
-                        controller, scale)
+                        controller, scale, flatten)

@@ -55,6 +55,7 @@ from agents.hyperparameters import (
     HyperparameterError,
     algorithm_class,
     load_hyperparams,
+    observation_options,
     resolve_policy_kwargs,
     resolve_schedule,
 )
@@ -321,8 +322,13 @@ def train(
         if n_envs is not None:
             hp["n_envs"] = int(n_envs)
         probe = gym.make(key, **(env_kwargs or {}))
-        layout = ObservationLayout.from_space(probe.observation_space,
-                                              task_errors=hp.get("task_errors", True))
+        opts = observation_options(hp)
+        try:
+            layout = ObservationLayout.from_space(probe.observation_space, **opts)
+            layout.bind(probe)
+        except ValueError as exc:
+            probe.close()
+            raise HyperparameterError(f"observation of {key}: {exc}") from exc
         res_cfg = None
         if residual is not None:
             import baselines

@@ -17,7 +17,12 @@ pytest.importorskip("stable_baselines3")
 import agents
 import baselines
 import cir_gym
-from agents.hyperparameters import HyperparameterError, load_hyperparams
+from agents.hyperparameters import (
+    HYPERPARAMS_DIR,
+    HyperparameterError,
+    load_hyperparams,
+    parse_policy_kwargs,
+)
 from agents.observation import ObservationLayout, TaskObservation
 from agents.residual import ResidualAction
 from cir_gym.evaluation import evaluate
@@ -71,6 +76,115 @@ def test_yaml_floats_in_exponent_notation_are_numbers(tmp_path):
     path.write_text("default:\n  n_timesteps: 3.0e6\n  learning_rate: 1e-4\n")
     hp = load_hyperparams("ppo", ENV, path=path)
     assert hp["n_timesteps"] == 3.0e6 and hp["learning_rate"] == 1e-4
+
+
+def test_policy_kwargs_strings_are_parsed_never_evaluated():
+    text = "dict(net_arch=dict(pi=[64], vf=[32]), activation_fn=nn.Tanh, log_std_init=-2.0)"
+    assert parse_policy_kwargs(text) == {"net_arch": {"pi": [64], "vf": [32]},
+                                         "activation_fn": "tanh", "log_std_init": -2.0}
+    for bad, match in [("__import__('os').system('true')", "not a literal|dict"),
+                       ("dict(activation_fn=nn.Softmax)", "not allowed"),
+                       ("dict(x=open('f'))", "not a literal"), ("dict(", "not a Python")]:
+        with pytest.raises(HyperparameterError, match=match):
+            parse_policy_kwargs(bad)
+
+
+def test_project_sections_and_the_older_layout_resolve_alike(tmp_path):
+    new = tmp_path / "new.yml"
+    new.write_text("""
+default: &default
+  policy: MlpPolicy
+  n_timesteps: 1.0e+5
+  n_steps: 64
+  policy_kwargs: "dict(net_arch=[16], activation_fn=nn.ReLU, log_std_init=-1.0)"
+cir_gym/JointTracking-v1:
+  <<: *default
+  n_steps: 128
+training:
+  default: {eval_freq: 100}
+  cir_gym/JointTracking-v1: {n_eval_episodes: 2}
+residual:
+  default: {scale: 0.25, policy_kwargs: {log_std_init: -2.0}}
+""")
+    old = tmp_path / "old.yml"
+    old.write_text(yaml.safe_dump({
+        "default": {"policy": "MlpPolicy", "n_timesteps": 1e5, "n_steps": 64, "eval_freq": 100,
+                    "policy_kwargs": {"net_arch": [16], "activation_fn": "relu",
+                                      "log_std_init": -1.0},
+                    "residual": {"scale": 0.25, "policy_kwargs": {"log_std_init": -2.0}}},
+        ENV: {"n_steps": 128, "n_eval_episodes": 2}}))
+    for residual in (False, True):
+        a = load_hyperparams("ppo", ENV, residual=residual, path=new)
+        assert a == load_hyperparams("ppo", ENV, residual=residual, path=old)
+    assert a["policy_kwargs"] == {"net_arch": [16], "activation_fn": "relu", "log_std_init": -2.0}
+    assert (a["n_steps"], a["n_eval_episodes"], a["residual_scale"]) == (128, 2, 0.25)
+
+
+RL_ZOO3_KEYS = {"policy", "n_timesteps", "n_envs", "normalize", "env_wrapper", "policy_kwargs",
+                "noise_type", "noise_std", "frame_stack", "env_kwargs", "callback"}
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
+def test_shipped_files_are_in_rl_zoo3_format(algo):
+    """What rl-zoo3 reads (yaml.safe_load, one entry, keys passed to the algorithm) is valid."""
+    import inspect
+
+    from agents.hyperparameters import SECTIONS, algorithm_class
+
+    data = yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())  # rl-zoo3's reader
+    args = set(inspect.signature(algorithm_class(algo).__init__).parameters)
+    for key, entry in data.items():
+        if key in SECTIONS:
+            continue
+        assert set(entry) <= RL_ZOO3_KEYS | args, (key, set(entry) - RL_ZOO3_KEYS - args)
+        assert isinstance(entry["n_timesteps"], (int, float)), key  # not the string "1.0e6"
+        assert isinstance(entry["policy_kwargs"], str), key  # rl-zoo3 evals strings only
+        assert entry["env_wrapper"] == "agents.observation.TaskObservation"
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_rl_zoo3_trains_from_the_shipped_file(tmp_path):
+    """python -m rl_zoo3.train ... --conf-file agents/hyperparams/ppo.yml (a short run)."""
+    pytest.importorskip("rl_zoo3")
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", ENV,
+           "--gym-packages", "cir_gym", "--conf-file", str(HYPERPARAMS_DIR / "ppo.yml"),
+           "-n", "256", "--log-folder", str(tmp_path), "--eval-freq", "-1", "--seed", "0",
+           "--env-kwargs", "episode_duration:0.1",
+           "--hyperparams", "n_envs:2", "n_steps:128", "batch_size:64", "n_epochs:1"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                          env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    run = tmp_path / "ppo" / "cir_gym-JointTracking-v1_1"
+    assert (run / "cir_gym-JointTracking-v1.zip").is_file()
+
+    class Loader(yaml.SafeLoader):  # rl-zoo3 saves an OrderedDict tag: read it as pairs
+        pass
+
+    Loader.add_constructor(
+        "tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
+        lambda loader, node: dict(map(tuple, loader.construct_sequence(node.value[0], True))))
+    saved = yaml.load((run / "cir_gym-JointTracking-v1" / "config.yml").read_text(),
+                      Loader=Loader)
+    assert saved["gae_lambda"] == 1.0  # the JointTracking-v1 entry, not default
+
+
+def test_gravity_feature_is_the_nominal_gravity_in_action_units():
+    env = TaskObservation(gym.make(ENV, **SHORT, payload_mass=3.0), features=["gravity"])
+    layout = env.layout
+    assert layout.features == ("gravity",) and layout.size == 7 * 7 + 7
+    obs, _ = env.reset(seed=1)
+    ctx = env.unwrapped.controller_context()
+    robot = ctx.nominal_robot()  # no payload: what a controller knows
+    q = env.unwrapped.data.qpos[:7].copy()
+    np.testing.assert_allclose(obs[-7:], robot.gravity(q) / ctx.action_scale, atol=1e-6)
+    assert ObservationLayout.from_dict(layout.to_dict()) == layout
+    with pytest.raises(ValueError, match="bind"):
+        layout.flatten({k: np.zeros(7) for k in layout.keys})
+    with pytest.raises(ValueError, match="unknown observation feature"):
+        ObservationLayout(keys=("q",), shapes=((7,),), features=("jacobian",))
 
 
 # ---------------------------------------------------------------------- observation
