@@ -8,6 +8,7 @@ from cir_gym.envs.base import EntryPoint, RobotEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 from cir_gym.envs.redundant_ik import REDUNDANT_IK_ENVIRONMENTS, RedundantIK7Env, RedundantIKEnv
+from cir_gym.envs.visual_servo import VISUAL_SERVO_ENVIRONMENTS
 
 __all__ = [
     "ENVIRONMENTS",
@@ -30,6 +31,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),
     **REDUNDANT_IK_ENVIRONMENTS,
+    **VISUAL_SERVO_ENVIRONMENTS,
 }
 
 
