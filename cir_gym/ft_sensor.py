@@ -1,0 +1,252 @@
+"""A wrist force/torque sensor as a real one measures: filtered, delayed, sampled, biased, noisy.
+
+MuJoCo's ``force``/``torque`` sensors give the exact wrench between the sensor site's body and
+its parent at every physics step (their ``noise`` attribute is metadata that the simulator never
+applies). A real six-axis sensor differs in ways that matter to force control (chapter 6): its
+electronics low-pass filter the strain-gauge signals, the reading arrives after a transport
+delay, the stream is sampled (a 100 Hz sensor holds each value for 10 ms), and every sample
+carries an offset (bias, drifting with temperature), noise and a quantisation step.
+:class:`WrenchSensor` applies those effects in that order, in our code, once per physics step:
+
+    w_true ─► first-order low-pass (cut-off f_c) ─► delay (s) ─► sample at f_s, hold (ZOH)
+           ─► + bias + N(0, σ²) ─► round to the resolution ─► reading
+
+Wrench layout (6,): ``[f; μ]`` (N, N m) in the **sensor frame**, as MuJoCo reports it at the
+site: the force and torque (about the site) that the robot's flange exerts on everything
+distal to the sensor (the tool). So the reading includes the tool's weight: a static tool of
+mass m reads the supporting force −m g (+m|g| upwards, see :func:`tool_gravity_wrench`), and a
+tool pressing on a surface reads, on top of that, the force the tool exerts on the surface
+(quasi-statically). A controller therefore compensates the tool's weight and re-biases in free
+space (:func:`contact_wrench`), as on a real arm.
+
+Presets (:data:`PRESETS`), from the sensors' documents as summarised in
+``reference/anchors-ch5-7.md`` (facts; values marked *assumption* are ours):
+
+* ``"robotiq_ft300"``: Robotiq FT 300-S: 100 Hz data stream, 0.01 N / 0.001 N m encoding
+  steps, about 0.1 N effective resolution over its 300 N range (Robotiq FT 300 manual; a
+  third-party comparison table). Noise std 0.1 N / 0.005 N m (the effective resolution taken
+  as the noise level; the torque figure is an assumption), cut-off 50 Hz (the stream's
+  Nyquist frequency, assumption), delay 5 ms (transport over the serial/USB link, assumption).
+* ``"ati_gamma"``: ATI Gamma SI-32-2.5 class: about 6 mN resolution, sampled up to 7 kHz
+  (ATI data sheet). Here sampled at the physics rate (1 kHz; faster sampling cannot be
+  represented), noise std 0.01 N / 0.0005 N m, resolution 1/160 N / 1/2000 N m (torque:
+  assumption), cut-off 200 Hz, delay 1 ms (assumptions).
+* ``"ideal"``: the exact MuJoCo wrench every physics step (tests, upper bounds).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from cir_gym.envs.base import InvalidArgument, as_float_array, check_number
+
+__all__ = [
+    "PRESETS",
+    "SensorSpec",
+    "WrenchSensor",
+    "contact_wrench",
+    "sensor_spec",
+    "tool_gravity_wrench",
+]
+
+GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s², the robots' <option gravity>
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """The parameters of a six-axis force/torque sensor.
+
+    Attributes:
+        bias: (6,) constant offset added to every sample (N, N m); the env may draw it per
+            episode (``randomize``).
+        noise_std: (force, torque) standard deviation of white Gaussian noise per sample
+            (N, N m).
+        resolution: (force, torque) quantisation step (N, N m); 0 = none.
+        sample_rate: samples per second (Hz); ``inf`` = every physics step. The sample period
+            is rounded to a whole number of physics steps.
+        cutoff: −3 dB frequency of the first-order low-pass filter (Hz); ``inf`` = none.
+        delay: transport delay (s), rounded to whole physics steps.
+    """
+
+    bias: tuple[float, ...] = (0.0,) * 6
+    noise_std: tuple[float, float] = (0.0, 0.0)
+    resolution: tuple[float, float] = (0.0, 0.0)
+    sample_rate: float = math.inf
+    cutoff: float = math.inf
+    delay: float = 0.0
+
+    def __post_init__(self) -> None:
+        bias = as_float_array("bias", self.bias)
+        if bias.shape != (6,) or np.any(np.abs(bias) > 1000.0):
+            raise InvalidArgument(
+                f"bias must be 6 numbers (N, N m) in [-1000, 1000], got {self.bias!r}"
+            )
+        object.__setattr__(self, "bias", tuple(float(b) for b in bias))
+        for name, high in (("noise_std", 100.0), ("resolution", 10.0)):
+            value = getattr(self, name)
+            arr = as_float_array(name, value) if not isinstance(value, bool) else None
+            if arr is not None and arr.shape == ():
+                arr = np.array([arr, arr])  # one number for both
+            if arr is None or arr.shape != (2,) or np.any(arr < 0) or np.any(arr > high):
+                raise InvalidArgument(
+                    f"{name} must be a number or (force, torque), each in [0, {high}], "
+                    f"got {value!r}"
+                )
+            object.__setattr__(self, name, (float(arr[0]), float(arr[1])))
+        for name in ("sample_rate", "cutoff"):  # ≥ 0.01 Hz: one sample per 100 s at most
+            object.__setattr__(self, name, check_number(name, getattr(self, name), 0.01, math.inf))
+        object.__setattr__(self, "delay", check_number("delay", self.delay, 0.0, 1.0))
+
+
+PRESETS: dict[str, SensorSpec] = {
+    "ideal": SensorSpec(),
+    "robotiq_ft300": SensorSpec(
+        noise_std=(0.1, 0.005),
+        resolution=(0.01, 0.001),
+        sample_rate=100.0,
+        cutoff=50.0,
+        delay=0.005,
+    ),
+    "ati_gamma": SensorSpec(
+        noise_std=(0.01, 0.0005),
+        resolution=(1.0 / 160.0, 1.0 / 2000.0),
+        sample_rate=1000.0,
+        cutoff=200.0,
+        delay=0.001,
+    ),
+}
+
+
+def sensor_spec(sensor: str | SensorSpec, **changes: Any) -> SensorSpec:
+    """A preset by name (see :data:`PRESETS`) or a :class:`SensorSpec`, with fields replaced."""
+    if isinstance(sensor, SensorSpec):
+        spec = sensor
+    elif isinstance(sensor, str) and sensor in PRESETS:
+        spec = PRESETS[sensor]
+    else:
+        raise InvalidArgument(
+            f"sensor must be one of {sorted(PRESETS)} or a SensorSpec, got {sensor!r}"
+        )
+    return replace(spec, **changes) if changes else spec
+
+
+class WrenchSensor:
+    """A :class:`SensorSpec` running at the physics rate (see the module docstring).
+
+    Call :meth:`reset` at the start of an episode and :meth:`update` after every physics step
+    with the true wrench; :attr:`reading` is the last held sample (6,).
+
+    Args:
+        spec: the sensor's parameters.
+        timestep: physics step (s).
+    """
+
+    def __init__(self, spec: SensorSpec, timestep: float) -> None:
+        self.spec = spec
+        self.timestep = check_number("timestep", timestep, 0.0, 1.0, low_open=True)
+        if spec.sample_rate > 1.0 / timestep * (1.0 + 1e-9) and math.isfinite(spec.sample_rate):
+            raise InvalidArgument(
+                f"sample_rate must be at most the physics rate {1.0 / timestep:g} Hz (or inf), "
+                f"got {spec.sample_rate!r}"
+            )
+        rate = spec.sample_rate
+        self.sample_steps = 1 if not math.isfinite(rate) else max(1, round(1 / (rate * timestep)))
+        self.delay_steps = round(spec.delay / timestep)
+        # exact discretisation of ẏ = ω_c (u − y) with u held over one physics step
+        wc = 2 * math.pi * spec.cutoff
+        self.alpha = 1.0 if not math.isfinite(wc) else 1.0 - math.exp(-wc * timestep)
+        self.bias = np.array(spec.bias)
+        self._std = np.repeat(spec.noise_std, 3)
+        self._res = np.repeat(spec.resolution, 3)
+        self._filtered = np.zeros(6)
+        self._line = np.zeros((self.delay_steps + 1, 6))  # ring buffer of filtered values
+        self._head = 0
+        self._count = 0
+        self.reading = np.zeros(6)
+        self._rng = np.random.default_rng(0)
+
+    @property
+    def sample_period(self) -> float:
+        """Time between two samples (s)."""
+        return self.sample_steps * self.timestep
+
+    def reset(
+        self,
+        rng: np.random.Generator,
+        wrench: np.ndarray,
+        bias: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Start an episode in a steady state at ``wrench`` (the sensor has been on); return
+        the first reading. ``bias`` replaces the spec's bias for this episode."""
+        self._rng = rng
+        if bias is not None:
+            self.bias = np.asarray(bias, dtype=float).reshape(6).copy()
+        w = np.asarray(wrench, dtype=float)
+        self._filtered[:] = w
+        self._line[:] = w
+        self._head = 0
+        self._count = 0
+        self._sample()
+        return self.reading.copy()
+
+    def update(self, wrench: np.ndarray) -> np.ndarray:
+        """Advance one physics step with the true wrench (6,); return the (held) reading."""
+        w = np.asarray(wrench, dtype=float)
+        if self.alpha < 1.0:
+            self._filtered += self.alpha * (w - self._filtered)
+        else:  # no filter: exactly the input
+            self._filtered[:] = w
+        self._head = (self._head + 1) % self._line.shape[0]
+        self._line[self._head] = self._filtered
+        self._count += 1
+        if self._count >= self.sample_steps:
+            self._count = 0
+            self._sample()
+        return self.reading.copy()
+
+    def _sample(self) -> None:
+        oldest = (self._head + 1) % self._line.shape[0]  # the value delay_steps ago
+        value = self._line[oldest] + self.bias
+        if np.any(self._std > 0):
+            value = value + self._std * self._rng.standard_normal(6)
+        quantised = self._res > 0
+        value[quantised] = np.round(value[quantised] / self._res[quantised]) * self._res[quantised]
+        self.reading = value
+
+
+def tool_gravity_wrench(
+    mass: float, com: np.ndarray, R_ws: np.ndarray, gravity: np.ndarray = GRAVITY
+) -> np.ndarray:
+    """The reading (6,) a static tool gives: the supporting force and torque, sensor frame.
+
+    ``f = −m R_wsᵀ g`` and ``μ = c × f`` with ``c`` (3,) the tool's centre of mass in the sensor
+    frame (m) and ``R_ws`` (3, 3) the sensor-to-world rotation.
+    """
+    f = -mass * (R_ws.T @ np.asarray(gravity, dtype=float))
+    return np.concatenate((f, np.cross(np.asarray(com, dtype=float), f)))
+
+
+def contact_wrench(
+    reading: np.ndarray,
+    R_ws: np.ndarray,
+    *,
+    tool_mass: float,
+    tool_com: np.ndarray,
+    bias: np.ndarray | None = None,
+    gravity: np.ndarray = GRAVITY,
+) -> np.ndarray:
+    """The wrench the tool exerts on the environment, ``h = [f; μ]`` (6,) in the WORLD frame.
+
+    ``reading − bias − tool_gravity_wrench`` in the sensor frame, rotated to the world (the
+    torque stays about the sensor origin). Quasi-static: the tool's inertial forces are
+    neglected. ``bias`` is the controller's estimate (from re-biasing in free space), zero if
+    None.
+    """
+    h = np.asarray(reading, dtype=float) - tool_gravity_wrench(tool_mass, tool_com, R_ws, gravity)
+    if bias is not None:
+        h = h - bias
+    return np.concatenate((R_ws @ h[:3], R_ws @ h[3:]))

@@ -1,0 +1,201 @@
+"""The wrist F/T sensor model, the compliant surface's spring and the position interface."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from cir_gym.envs.admittance_contact import (
+    JOINTS,
+    START_Q,
+    TOOL_COM,
+    TOOL_MASS,
+    AdmittanceContactEnv,
+    build_model,
+    tool_robot,
+)
+from cir_gym.envs.base import InvalidArgument
+from cir_gym.ft_sensor import (
+    PRESETS,
+    SensorSpec,
+    WrenchSensor,
+    contact_wrench,
+    sensor_spec,
+    tool_gravity_wrench,
+)
+from cir_gym.motion_interface import MEASURED_BANDWIDTH_HZ, CartesianMotionInterface
+from cir_gym.robot import Robot
+
+H = 1e-3  # physics step (s)
+
+
+def _run(sensor: WrenchSensor, signal: np.ndarray) -> np.ndarray:
+    sensor.reset(np.random.default_rng(0), signal[0])
+    return np.array([sensor.update(w) for w in signal[1:]])
+
+
+def test_ideal_sensor_reads_the_true_wrench_every_step() -> None:
+    signal = np.random.default_rng(1).normal(size=(50, 6))
+    out = _run(WrenchSensor(PRESETS["ideal"], H), signal)
+    np.testing.assert_array_equal(out, signal[1:])
+
+
+def test_first_order_filter_step_response_is_one_minus_exp() -> None:
+    cutoff = 20.0
+    sensor = WrenchSensor(SensorSpec(cutoff=cutoff), H)
+    signal = np.zeros((101, 6))
+    signal[1:] = 1.0
+    out = _run(sensor, signal)
+    n = np.arange(1, 101)
+    np.testing.assert_allclose(out[:, 2], 1 - np.exp(-2 * math.pi * cutoff * n * H), rtol=1e-12)
+
+
+def test_delay_and_zero_order_hold() -> None:
+    sensor = WrenchSensor(SensorSpec(sample_rate=100.0, delay=0.004), H)
+    assert sensor.sample_steps == 10 and sensor.delay_steps == 4
+    assert sensor.sample_period == pytest.approx(0.01)
+    signal = np.outer(np.arange(60.0), np.ones(6))  # w(k) = k
+    out = _run(sensor, signal)[:, 0]
+    # samples at steps 10, 20, ... of the value 4 steps earlier, held in between
+    expected = [0.0 if k < 10 else 10 * (k // 10) - 4 for k in range(1, 60)]
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_noise_bias_and_resolution() -> None:
+    spec = sensor_spec("ati_gamma", bias=(1, -2, 3, 0.1, 0.2, -0.3), cutoff=math.inf, delay=0.0)
+    sensor = WrenchSensor(spec, H)
+    out = _run(sensor, np.zeros((20001, 6)))
+    np.testing.assert_allclose(out.mean(0), spec.bias, atol=5e-4)
+    np.testing.assert_allclose(out[:, :3].std(0), 0.01, rtol=0.05)
+    np.testing.assert_allclose(out[:, 3:].std(0), 0.0005, rtol=0.1)
+    quanta = out[:, :3] / spec.resolution[0]
+    np.testing.assert_allclose(quanta, np.round(quanta), atol=1e-9)
+
+
+def test_presets_are_the_cited_sensors() -> None:
+    robotiq, ati = PRESETS["robotiq_ft300"], PRESETS["ati_gamma"]
+    assert robotiq.sample_rate == 100.0 and robotiq.noise_std[0] == 0.1
+    assert ati.sample_rate == 1000.0 and ati.noise_std[0] == 0.01
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"noise_std": -1.0}, "noise_std"),
+        ({"resolution": (0.1, 0.2, 0.3)}, "resolution"),
+        ({"sample_rate": 0.0}, "sample_rate"),
+        ({"cutoff": float("nan")}, "cutoff"),
+        ({"delay": 2.0}, "delay"),
+        ({"bias": (1.0, 2.0)}, "bias"),
+    ],
+)
+def test_bad_sensor_parameters_name_the_parameter(kwargs: dict, name: str) -> None:
+    with pytest.raises(InvalidArgument, match=name):
+        SensorSpec(**kwargs)
+
+
+def test_unknown_preset_and_too_fast_sampling_are_rejected() -> None:
+    with pytest.raises(InvalidArgument, match="robotiq_ft300"):
+        sensor_spec("robotiq")
+    with pytest.raises(InvalidArgument, match="sample_rate"):
+        WrenchSensor(SensorSpec(sample_rate=5000.0), H)
+
+
+# ---------------------------------------------------------------------- against MuJoCo
+def _hold(env: AdmittanceContactEnv, steps: int, action: np.ndarray | None = None) -> None:
+    a = np.zeros(6) if action is None else action
+    for _ in range(steps):
+        env.step(a)
+
+
+def test_static_tool_reads_its_weight_in_the_sensor_frame() -> None:
+    env = AdmittanceContactEnv(control="position", sensor="ideal")
+    env.reset(seed=0)
+    _hold(env, 250)  # 0.5 s held by the stiff motion controller
+    d = env.data
+    R = d.site_xmat[env.model.site("ft_site").id].reshape(3, 3)
+    expected = tool_gravity_wrench(TOOL_MASS, TOOL_COM, R)
+    np.testing.assert_allclose(d.sensordata[:6], expected, atol=2e-3)
+    # the tool points down: the supporting force is +m g along world z
+    np.testing.assert_allclose(R @ expected[:3], [0, 0, TOOL_MASS * 9.81], atol=1e-9)
+
+
+@pytest.mark.parametrize("stiffness", [1.0e3, 1.0e4, 1.0e5])
+def test_static_deflection_times_stiffness_is_the_contact_force(stiffness: float) -> None:
+    """The surface is the plate's spring, in N/m: deflection × k = force within 2 %; the
+    compensated sensor reading is the same force; the stiff contact barely penetrates."""
+    env = AdmittanceContactEnv(
+        control="position", sensor="ideal", stiffness=stiffness, damping=50.0, force_ref=20.0
+    )
+    env.reset(seed=3)
+    down = np.array([0, 0, -0.08, 0, 0, 0])  # 2 cm/s
+    for _ in range(2000):
+        env.step(down)
+        if env.plate_deflection() * stiffness > 15.0:  # the spring's force, not the impact
+            break
+    _hold(env, 400)
+    force = env.normal_force()
+    assert 5.0 < force < 60.0
+    assert env.plate_deflection() * stiffness == pytest.approx(force, rel=0.02)
+    measured = env.measured_contact_wrench()[:3]  # what the tool exerts on the surface
+    assert -measured @ env._normal == pytest.approx(force, rel=0.02)
+    plate_top = env.data.site_xpos[env.model.site("surface_site").id]
+    tip = env.data.site_xpos[env.model.site("tcp").id]
+    assert (tip - plate_top) @ env._normal > -5e-4  # penetration below 0.5 mm
+
+
+def test_contact_wrench_removes_weight_and_bias() -> None:
+    R = np.array([[-1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]])
+    bias = np.array([0.5, -0.2, 1.0, 0.01, 0.02, 0.03])
+    push = np.array([0.0, 0.0, -20.0])  # on the surface, world frame
+    reading = tool_gravity_wrench(TOOL_MASS, TOOL_COM, R) + bias
+    reading[:3] += R.T @ push
+    h = contact_wrench(reading, R, tool_mass=TOOL_MASS, tool_com=TOOL_COM, bias=bias)
+    np.testing.assert_allclose(h[:3], push, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- position interface
+def _interface_gain(freq: float, amplitude: float = 1e-3, period: float = 0.002) -> float:
+    model = build_model(1.0e4, 20.0)
+    data = mujoco.MjData(model)
+    data.qpos[:7] = START_Q
+    mujoco.mj_forward(model, data)
+    interface = CartesianMotionInterface(tool_robot(), "tcp")
+    interface.reset(START_Q)
+    site = model.site("tcp").id
+    z0 = data.site_xpos[site][2]
+    substeps = round(period / model.opt.timestep)
+    n = int(max(3.0 / freq, 0.6) / period)
+    z, ref, prev = np.zeros(n), np.zeros(n), 0.0
+    for k in range(n):
+        ref[k] = amplitude * math.sin(2 * math.pi * freq * (k + 1) * period)
+        interface.command(np.array([0, 0, ref[k] - prev, 0, 0, 0]), period)
+        prev = ref[k]
+        for i in range(substeps):
+            data.ctrl[:] = interface.torque(data.qpos[:7].copy(), data.qvel[:7].copy(),
+                                            (i + 1) / substeps)
+            mujoco.mj_step(model, data)
+        z[k] = data.site_xpos[site][2] - z0
+    keep = slice(n // 3, n)
+    c = np.exp(-2j * math.pi * freq * (np.arange(n) + 1)[keep] * period)
+    return 20 * math.log10(abs(z[keep] @ c) / abs(ref[keep] @ c))
+
+
+def test_motion_interface_bandwidth() -> None:
+    """The documented bandwidth: flat at 5 Hz, −3 dB between 40 and 60 Hz (≈ 50 Hz)."""
+    assert abs(_interface_gain(5.0)) < 1.0
+    assert _interface_gain(40.0) > -3.0 > _interface_gain(60.0)
+    assert 40.0 < MEASURED_BANDWIDTH_HZ < 60.0
+
+
+def test_motion_interface_rejects_bad_gains_and_increments() -> None:
+    robot = Robot(build_model(1e4, 1.0), JOINTS)
+    with pytest.raises(InvalidArgument, match="omega_n"):
+        CartesianMotionInterface(robot, "tcp", omega_n=-1.0)
+    interface = CartesianMotionInterface(robot, "tcp")
+    interface.reset(START_Q)
+    with pytest.raises(InvalidArgument, match="increment"):
+        interface.command(np.zeros(3), 0.002)
