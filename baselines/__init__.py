@@ -21,6 +21,7 @@ from baselines.decentralized import (
     PPIFeedforward,
 )
 from baselines.kinematic import KINEMATIC_CONTROLLERS
+from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
 __all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
 
@@ -36,6 +37,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         RobustControl,
         AdaptiveControl,
         *KINEMATIC_CONTROLLERS,
+        *VISUAL_SERVO_CONTROLLERS,
     )
 }
 
@@ -65,12 +67,14 @@ def make(
         name: a controller name (see :func:`available`).
         env_id: the environment id; its ``controller_context()`` gives the nominal model.
         env: an existing environment of that id (avoids building one).
-        env_kwargs: arguments of the environment to build when ``env`` is None.
+        env_kwargs: arguments of the environment to build; only without ``env`` (with both
+            the arguments could not apply: ValueError).
         **gains: gain overrides (the controller's ``Gains`` fields) and ``robot=`` (a nominal
             :class:`~cir_gym.robot.Robot`, e.g. an identified model).
 
     Raises:
-        ValueError: unknown controller, a controller that does not apply.
+        ValueError: unknown controller, a controller that does not apply, both ``env`` and
+            ``env_kwargs``.
         InvalidGain: (a ValueError) an unknown gain, a gain of the wrong type (a float gain
             takes an int or float, not a bool, str or list) or out of its range.
     """
@@ -84,6 +88,11 @@ def make(
     if name not in available(env_id):
         raise ValueError(
             f"controller {name!r} does not apply to {env_id}; available there: {available(env_id)}"
+        )
+    if env is not None and env_kwargs:
+        raise ValueError(
+            f"make() got env= and env_kwargs={env_kwargs!r}: the controller reads the given "
+            f"env's context, so env_kwargs would be ignored; pass one of the two"
         )
     if env is None:
         env = gym.make(env_id, **(env_kwargs or {}))

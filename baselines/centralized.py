@@ -66,6 +66,23 @@ class _ModelBased(Controller):
             return dynamics.rnea(self.robot.model, q, qd, qdd, parameters=self.parameters)
         return self.robot.inertia(q) @ qdd + self.robot.bias(q, qd)
 
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """ĝ(q) of the controller's model (N m)."""
+        if self.parameters is not None:
+            return dynamics.gravity_torque(self.robot.model, q, parameters=self.parameters)
+        return self.robot.gravity(q)
+
+    def inertia(self, q: np.ndarray) -> np.ndarray:
+        """B̂(q) of the controller's model (kg m², armature included)."""
+        if self.parameters is not None:
+            return dynamics.inertia_matrix(self.robot.model, q, parameters=self.parameters)
+        return self.robot.inertia(q)
+
+    def home(self) -> np.ndarray:
+        """The nominal robot's home keyframe (zeros without one)."""
+        m = self.robot.model
+        return m.key("home").qpos[self.robot.qpos_adr].copy() if m.nkey else np.zeros(self.n)
+
 
 # ---------------------------------------------------------------------- PD + gravity
 @dataclass(frozen=True)
@@ -87,6 +104,7 @@ class PDGravity(_ModelBased):
     For regulation (q̄̇ = 0) this is the law of the course, τ = g(q) + K_P q̃ − K_D q̇,
     with the Lyapunov function V = ½q̇ᵀBq̇ + ½q̃ᵀK_P q̃ and V̇ = −q̇ᵀK_D q̇: q → q̄ when ĝ = g.
     With a gravity-model error the equilibrium has the offset K_P q̃ = g(q) − ĝ(q).
+    ``parameters=`` (an identified π) gives ĝ and the B̂_ii that scale the gains.
     """
 
     name = "pd_gravity"
@@ -94,18 +112,23 @@ class PDGravity(_ModelBased):
     Gains = PDGravityGains
 
     def __init__(
-        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
+        self,
+        context: TaskContext,
+        gains=None,
+        *,
+        robot: Robot | None = None,
+        parameters: np.ndarray | None = None,
+        **overrides,
     ) -> None:
-        super().__init__(context, gains, robot=robot, **overrides)
-        home = self.robot.model.key("home").qpos if self.robot.model.nkey else np.zeros(self.n)
-        b = np.diag(self.robot.inertia(home))
+        super().__init__(context, gains, robot=robot, parameters=parameters, **overrides)
+        b = np.diag(self.inertia(self.home()))
         self.kp = self.gains.omega**2 * b
         self.kd = 2.0 * self.gains.zeta * self.gains.omega * b
 
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q = obs["q"]
         return (
-            self.robot.gravity(q)
+            self.gravity(q)
             + self.kp * (obs["q_ref"] - q)
             + self.kd * (obs["qd_ref"] - obs["qd"])
         )
@@ -181,13 +204,16 @@ class RobustGains:
     rho: bound ρ of the robustifying term (rad/s², in the weighted norm ‖S ·‖ of
         :class:`RobustControl`); None = computed from the uncertainty bounds below with the
         course's inequality.
-    epsilon: boundary-layer width ε on ‖S z‖ against chattering; None = the narrowest layer
-        whose high gain stays within the sampling rate: inside the layer w = (ρ/ε) z adds
-        (ρ/ε) Q₂₂ to the velocity gain, and ε = ρ Q₂₂ dt / ``layer_gain_dt`` keeps that
-        extra gain times dt at ``layer_gain_dt``.
-    layer_gain_dt: see epsilon (dimensionless, < 1 for a stable discrete loop).
+    epsilon: boundary-layer width ε on ‖S z‖ (rad/s² · s … the units of z = DᵀQξ); None =
+        ε = ρ max(Q₁₂/K_P, Q₂₂/K_D) / ``layer_gain_ratio``, see :class:`RobustControl`.
+    layer_gain_ratio: κ, the largest share of the designed K_P, K_D that the layer's linear
+        gain (ρ/ε) DᵀQ may add (default 1: inside the layer the law is computed torque with
+        at most twice the designed gains; the layer smooths the switch, it is not a gain).
     payload_bound: largest unknown payload (kg) the bound must cover (payloads 0…bound).
-    mass_scale_bound: largest relative link-mass error covered (e.g. 0.1 = ±10 %).
+    mass_scale_bound: largest relative link-mass error covered (0.2 = ±20 %, the range
+        JointTracking's ``randomize`` draws).
+    viscous_friction_bound, coulomb_friction_bound: largest unmodelled joint friction covered
+        (N m s/rad, N m; the ranges ``randomize`` draws): F_v q̇ + F_c sign(q̇) enters ñ.
     error_bound: assumed bound on ‖ξ‖ = ‖[q̃; q̃̇]‖ during operation.
     qdd_ref_bound: Q_M, bound on ‖q̄̈‖ (rad/s²). Measured on JointTracking-v1's default
         "random" reference: max_t ‖q̄̈(t)‖ is 3.1–5.7 rad/s² over seeds 0…19, median 4.3,
@@ -199,18 +225,21 @@ class RobustGains:
     zeta: float = 1.0
     rho: float | None = None
     epsilon: float | None = None
-    layer_gain_dt: float = 0.5
+    layer_gain_ratio: float = 1.0
     payload_bound: float = 5.0
-    mass_scale_bound: float = 0.1
+    mass_scale_bound: float = 0.2
+    viscous_friction_bound: float = 1.0
+    coulomb_friction_bound: float = 1.0
     error_bound: float = 0.1
     qdd_ref_bound: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("omega_n", "zeta", "layer_gain_dt"):
+        for name in ("omega_n", "zeta", "layer_gain_ratio"):
             _positive(name, getattr(self, name))
         if self.epsilon is not None:
             _positive("epsilon", self.epsilon)
-        for name in ("payload_bound", "mass_scale_bound", "error_bound", "qdd_ref_bound"):
+        for name in ("payload_bound", "mass_scale_bound", "viscous_friction_bound",
+                     "coulomb_friction_bound", "error_bound", "qdd_ref_bound"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise InvalidGain(f"{name} must be a finite number >= 0, got {v!r}")
@@ -226,6 +255,17 @@ class RobustControl(_ModelBased):
     ξ = [q̃; q̃̇], H̃ = [[0, I], [−K_P, −K_D]], Q solves H̃ᵀQ + QH̃ = −P with
     P = diag(K_P, I), D = [0; I], z = DᵀQξ and w = ρ z / max(‖S z‖, ε) (the boundary layer
     replaces the chattering switch).
+
+    The boundary layer. Q = Q₂ ⊗ I, so per joint z = Q₁₂ q̃ + Q₂₂ q̃̇. Inside the layer
+    (‖S z‖ < ε) w = (ρ/ε) z: computed torque with K_P + (ρ/ε)Q₁₂ and K_D + (ρ/ε)Q₂₂ (the
+    attributes ``kp_layer``, ``kd_layer``). The layer is the course's remedy for the switch's
+    chattering, so its gain must not replace the designed error dynamics: ε =
+    ρ max(Q₁₂/K_P, Q₂₂/K_D)/κ keeps the added gains within κ (``layer_gain_ratio``) times the
+    designed ones. (Before, ε was the narrowest layer the 2-ms sampling tolerates, ρ Q₂₂ dt/0.5:
+    in-layer gains K_P ≈ 5400, K_D ≈ 290, i.e. computed torque at ω_n = 73.5, ζ = 1.97, and its
+    lower error was that gain.) Outside the layer ‖S w‖ = ρ: the bounded correction with which
+    the course's V̇ < 0 holds for every model of the uncertainty set, whatever the error; the
+    price of the layer is that the error is only ultimately bounded, with V̇ ≤ −ξᵀPξ + ρε/2.
 
     Why S. The course's proof needs ‖I − B⁻¹B̂‖ ≤ α < 1 in the norm it uses for ‖η‖ and
     ‖w‖ = ρ (Cauchy-Schwarz, zᵀη ≤ ‖z‖‖η‖): an induced norm, not the spectral radius. For the
@@ -251,11 +291,12 @@ class RobustControl(_ModelBased):
     Hence ρ ≥ (α Q_M + α ‖K‖ ‖ξ‖ + B_M Φ) / (1 − α), the course's inequality in q_s. α and
     B_M Φ are maxima over ``n_samples`` random configurations within the joint limits and the
     corners of the uncertainty set (payload 0 or ``payload_bound``, mass scale 1 ±
-    ``mass_scale_bound``): a sampled bound, not a proof. With the default gains on the iiwa,
-    400 configurations give α = 0.857, B_M Φ = 7.9 rad/s², ρ = 357 rad/s²; 4000 give
-    α = 0.870, B_M Φ = 9.6 (the 20-configuration spectral radius used before gave 0.756 and,
-    with B_M Φ ≤ ‖B⁻¹‖ ‖ñ‖ = 1108, ρ = 4686). Inside the boundary layer w = (ρ/ε) z does not
-    depend on ρ (ε ∝ ρ), so ρ only sets where the layer ends.
+    ``mass_scale_bound``, friction 0 or the friction bounds): a sampled bound, not a proof.
+    With ±10 % masses, no friction and the default gains, 400 configurations gave α = 0.857,
+    B_M Φ = 7.9 rad/s², ρ = 357 rad/s² (4000: α = 0.870, B_M Φ = 9.6); the defaults now
+    cover ±20 % masses and the friction ``randomize`` draws (:attr:`alpha`, :attr:`b_phi`,
+    :attr:`rho` hold the values). Inside the boundary layer w = (ρ/ε) z does not depend on ρ
+    (ε ∝ ρ), so ρ only sets where the layer ends.
     """
 
     name = "robust"
@@ -274,19 +315,21 @@ class RobustControl(_ModelBased):
         P = np.diag(np.concatenate((np.full(n, kp), np.ones(n))))
         self.Q = lyapunov_solution(H, P)
         self.DtQ = self.Q[n:, :]  # Dᵀ Q, D = [0; I]
-        home = self.robot.model.key("home").qpos if self.robot.model.nkey else np.zeros(n)
-        b_bar = np.diag(self.robot.inertia(home))  # B̄ (kg m²)
+        b_bar = np.diag(self.inertia(self.home()))  # B̄ (kg m²)
         self.weight = np.sqrt(b_bar / np.max(b_bar))  # diagonal of S, ‖S‖₂ = 1
         self.rho = g.rho if g.rho is not None else self.rho_from_bounds()
-        q22 = float(np.max(np.diag(self.Q)[n:]))
+        q12, q22 = float(self.Q[0, n]), float(self.Q[n, n])  # Q = Q₂ ⊗ I
         self.epsilon = (
             g.epsilon
             if g.epsilon is not None
-            else max(self.rho * q22 * self.dt / g.layer_gain_dt, 1e-9)
+            else max(self.rho * max(q12 / kp, q22 / kd) / g.layer_gain_ratio, 1e-9)
         )
+        self.kp_layer = kp + self.rho * q12 / self.epsilon  # the gains inside the layer
+        self.kd_layer = kd + self.rho * q22 / self.epsilon
 
     def uncertainty_set(self) -> list[Robot]:
-        """The true robots at the corners of the declared uncertainty set."""
+        """The true robots at the corners of the declared mass uncertainty (the friction
+        corners are added in :meth:`rho_from_bounds`)."""
         g = self.gains
         return [
             self.robot.with_error(ModelError(payload_mass=p, mass_scale=s))
@@ -310,12 +353,16 @@ class RobustControl(_ModelBased):
         for _ in range(n_samples):
             q = rng.uniform(lo, hi)
             qd = rng.uniform(-1, 1, self.n) * np.minimum(self.robot.velocity_limit, 3.0)
-            B_hat, n_hat = self.robot.inertia(q), self.robot.bias(q, qd)
+            B_hat = self.inertia(q)
+            n_hat = self.inverse_dynamics(q, qd, np.zeros(self.n))
+            friction = g.viscous_friction_bound * qd + g.coulomb_friction_bound * np.sign(qd)
             for true in truths:
                 B = true.inertia(q)
                 alpha = max(alpha, self.inertia_error_norm(B, B_hat))
-                n_tilde = n_hat - true.bias(q, qd)  # ñ = n̂ − n
-                b_phi = max(b_phi, float(np.linalg.norm(self.weight * np.linalg.solve(B, n_tilde))))
+                for f in (0.0 * friction, friction):  # ñ = n̂ − n, n with the friction
+                    n_tilde = n_hat - true.bias(q, qd) - f
+                    b_phi = max(b_phi, float(np.linalg.norm(
+                        self.weight * np.linalg.solve(B, n_tilde))))
         if alpha >= 1:
             raise InvalidGain(f"uncertainty too large for robust control: α = {alpha:.2f} ≥ 1")
         k_norm = np.hypot(g.omega_n**2, 2 * g.zeta * g.omega_n)

@@ -11,6 +11,18 @@ Design (control-laws.md §4): speed PI R_PI = k_pv (1 + s t_iv)/(s t_iv) with
 k_pv = ω_cv J_eff and 1/t_iv = ``integral_ratio`` · ω_cv (0.1…0.3); position P k_pp = ω_cp
 well below ω_cv; speed feed-forward k_ff q̄̇_m. With position measurement only, the PID on
 position places a triple pole at −ω: k_d = 3ωJ, k_p = 3ω²J, k_i = ω³J.
+
+Anti-windup: every integrator (the PID's ∫q̃_m, the cascade's ∫e_v) integrates conditionally
+(clamping; Åström & Hägglund, *Advanced PID Control*, ISA 2006, §3.5): a joint whose command
+exceeds its torque limit in the direction its error pushes keeps its integral, so the integral
+does not grow while the actuator cannot act on it, and the loop leaves saturation without the
+overshoot a wound-up integral causes.
+
+Elastic joints (the task gives ``extras["stiffness"]``, the nominal K): the loops close on the
+motor encoders θ (link units), and a spring holding the link against gravity is deflected by
+θ − q = K⁻¹g(q). The motor reference is therefore θ̄ = q̄ + K̂⁻¹ĝ(q̄) (and
+θ̄̇ = q̄̇ + K̂⁻¹ dĝ(q̄)/dt), the elastic-joint gravity compensation of the course; on the
+reference θ̄ the link sits at q̄ (with the nominal ĝ and K̂), not g/k_el below it.
 """
 
 from __future__ import annotations
@@ -33,6 +45,7 @@ from cir_gym.robot import Robot
 __all__ = [
     "CascadeGains",
     "DecentralizedFeedforward",
+    "FeedforwardCascadeGains",
     "IndependentPID",
     "PCascade",
     "PIDGains",
@@ -56,6 +69,8 @@ def effective_motor_inertia(
 
 class _Decentralized(Controller):
     tasks = JOINT_TASKS
+    #: finite-difference step (s) of dĝ(q̄)/dt ≈ (ĝ(q̄ + h q̄̇) − ĝ(q̄)) / h
+    GRAVITY_RATE_STEP = 1e-6
 
     def __init__(
         self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
@@ -70,9 +85,30 @@ class _Decentralized(Controller):
         # Elastic joints: ω_z = sqrt(k_el / (J_l / n²)) (motor side) = sqrt(k_el,link / J_l).
         stiffness = context.extras.get("stiffness")
         self.omega_z = None
+        self.stiffness = None if stiffness is None else np.asarray(stiffness, dtype=float)
         if stiffness is not None:
             J_l = (self.J_eff - J_m) * self.N**2
-            self.omega_z = np.sqrt(np.asarray(stiffness) / J_l)
+            self.omega_z = np.sqrt(self.stiffness / J_l)
+
+    def references(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """The reference (position, speed) the loop tracks, in joint units: q̄, q̄̇; with
+        elastic joints the motor reference θ̄ = q̄ + K̂⁻¹ĝ(q̄) and its rate (module docstring)."""
+        q_ref, qd_ref = obs["q_ref"], obs["qd_ref"]
+        if self.stiffness is None:
+            return q_ref, qd_ref
+        g = self.robot.gravity(q_ref)
+        h = self.GRAVITY_RATE_STEP
+        g_rate = (self.robot.gravity(q_ref + h * qd_ref) - g) / h
+        return q_ref + g / self.stiffness, qd_ref + g_rate / self.stiffness
+
+    def hold_integral(
+        self, command: np.ndarray, error: np.ndarray, state: np.ndarray, previous: np.ndarray
+    ) -> bool:
+        """Conditional integration: where the joint command (N m) exceeds the torque limit in
+        the direction of ``error``, put back the integral's ``previous`` value. True if any."""
+        windup = (np.abs(command) > self.action_scale) & (np.sign(command) == np.sign(error))
+        state[windup] = previous[windup]
+        return bool(np.any(windup))
 
     def measured(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """Joint position and speed the loop closes on: the motor encoders (θ = q_m / n, in
@@ -95,7 +131,7 @@ class PIDGains:
 
 class IndependentPID(_Decentralized):
     """Independent joint PID on position (no model beyond J_eff): τ_m = k_p q̃_m + k_i ∫q̃_m +
-    k_d q̃̇_m, τ = n τ_m. State: ∫q̃_m (n,)."""
+    k_d q̃̇_m, τ = n τ_m. State: ∫q̃_m (n,), integrated conditionally (anti-windup)."""
 
     name = "pid"
     Gains = PIDGains
@@ -107,10 +143,14 @@ class IndependentPID(_Decentralized):
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         w, J = self.gains.omega, self.J_eff
         q, qd = self.measured(obs)
-        e_m = motor_positions(obs["q_ref"] - q, self.N)  # q̃_m = n q̃
-        ed_m = motor_positions(obs["qd_ref"] - qd, self.N)
+        q_ref, qd_ref = self.references(obs)
+        e_m = motor_positions(q_ref - q, self.N)  # q̃_m = n q̃
+        ed_m = motor_positions(qd_ref - qd, self.N)
+        previous = state.copy()
         state += self.dt * e_m
         tau_m = 3 * w**2 * J * e_m + w**3 * J * state + 3 * w * J * ed_m
+        if self.hold_integral(joint_torques(tau_m, self.N), e_m, state, previous):
+            tau_m = 3 * w**2 * J * e_m + w**3 * J * state + 3 * w * J * ed_m
         return joint_torques(tau_m, self.N)
 
 
@@ -146,7 +186,7 @@ class PCascade(_Decentralized):
     """Position P + speed PI cascade on the motor side (Fig. 4.6 of the notes without k_ff).
 
     ω_ref = k_pp (q̄_m − q_m) + k_ff q̄̇_m; τ_m = k_pv (e_v + ∫e_v / t_iv), e_v = ω_ref − q̇_m.
-    State: ∫e_v (n,).
+    State: ∫e_v (n,), integrated conditionally (anti-windup).
     """
 
     name = "p_pi_cascade"
@@ -178,25 +218,33 @@ class PCascade(_Decentralized):
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         g = self.gains
         q, qd = self.measured(obs)
+        q_ref, qd_ref = self.references(obs)
         inv_tiv = g.integral_ratio * self.omega_cv
         # ω_ref = k_pp q̃_m + k_ff q̄̇_m with q_m = N q (products kept in their original order)
-        w_ref = self.omega_cp * self.N * (obs["q_ref"] - q) + g.k_ff * self.N * obs["qd_ref"]
+        w_ref = self.omega_cp * self.N * (q_ref - q) + g.k_ff * self.N * qd_ref
         e_v = w_ref - motor_positions(qd, self.N)
+        previous = state.copy()
         state += self.dt * e_v
-        tau_m = self.k_pv * (e_v + inv_tiv * state) + self.feedforward(obs)
+        feedforward = self.feedforward(obs)
+        tau_m = self.k_pv * (e_v + inv_tiv * state) + feedforward
+        if self.hold_integral(joint_torques(tau_m, self.N), e_v, state, previous):
+            tau_m = self.k_pv * (e_v + inv_tiv * state) + feedforward
         return joint_torques(tau_m, self.N)
 
 
+@dataclass(frozen=True)
+class FeedforwardCascadeGains(CascadeGains):
+    """:class:`CascadeGains` with the speed feed-forward on by default (k_ff = 1)."""
+
+    k_ff: float = 1.0
+
+
 class PPIFeedforward(PCascade):
-    """The P/PI cascade with speed feed-forward k_ff q̄̇_m (default k_ff = 1)."""
+    """The P/PI cascade with speed feed-forward k_ff q̄̇_m (default k_ff = 1; a ``k_ff=`` or a
+    ``gains=FeedforwardCascadeGains(k_ff=...)`` is used as given)."""
 
     name = "p_pi_feedforward"
-
-    def __init__(
-        self, context: TaskContext, gains=None, *, robot: Robot | None = None, **overrides
-    ) -> None:
-        overrides.setdefault("k_ff", 1.0)
-        super().__init__(context, gains, robot=robot, **overrides)
+    Gains = FeedforwardCascadeGains
 
 
 class DecentralizedFeedforward(PPIFeedforward):

@@ -1,6 +1,6 @@
 """Soak test: millions of random steps of one environment, checking speed, memory and warnings.
 
-    python benchmarks/soak.py --steps 1000000 --env cir_gym/ElasticJointTracking-v1
+    python benchmarks/soak.py --steps 1000000 --env cir_gym/ElasticJointTracking-v2
 
 Without ``--env`` the slowest registered environment (measured on a few hundred steps) is used.
 Actions are uniform in [-1, 1]; the env is reset at every episode end and, to exercise resets

@@ -376,7 +376,7 @@ def test_corrupted_model_file_gives_a_clear_error(tiny_runs, tmp_path):
 
 def test_loading_checks_the_environment_id_and_version(tiny_runs):
     with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v1"):
-        agents.load("cir_gym/ElasticJointTracking-v1", "x", path=tiny_runs["scratch"])
+        agents.load("cir_gym/ElasticJointTracking-v2", "x", path=tiny_runs["scratch"])
     with pytest.raises(ValueError, match="no shipped agent"):
         agents.load(ENV, "no_such_agent")
 

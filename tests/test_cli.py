@@ -104,7 +104,7 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
 
 
 def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
-    env_id = "cir_gym/ElasticJointTracking-v1"
+    env_id = "cir_gym/ElasticJointTracking-v2"
     md = run_leaderboard(
         tmp_path, episodes=1, envs=[env_id], workers=2, env_overrides={"episode_duration": 0.1}
     ).read_text()

@@ -730,8 +730,8 @@ def _as_floats(value: Any) -> np.ndarray | None:
 #: Values the constructor accepts but that break the env, found by the property test below and
 #: reported to the env files' owners; the test does not draw them. (env ids, argument, test on
 #: the value as a finite float array, what happens).
-_JOINT_ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v1")
-_ELASTIC = ("cir_gym/ElasticJointTracking-v1",)
+_JOINT_ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+_ELASTIC = ("cir_gym/ElasticJointTracking-v2",)
 KWARG_GAPS: list[tuple[tuple[str, ...], str, Callable[[np.ndarray], Any], str]] = [
     # not a bug, only slow: a JointTracking reset precomputes the whole reference
     (tuple(ENV_IDS), "episode_duration", lambda t: np.any(t > 60.0),

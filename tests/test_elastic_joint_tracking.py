@@ -1,4 +1,4 @@
-"""ElasticJointTracking-v1: the elastic transmission of chapter 4 behaves as modelled."""
+"""ElasticJointTracking-v2: the elastic transmission of chapter 4 behaves as modelled."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import cir_gym  # noqa: F401  (registers the ids)
 from baselines.decentralized import MAX_OMEGA_DT
 from cir_gym.motor import average_inertia
 
-ENV = "cir_gym/ElasticJointTracking-v1"
+ENV = "cir_gym/ElasticJointTracking-v2"
 
 
 def motor_dofs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
@@ -113,3 +113,91 @@ def test_cascade_speed_bandwidth_is_0_7_omega_z(env, name):
     rigid = baselines.make(name, "cir_gym/JointTracking-v1")
     assert rigid.omega_z is None
     np.testing.assert_allclose(rigid.omega_cv, 80.0)
+
+
+# ---------------------------------------------------------------------- issue 19
+def test_friction_acts_once_on_the_motor_side():
+    """v1 applied viscous_friction and coulomb_friction to the motor AND the link hinges."""
+    base = gym.make(ENV, viscous_friction=0.7, coulomb_friction=0.4).unwrapped
+    m = base.model
+    _, motor = motor_dofs(m)
+    link = base.robot.dof_adr
+    np.testing.assert_allclose(m.dof_damping[motor], 0.7)
+    np.testing.assert_allclose(m.dof_frictionloss[motor], 0.4)
+    np.testing.assert_allclose(m.dof_damping[link], 0.0)
+    np.testing.assert_allclose(m.dof_frictionloss[link], 0.0)
+    randomized = gym.make(ENV, randomize=True).unwrapped
+    _, info = randomized.reset(seed=0)
+    err = info["model_error"]
+    np.testing.assert_allclose(randomized.model.dof_damping[motor], err.viscous_friction)
+    np.testing.assert_allclose(randomized.model.dof_damping[link], 0.0)
+
+
+def test_controllers_get_the_nominal_stiffness_and_the_simulator_the_true_one():
+    base = gym.make(ENV, stiffness=2000.0, stiffness_scale=0.8).unwrapped
+    np.testing.assert_allclose(base.model.tendon_stiffness[:7], 1600.0)
+    np.testing.assert_allclose(base.controller_context().extras["stiffness"], 2000.0)
+    with pytest.raises(ValueError, match="stiffness_scale"):
+        gym.make(ENV, stiffness_scale=0.0)
+
+
+@pytest.mark.parametrize("name", ["pid", "p_pi_cascade"])
+def test_motor_loops_compensate_the_spring_deflection_of_gravity(name):
+    """The motor reference θ̄ = q̄ + K̂⁻¹ĝ(q̄) puts the link on q̄; the v1 loops (θ̄ = q̄) left
+    the link K⁻¹g(q̄) below it (≈ 0.02 rad on the shoulder at the default stiffness)."""
+    kwargs = {"reference": "regulation", "episode_duration": 3.0}
+    env = gym.make(ENV, **kwargs)
+    policy = baselines.make(name, ENV, env=env)
+    obs, _ = env.reset(seed=1)
+    state = None
+    for k in range(env.unwrapped.max_steps):
+        action, state = policy.predict(obs, state, np.array([k == 0]))
+        obs, *_ = env.step(action)
+    base = env.unwrapped
+    sag = np.abs(base._rigid.gravity(obs["q_ref"]) / base.stiffness)
+    assert np.max(sag) > 5e-3  # what the v1 loops left
+    assert np.max(np.abs(obs["q_ref"] - obs["q"])) < 0.05 * np.max(sag)
+    np.testing.assert_allclose(policy.references(obs)[0],
+                               obs["q_ref"] + policy.robot.gravity(obs["q_ref"]) / base.stiffness)
+
+
+def test_stopping_early_never_raises_the_return():
+    """A policy that lets the arm fall is stopped by the following-error monitor. v1 charged
+    50 for it, so its return (−227 for PPO) beat any controller's (−622); v2 also charges the
+    worst reward of every unplayed step, so the stopped return is at most what the same
+    episode would score played to the end at the worst step reward, and below the return of
+    the same falling arm left to play on."""
+    short = {"episode_duration": 0.6}
+    stopped = gym.make(ENV, **short)
+    base = stopped.unwrapped
+    stopped.reset(seed=0)
+    rewards, k = [], 0
+    while True:
+        _, r, terminated, truncated, info = stopped.step(np.zeros(7))
+        rewards.append(r)
+        k += 1
+        if terminated or truncated:
+            break
+    assert info["following_error_exceeded"] and k < base.max_steps
+    unplayed = base.max_steps - k
+    worst = 1.0 + base.torque_weight + 4.0 * base.action_rate_weight
+    assert info["reward_following_error"] == pytest.approx(
+        -(base.following_error_penalty + unplayed * worst))
+    played_on = gym.make(ENV, max_following_error=None, **short)
+    played_on.reset(seed=0)
+    total = sum(played_on.step(np.zeros(7))[1] for _ in range(base.max_steps))
+    assert sum(rewards) < total
+    # at any discount γ: the stop step's loss is at least the discounted worst remainder
+    for gamma in (0.9, 0.99, 1.0):
+        remainder = sum(gamma**j * worst for j in range(1, unplayed + 1))
+        assert -info["reward_following_error"] >= remainder
+    # v1's reward (the flag off) is what made stopping pay
+    old = gym.make(ENV, charge_unplayed_steps=False, **short)
+    old.reset(seed=0)
+    old_total = 0.0
+    while True:
+        _, r, terminated, truncated, _ = old.step(np.zeros(7))
+        old_total += r
+        if terminated or truncated:
+            break
+    assert old_total > total

@@ -38,7 +38,7 @@ def test_computed_torque_exact_model_tracks_to_1e_3():
 
 def test_computed_torque_error_follows_closed_form_second_order_dynamics():
     """q̃̈ + K_D q̃̇ + K_P q̃ = 0 with ζ = 1: q̃(t) = q̃(0)(1 + ω t)e^{−ωt} when q̃̇(0) = 0."""
-    env = gym.make(ENV, initial_error=0.05, control_freq=1000.0)
+    env = gym.make(ENV, initial_error=0.05, control_freq=1000.0, max_episode_steps=-1)
     omega = 20.0
     policy = baselines.make("computed_torque", ENV, env=env, omega_n=omega, zeta=1.0)
     obs, _ = env.reset(seed=3)
@@ -68,7 +68,8 @@ def test_pd_gravity_regulates_from_random_starts():
 
 def test_pd_gravity_offset_matches_theory_under_gravity_model_error():
     """At equilibrium K_P q̃ = g(q) − ĝ(q): the offset the theory predicts."""
-    env = gym.make(ENV, reference="regulation", payload_mass=3.0, episode_duration=6.0)
+    env = gym.make(ENV, reference="regulation", payload_mass=3.0, episode_duration=6.0,
+                   max_episode_steps=-1)  # longer than the registered TimeLimit
     policy = baselines.make("pd_gravity", ENV, env=env)
     steps, _ = rollout(policy, env, seed=4)
     obs = steps[-1][0]
@@ -80,13 +81,41 @@ def test_pd_gravity_offset_matches_theory_under_gravity_model_error():
     np.testing.assert_allclose(q_err, predicted, atol=2e-3 * np.max(np.abs(predicted)) + 1e-7)
 
 
-def test_robust_control_cuts_the_payload_error_of_nominal_computed_torque():
-    """Measured: 11.7× on these 2 episodes, 11.9× on results/joint_tracking's 10."""
-    kwargs = {"payload_mass": 3.0}
-    ct = evaluate(baselines.make("computed_torque", ENV, env_kwargs=kwargs), ENV, 2, 0, **kwargs)
-    rb = evaluate(baselines.make("robust", ENV, env_kwargs=kwargs), ENV, 2, 0, **kwargs)
-    assert rb.summary["rms_error"]["mean"] * 8.0 < ct.summary["rms_error"]["mean"]
-    assert rb.success_rate == 1.0
+def test_robust_inside_its_boundary_layer_is_computed_torque_at_the_layer_gains():
+    """Inside the layer w = (ρ/ε) z: the law is computed torque with K_P + ρQ₁₂/ε and
+    K_D + ρQ₂₂/ε, which the default ε keeps within twice the designed gains (the layer is a
+    chattering remedy, not a gain: the old ε gave K_P ≈ 5400 for the designed 400)."""
+    policy = baselines.make("robust", ENV)
+    kp, kd = 20.0**2, 2 * 20.0
+    assert kp < policy.kp_layer <= 2 * kp + 1e-9 and kd < policy.kd_layer <= 2 * kd + 1e-9
+    env = gym.make(ENV, initial_error=0.01)
+    obs, _ = env.reset(seed=0)
+    z = policy.DtQ @ np.concatenate((obs["q_ref"] - obs["q"], obs["qd_ref"] - obs["qd"]))
+    assert np.linalg.norm(policy.weight * z) < policy.epsilon  # inside the layer
+    omega = np.sqrt(policy.kp_layer)
+    ct = baselines.make("computed_torque", ENV, omega_n=omega,
+                        zeta=policy.kd_layer / (2 * omega))
+    np.testing.assert_allclose(policy(obs), ct(obs), rtol=1e-9, atol=1e-12)
+    # outside the layer the robust term is the course's bounded w: ‖S w‖ = ρ
+    far = {**obs, "q": obs["q"] + 3.0}
+    z = policy.DtQ @ np.concatenate((far["q_ref"] - far["q"], far["qd_ref"] - far["qd"]))
+    assert np.linalg.norm(policy.weight * z) > policy.epsilon
+    nominal = baselines.make("computed_torque", ENV)  # the designed ω_n = 20, ζ = 1
+    w = np.linalg.solve(policy.inertia(far["q"]), policy.control(far, np.zeros(0))
+                        - nominal.control(far, np.zeros(0)))
+    assert np.linalg.norm(policy.weight * w) == pytest.approx(policy.rho, rel=1e-9)
+
+
+def test_robust_bound_covers_the_friction_and_masses_randomize_draws():
+    """The default uncertainty set is RANDOM_RANGES' (±20 % masses, friction ≤ 1), so ρ is
+    larger than the bound without friction and with ±10 % masses."""
+    g = baselines.make("robust", ENV).gains
+    assert g.mass_scale_bound == pytest.approx(RANDOM_RANGES["mass_scale"][1] - 1.0)
+    assert g.viscous_friction_bound == RANDOM_RANGES["viscous_friction"][1]
+    assert g.coulomb_friction_bound == RANDOM_RANGES["coulomb_friction"][1]
+    narrow = baselines.make("robust", ENV, mass_scale_bound=0.1, viscous_friction_bound=0.0,
+                            coulomb_friction_bound=0.0)
+    assert baselines.make("robust", ENV).rho > narrow.rho
 
 
 def test_robust_alpha_bounds_the_weighted_norm_of_the_inertia_error_below_one():
@@ -135,7 +164,7 @@ def test_decentralized_controllers_track_with_zero_static_error(name):
     """Integral action rejects the constant gravity disturbance d (chapter 4)."""
     kwargs = {"reference": "regulation", "episode_duration": 6.0}
     policy = baselines.make(name, ENV, env_kwargs=kwargs)
-    result = evaluate(policy, ENV, 1, 2, **kwargs)
+    result = evaluate(policy, ENV, 1, 2, max_episode_steps=-1, **kwargs)
     assert result.episodes[0].metrics["final_error"] < 1e-3
 
 
@@ -412,3 +441,149 @@ def test_motor_side_model_reproduces_the_rigid_gear_dynamics():
         lhs = (np.diag(J_m) + B_bar_r) @ qdd_m + motor.motor_side_disturbance(robot, q, qd, qdd, N)
         rhs = motor.motor_torques(robot.inverse_dynamics(q, qd, qdd), N)
         np.testing.assert_allclose(lhs, rhs, rtol=1e-9, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- issue 19
+def _run(env, policy, seed):
+    obs, _ = env.reset(seed=seed)
+    state, total = None, 0.0
+    for k in range(env.unwrapped.max_steps):
+        action, state = policy.predict(obs, state, np.array([k == 0]))
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += reward
+        if terminated or truncated:
+            return info, total, k + 1
+    raise AssertionError("the episode did not end")
+
+
+def test_regulation_succeeds_once_settled_and_the_offset_is_judged_only_in_the_window():
+    """Before: success used the max error including the initial offset, so a regulation
+    episode (random start) never succeeded, even with a 5.6e-9 rad final error."""
+    env = gym.make(ENV, reference="regulation", episode_duration=3.0)
+    policy = baselines.make("pd_gravity", ENV, env=env)
+    info, _, _ = _run(env, policy, seed=0)
+    assert info["episode_metrics"]["max_error"] > 0.05  # the offset is still in max_error
+    assert info["episode_metrics"]["final_error"] < 1e-4
+    assert info["is_success"]
+    # no window: the offset is judged and the episode fails
+    env0 = gym.make(ENV, reference="regulation", episode_duration=3.0, settling_time=0.0)
+    info0, _, _ = _run(env0, baselines.make("pd_gravity", ENV, env=env0), seed=0)
+    assert not info0["is_success"]
+    # an episode that starts on its reference gets no window: a late error still counts
+    assert env.unwrapped._judged_from > 0
+    on_ref = gym.make(ENV, episode_duration=0.5)
+    on_ref.reset(seed=0)
+    assert on_ref.unwrapped._judged_from == 0
+
+
+def test_control_freq_is_a_physics_rate_divisor_or_rejected_by_name():
+    """300 Hz on the 1-ms step used to run at 333.3 Hz (rounded frame skip)."""
+    with pytest.raises(ValueError, match=r"control_freq.*333\.333"):
+        gym.make(ENV, control_freq=300.0)
+    env = gym.make(ENV, control_freq=250.0)
+    assert env.unwrapped.dt == pytest.approx(1 / 250.0, rel=1e-12)
+    elastic = gym.make("cir_gym/ElasticJointTracking-v2", control_freq=400.0)  # 0.5-ms step
+    assert elastic.unwrapped.frame_skip == 5
+
+
+@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v2"])
+def test_registered_max_episode_steps_is_the_default_episode_and_timelimit_agrees(env_id):
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    assert spec.max_episode_steps == env.unwrapped.max_steps
+    assert env.spec.max_episode_steps == env.unwrapped.max_steps
+    env.reset(seed=0)
+    base, limit = env.unwrapped, spec.max_episode_steps
+    base._k = limit - 1  # the last step: TimeLimit and the env truncate it together
+    *_, terminated, truncated, _ = env.step(np.zeros(7))
+    assert truncated and not terminated
+    with pytest.warns(UserWarning, match="max_episode_steps"):
+        gym.make(env_id, episode_duration=8.0)  # TimeLimit would cut this episode short
+    longer = gym.make(env_id, episode_duration=8.0, max_episode_steps=-1)
+    assert longer.unwrapped.max_steps == 2 * limit
+
+
+def test_industrial_drive_quantizes_differentiates_delays_and_ripples():
+    from cir_gym.drives import INDUSTRIAL, DriveModel
+
+    res = 2 * np.pi / 2**20
+    assert INDUSTRIAL.resolution == pytest.approx(res)
+    env = gym.make(ENV, drive="industrial", episode_duration=0.1).unwrapped
+    obs0, _ = env.reset(seed=1)
+    obs1, *_ = env.step(np.full(7, 0.05))
+    np.testing.assert_allclose(obs1["q"] / res, np.round(obs1["q"] / res), atol=1e-6)
+    np.testing.assert_allclose(obs1["qd"], (obs1["q"] - obs0["q"]) / env.dt, atol=1e-12)
+    # delay alone: commands a, b, c are applied as a, a, b
+    delay = DriveModel(encoder_bits=0, velocity_from_differences=False, torque_ripple=0.0)
+    late = gym.make(ENV, drive=delay, episode_duration=0.1).unwrapped
+    ideal = gym.make(ENV, episode_duration=0.1).unwrapped
+    a, b, c = (np.full(7, v) for v in (0.05, -0.05, 0.1))
+    late.reset(seed=2)
+    ideal.reset(seed=2)
+    for cmd in (a, b, c):
+        late.step(cmd)
+    for cmd in (a, a, b):
+        ideal.step(cmd)
+    np.testing.assert_allclose(late.data.qpos, ideal.data.qpos, atol=1e-12)
+    # ripple alone: τ (1 + r sin(h N q)) reaches the actuators
+    ripple = DriveModel(encoder_bits=0, velocity_from_differences=False, delay_steps=0)
+    rip = gym.make(ENV, drive=ripple, episode_duration=0.1).unwrapped
+    rip.reset(seed=3)
+    q = rip.data.qpos[rip._qa].copy()
+    rip.step(a)
+    expected = a * rip.torque_limit * (1 + 0.02 * np.sin(6 * rip.gear_ratio * q))
+    np.testing.assert_allclose(rip.data.ctrl, expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="drive"):
+        gym.make(ENV, drive="perfect")
+    with pytest.raises(ValueError, match="encoder_resolution"):
+        gym.make(ENV, drive="industrial", encoder_resolution=1e-5)
+
+
+def test_p_pi_feedforward_keeps_a_given_k_ff():
+    """It used to overwrite any k_ff with 1 (setdefault on the overrides, not on gains=)."""
+    from baselines.decentralized import FeedforwardCascadeGains
+
+    assert baselines.make("p_pi_feedforward", ENV).gains.k_ff == 1.0
+    assert baselines.make("p_pi_feedforward", ENV, k_ff=0.3).gains.k_ff == 0.3
+    ctx = gym.make(ENV).unwrapped.controller_context()
+    given = baselines.CONTROLLERS["p_pi_feedforward"](ctx, FeedforwardCascadeGains(k_ff=0.4))
+    assert given.gains.k_ff == 0.4
+
+
+def test_pd_gravity_uses_identified_parameters():
+    """parameters= used to be accepted and ignored: ĝ came from the nominal robot."""
+    from cir_gym import dynamics
+
+    true = Robot.from_name("iiwa14").with_error(ModelError(payload_mass=3.0))
+    pi_true = dynamics.inertial_parameters(true.model)
+    policy = baselines.make("pd_gravity", ENV, parameters=pi_true)
+    nominal = baselines.make("pd_gravity", ENV)
+    q = true.model.key("home").qpos.copy() + 0.3
+    np.testing.assert_allclose(policy.gravity(q), true.gravity(q), rtol=1e-9, atol=1e-9)
+    assert not np.allclose(nominal.gravity(q), true.gravity(q), rtol=1e-3)
+
+
+def test_make_rejects_env_with_env_kwargs():
+    env = gym.make(ENV)
+    with pytest.raises(ValueError, match="env_kwargs"):
+        baselines.make("pid", ENV, env=env, env_kwargs={"payload_mass": 3.0})
+
+
+@pytest.mark.parametrize("name", ["pid", "p_pi_cascade"])
+def test_integrators_do_not_wind_up_while_the_torque_saturates(name):
+    """Conditional integration: a saturated joint pushed further by its error keeps its
+    integral (before, it grew by dt · e every step)."""
+    policy = baselines.make(name, ENV)
+    env = gym.make(ENV)
+    obs, _ = env.reset(seed=0)
+    far = {**obs, "q": obs["q"] - 1.0}  # a 1-rad error on every joint: the commands saturate
+    state = policy.initial_state(far)
+    for _ in range(50):
+        command = policy.control(far, state)
+    assert np.all(np.abs(command) > policy.action_scale)
+    np.testing.assert_allclose(state, 0.0)
+    # where the command is within its limit the integral still integrates
+    near = {**obs, "q": obs["q"] - 1e-3, "qd": obs["qd_ref"]}
+    state = policy.initial_state(near)
+    policy.control(near, state)
+    assert np.all(state != 0.0)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from cir_gym.envs.base import EntryPoint, RobotEnv
+from cir_gym.envs.admittance_contact import AdmittanceContactEnv
+from cir_gym.envs.base import EntryPoint, RobotEnv, default_max_episode_steps
+from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 from cir_gym.envs.redundant_ik import REDUNDANT_IK_ENVIRONMENTS, RedundantIK7Env, RedundantIKEnv
@@ -26,17 +28,32 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         JointTrackingEnv,
         "iiwa14 joint-space trajectory tracking with joint torques (ch. 4-5)",
     ),
-    "cir_gym/ElasticJointTracking-v1": (
+    "cir_gym/ElasticJointTracking-v2": (
         ElasticJointTrackingEnv,
         "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),
     **REDUNDANT_IK_ENVIRONMENTS,
     **VISUAL_SERVO_ENVIRONMENTS,
+    "cir_gym/AdmittanceContact-v0": (AdmittanceContactEnv, "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)"),
+    "cir_gym/CartesianTracking-v0": (CartesianTrackingEnv, "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)"),
 }
 
 
 def register_envs() -> None:
-    """Register every id in ``ENVIRONMENTS`` with Gymnasium (idempotent)."""
+    """Register every id in ``ENVIRONMENTS`` with Gymnasium (idempotent).
+
+    Each spec's ``max_episode_steps`` is the episode length of the class's default arguments,
+    round(episode_duration · control_freq) (:func:`~cir_gym.envs.base.default_max_episode_steps`),
+    the step at which the env truncates itself: ``gymnasium.make``'s TimeLimit ends the same
+    step. Made with a longer episode, pass ``max_episode_steps`` (or -1) to ``gymnasium.make``
+    (the entry point warns).
+    """
     for env_id, (cls, _) in ENVIRONMENTS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=EntryPoint(cls), disable_env_checker=False)
+            steps = default_max_episode_steps(cls)
+            gym.register(
+                id=env_id,
+                entry_point=EntryPoint(cls, steps),
+                disable_env_checker=False,
+                max_episode_steps=steps,
+            )

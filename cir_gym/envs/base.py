@@ -21,6 +21,7 @@ from __future__ import annotations
 import inspect
 import os
 import sys
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -71,21 +72,26 @@ class InvalidArgument(ValueError, TypeError):
     """An unknown or out-of-range constructor argument (a ValueError and a TypeError)."""
 
 
-def constructor_arguments(cls: type) -> list[str]:
-    """Keyword arguments of ``cls``; a ``**kwargs`` passed to the parent adds the parent's."""
-    names: list[str] = []
+def _init_parameters(cls: type) -> list[inspect.Parameter]:
+    """Keyword parameters of ``cls.__init__``, then the parent's while a ``**kwargs`` passes on."""
+    found: list[inspect.Parameter] = []
     for klass in cls.__mro__:
         if "__init__" not in vars(klass):
             continue
         params = inspect.signature(vars(klass)["__init__"]).parameters.values()
-        names += [
-            p.name
+        found += [
+            p
             for p in params
             if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
         ]
         if not any(p.kind == p.VAR_KEYWORD for p in params):
             break
-    return list(dict.fromkeys(names))
+    return found
+
+
+def constructor_arguments(cls: type) -> list[str]:
+    """Keyword arguments of ``cls``; a ``**kwargs`` passed to the parent adds the parent's."""
+    return list(dict.fromkeys(p.name for p in _init_parameters(cls)))
 
 
 def check_kwargs(cls: type, kwargs: dict[str, Any]) -> None:
@@ -125,15 +131,77 @@ def as_float_array(name: str, value: Any) -> np.ndarray:
     return arr
 
 
-class EntryPoint:
-    """A picklable ``gymnasium.register`` entry point that rejects unknown keyword arguments."""
+def frame_skip(control_freq: float, timestep: float) -> int:
+    """Physics steps per control period, 1 / (control_freq · timestep), which must be an integer.
 
-    def __init__(self, cls: type) -> None:
+    A control period is a whole number of physics steps; a frequency that is not the physics
+    rate divided by an integer is rejected rather than rounded (300 Hz on a 1-ms step would
+    run at 333.3 Hz).
+
+    Raises:
+        InvalidArgument: naming ``control_freq`` and the nearest allowed frequencies.
+    """
+    ratio = 1.0 / (control_freq * timestep)
+    skip = max(1, round(ratio))
+    if abs(ratio - skip) > 1e-6 * ratio:
+        rate = 1.0 / timestep
+        near = sorted({rate / k for k in (max(1, int(ratio)), int(ratio) + 1)}, reverse=True)
+        raise InvalidArgument(
+            f"control_freq must be the physics rate {rate:g} Hz divided by an integer (a "
+            f"control period is a whole number of {timestep * 1e3:g}-ms physics steps), got "
+            f"{control_freq!r} Hz; nearest allowed: {', '.join(f'{f:.6g}' for f in near)} Hz"
+        )
+    return skip
+
+
+def default_arguments(cls: type) -> dict[str, Any]:
+    """Default values of ``cls``'s keyword arguments (a ``**kwargs`` passed on: the parent's)."""
+    defaults: dict[str, Any] = {}
+    for p in _init_parameters(cls):
+        if p.default is not p.empty:
+            defaults.setdefault(p.name, p.default)
+    return defaults
+
+
+def default_max_episode_steps(cls: type) -> int | None:
+    """Steps of an episode with the default arguments, round(episode_duration · control_freq)
+    (exact: :func:`frame_skip` makes the control period 1 / control_freq); None for a class
+    without both defaults."""
+    d = default_arguments(cls)
+    duration, freq = d.get("episode_duration"), d.get("control_freq")
+    if not isinstance(duration, (int, float)) or not isinstance(freq, (int, float)):
+        return None
+    return max(1, round(duration * freq))
+
+
+class EntryPoint:
+    """A picklable ``gymnasium.register`` entry point that rejects unknown keyword arguments.
+
+    ``max_episode_steps`` is the registered spec's (the default episode's steps, applied by
+    ``gymnasium.make`` as a ``TimeLimit``). An env whose own episode is longer (another
+    ``episode_duration`` or ``control_freq``) would be cut short by that TimeLimit: a warning
+    says so and names the ``max_episode_steps`` to pass to ``gymnasium.make`` (or -1: the env
+    truncates itself). A shorter one truncates itself before the TimeLimit, at its own step.
+    """
+
+    def __init__(self, cls: type, max_episode_steps: int | None = None) -> None:
         self.cls = cls
+        self.max_episode_steps = max_episode_steps
 
     def __call__(self, **kwargs: Any) -> gym.Env:
         check_kwargs(self.cls, kwargs)
-        return self.cls(**kwargs)
+        env = self.cls(**kwargs)
+        limit = getattr(self, "max_episode_steps", None)  # unpickled from an older version
+        steps = getattr(env, "max_steps", None)
+        if limit is not None and steps is not None and steps > limit:
+            warnings.warn(
+                f"{self.cls.__name__}: this episode has {steps} steps but the registered "
+                f"max_episode_steps is {limit}; unless gymnasium.make got max_episode_steps="
+                f"{steps} (or -1), its TimeLimit ends the episode at step {limit}",
+                UserWarning,
+                stacklevel=2,
+            )
+        return env
 
 
 @dataclass(frozen=True)
@@ -198,8 +266,8 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.data = mujoco.MjData(model)
         timestep = model.opt.timestep
         control_freq = check_number("control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / timestep)
-        self.frame_skip = max(1, round(1.0 / (control_freq * timestep)))
-        self.dt = self.frame_skip * timestep  # s, control period
+        self.frame_skip = frame_skip(control_freq, timestep)
+        self.dt = self.frame_skip * timestep  # s, control period: exactly 1 / control_freq
         episode_duration = check_number(
             "episode_duration", episode_duration, 0.0, 3600.0, low_open=True
         )

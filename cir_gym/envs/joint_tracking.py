@@ -8,6 +8,7 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import trajectories as traj
+from cir_gym.drives import DRIVES, DriveModel, DriveState
 from cir_gym.envs.base import (
     InvalidArgument,
     RobotEnv,
@@ -60,8 +61,8 @@ class JointTrackingEnv(RobotEnv):
 
     | key | meaning | bounds | unit |
     |---|---|---|---|
-    | q | measured joint positions (quantized to ``encoder_resolution``) | ±2π | rad |
-    | qd | measured joint velocities (difference of the measured positions when quantized) | ±50 | rad/s |
+    | q | measured joint positions (quantized to ``encoder_resolution`` or by the ``drive``'s encoder) | ±2π | rad |
+    | qd | measured joint velocities (difference of the measured positions when quantized or with a ``drive``) | ±50 | rad/s |
     | q_ref | reference position q̄(t) | ±2π | rad |
     | qd_ref | reference velocity | ±50 | rad/s |
     | qdd_ref | reference acceleration | ±500 | rad/s² |
@@ -79,6 +80,14 @@ class JointTrackingEnv(RobotEnv):
       monitor stops the episode, else 0;
     - r_diverged = −``divergence_penalty`` on the step the physics diverged, else 0.
 
+    With ``charge_unplayed_steps=True`` a stopped or diverged episode also loses, on its last
+    step, the worst reward of every step it did not play, (T − k)(1 + ``torque_weight`` +
+    4 ``action_rate_weight``) (T the episode's steps, k the steps played; the worst step:
+    r_tracking = −1, ‖a‖² = 7, ‖Δa‖² = 28). Playing on can then never lose more than stopping:
+    stopping early never raises the return, at any discount γ ≤ 1. JointTracking-v1 keeps
+    False (its v1 reward: 50 for giving up against up to ~1 per remaining step, so a lost arm
+    "earns" by being stopped early); ElasticJointTracking-v2 defaults to True.
+
     ## Starting State
     At rest on the reference, q(0) = q̄(0) (+ U(±``initial_error``) per joint). For
     ``reference="regulation"`` the start is a random configuration and q̄ a constant random
@@ -91,6 +100,15 @@ class JointTrackingEnv(RobotEnv):
     ``max_following_error`` (``info["following_error_exceeded"] = True``; the initial offset of
     ``initial_error`` or of a ``regulation`` start is not a following error). A stopped episode is scored over the whole
     horizon: its last error is held for the steps it did not play.
+
+    ## Drive (sensing and actuation)
+    ``drive=None`` (default) is ideal: exact q̇, the torque applied at once (plus the optional
+    ``encoder_resolution`` and ``torque_noise``). ``drive="industrial"`` (or a
+    :class:`cir_gym.drives.DriveModel`) measures q with 20-bit encoders (6.0e-6 rad), q̇ as
+    the backward difference of two readings, applies each torque one control period late and
+    with a 2 % ripple at the 6th harmonic of the motor angle N q (defaults and sources in
+    :mod:`cir_gym.drives`); ``encoder_resolution`` must then stay 0. With it, feedback gains
+    cost something: encoder noise through K_D, and the delay's phase lag.
 
     ## Arguments
     | argument | default | meaning |
@@ -114,7 +132,10 @@ class JointTrackingEnv(RobotEnv):
     | divergence_penalty | 100.0 | reward lost when the physics diverges |
     | max_following_error | 0.5 | growth of ‖q̄ − q‖ over its initial value (rad) that ends the episode; None = never |
     | following_error_penalty | 50.0 | reward lost when the following error ends the episode |
-    | success_threshold | 0.05 | max joint error (rad) below which an episode succeeds |
+    | success_threshold | 0.05 | max joint error (rad) after the settling window below which an episode succeeds |
+    | settling_time | 2.0 | s: the settling window of an episode that starts off its reference (initial_error > 0 or "regulation"), not judged for success (at most the episode minus its last step); 0 on the reference |
+    | drive | None | sensing/actuation model: None (ideal), "industrial" (see Drive) or a ``cir_gym.drives.DriveModel`` |
+    | charge_unplayed_steps | False | a stopped or diverged episode also loses the worst reward of each unplayed step (see Rewards) |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
@@ -122,14 +143,24 @@ class JointTrackingEnv(RobotEnv):
     ## Metrics
     ``rms_error`` (primary, rad; RMS over joints and steps), ``max_error`` (rad),
     ``final_error`` (rad, norm at the last step), ``rms_torque`` (N m), ``saturation``
-    (fraction of steps with a clipped or saturated joint). Success: no divergence and
-    ``max_error`` < ``success_threshold`` (so a stopped episode never succeeds).
+    (fraction of steps with a clipped or saturated joint). Success: no divergence, not stopped
+    by the following-error monitor, and the max absolute joint error after the settling window
+    below ``success_threshold``. The window (``settling_time``) applies only to an episode
+    that starts off its reference (``initial_error`` > 0 or ``reference="regulation"``): its
+    initial offset is the task, not a failure (before, such an episode could never succeed:
+    ``max_error`` includes the offset). An episode that starts on its reference is judged
+    from its first step, as before. ``max_error`` stays the whole episode's.
 
     ## Reference controllers
     ``baselines.available("cir_gym/JointTracking-v1")``: pid, p_pi_cascade,
     p_pi_feedforward, decentralized_feedforward, pd_gravity, computed_torque, robust, adaptive.
 
     ## Version History
+    Without a version bump (metrics and new arguments whose defaults keep v1's episodes):
+    success judged after the settling window of an off-reference start; ``settling_time``,
+    ``drive``, ``charge_unplayed_steps``; a ``control_freq`` that is not 1 kHz / integer is
+    rejected (it was rounded: 300 Hz ran at 333 Hz).
+
     - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
       From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
       (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing
@@ -151,6 +182,7 @@ class JointTrackingEnv(RobotEnv):
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "exact model": {},
         "unknown 3 kg payload": {"payload_mass": 3.0},
+        "industrial drive": {"drive": "industrial"},
     }
     robot_name: ClassVar[str] = "iiwa14"
 
@@ -176,6 +208,9 @@ class JointTrackingEnv(RobotEnv):
         max_following_error: float | None = 0.5,
         following_error_penalty: float = 50.0,
         success_threshold: float = 0.05,
+        settling_time: float = 2.0,
+        drive: str | DriveModel | None = None,
+        charge_unplayed_steps: bool = False,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
@@ -224,6 +259,26 @@ class JointTrackingEnv(RobotEnv):
         self.success_threshold = check_number(
             "success_threshold", success_threshold, 0.0, 10.0, low_open=True
         )
+        self.settling_time = check_number("settling_time", settling_time, 0.0, 3600.0)
+        if isinstance(drive, DriveModel) or drive is None:
+            self.drive = drive
+        elif isinstance(drive, str) and drive in DRIVES:
+            self.drive = DRIVES[drive]
+        else:
+            raise InvalidArgument(
+                f"drive must be None, one of {sorted(DRIVES)} or a cir_gym.drives.DriveModel, "
+                f"got {drive!r}"
+            )
+        if self.drive is not None and self.encoder_resolution > 0:
+            raise InvalidArgument(
+                f"encoder_resolution must be 0 with a drive (its encoder quantizes q), got "
+                f"{encoder_resolution!r}"
+            )
+        if not isinstance(charge_unplayed_steps, (bool, np.bool_)):
+            raise InvalidArgument(
+                f"charge_unplayed_steps must be True or False, got {charge_unplayed_steps!r}"
+            )
+        self.charge_unplayed_steps = bool(charge_unplayed_steps)
 
         self.robot = self._build_robot()  # the simulator's (true) robot
         n = self.robot.n
@@ -238,7 +293,7 @@ class JointTrackingEnv(RobotEnv):
         self.armature = self.gear_ratio**2 * self.rotor_inertia
         self._set_motor_inertia(self.armature)
         self._nominal_arrays = _inertial_arrays(self.robot.model)
-        apply_model_error(self.robot.model, self.model_error)
+        self._apply_model_error(self.model_error)
         super().__init__(
             self.robot.model,
             control_freq=control_freq,
@@ -267,6 +322,12 @@ class JointTrackingEnv(RobotEnv):
         self._q_meas_prev = np.zeros(n)
         self._diverged = False
         self.episode_model_error = self.model_error
+        self._drive_state = None if self.drive is None else DriveState(self.drive, n)
+        # a settling window only for an off-reference start, leaving at least the last step
+        self._settle_steps = min(round(self.settling_time / self.dt), self.max_steps - 1)
+        self._judged_from = 0
+        # the worst reward of one step: r_tracking = −1, ‖a‖²/n = 1, ‖Δa‖²/n = 4
+        self._worst_step = 1.0 + self.torque_weight + 4.0 * self.action_rate_weight
 
     # ------------------------------------------------------------------ hooks (elastic joints)
     def _build_robot(self) -> Robot:
@@ -276,6 +337,14 @@ class JointTrackingEnv(RobotEnv):
     def _set_motor_inertia(self, armature: np.ndarray) -> None:
         """Put the reflected rotor inertia N² J_m (n,) where the motors are (the joints here)."""
         self.robot.set_armature(armature)
+
+    def _apply_model_error(self, error: ModelError) -> None:
+        """Write the true masses and frictions into the simulator (friction at the joints)."""
+        apply_model_error(self.robot.model, error)
+
+    def _motor_angle(self) -> np.ndarray:
+        """Motor positions in link units θ (n,) (the joints here; q_m = N θ)."""
+        return self.data.qpos[self._qa]
 
     def _home(self) -> np.ndarray:
         m = self.robot.model
@@ -352,7 +421,7 @@ class JointTrackingEnv(RobotEnv):
             draw = {k: float(rng.uniform(*r)) for k, r in RANDOM_RANGES.items()}
             self.episode_model_error = ModelError(**draw)
             _restore_inertial_arrays(self.model, self._nominal_arrays)
-            apply_model_error(self.model, self.episode_model_error)
+            self._apply_model_error(self.episode_model_error)
             self.robot.invalidate()
         q0, qd0 = self._make_reference()
         if self.initial_error > 0:
@@ -366,13 +435,24 @@ class JointTrackingEnv(RobotEnv):
         self._a_prev[:] = 0.0
         self._diverged = False
         self._q_meas_prev[:] = self._quantize(q0)
+        off_reference = bool(np.any(q0 != self._ref[0, 0]))
+        self._judged_from = self._settle_steps if off_reference else 0
+        self._reset_drive()
         return self._obs(), {"model_error": self.episode_model_error}
+
+    def _reset_drive(self) -> None:
+        if self._drive_state is not None:
+            d = self.data
+            self._drive_state.reset(d.qpos[self._qa], d.qvel[self._da], self.dt)
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, clipped = self._check_action(action)
         tau = a * self.torque_limit
+        if self._drive_state is not None:  # one period late, with the motor's ripple
+            tau = self._drive_state.actuate(tau)
+            tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
         if self.torque_noise > 0:
             tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
         self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
@@ -389,13 +469,15 @@ class JointTrackingEnv(RobotEnv):
         r_torque = -self.torque_weight * float(a @ a) / self.n
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / self.n
-        r_div = -self.divergence_penalty if diverged else 0.0
         stopped = bool(
             not diverged
             and self.max_following_error is not None
             and np.sqrt(err_sq) > self._following_error_limit
         )
-        r_follow = -self.following_error_penalty if stopped else 0.0
+        # the worst reward of the steps a stopped episode does not play (section Rewards)
+        unplayed = (self.max_steps - self._k) * self._worst_step if self.charge_unplayed_steps else 0.0
+        r_div = -(self.divergence_penalty + unplayed) if diverged else 0.0
+        r_follow = -(self.following_error_penalty + unplayed) if stopped else 0.0
         self._a_prev[:] = a
         reward = r_track + r_torque + r_rate + r_follow + r_div
 
@@ -417,8 +499,11 @@ class JointTrackingEnv(RobotEnv):
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
+            settled = self._err[self._judged_from : max(self._k, self._k_scored)]
             info["is_success"] = bool(
-                not diverged and metrics["max_error"] < self.success_threshold
+                not diverged
+                and not stopped
+                and float(np.max(np.abs(settled))) < self.success_threshold
             )
         return self._obs(), reward, terminated, truncated, info
 
@@ -454,7 +539,9 @@ class JointTrackingEnv(RobotEnv):
     def _obs(self) -> dict[str, np.ndarray]:
         k = min(self._k, self.max_steps)
         q = self._quantize(self.data.qpos[self._qa])
-        if self.encoder_resolution > 0:
+        if self._drive_state is not None:  # called once per control instant
+            q, qd = self._drive_state.measure(self.data.qpos[self._qa], self.data.qvel[self._da], self.dt)
+        elif self.encoder_resolution > 0:
             qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
         else:
             qd = self.data.qvel[self._da]
