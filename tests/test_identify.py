@@ -54,3 +54,22 @@ def test_filtered_differentiation_recovers_qdd_where_finite_differences_drown_in
     quantized = np.round(q / 1e-5) * 1e-5
     naive = np.diff(quantized, 2, axis=0) / 1e-3**2  # second difference of the encoder
     assert np.sqrt(np.mean((naive - qdd[1:-1]) ** 2)) > scale
+
+
+def test_spread_reports_every_seed_and_noise_level_with_median_and_range(tmp_path, monkeypatch):
+    """The headline must be a spread, not one run: one ratio per (noise, seed), a median and a
+    range per noise level and overall."""
+    import scripts.identify as identify
+
+    fake = {(0.1, 0): 1.5, (0.1, 1): 2.5, (0.3, 0): 1.9, (0.3, 1): 3.1}
+
+    def run(payload_mass, duration, noise, seed, episodes, out):
+        return {"computed_torque (identified model)": fake[noise, seed],
+                "computed_torque (exact model)": 1.0}
+
+    monkeypatch.setattr(identify, "run_identify", run)
+    ratios = identify.identification_spread((0, 1), (0.1, 0.3), out=tmp_path)
+    assert ratios == fake
+    text = (tmp_path / "spread.md").read_text()
+    assert "| 0.1 | 1.50× | 2.50× | 2.00× | 1.50–2.50× |" in text
+    assert "median 2.20×, range 1.50–3.10×; 2 of 4 within the 2× target" in text
