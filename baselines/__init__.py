@@ -22,6 +22,7 @@ from baselines.decentralized import (
 )
 from baselines.kinematic import KINEMATIC_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
+from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
 __all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
 
@@ -37,6 +38,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         RobustControl,
         AdaptiveControl,
         *KINEMATIC_CONTROLLERS,
+        *VISUAL_SERVO_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
     )
 }
