@@ -1,0 +1,393 @@
+"""Hybrid force/position control for the peg-in-hole task (chapter 6), and its foil.
+
+The task frame is the *nominal* hole frame (origin at the centre of the hole's top opening, z
+along the bore, out of the hole); wrenches are taken at the peg tip. The bore imposes the
+**natural constraints** (a peg in the bore cannot translate sideways nor tilt:
+v_x = v_y = 0, ω_x = ω_y = 0; nothing resists sliding along or turning about the axis:
+f_z = 0, μ_z = 0). The task sets the complementary **artificial constraints**: zero lateral
+force and zero tilting moment, f_x = f_y = 0, μ_x = μ_y = 0 (so the bore's walls, not the
+controller, decide where the peg goes sideways and how it tilts), and a motion along the axis,
+v_z = v̄ (insertion) and ω_z = 0 (the peg need not turn). The selection matrix of the notes
+(1 on the force-controlled directions) is therefore
+
+    Σ = diag(1, 1, 0, 1, 1, 0)  in (x, y, z, rot x, rot y, rot z) of the hole frame
+
+(:func:`selection_matrix`). The commanded wrench at the tip is
+
+    h_c = Σ [γ̄ + K_F (γ̄ − γ̂) − D_F ẋ] + Λ_h (I − Σ) [K_P (x̄ − x) − K_D ẋ],   γ̄ = 0,
+
+the motion law an acceleration through the task-space inertia Λ_h = R Λ(q) Rᵀ of the tip in
+the hole frame (the inverse-dynamics form: a motion command along the axis then accelerates
+the tip along the axis only, ẍ = (I − Σ) a + Λ⁻¹ Σ h_f, instead of dragging it sideways
+through the off-diagonal inertia), with γ̂ the measured wrench the peg exerts on the
+environment (the F/T reading minus the peg's weight, moved to the tip,
+:func:`cir_gym.ft_sensor.contact_wrench`), and
+τ = g(q) + J_tipᵀ h_c + N_dynᵀ τ_posture (gravity of the nominal arm and peg; the posture term
+acts in the null space of the dynamically consistent inverse, so it leaves the tip alone).
+The force loop is an accommodation law: a measured push γ̂ commands the opposite force, the
+damping D_F keeps the force-controlled directions still in free space. The axial motion
+command is saturated at ``push_force``: when the peg lands beside the hole the controller
+presses with a bounded force instead of driving its position error into the block.
+
+``hybrid_spiral`` adds the classic search: while the peg rests on the block beside the hole
+(axial contact force above ``contact_force`` and no drop below the surface height found at
+contact) the roles of x, y and z swap — Σ_search = diag(0, 0, 1, 1, 1, 0): the tip follows an
+Archimedean spiral r = p θ / 2π (pitch p ≤ the hole radius) in the hole plane while pressing
+with ``search_force`` along the axis, holding the peg square to the face (a peg left free to
+tilt while dragged across the face tips over on the sensor's delay and catches its edge).
+A drop of ``drop`` below the contact height means the tip found the hole: the controller
+returns to Σ and inserts.
+
+``position_only`` is stiff Cartesian position control of the tip to the nominal hole's axis
+(τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback): the reason force control exists. With the
+hole off by more than the clearance it lands on the block and presses until the force limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from baselines.base import Controller, InvalidGain
+from cir_gym import trajectories as traj
+from cir_gym.envs.base import TaskContext
+from cir_gym.ft_sensor import contact_wrench
+from cir_gym.operational_space import (
+    dynamically_consistent_inverse,
+    null_space_projector,
+    rotvec_error,
+    task_inertia,
+)
+from cir_gym.robot import ModelError, Robot, apply_model_error
+
+__all__ = [
+    "HYBRID_CONTROLLERS",
+    "HybridForcePosition",
+    "HybridForcePositionGains",
+    "HybridSpiral",
+    "HybridSpiralGains",
+    "PositionOnly",
+    "PositionOnlyGains",
+    "selection_matrix",
+]
+
+#: Orientation of the tip frame in the hole frame when the peg is aligned with the bore.
+ALIGNED = np.diag([-1.0, 1.0, -1.0])
+ALIGNED_QUAT = traj.quat_from_matrix(ALIGNED)
+
+
+def selection_matrix(search: bool = False) -> np.ndarray:
+    """Σ (6, 6): 1 on the force-controlled directions of the hole frame (see the module doc).
+
+    ``search=False``: insertion, Σ = diag(1, 1, 0, 1, 1, 0) (zero lateral force and tilting
+    moment, motion along and about the axis). ``search=True``: spiral search on the block's
+    face, Σ = diag(0, 0, 1, 0, 0, 0): the face is the constraint now (natural: v_z = 0), so
+    press along the axis and move in the plane, holding the peg square to the face.
+    """
+    return np.diag([0.0, 0.0, 1.0, 0.0, 0.0, 0.0] if search else [1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
+
+
+def _check_positive(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not np.isfinite(value) or value < 0:
+            raise InvalidGain(
+                f"gain {name!r} of {owner} must be a finite number >= 0, got {value!r}"
+            )
+
+
+class _TipController(Controller):
+    """Shared kinematics: the peg tip of the nominal arm (flange + tool offset) in the hole frame.
+
+    The nominal robot carries the peg as the file's ``payload`` (its centre of mass lies 5 cm
+    beyond the flange, as the peg's does), so g(q) includes the peg's weight.
+    """
+
+    tasks: ClassVar[tuple[str, ...]] = ("PegInHole",)
+
+    def __init__(self, context: TaskContext, gains: Any = None, *, robot: Robot | None = None,
+                 **overrides: Any) -> None:
+        super().__init__(context, gains, **overrides)
+        extras = context.extras
+        self.robot = robot if robot is not None else context.nominal_robot()
+        self.tool_mass = float(extras.get("tool_mass", 0.0))
+        if robot is None and self.tool_mass > 0:
+            apply_model_error(self.robot.model, ModelError(payload_mass=self.tool_mass))
+            self.robot.invalidate()
+        self.tip_offset = float(extras.get("tip_offset", 0.0))
+        self.tool_com = np.array([0.0, 0.0, 0.05])  # peg centre of mass in the sensor frame
+        self.site = self.robot.site_id(context.site or "flange")
+        self.q_home: np.ndarray | None = None
+
+    def tip(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tip position (3,), rotation (3, 3) and geometric Jacobian (6, n), world frame."""
+        p, R = self.robot.site_pose(self.site, q)
+        J = self.robot.jacobian(self.site, q)
+        r = R[:, 2] * self.tip_offset
+        J_tip = J.copy()
+        J_tip[:3] -= np.cross(r, J[3:].T).T  # v_tip = v_f + ω × r = v_f − r × ω
+        return p + r, R, J_tip
+
+    def task_wrench_torque(self, q: np.ndarray, qd: np.ndarray, h_world: np.ndarray,
+                           J: np.ndarray, Lambda: np.ndarray | None = None) -> np.ndarray:
+        """τ = g(q) + Jᵀ h + N_dynᵀ (posture PD toward the start posture)."""
+        B = self.robot.inertia(q)
+        J_bar = dynamically_consistent_inverse(J, B, Lambda)
+        N = null_space_projector(J, J_bar)
+        q_home = self.q_home if self.q_home is not None else q
+        tau0 = self.gains.posture_stiffness * (q_home - q) - self.gains.posture_damping * qd
+        return self.robot.gravity(q) + J.T @ h_world + N.T @ tau0
+
+    @staticmethod
+    def hole_frame(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        return obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
+
+    def measured_wrench_at_tip(self, obs: dict[str, np.ndarray], q: np.ndarray,
+                               p_tip: np.ndarray) -> np.ndarray:
+        """γ̂ (6,), world frame, moments about the tip: the peg's push on the environment."""
+        p_f, R_f = self.robot.site_pose(self.site, q)
+        h = contact_wrench(obs["wrench"], R_f, tool_mass=self.tool_mass, tool_com=self.tool_com)
+        f, mu_sensor = h[:3], h[3:]
+        return np.concatenate((f, mu_sensor + np.cross(p_f - p_tip, f)))
+
+
+@dataclass(frozen=True)
+class HybridForcePositionGains:
+    """Gains of :class:`HybridForcePosition` (hole frame, at the tip).
+
+    Attributes:
+        omega_n: natural frequency of the motion-controlled directions (rad/s):
+            K_P = ω_n², K_D = 2 ζ ω_n (per unit task inertia, the course's design).
+        zeta: their damping ratio.
+        k_f: force feedback gain K_F on the force-controlled directions (dimensionless).
+        d_f: damping of the lateral force-controlled directions (N s/m).
+        d_f_rot: damping of the tilting directions (N m s/rad).
+        k_tilt: weak rotational stiffness toward the nominal axis in the moment-controlled
+            directions (N m/rad): a compliance centre at the tip, so that the peg does not
+            wander in free space, weak enough that the bore's walls tilt it (2° ≈ 0.2 N m).
+        speed: insertion speed v̄ along the axis (m/s).
+        guard_speed: speed within ``guard_height`` of the nominal top face (m/s): a guarded
+            move, so that landing on the block beside the hole is not an impact.
+        guard_height: (m) above and below the nominal top face.
+        push_force: bound on the axial force command (N).
+        posture_stiffness, posture_damping: null-space posture PD (N m/rad, N m s/rad).
+    """
+
+    omega_n: float = 30.0
+    zeta: float = 1.0
+    k_f: float = 1.0
+    d_f: float = 150.0
+    d_f_rot: float = 2.0
+    k_tilt: float = 5.0
+    speed: float = 0.01
+    guard_speed: float = 0.002
+    guard_height: float = 0.0015
+    push_force: float = 15.0
+    posture_stiffness: float = 20.0
+    posture_damping: float = 5.0
+
+    def __post_init__(self) -> None:
+        _check_positive("hybrid_force_position", **self.__dict__)
+
+
+class HybridForcePosition(_TipController):
+    """Hybrid force/position control with the selection matrix Σ (see the module docstring).
+
+    State: [t, z̄] — time since the start (s) and the axial reference in the hole frame (m).
+    """
+
+    name: ClassVar[str] = "hybrid_force_position"
+    Gains: ClassVar[type] = HybridForcePositionGains
+
+    @property
+    def state_size(self) -> int:
+        return 2
+
+    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self.q_home = np.asarray(obs["q"], dtype=float).copy()
+        return np.array([0.0, float(obs["peg_pos"][2])])
+
+    def _frames(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
+        q, qd = obs["q"], obs["qd"]
+        p_h, R_h = self.hole_frame(obs)
+        p_tip, R_tip, J = self.tip(q)
+        twist = J @ qd
+        gamma = self.measured_wrench_at_tip(obs, q, p_tip)
+        R6 = np.kron(np.eye(2), R_h)
+        Lambda_world = task_inertia(J, self.robot.inertia(q))
+        Lambda = R6.T @ Lambda_world @ R6
+        x = R_h.T @ (p_tip - p_h)
+        R_rel = R_h.T @ R_tip
+        phi = rotvec_error(ALIGNED_QUAT, traj.quat_from_matrix(R_rel))  # hole frame
+        return {
+            "q": q, "qd": qd, "R_h": R_h, "J": J, "x": x, "phi": phi, "Lambda": Lambda,
+            "Lambda_world": Lambda_world,
+            "v": np.concatenate((R_h.T @ twist[:3], R_h.T @ twist[3:])),
+            "gamma": np.concatenate((R_h.T @ gamma[:3], R_h.T @ gamma[3:])),
+        }
+
+    def hybrid_wrench(self, f: dict[str, Any], x_ref: np.ndarray, sigma: np.ndarray,
+                      gamma_ref: np.ndarray, omega_n: float | None = None) -> np.ndarray:
+        """h_c (6,) in the hole frame: Σ force law + (I − Σ) motion law (at ``omega_n``)."""
+        g = self.gains
+        w = g.omega_n if omega_n is None else omega_n
+        v = f["v"]
+        h_force = gamma_ref + g.k_f * (gamma_ref - f["gamma"])
+        h_force[:3] -= g.d_f * v[:3]
+        h_force[3:] -= g.d_f_rot * v[3:]
+        h_force[3:] += g.k_tilt * f["phi"]  # a weak spring toward the nominal axis (compliance)
+        e = np.concatenate((x_ref - f["x"], f["phi"]))
+        a_motion = w**2 * e - 2 * g.zeta * w * v
+        L = f["Lambda"]
+        a_max = g.push_force / L[2, 2]  # the axial command presses with at most push_force
+        a_motion[2] = np.clip(a_motion[2], -a_max, a_max)
+        s = np.diag(sigma)
+        return s * h_force + L @ ((1.0 - s) * a_motion)
+
+    def torque(self, f: dict[str, Any], h_hole: np.ndarray) -> np.ndarray:
+        R_h = f["R_h"]
+        h_world = np.concatenate((R_h @ h_hole[:3], R_h @ h_hole[3:]))
+        return self.task_wrench_torque(f["q"], f["qd"], h_world, f["J"], f["Lambda_world"])
+
+    def advance_reference(self, state: np.ndarray, z: float) -> None:
+        """z̄ ← z̄ − v Δt (v̄, or the guard speed near the top face), at most 5 mm ahead of z."""
+        g = self.gains
+        v = g.guard_speed if abs(z) < g.guard_height else g.speed
+        state[1] = max(state[1] - v * self.dt, z - 0.005)
+
+    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+        f = self._frames(obs)
+        state[0] += self.dt
+        self.advance_reference(state, float(f["x"][2]))
+        x_ref = np.array([f["x"][0], f["x"][1], state[1]])
+        h = self.hybrid_wrench(f, x_ref, selection_matrix(), np.zeros(6))
+        return self.torque(f, h)
+
+
+@dataclass(frozen=True)
+class HybridSpiralGains(HybridForcePositionGains):
+    """Gains of :class:`HybridSpiral`: those of hybrid_force_position, plus
+
+    Attributes:
+        contact_force: axial push (N) above which the peg is on the block.
+        drop: drop below the contact height (m) that means the hole is found.
+        search_force: axial push during the search (N).
+        pitch: spiral pitch (m, distance between turns).
+        search_speed: speed along the spiral (m/s).
+        omega_search: natural frequency of the motion control in the plane during the search
+            (rad/s): stiff enough that the tip slides across the face against friction.
+    """
+
+    contact_force: float = 4.0
+    drop: float = 0.0005
+    search_force: float = 6.0
+    pitch: float = 0.0005
+    search_speed: float = 0.01
+    omega_search: float = 80.0
+
+
+class HybridSpiral(HybridForcePosition):
+    """hybrid_force_position plus a spiral search on the block (see the module docstring).
+
+    State: [t, z̄, mode (0 approach/insert, 1 search, 2 found), spiral angle θ (rad),
+    spiral centre x, y (m), contact height z_c (m)].
+    """
+
+    name: ClassVar[str] = "hybrid_spiral"
+    Gains: ClassVar[type] = HybridSpiralGains
+
+    @property
+    def state_size(self) -> int:
+        return 7
+
+    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        base = super().initial_state(obs)
+        return np.concatenate((base, [0.0, 0.0, 0.0, 0.0, 0.0]))
+
+    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+        g = self.gains
+        f = self._frames(obs)
+        x = f["x"]
+        state[0] += self.dt
+        mode = int(state[2])
+        pushing = -f["gamma"][2] > g.contact_force  # the peg pushes the block along −z
+        if mode == 0 and pushing and x[2] > -g.drop:
+            mode = 1  # on the block beside the hole: search
+            state[3], state[4], state[5], state[6] = 0.0, x[0], x[1], x[2]
+        if mode == 1 and x[2] < state[6] - g.drop:
+            mode = 2  # dropped: the tip is in the hole
+            state[1] = x[2]
+        state[2] = mode
+        if mode == 1:
+            r = g.pitch * state[3] / (2 * np.pi)
+            state[3] += g.search_speed * self.dt / max(r, g.pitch / 2)
+            r = g.pitch * state[3] / (2 * np.pi)
+            target = state[4:6] + r * np.array([np.cos(state[3]), np.sin(state[3])])
+            x_ref = np.array([target[0], target[1], x[2]])
+            h = self.hybrid_wrench(f, x_ref, selection_matrix(True),
+                                   np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0]),
+                                   g.omega_search)
+            return self.torque(f, h)
+        self.advance_reference(state, float(x[2]))
+        x_ref = np.array([x[0], x[1], state[1]])
+        return self.torque(f, self.hybrid_wrench(f, x_ref, selection_matrix(), np.zeros(6)))
+
+
+@dataclass(frozen=True)
+class PositionOnlyGains:
+    """Gains of :class:`PositionOnly` (hole frame, at the tip).
+
+    Attributes:
+        k_p: translational stiffness (N/m); k_p_rot rotational (N m/rad).
+        k_d: damping (N s/m); k_d_rot (N m s/rad).
+        speed: speed of the reference down the nominal axis (m/s).
+        posture_stiffness, posture_damping: null-space posture PD (N m/rad, N m s/rad).
+    """
+
+    k_p: float = 5000.0
+    k_d: float = 200.0
+    k_p_rot: float = 200.0
+    k_d_rot: float = 5.0
+    speed: float = 0.02
+    posture_stiffness: float = 20.0
+    posture_damping: float = 5.0
+
+    def __post_init__(self) -> None:
+        _check_positive("position_only", **self.__dict__)
+
+
+class PositionOnly(_TipController):
+    """Stiff Cartesian position control down the nominal hole axis, no force feedback.
+
+    State: [z̄] the axial reference in the nominal hole frame (m).
+    """
+
+    name: ClassVar[str] = "position_only"
+    Gains: ClassVar[type] = PositionOnlyGains
+
+    @property
+    def state_size(self) -> int:
+        return 1
+
+    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self.q_home = np.asarray(obs["q"], dtype=float).copy()
+        return np.array([float(obs["peg_pos"][2])])
+
+    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+        g = self.gains
+        q, qd = obs["q"], obs["qd"]
+        p_h, R_h = self.hole_frame(obs)
+        p_tip, R_tip, J = self.tip(q)
+        goal = -float(self.context.extras.get("goal_depth", 0.0225))
+        state[0] = max(state[0] - g.speed * self.dt, goal)
+        x_ref = p_h + R_h @ np.array([0.0, 0.0, state[0]])
+        R_ref = R_h @ ALIGNED
+        phi = rotvec_error(traj.quat_from_matrix(R_ref), traj.quat_from_matrix(R_tip))
+        twist = J @ qd
+        h = np.concatenate((g.k_p * (x_ref - p_tip) - g.k_d * twist[:3],
+                            g.k_p_rot * phi - g.k_d_rot * twist[3:]))
+        return self.task_wrench_torque(q, qd, h, J)
+
+
+HYBRID_CONTROLLERS: tuple[type[Controller], ...] = (HybridForcePosition, HybridSpiral, PositionOnly)

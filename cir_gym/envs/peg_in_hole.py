@@ -1,0 +1,541 @@
+"""PegInHole: insert a cylindrical peg into a round hole whose pose is known only approximately
+(chapter 6: hybrid force/position control with a selection matrix)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from cir_gym import peg_hole_geometry as geo
+from cir_gym import trajectories as traj
+from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
+from cir_gym.metrics import MetricSpec
+from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.operational_space import rotvec_error
+from cir_gym.robot import Robot
+
+CONTROLS = ("torque", "position")
+#: Position interface: largest setpoint speed (m/s) and angular speed (rad/s); an action of 1 moves
+#: the setpoint by this times the control period.
+MAX_SPEED = 0.05
+MAX_ANGULAR_SPEED = 0.5
+#: Window of the force monitor (s): the contact force is averaged over the last 2 ms of physics
+#: steps, as a force monitor sampling at 500 Hz sees it (an impact's sub-millisecond spike on the
+#: rigid arm model is an impulse, not a sustained force).
+FORCE_WINDOW = 2e-3
+TOOL_COM = np.array([0.0, 0.0, geo.PEG_OFFSET + geo.PEG_LENGTH / 2])  # in the sensor frame
+#: Orientation of the peg-tip frame in the hole frame when the peg is aligned with the bore
+#: (peg z pointing into the hole: a half turn about y).
+ALIGNED = np.diag([-1.0, 1.0, -1.0])
+ALIGNED_QUAT = traj.quat_from_matrix(ALIGNED)
+#: Posture the start is pulled toward (the robot file's home): elbow bent, wrist off its
+#: singularity.
+PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
+STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact counts as stuck
+SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
+GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
+
+
+@lru_cache(maxsize=8)
+def _start_posture(height: float) -> tuple[float, ...]:
+    """Joint angles with the peg tip ``height`` above the nominal hole, aligned with its axis."""
+    model, _ = geo.build_peg_in_hole()
+    robot = Robot(model)
+    target = np.asarray(geo.HOLE_POSITION) + np.array([0.0, 0.0, height])
+    q = PREFERRED_POSTURE.copy()
+    for _ in range(200):  # Newton steps with a null-space pull toward the preferred posture
+        p, R = robot.site_pose("peg_tip", q)
+        e = np.concatenate((target - p, rotvec_error(ALIGNED_QUAT, traj.quat_from_matrix(R))))
+        J = robot.jacobian("peg_tip", q)
+        J_pinv = np.linalg.pinv(J)
+        q = q + J_pinv @ e + (np.eye(robot.n) - J_pinv @ J) @ (0.1 * (PREFERRED_POSTURE - q))
+        if float(e @ e) < 1e-24:
+            break
+    return tuple(float(v) for v in q)
+
+
+class PegInHoleEnv(RobotEnv):
+    """Insert a peg held by the KUKA iiwa 14 into a hole whose pose is known only approximately.
+
+    ## Description
+    The iiwa holds a cylindrical steel peg (10 mm diameter, 60 mm long, 0.1 kg) rigidly behind a
+    wrist force/torque sensor, its tip ``start_height`` above the *nominal* hole: a round bore
+    (25 mm deep) in a block, with a diametral ``clearance`` and an optional 45° ``chamfer``.
+    Each episode draws the *true* hole pose around the nominal one: a lateral offset uniform
+    in a disc of radius ``position_uncertainty`` and a tilt of the bore axis uniform in
+    [0, ``tilt_uncertainty``] degrees about a random horizontal axis. The controllers know
+    only the nominal pose (in the observation) and must find the hole with the sensed wrench:
+    the natural constraints of the bore (no lateral motion, no tilting) against the artificial
+    ones of the task (zero lateral force and tilting moment, motion along the axis) — the
+    selection matrix of hybrid force/position control (chapter 6).
+
+    Contact physics (the scene is built by :mod:`cir_gym.peg_hole_geometry`, which justifies
+    every number): the bore is a ring of 64 overlapping boxes (a mesh would collide as its
+    convex hull, a solid plug), physics step 0.5 ms, solref (1 ms, 1), solimp (0.99, 0.999,
+    0.1 mm), elliptic cones with impratio 10, Newton solver, margin 0, friction 0.3. Measured
+    (tests/test_peg_in_hole.py): steady-contact penetration below a fifth of the clearance at
+    the smallest clearance (0.1 mm) under 100 N, no tunnelling at 0.5 m/s, a centred peg
+    slides to the bottom without touching the walls.
+
+    The arm is driven by joint torques (never a mocap body: it would teleport into contacts),
+    by the agent (``control="torque"``) or by the robot's motion controller
+    (``control="position"``). The wrist sensor (:mod:`cir_gym.ft_sensor`, preset ``sensor``)
+    reads the interaction between the flange and the tool, the peg's weight included, in the
+    sensor frame ``ft_site`` (z along the peg, pointing into the hole when aligned), filtered,
+    delayed, sampled, noisy and quantised as the preset says. The true contact force is in
+    ``info["contact_force"]``, never in the observation: the net force of the block on the peg,
+    averaged over the last 2 ms of physics steps (a 500 Hz force monitor; on this rigid arm
+    model an impact is a sub-millisecond spike of the 11 kg task-space inertia, an impulse
+    rather than a sustained force), the largest value within the control period.
+
+    ## Action Space
+    - ``control="torque"``: ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320,
+      176, 176, 110, 40, 40) N m; gravity is not compensated by the env.
+    - ``control="position"``: ``Box(-1, 1, (6,), float32)``: a Cartesian setpoint increment of
+      the peg tip per control period, [δp; δφ] = a ⊙ (0.05 m/s, 0.05, 0.05, 0.5 rad/s, 0.5,
+      0.5) × Δt in the nominal hole frame (δφ a rotation vector), executed by the robot's own
+      stiff motion controller (:class:`cir_gym.motion_interface.CartesianMotionInterface`:
+      differential IK of the setpoint, joint-space inverse dynamics at ω_n = 150 rad/s every
+      physics step, −3 dB bandwidth ≈ 50 Hz; the interface of an industrial robot).
+
+    Finite values outside [-1, 1] are clipped; NaN/inf or a wrong shape raise ``ValueError``.
+
+    ## Observation Space
+    ``Dict`` of float64 arrays (values clipped to the bounds):
+
+    | key | shape | meaning | bounds | unit |
+    |---|---|---|---|---|
+    | q | 7 | joint positions | ±2π | rad |
+    | qd | 7 | joint velocities | ±50 | rad/s |
+    | peg_pos | 3 | peg tip position in the nominal hole frame | ±2 | m |
+    | peg_quat | 4 | peg orientation relative to aligned with the nominal bore (w first, w ≥ 0; aligned = (1, 0, 0, 0)) | ±1 | |
+    | peg_twist | 6 | tip velocity v, ω in the nominal hole frame | ±10, ±50 | m/s, rad/s |
+    | wrench | 6 | sensed force, torque on the tool, sensor frame | ±1000, ±100 | N, N m |
+    | hole_pos | 3 | nominal hole position (top centre) in the world | ±2 | m |
+    | hole_quat | 4 | nominal hole orientation in the world (z out of the hole) | ±1 | |
+
+    The nominal hole frame has its origin at the centre of the hole's top opening and its z
+    axis along the bore, pointing out of the hole.
+
+    ## Rewards
+    r = r_distance + r_force + r_success + r_force_limit + r_diverged, each in
+    ``info["reward_<name>"]``:
+    - r_distance = −min(‖p_tip − p_goal‖ / 0.05 m, 1), p_goal the point on the true axis at
+      ``success_depth`` × depth;
+    - r_force = −``force_weight`` (|F| / ``force_limit``)², F the true net contact force;
+    - r_success = ``success_bonus`` on the step the peg reaches the goal depth;
+    - r_force_limit = −``failure_penalty`` on the step |F| exceeds ``force_limit``;
+    - r_diverged = −``divergence_penalty`` on the step the physics diverged.
+
+    ## Starting State
+    At rest, the peg tip ``start_height`` above the nominal hole on its axis, aligned with it,
+    in the posture closest to the robot file's home (null-space Newton iterations).
+
+    ## Episode End
+    Terminated with success when the tip is ``success_depth`` × 25 mm deep in the true hole
+    (``info["is_success"]``); terminated as a failure when the true contact force exceeds
+    ``force_limit`` (``info["force_limit_exceeded"]``) or when the physics diverges
+    (``info["diverged"]``, the last finite state kept); truncated after ``episode_duration``.
+
+    ``info`` also flags the contact state each step, in the true hole frame:
+    - ``two_point_contact``: contacts on the bore's side (normal within 45° of horizontal) on
+      opposite sides (lateral normals with a negative dot product below −0.5);
+    - ``wedged``: two-point contact at an insertion depth ℓ < μ D (μ = 0.3, D the hole
+      diameter), Whitney's geometric wedging condition (Whitney 1982, "Quasi-static assembly of
+      compliantly supported rigid parts"): the two contact forces can then point at each other
+      inside their friction cones and hold the peg whatever force is applied;
+    - ``jammed``: two-point contact deeper than μ D while the peg does not advance (axial
+      speed < 1 mm/s): the applied force and moment are outside Whitney's jamming diagram
+      (the wall friction balances the push). We detect the outcome (stalled in two-point
+      contact) rather than the force-ratio diagram, which needs the applied wrench at the
+      tip that the env does not see.
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | control | "torque" | "torque" (joint torques) or "position" (Cartesian setpoint increments) |
+    | sensor | "ati_gamma" | wrist F/T sensor preset: "ati_gamma", "robotiq_ft300" or "ideal" |
+    | clearance | 0.0005 | diametral clearance, hole − peg diameter (m, in [1e-4, 2e-3]) |
+    | chamfer | 0.0 | 45° chamfer width at the hole's edge (m, in [0, 3e-3]) |
+    | position_uncertainty | 0.002 | radius of the disc the true hole position is drawn in (m, ≤ 0.01) |
+    | tilt_uncertainty | 2.0 | largest tilt of the true bore axis (degrees, ≤ 10) |
+    | force_limit | 100.0 | true contact force that ends the episode as a failure (N) |
+    | start_height | 0.01 | initial tip height above the nominal hole (m, in [0.002, 0.1]) |
+    | success_depth | 0.9 | insertion depth counted as success, fraction of the 25 mm bore |
+    | control_freq | 500.0 | control frequency (Hz); the physics step is 0.5 ms |
+    | episode_duration | 8.0 | s |
+    | force_weight | 1.0 | weight of the force term |
+    | success_bonus | 100.0 | reward on success |
+    | failure_penalty | 100.0 | reward lost when the force limit is exceeded |
+    | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | render_mode | None | None, "human" or "rgb_array" |
+    | width | 480 | frame width (px) |
+    | height | 480 | frame height (px) |
+
+    ## Metrics
+    ``insertion_time`` (primary, s; the time limit when not inserted), ``peak_force`` (N, max
+    of the true net contact force), ``mean_force`` (N, over the episode), ``force_impulse``
+    (∫|F| dt, N s), ``final_depth`` (m, tip depth in the true hole at the end). Success: the
+    peg reached the goal depth (so the success rate over episodes is the evaluator's).
+
+    ## Reference controllers
+    ``baselines.available("cir_gym/PegInHole-v0")``: hybrid_force_position, hybrid_spiral,
+    position_only (baselines/hybrid.py).
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec("insertion_time", "s", "lower", "time to the goal depth (time limit if not)"),
+        MetricSpec("peak_force", "N", "lower", "peak net contact force"),
+        MetricSpec("mean_force", "N", "lower", "mean net contact force"),
+        MetricSpec("force_impulse", "N s", "lower", "integral of the net contact force"),
+        MetricSpec("final_depth", "m", "higher", "tip depth in the true hole at the end"),
+    )
+    primary_metric: ClassVar[str] = "insertion_time"
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "0.5 mm clearance, ±2 mm, ±2°": {},
+    }
+    robot_name: ClassVar[str] = "iiwa14"
+
+    def __init__(
+        self,
+        control: str = "torque",
+        sensor: str = "ati_gamma",
+        clearance: float = 0.0005,
+        chamfer: float = 0.0,
+        position_uncertainty: float = 0.002,
+        tilt_uncertainty: float = 2.0,
+        force_limit: float = 100.0,
+        start_height: float = 0.01,
+        success_depth: float = 0.9,
+        control_freq: float = 500.0,
+        episode_duration: float = 8.0,
+        force_weight: float = 1.0,
+        success_bonus: float = 100.0,
+        failure_penalty: float = 100.0,
+        divergence_penalty: float = 100.0,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        if control not in CONTROLS:
+            raise InvalidArgument(f"control must be one of {CONTROLS}, got {control!r}")
+        self.control = control
+        if sensor not in PRESETS:
+            raise InvalidArgument(f"sensor must be one of {sorted(PRESETS)}, got {sensor!r}")
+        self.sensor = sensor
+        self.clearance = check_number("clearance", clearance, *geo.CLEARANCE_RANGE)
+        self.chamfer = check_number("chamfer", chamfer, *geo.CHAMFER_RANGE)
+        self.position_uncertainty = check_number(
+            "position_uncertainty", position_uncertainty, 0.0, 0.01
+        )
+        self.tilt_uncertainty = check_number("tilt_uncertainty", tilt_uncertainty, 0.0, 10.0)
+        self.force_limit = check_number("force_limit", force_limit, 0.0, 1e4, low_open=True)
+        self.start_height = check_number("start_height", start_height, 0.002, 0.1)
+        self.success_depth = check_number("success_depth", success_depth, 0.0, 0.98, low_open=True)
+        self.force_weight = check_number("force_weight", force_weight, 0.0, 100.0)
+        self.success_bonus = check_number("success_bonus", success_bonus, 0.0, 1e6)
+        self.failure_penalty = check_number("failure_penalty", failure_penalty, 0.0, 1e6)
+        self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+
+        model, self.geometry = geo.build_peg_in_hole(self.clearance, self.chamfer)
+        super().__init__(
+            model,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
+        self.robot = Robot(model)
+        self.n = self.robot.n
+        self.torque_limit = self.robot.torque_limit.copy()
+        self.ft_sensor = WrenchSensor(sensor_spec(self.sensor), model.opt.timestep)
+        # the robot vendor's controller behind the position interface: it knows the arm and
+        # its tool (a separate copy of the model: its own MjData, never the simulator's)
+        self.motion = CartesianMotionInterface(Robot(geo.build_peg_in_hole(
+            self.clearance, self.chamfer)[0]), "peg_tip")
+        self.increment_scale = np.r_[np.full(3, MAX_SPEED), np.full(3, MAX_ANGULAR_SPEED)] * self.dt
+        self.action_scale = (
+            self.torque_limit.copy() if control == "torque" else self.increment_scale.copy()
+        )
+        self._window = max(1, round(FORCE_WINDOW / model.opt.timestep))
+        self._recent = np.zeros(self._window)
+        self._slot = 0
+        self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
+        self._tip = model.site("peg_tip").id
+        self._ft = model.site("ft_site").id
+        self._block = model.body("block").id
+        self._peg_geom = model.geom("peg_geom").id
+        self._force_adr = model.sensor_adr[model.sensor("ft_force").id]
+        self._torque_adr = model.sensor_adr[model.sensor("ft_torque").id]
+        self.hole_pos = np.asarray(geo.HOLE_POSITION, dtype=float)  # nominal, world
+        self.hole_quat = np.array([1.0, 0.0, 0.0, 0.0])
+        self._q0 = np.array(_start_posture(self.start_height))
+        self.goal_depth = self.success_depth * self.geometry.depth
+
+        self.action_space = spaces.Box(
+            -1.0, 1.0, (self.n if control == "torque" else 6,), dtype=np.float32
+        )
+        self._obs_bounds = {
+            "q": np.full(self.n, 2 * np.pi),
+            "qd": np.full(self.n, 50.0),
+            "peg_pos": np.full(3, 2.0),
+            "peg_quat": np.ones(4),
+            "peg_twist": np.r_[np.full(3, 10.0), np.full(3, 50.0)],
+            "wrench": np.r_[np.full(3, 1000.0), np.full(3, 100.0)],
+            "hole_pos": np.full(3, 2.0),
+            "hole_quat": np.ones(4),
+        }
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(-b, b, b.shape, dtype=np.float64) for k, b in self._obs_bounds.items()}
+        )
+        steps = self.max_steps
+        self._force = np.zeros(steps)
+        self._k = 0
+        self._inserted_at: int | None = None
+        self._diverged = False
+        self.true_hole_pos = self.hole_pos.copy()
+        self.true_hole_R = np.eye(3)
+        self._jacp = np.zeros((3, model.nv))
+        self._jacr = np.zeros((3, model.nv))
+        self._cforce = np.zeros(6)
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        radius = self.position_uncertainty * np.sqrt(rng.uniform())
+        angle = rng.uniform(0.0, 2 * np.pi)
+        offset = np.array([radius * np.cos(angle), radius * np.sin(angle), 0.0])
+        tilt = np.deg2rad(self.tilt_uncertainty) * rng.uniform()
+        tilt_axis_angle = rng.uniform(0.0, 2 * np.pi)
+        axis = np.array([np.cos(tilt_axis_angle), np.sin(tilt_axis_angle), 0.0])
+        quat = np.concatenate(([np.cos(tilt / 2)], np.sin(tilt / 2) * axis))
+        self.true_hole_pos = self.hole_pos + offset
+        self.true_hole_R = traj.matrix_from_quat(quat)
+        self.model.body_pos[self._block] = self.true_hole_pos
+        self.model.body_quat[self._block] = quat
+        self._reset_physics(self._q0, np.zeros(self.n))
+        self.motion.reset(self._q0)
+        R_ws = self.data.site_xmat[self._ft].reshape(3, 3)
+        self.ft_sensor.reset(rng, tool_gravity_wrench(geo.PEG_MASS, TOOL_COM, R_ws))
+        self._recent[:] = 0.0
+        self._slot = 0
+        self._k = 0
+        self._inserted_at = None
+        self._diverged = False
+        self._force[:] = 0.0
+        info = {
+            "hole_offset": offset,
+            "hole_tilt": float(np.rad2deg(tilt)),
+            "hole_tilt_axis": axis,
+        }
+        return self._obs(), info
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        if self._k >= self.max_steps:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        a, _ = self._check_action(action)
+        diverged, f = self._advance(a)
+        k = self._k
+        self._k += 1
+        contact = self._contact_state()
+        self._force[k] = f
+        depth = contact["depth"]
+        inserted = bool(not diverged and depth >= self.goal_depth and contact["in_bore"])
+        if inserted and self._inserted_at is None:
+            self._inserted_at = self._k
+        over = bool(not diverged and f > self.force_limit)
+
+        goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
+        dist = float(np.linalg.norm(self.data.site_xpos[self._tip] - goal))
+        r_dist = -min(dist / GOAL_SCALE, 1.0)
+        r_force = -self.force_weight * min(f / self.force_limit, 10.0) ** 2
+        r_success = self.success_bonus if inserted else 0.0
+        r_limit = -self.failure_penalty if over else 0.0
+        r_div = -self.divergence_penalty if diverged else 0.0
+        reward = r_dist + r_force + r_success + r_limit + r_div
+
+        terminated = diverged or inserted or over
+        truncated = self._k >= self.max_steps and not terminated
+        info: dict[str, Any] = {
+            "reward_distance": r_dist,
+            "reward_force": r_force,
+            "reward_success": r_success,
+            "reward_force_limit": r_limit,
+            "reward_diverged": r_div,
+            "contact_force": f,
+            "depth": depth,
+            "two_point_contact": contact["two_point"],
+            "wedged": contact["wedged"],
+            "jammed": contact["jammed"],
+            "force_limit_exceeded": over,
+            "diverged": diverged,
+        }
+        if terminated or truncated:
+            info["episode_metrics"] = self.episode_metrics()
+            info["is_success"] = inserted
+        return self._obs(), reward, terminated, truncated, info
+
+    def episode_metrics(self) -> dict[str, float]:
+        """Metrics of the episode so far (see ``metric_specs``)."""
+        k = max(self._k, 1)
+        force = self._force[:k]
+        done = self._inserted_at
+        return {
+            "insertion_time": float((done if done is not None else self.max_steps) * self.dt),
+            "peak_force": float(np.max(force)),
+            "mean_force": float(np.mean(force)),
+            "force_impulse": float(np.sum(force) * self.dt),
+            "final_depth": float(self._depth()),
+        }
+
+    def _advance(self, a: np.ndarray) -> tuple[bool, float]:
+        """One control period, physics step by physics step (the sensor, the position
+        interface and the force monitor run at the physics rate); return (diverged, peak of
+        the windowed contact force over the period)."""
+        if self.control == "position":
+            R_h = traj.matrix_from_quat(self.hole_quat)  # action in the nominal hole frame
+            dx = a * self.increment_scale
+            self.motion.command(np.concatenate((R_h @ dx[:3], R_h @ dx[3:])), self.dt)
+            tau = None
+        else:
+            tau = a * self.torque_limit
+        skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
+        peak, diverged = 0.0, False
+        try:
+            for i in range(skip):
+                if tau is None:
+                    d = self.data
+                    ctrl = self.motion.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / skip)
+                    ctrl = np.clip(ctrl, -self.torque_limit, self.torque_limit)
+                else:
+                    ctrl = tau
+                diverged = self._simulate(ctrl)
+                if diverged:
+                    break
+                self.ft_sensor.update(self._true_wrench())
+                self._slot = (self._slot + 1) % self._window
+                self._recent[self._slot] = (
+                    np.linalg.norm(self._net_contact_force())
+                )
+                peak = max(peak, float(np.mean(self._recent)))
+        finally:
+            self.frame_skip = skip
+        return diverged, peak
+
+    def _true_wrench(self) -> np.ndarray:
+        d = self.data
+        return np.concatenate(
+            (d.sensordata[self._force_adr : self._force_adr + 3],
+             d.sensordata[self._torque_adr : self._torque_adr + 3])
+        )
+
+    def _net_contact_force(self) -> np.ndarray:
+        """Net contact force on the peg (3,), world frame (N)."""
+        m, d = self.model, self.data
+        total = np.zeros(3)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.geom1 != self._peg_geom and c.geom2 != self._peg_geom:
+                continue
+            mujoco.mj_contactForce(m, d, i, self._cforce)
+            sign = -1.0 if c.geom1 == self._peg_geom else 1.0
+            total += sign * (c.frame.reshape(3, 3).T @ self._cforce[:3])
+        return total
+
+    # ------------------------------------------------------------------ contact
+    def _tip_in_hole(self) -> np.ndarray:
+        """Tip position in the true hole frame (m)."""
+        return self.true_hole_R.T @ (self.data.site_xpos[self._tip] - self.true_hole_pos)
+
+    def _depth(self) -> float:
+        return float(-self._tip_in_hole()[2])
+
+    def _contact_state(self) -> dict[str, Any]:
+        """Insertion depth and the two-point/jamming/wedging flags (see Episode End)."""
+        m, d = self.model, self.data
+        axis = self.true_hole_R[:, 2]
+        side: list[np.ndarray] = []
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.geom1 != self._peg_geom and c.geom2 != self._peg_geom:
+                continue
+            mujoco.mj_contactForce(m, d, i, self._cforce)
+            sign = -1.0 if c.geom1 == self._peg_geom else 1.0  # frame[0] points geom1 → geom2
+            n = sign * c.frame[:3]  # normal pushing the peg
+            if abs(float(n @ axis)) < SIDE_NORMAL and self._cforce[0] > 0:
+                lateral = n - (n @ axis) * axis
+                side.append(lateral / max(float(np.linalg.norm(lateral)), 1e-12))
+        tip = self._tip_in_hole()
+        depth = float(-tip[2])
+        two_point = any(float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :])
+        mu_d = geo.FRICTION * 2 * self.geometry.hole_radius
+        v_axis = 0.0
+        if two_point:
+            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._tip)
+            v_axis = float(axis @ (self._jacp @ d.qvel))
+        wedged = bool(two_point and depth < mu_d)
+        jammed = bool(two_point and not wedged and abs(v_axis) < STALL_SPEED)
+        radial = float(np.hypot(tip[0], tip[1]))
+        return {
+            "depth": depth,
+            "two_point": bool(two_point),
+            "wedged": wedged,
+            "jammed": jammed,
+            "in_bore": radial < self.geometry.hole_radius + self.geometry.chamfer,
+        }
+
+    # ------------------------------------------------------------------ observation
+    def wrench(self) -> np.ndarray:
+        """Sensed wrench (6,): the sensor model's reading, sensor frame (N, N m)."""
+        return self.ft_sensor.reading.copy()
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        d = self.data
+        mujoco.mj_jacSite(self.model, d, self._jacp, self._jacr, self._tip)
+        v = self._jacp @ d.qvel
+        w = self._jacr @ d.qvel
+        R_hole = traj.matrix_from_quat(self.hole_quat)
+        p = R_hole.T @ (d.site_xpos[self._tip] - self.hole_pos)
+        R = R_hole.T @ d.site_xmat[self._tip].reshape(3, 3) @ ALIGNED.T
+        raw = {
+            "q": d.qpos[self._qa].copy(),
+            "qd": d.qvel[self._da].copy(),
+            "peg_pos": p,
+            "peg_quat": traj.quat_from_matrix(R),
+            "peg_twist": np.concatenate((R_hole.T @ v, R_hole.T @ w)),
+            "wrench": self.wrench(),
+            "hole_pos": self.hole_pos.copy(),
+            "hole_quat": self.hole_quat.copy(),
+        }
+        return {k: np.clip(v, -self._obs_bounds[k], self._obs_bounds[k]) for k, v in raw.items()}
+
+    def controller_context(self) -> TaskContext:
+        return TaskContext(
+            robot=self.robot_name,
+            dt=self.dt,
+            action_kind="joint_torque" if self.control == "torque" else "cartesian_increment",
+            action_scale=self.action_scale.copy(),
+            site="flange",
+            extras={
+                "tool_mass": geo.PEG_MASS,
+                "tip_offset": self.geometry.tip_offset,
+                "clearance": self.clearance,
+                "chamfer": self.chamfer,
+                "hole_depth": self.geometry.depth,
+                "peg_radius": self.geometry.peg_radius,
+                "goal_depth": self.goal_depth,
+                "force_limit": self.force_limit,
+                "position_uncertainty": self.position_uncertainty,
+                "tilt_uncertainty": self.tilt_uncertainty,
+            },
+        )

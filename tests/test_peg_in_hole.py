@@ -1,0 +1,145 @@
+"""PegInHole: the contact physics (clearance exact, penetration, tunnelling, no artificial
+jamming, torque-driven arm), the env's flags and arguments, and the selection matrix."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from baselines.hybrid import selection_matrix
+from cir_gym import peg_hole_geometry as geo
+from cir_gym.envs.base import InvalidArgument
+from cir_gym.envs.peg_in_hole import PegInHoleEnv
+
+
+def _exact_env(**kwargs: float) -> PegInHoleEnv:
+    env = PegInHoleEnv(position_uncertainty=0.0, tilt_uncertainty=0.0, sensor="ideal", **kwargs)
+    env.reset(seed=0)
+    return env
+
+
+def _push(env: PegInHoleEnv, force: np.ndarray, steps: int, tip_xy: np.ndarray | None = None,
+          k_lat: float = 3000.0) -> list[float]:
+    """Gravity compensation + Jᵀ[f; 0] at the tip (plus a lateral spring to ``tip_xy``), physics
+    step by physics step; returns the deepest penetration of a peg contact at each step."""
+    m, d = env.model, env.data
+    tip = m.site("peg_tip").id
+    jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    peg = m.geom("peg_geom").id
+    depths = []
+    for _ in range(steps):
+        mujoco.mj_jacSite(m, d, jp, jr, tip)
+        f = np.array(force, dtype=float)
+        v = jp @ d.qvel
+        if tip_xy is not None:
+            f[:2] += k_lat * (tip_xy - d.site_xpos[tip][:2]) - 100.0 * v[:2]
+        mu = -5.0 * (jr @ d.qvel)
+        d.ctrl[:] = d.qfrc_bias + jp.T @ f + jr.T @ mu - 2.0 * d.qvel
+        mujoco.mj_step(m, d)
+        pen = [-d.contact.dist[i] for i in range(d.ncon)
+               if peg in (d.contact.geom1[i], d.contact.geom2[i])]
+        depths.append(max(pen, default=0.0))
+    return depths
+
+
+def test_the_hole_is_primitives_with_the_exact_clearance() -> None:
+    """No mesh (a mesh collides as its convex hull: a plug); each wall box's inner face lies at
+    the hole radius r_peg + clearance/2 from the axis; margin 0 everywhere (< clearance)."""
+    model, g = geo.build_peg_in_hole(clearance=1e-4)
+    assert model.nmesh == 0
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    centre = data.site_xpos[model.site("hole").id]
+    walls = [i for i in range(model.ngeom) if model.geom(i).name.startswith("wall")]
+    assert len(walls) == geo.N_SIDES
+    for i in walls:
+        R = data.geom_xmat[i].reshape(3, 3)
+        inner = data.geom_xpos[i] - R[:, 0] * model.geom_size[i][0]
+        assert np.hypot(*(inner - centre)[:2]) == pytest.approx(g.peg_radius + 5e-5, abs=1e-12)
+    assert np.all(model.geom_margin == 0.0)
+    assert model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    assert model.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON
+
+
+def test_the_arm_is_driven_by_torque_never_by_mocap() -> None:
+    env = PegInHoleEnv()
+    assert env.model.nmocap == 0
+    assert all(int(t) == int(mujoco.mjtTrn.mjTRN_JOINT) for t in env.model.actuator_trntype)
+    assert np.all(env.model.actuator_gainprm[:, 0] == 1.0)  # motors: ctrl is the torque
+
+
+def test_steady_contact_penetration_is_below_a_fifth_of_the_smallest_clearance() -> None:
+    """The peg pressed on the block's face with 100 N (the force limit) at clearance 0.1 mm:
+    resting penetration < 20 µm (the default solref would give 0.2–0.4 mm)."""
+    env = _exact_env(clearance=1e-4, start_height=0.002)
+    centre = env.true_hole_pos[:2] + np.array([0.009, 0.0])
+    _push(env, np.zeros(3), 200, centre)  # move beside the hole
+    depths = _push(env, np.array([0.0, 0.0, -100.0]), 1200, centre)
+    assert max(depths[-400:]) < 1e-4 / 5
+
+
+def test_no_tunnelling_at_ten_times_the_largest_commanded_speed() -> None:
+    """The peg thrown at the face at 0.5 m/s (10 × the position interface's top speed) with
+    300 N behind it stays on the face: the tip never goes more than 0.5 mm into the block."""
+    env = _exact_env(clearance=2e-3, start_height=0.02)
+    m, d = env.model, env.data
+    tip = m.site("peg_tip").id
+    target = env.true_hole_pos[:2] + np.array([0.009, 0.0])
+    _push(env, np.zeros(3), 300, target)
+    jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jp, jr, tip)
+    d.qvel[:] = np.linalg.pinv(np.vstack((jp, jr))) @ np.array([0, 0, -0.5, 0, 0, 0])
+    lowest = np.inf
+    for _ in range(400):
+        _push(env, np.array([0.0, 0.0, -300.0]), 1, target)
+        lowest = min(lowest, d.site_xpos[tip][2] - env.true_hole_pos[2])
+    assert lowest > -5e-4
+
+
+def test_a_centred_peg_goes_to_the_bottom_without_touching_the_walls() -> None:
+    """Exact hole pose, smallest clearance, position interface straight down: success and no
+    contact on the bore's side on the way (margin 0: no artificial jamming)."""
+    env = PegInHoleEnv(control="position", clearance=1e-4, position_uncertainty=0.0,
+                       tilt_uncertainty=0.0, sensor="ideal", episode_duration=3.0)
+    env.reset(seed=0)
+    down = np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0])
+    side_contacts = 0
+    for _ in range(env.max_steps):
+        _, _, terminated, truncated, info = env.step(down)
+        side_contacts += info["two_point_contact"]
+        d = env.data
+        for i in range(d.ncon):
+            names = {env.model.geom(int(g)).name
+                     for g in (d.contact.geom1[i], d.contact.geom2[i])}
+            side_contacts += any(n.startswith("wall") for n in names)
+        if terminated or truncated:
+            break
+    assert info["is_success"]
+    assert side_contacts == 0
+
+
+def test_bad_arguments_name_themselves() -> None:
+    with pytest.raises(InvalidArgument, match="clearance"):
+        PegInHoleEnv(clearance=5e-3)
+    with pytest.raises(InvalidArgument, match="control"):
+        PegInHoleEnv(control="velocity")
+    with pytest.raises(InvalidArgument, match="sensor"):
+        PegInHoleEnv(sensor="strain gauge")
+
+
+def test_selection_matrices_split_force_and_motion_directions() -> None:
+    """Insertion: force on x, y, rot x, rot y (zero lateral force and tilting moment), motion
+    along and about the axis; search: force along the axis only. Σ is a projector."""
+    s = selection_matrix()
+    np.testing.assert_array_equal(np.diag(s), [1, 1, 0, 1, 1, 0])
+    np.testing.assert_array_equal(s @ s, s)
+    np.testing.assert_array_equal(np.diag(selection_matrix(search=True)), [0, 0, 1, 0, 0, 0])
+
+
+def test_the_true_hole_pose_is_drawn_within_the_uncertainty() -> None:
+    env = PegInHoleEnv()
+    for seed in range(20):
+        _, info = env.reset(seed=seed)
+        assert np.linalg.norm(info["hole_offset"]) <= 0.002 + 1e-15
+        assert 0.0 <= info["hole_tilt"] <= 2.0
