@@ -9,6 +9,7 @@ from cir_gym.envs.base import EntryPoint, RobotEnv, default_max_episode_steps
 from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.envs.peg_in_hole import PegInHoleEnv
 from cir_gym.envs.redundant_ik import REDUNDANT_IK_ENVIRONMENTS, RedundantIK7Env, RedundantIKEnv
 from cir_gym.envs.visual_servo import VISUAL_SERVO_ENVIRONMENTS
 
@@ -35,6 +36,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
     **REDUNDANT_IK_ENVIRONMENTS,
     **VISUAL_SERVO_ENVIRONMENTS,
     "cir_gym/AdmittanceContact-v0": (AdmittanceContactEnv, "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)"),
+    "cir_gym/PegInHole-v0": (PegInHoleEnv, "iiwa14 inserting a peg into a hole known only approximately: hybrid force/position control (ch. 6)"),
     "cir_gym/CartesianTracking-v0": (CartesianTrackingEnv, "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)"),
 }
 
