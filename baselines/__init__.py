@@ -20,6 +20,7 @@ from baselines.decentralized import (
     PCascade,
     PPIFeedforward,
 )
+from baselines.hybrid import HYBRID_CONTROLLERS
 from baselines.kinematic import KINEMATIC_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
@@ -38,6 +39,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         RobustControl,
         AdaptiveControl,
         *KINEMATIC_CONTROLLERS,
+        *HYBRID_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
     )
