@@ -1,0 +1,572 @@
+"""CartesianTracking: track a flange pose reference with joint torques (chapter 5.2)."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from cir_gym import operational_space as osp
+from cir_gym import trajectories as traj
+from cir_gym.envs.base import (
+    InvalidArgument,
+    RobotEnv,
+    TaskContext,
+    as_float_array,
+    check_number,
+)
+from cir_gym.envs.joint_tracking import (
+    RANDOM_RANGES,
+    _inertial_arrays,
+    _restore_inertial_arrays,
+)
+from cir_gym.metrics import MetricSpec
+from cir_gym.robot import ModelError, Robot, apply_model_error
+
+PATHS = ("random", "segment", "circle", "figure_eight", "near_singular", "regulation")
+SHAPES = ("segment", "circle", "figure_eight")  # what path="random" draws from
+SITE = "flange"
+
+#: half-width (rad) of the box around the home posture where starts and goals are drawn
+POSTURE_SPREAD = 0.3
+#: near_singular: q2 (rad) held on the joint path whose q6 crosses 0 (the 6 × 7 Jacobian
+#: of the iiwa loses rank where q2 = q6 = 0: A1 ∥ A3 and A5 ∥ A7 together)
+NEAR_SINGULAR_Q2 = np.deg2rad(2.0)
+NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-episode)
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of one rotation matrix (MuJoCo's C call; either sign)."""
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    return quat
+
+
+class CartesianTrackingEnv(RobotEnv):
+    """Track a flange pose (p̄, Q̄) with twist and acceleration on the KUKA iiwa 14, with joint
+    torques: operational-space control of a redundant arm (chapter 5.2).
+
+    ## Description
+    The 7-joint arm must make its ``flange`` site follow a position and orientation reference
+    (6 task coordinates, one degree of redundancy) built with :mod:`cir_gym.trajectories`:
+    a straight segment, a circle or a figure eight (quintic timing law: start and end at rest)
+    with the orientation interpolated by slerp (a constant-axis rotation,
+    :class:`~cir_gym.trajectories.OrientationInterpolation`); or a fixed target pose
+    (``path="regulation"``); or ``path="near_singular"``, a motion that passes close to a
+    singularity. The simulator holds the true robot; controllers get the nominal model through
+    :meth:`controller_context` (site ``flange``), so the model-error arguments (payload, mass
+    scale, friction) are unknown to them — exactly as in ``JointTracking-v1``, whose
+    :class:`~cir_gym.robot.ModelError` and ``RANDOM_RANGES`` are reused unchanged.
+
+    The shared operational-space science (orientation errors, the analytic Jacobian of the pose
+    error, J̇q̇, Λ(q), the dynamically consistent pseudo-inverse) is in
+    :mod:`cir_gym.operational_space`.
+
+    **Workspace.** Every path starts at the flange pose of a start posture q(0) drawn uniformly
+    in home ± 0.3 rad per joint (home = (0, 0.6, 0, −1.4, 0, 0.9, 0) rad: flange at
+    (0.63, 0, 0.42) m pointing down), so the arm starts exactly on the reference:
+
+    | path | reference |
+    |---|---|
+    | segment | p(0) → p(0) + d, ‖d‖ ~ U(0.1, 0.25) m in a random direction |
+    | circle | one turn of radius U(0.05, 0.12) m through p(0), random plane |
+    | figure_eight | one turn of a 1:2 Lissajous, half-axes U(0.05, 0.12) × U(0.03, 0.08) m, centred on p(0), random plane |
+    | random | one of the three above, uniformly |
+    | near_singular | the flange pose along a joint-space quintic in which q6 goes from +0.3 to −0.3 rad with q2 = 2°: at mid-episode the arm is within 2° of q2 = q6 = 0, where its 6 × 7 Jacobian loses rank (A1 ∥ A3 and A5 ∥ A7); q6 = 0 alone does not make the redundant arm singular |
+    | regulation | a constant pose, the flange pose of a goal posture in home ± 0.3 rad; the start is another such posture |
+
+    Segments, circles and figure eights rotate by U(0.2, 0.6) rad about a random axis over the
+    episode (quintic timing), all reaching their end at ``episode_duration``.
+
+    ## Action Space
+    ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320, 176, 176, 110, 40,
+    40) N m. Finite values outside [-1, 1] are clipped (counted as saturated); NaN/inf or a
+    wrong shape raise ``ValueError``.
+
+    ## Observation Space
+    ``Dict`` of float64 arrays (SI units, world = base frame):
+
+    | key | shape | meaning | bounds | unit |
+    |---|---|---|---|---|
+    | q | 7 | measured joint positions (quantized to ``encoder_resolution``) | ±2π | rad |
+    | qd | 7 | measured joint velocities (difference of the measured positions when quantized) | ±50 | rad/s |
+    | x | 3 | flange position p = k(q) of the measured q | ±3 | m |
+    | quat | 4 | flange orientation (w, x, y, z), on the hemisphere of ``quat_ref`` | ±1 | |
+    | twist | 6 | flange twist [v; ω] = J(q) q̇ of the measured q, q̇ | ±50 | m/s, rad/s |
+    | x_ref | 3 | p̄(t) | ±3 | m |
+    | quat_ref | 4 | Q̄(t) (w, x, y, z), continuous in time | ±1 | |
+    | twist_ref | 6 | [ṗ̄; ω̄] | ±50 | m/s, rad/s |
+    | acc_ref | 6 | [p̈̄; ω̄̇] | ±500 | m/s², rad/s² |
+
+    **Quaternion signs (one convention for both).** Q and −Q are the same rotation. Q̄(t) is
+    continuous: Q̄(0) has w ≥ 0 and each next sample the sign closer to the previous one;
+    ``quat`` is the sign of the measured orientation with Q·Q̄(t) ≥ 0. So both are continuous
+    while the error stays below π, and Q̄ − Q is small when the error is (no flips).
+
+    ## Rewards
+    r = r_tracking + r_torque + r_action_rate + r_following_error + r_diverged, each in
+    ``info["reward_<name>"]``:
+    - r_tracking = −(1 − (1/3) Σ_s exp(−e² / s²)) with the pose error
+      e² = ‖p̄ − p‖² + (``orientation_scale`` θ̃)², θ̃ the orientation error angle, and
+      s ∈ ``error_scales`` = (0.1, 0.01, 0.001) m: in [−1, 0];
+    - r_torque = −``torque_weight`` ‖a‖² / 7;
+    - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / 7;
+    - r_following_error = −``following_error_penalty`` on the step the following-error
+      monitor stops the episode, else 0;
+    - r_diverged = −``divergence_penalty`` on the step the physics diverged, else 0.
+
+    ## Starting State
+    At rest at q(0), on the reference (+ U(±``initial_error``) rad per joint); for
+    ``regulation`` at rest at a start posture away from the target pose (see Workspace).
+
+    ## Episode End
+    Truncated after ``episode_duration`` s. Terminated when the physics diverges
+    (``info["diverged"] = True``; the last finite state is kept) or, like the following-error
+    monitor of an industrial drive, when the position error exceeds its initial value +
+    ``max_following_error`` or the orientation error angle its initial value +
+    ``max_orientation_following_error`` (``info["following_error_exceeded"] = True``; the
+    start offset of ``regulation`` or ``initial_error`` is not a following error). A stopped
+    episode is scored over the whole horizon: its last errors are held for the steps it did
+    not play.
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | path | "random" | "random", "segment", "circle", "figure_eight", "near_singular", "regulation" (see Workspace) |
+    | control_freq | 500.0 | control frequency (Hz); the physics step is 1 ms |
+    | episode_duration | 4.0 | s |
+    | payload_mass | 0.0 | unknown payload at the flange (kg) |
+    | mass_scale | 1.0 | true link masses and inertias / nominal ones |
+    | viscous_friction | 0.0 | true joint viscous friction (N m s/rad), unmodelled |
+    | coulomb_friction | 0.0 | true joint Coulomb friction (N m), unmodelled |
+    | torque_noise | 0.0 | std of Gaussian noise added to the applied torque (N m) |
+    | encoder_resolution | 0.0 | position quantum of the encoders (rad, 0 = exact, else in [1e-12, 0.1]) |
+    | randomize | False | per reset, draw payload_mass, mass_scale, viscous_friction, coulomb_friction from JointTracking's ``RANDOM_RANGES`` (uniform), overriding those 4 arguments |
+    | initial_error | 0.0 | max initial joint offset from the start posture (rad) |
+    | error_scales | (0.1, 0.01, 0.001) | reward kernel widths (m, each in [1e-9, 1e3]) |
+    | orientation_scale | 0.1 | metres of pose error per radian of orientation error in the reward (m/rad) |
+    | torque_weight | 0.01 | weight of the torque term |
+    | action_rate_weight | 0.01 | weight of the action-rate term |
+    | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | max_following_error | 0.2 | growth of the position error over its initial value (m) that ends the episode; None = never |
+    | max_orientation_following_error | 1.0 | growth of the orientation error angle over its initial value (rad) that ends the episode |
+    | following_error_penalty | 50.0 | reward lost when the following error ends the episode |
+    | success_threshold | 0.01 | position error (m) to stay below after the settling window |
+    | orientation_threshold | 0.05 | orientation error (rad) to stay below after the settling window |
+    | settling_time | 1.0 | s: success is judged on t ≥ settling_time (at least the last step) |
+    | render_mode | None | None, "human" or "rgb_array" |
+    | width | 480 | frame width (px) |
+    | height | 480 | frame height (px) |
+
+    ## Metrics
+    ``position_rms`` (primary, m: RMS of ‖p̄ − p‖ over the steps), ``orientation_rms`` (rad: RMS
+    of the error angle θ̃ = 2 atan2(‖ε_e‖, |η_e|) of Q̄ ⊗ Q⁻¹), ``max_position_error`` (m),
+    ``max_orientation_error`` (rad), ``final_position_error`` (m), ``final_orientation_error``
+    (rad), ``rms_torque`` (N m), ``peak_joint_speed`` (rad/s, max |q̇_i|),
+    ``peak_speed_ratio`` (max |q̇_i| / q̇_max,i: ≤ 1 within the data-sheet speed limits),
+    ``joint_drift`` (rad: ‖(I − J†J)(q(T) − q(0))‖ at the last configuration, the part of the
+    posture change that the task does not explain: the self-motion the redundancy let
+    happen), ``saturation`` (fraction of steps with a clipped or saturated joint). Success:
+    no divergence, not stopped, and both errors below ``success_threshold`` and
+    ``orientation_threshold`` at every step with t ≥ ``settling_time`` (never judged on the
+    start offset of ``regulation``).
+
+    ## Reference controllers
+    ``baselines.available("cir_gym/CartesianTracking-v0")``: os_pd_gravity (regulation),
+    os_inverse_dynamics, os_inverse_dynamics_dls, os_khatib.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
+        MetricSpec("position_rms", "m", "lower", "RMS flange position error"),
+        MetricSpec("orientation_rms", "rad", "lower", "RMS flange orientation error angle"),
+        MetricSpec("max_position_error", "m", "lower", "max flange position error"),
+        MetricSpec("max_orientation_error", "rad", "lower", "max orientation error angle"),
+        MetricSpec("final_position_error", "m", "lower", "position error at the last step"),
+        MetricSpec("final_orientation_error", "rad", "lower", "orientation error at the end"),
+        MetricSpec("rms_torque", "N m", "lower", "RMS joint torque"),
+        MetricSpec("peak_joint_speed", "rad/s", "lower", "max joint speed"),
+        MetricSpec("peak_speed_ratio", "", "lower", "max joint speed / its limit"),
+        MetricSpec("joint_drift", "rad", "lower", "self-motion over the episode"),
+        MetricSpec("saturation", "", "lower", "fraction of steps with a saturated joint"),
+    )
+    primary_metric: ClassVar[str] = "position_rms"
+    leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "exact model": {},
+        "unknown 3 kg payload": {"payload_mass": 3.0},
+        "near singular": {"path": "near_singular"},
+    }
+    robot_name: ClassVar[str] = "iiwa14"
+
+    def __init__(
+        self,
+        path: str = "random",
+        control_freq: float = 500.0,
+        episode_duration: float = 4.0,
+        payload_mass: float = 0.0,
+        mass_scale: float = 1.0,
+        viscous_friction: float = 0.0,
+        coulomb_friction: float = 0.0,
+        torque_noise: float = 0.0,
+        encoder_resolution: float = 0.0,
+        randomize: bool = False,
+        initial_error: float = 0.0,
+        error_scales: tuple[float, ...] = (0.1, 0.01, 0.001),
+        orientation_scale: float = 0.1,
+        torque_weight: float = 0.01,
+        action_rate_weight: float = 0.01,
+        divergence_penalty: float = 100.0,
+        max_following_error: float | None = 0.2,
+        max_orientation_following_error: float = 1.0,
+        following_error_penalty: float = 50.0,
+        success_threshold: float = 0.01,
+        orientation_threshold: float = 0.05,
+        settling_time: float = 1.0,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        if path not in PATHS:
+            raise InvalidArgument(f"path must be one of {PATHS}, got {path!r}")
+        self.path = path
+        self.model_error = ModelError(
+            payload_mass=check_number("payload_mass", payload_mass, 0.0, 50.0),
+            mass_scale=check_number("mass_scale", mass_scale, 0.0, 10.0, low_open=True),
+            viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
+            coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
+        )
+        self.torque_noise = check_number("torque_noise", torque_noise, 0.0, 1000.0)
+        self.encoder_resolution = check_number("encoder_resolution", encoder_resolution, 0.0, 0.1)
+        if 0.0 < self.encoder_resolution < 1e-12:
+            raise InvalidArgument(
+                f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, "
+                f"got {encoder_resolution!r}"
+            )
+        if not isinstance(randomize, (bool, np.bool_)):
+            raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
+        self.randomize = bool(randomize)
+        self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
+        scales = np.atleast_1d(as_float_array("error_scales", error_scales))
+        if scales.ndim != 1 or scales.size == 0 or not np.all((scales >= 1e-9) & (scales <= 1e3)):
+            raise InvalidArgument(
+                f"error_scales must be numbers in [1e-9, 1e3] m, got {error_scales!r}"
+            )
+        self.error_scales = scales
+        self.orientation_scale = check_number("orientation_scale", orientation_scale, 0.0, 100.0)
+        self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
+        self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
+        self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+        self.max_following_error = (
+            None
+            if max_following_error is None
+            else check_number("max_following_error", max_following_error, 0.0, 100.0,
+                              low_open=True)
+        )
+        self.max_orientation_following_error = check_number(
+            "max_orientation_following_error", max_orientation_following_error, 0.0, 10.0,
+            low_open=True,
+        )
+        self.following_error_penalty = check_number(
+            "following_error_penalty", following_error_penalty, 0.0, 1e6
+        )
+        self.success_threshold = check_number(
+            "success_threshold", success_threshold, 0.0, 10.0, low_open=True
+        )
+        self.orientation_threshold = check_number(
+            "orientation_threshold", orientation_threshold, 0.0, 10.0, low_open=True
+        )
+        self.settling_time = check_number("settling_time", settling_time, 0.0, 3600.0)
+
+        self.robot = Robot.from_name(self.robot_name)  # the simulator's (true) robot
+        self._nominal_arrays = _inertial_arrays(self.robot.model)
+        apply_model_error(self.robot.model, self.model_error)
+        super().__init__(
+            self.robot.model,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
+        n = self.n = self.robot.n
+        self.torque_limit = self.robot.torque_limit.copy()
+        self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
+        self._site = self.robot.site_id(SITE)
+        self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+        self._obs_bounds = {
+            "q": (n, 2 * np.pi), "qd": (n, 50.0), "x": (3, 3.0), "quat": (4, 1.0),
+            "twist": (6, 50.0), "x_ref": (3, 3.0), "quat_ref": (4, 1.0), "twist_ref": (6, 50.0),
+            "acc_ref": (6, 500.0),
+        }
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(-b, b, (size,), dtype=np.float64)
+             for k, (size, b) in self._obs_bounds.items()}
+        )
+        steps = self.max_steps
+        self._x_ref = np.zeros((steps + 1, 3))
+        self._quat_ref = np.zeros((steps + 1, 4))
+        self._twist_ref = np.zeros((steps + 1, 6))
+        self._acc_ref = np.zeros((steps + 1, 6))
+        self._pos_err = np.zeros(steps)  # ‖p̄ − p‖ per step (m)
+        self._ang_err = np.zeros(steps)  # θ̃ per step (rad)
+        self._tau = np.zeros((steps, n))
+        self._speed = np.zeros((steps, n))  # |q̇| per step
+        self._sat = np.zeros(steps, dtype=bool)
+        self._k = 0
+        self._k_scored = 0
+        self._a_prev = np.zeros(n)
+        self._q_meas_prev = np.zeros(n)
+        self._q_start = np.zeros(n)
+        self._limits = (0.0, 0.0)
+        self.episode_model_error = self.model_error
+
+    # ------------------------------------------------------------------ reference
+    def _home(self) -> np.ndarray:
+        return self.model.key("home").qpos[self._qa].copy()
+
+    def _posture(self, rng: np.random.Generator) -> np.ndarray:
+        return self._home() + rng.uniform(-POSTURE_SPREAD, POSTURE_SPREAD, self.n)
+
+    def _unit(self, rng: np.random.Generator) -> np.ndarray:
+        v = rng.standard_normal(3)
+        return v / np.linalg.norm(v)
+
+    def _make_reference(self) -> np.ndarray:
+        """Fill the reference arrays (every control instant); return the start posture q(0)."""
+        rng = self.np_random
+        T = self.max_steps * self.dt
+        t = np.arange(self.max_steps + 1) * self.dt
+        if self.path == "near_singular":
+            return self._joint_space_reference(rng, T, t)
+        q0 = self._posture(rng)
+        p0, R0 = self.robot.site_pose(self._site, q0)
+        if self.path == "regulation":
+            p1, R1 = self.robot.site_pose(self._site, self._posture(rng))
+            self._x_ref[:] = p1
+            self._quat_ref[:] = traj.quat_from_matrix(R1)
+            self._twist_ref[:] = 0.0
+            self._acc_ref[:] = 0.0
+            return q0
+        shape = SHAPES[rng.integers(len(SHAPES))] if self.path == "random" else self.path
+        timing = traj.TimingLaw.quintic(T)
+        normal = self._unit(rng)
+        if shape == "segment":
+            curve: Any = traj.Segment(p0, p0 + rng.uniform(0.1, 0.25) * self._unit(rng), timing)
+        elif shape == "circle":
+            r = rng.uniform(0.05, 0.12)
+            u = traj.Circle(p0, r, timing, normal=normal).u  # the plane's first axis
+            curve = traj.Circle(p0 - r * u, r, timing, normal=normal)  # θ₀ = 0 at p0
+        else:
+            curve = traj.FigureEight(
+                p0, rng.uniform(0.05, 0.12), rng.uniform(0.03, 0.08), timing, normal=normal
+            )
+        turn = traj.matrix_from_axis_angle(self._unit(rng), rng.uniform(0.2, 0.6))
+        orient = traj.OrientationInterpolation(R0, R0 @ turn, timing)
+        p, v, a = curve.evaluate(t)
+        R, w, wd = orient.evaluate(t)
+        self._x_ref[:] = p
+        self._quat_ref[:] = traj.quat_from_matrix(R)
+        self._twist_ref[:] = np.concatenate((v, w), axis=1)
+        self._acc_ref[:] = np.concatenate((a, wd), axis=1)
+        return q0
+
+    def _joint_space_reference(
+        self, rng: np.random.Generator, T: float, t: np.ndarray
+    ) -> np.ndarray:
+        """near_singular: the flange pose, twist J q̇ and acceleration J q̈ + J̇ q̇ along a
+        joint quintic through q2 = 2°, q6 = 0 (exact kinematics: the model errors are in the
+        masses only)."""
+        qa, qb = self._posture(rng), self._posture(rng)
+        qa[1] = qb[1] = NEAR_SINGULAR_Q2
+        qa[5], qb[5] = NEAR_SINGULAR_Q6, -NEAR_SINGULAR_Q6
+        qs, qds, qdds = traj.QuinticPolynomial(qa, qb, T).evaluate(t)
+        for k, (q, qd, qdd) in enumerate(zip(qs, qds, qdds, strict=True)):
+            p, R = self.robot.site_pose(self._site, q)
+            J = self.robot.jacobian(self._site, q)
+            self._x_ref[k] = p
+            self._quat_ref[k] = _quat(R)
+            self._twist_ref[k] = J @ qd
+            self._acc_ref[k] = J @ qdd + self.robot.jacobian_dot_qdot(self._site, q, qd)
+        return qa
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        if self.randomize:
+            draw = {k: float(rng.uniform(*r)) for k, r in RANDOM_RANGES.items()}
+            self.episode_model_error = ModelError(**draw)
+            _restore_inertial_arrays(self.model, self._nominal_arrays)
+            apply_model_error(self.model, self.episode_model_error)
+            self.robot.invalidate()
+        q0 = self._make_reference()
+        self._quat_ref[:] = osp.continuous_quats(self._quat_ref)
+        if self.initial_error > 0:
+            q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
+        self._reset_physics(q0, np.zeros(self.n))
+        self._q_start[:] = q0
+        self._k = 0
+        self._k_scored = 0
+        self._a_prev[:] = 0.0
+        self._q_meas_prev[:] = self._quantize(q0)
+        e_pos, e_ang = self._errors(0)
+        follow = self.max_following_error
+        self._limits = (
+            np.inf if follow is None else e_pos + follow,
+            np.inf if follow is None else e_ang + self.max_orientation_following_error,
+        )
+        return self._obs(), {"model_error": self.episode_model_error}
+
+    def _errors(self, k: int) -> tuple[float, float]:
+        """‖p̄_k − p‖ (m) and θ̃ (rad) of the true flange pose now."""
+        p, R = self.robot.site_pose(self._site, self.data.qpos[self._qa])
+        e_pos = float(np.linalg.norm(self._x_ref[k] - p))
+        e_ang = float(osp.orientation_angle(self._quat_ref[k], _quat(R)))
+        return e_pos, e_ang
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        if self._k >= self.max_steps:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        a, clipped = self._check_action(action)
+        tau = a * self.torque_limit
+        if self.torque_noise > 0:
+            tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
+        self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
+        diverged = self._simulate(tau)
+        k = self._k
+        self._k += 1
+        e_pos, e_ang = self._errors(self._k)
+        self._pos_err[k], self._ang_err[k] = e_pos, e_ang
+        self._tau[k] = a * self.torque_limit
+        self._speed[k] = np.abs(self.data.qvel[self._da])
+        self._sat[k] = clipped or bool(np.any(np.abs(a) >= 1.0))
+
+        e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
+        r_track = -(1.0 - float(np.mean(np.exp(-e_sq / self.error_scales**2))))
+        r_torque = -self.torque_weight * float(a @ a) / self.n
+        da = a - self._a_prev
+        r_rate = -self.action_rate_weight * float(da @ da) / self.n
+        r_div = -self.divergence_penalty if diverged else 0.0
+        stopped = bool(not diverged and (e_pos > self._limits[0] or e_ang > self._limits[1]))
+        r_follow = -self.following_error_penalty if stopped else 0.0
+        self._a_prev[:] = a
+        reward = r_track + r_torque + r_rate + r_follow + r_div
+
+        terminated = diverged or stopped
+        truncated = self._k >= self.max_steps and not terminated
+        info: dict[str, Any] = {
+            "reward_tracking": r_track,
+            "reward_torque": r_torque,
+            "reward_action_rate": r_rate,
+            "reward_following_error": r_follow,
+            "reward_diverged": r_div,
+            "position_error": e_pos,
+            "orientation_error": e_ang,
+            "following_error_exceeded": stopped,
+            "diverged": diverged,
+        }
+        if stopped:  # scored over the whole horizon: the last errors held
+            self._pos_err[self._k :] = e_pos
+            self._ang_err[self._k :] = e_ang
+            self._k_scored = self.max_steps
+        if terminated or truncated:
+            metrics = self.episode_metrics()
+            info["episode_metrics"] = metrics
+            info["is_success"] = bool(not terminated and self._settled())
+        return self._obs(), reward, terminated, truncated, info
+
+    def _settled(self) -> bool:
+        """Both errors below their thresholds at every step with t ≥ settling_time."""
+        k = max(self._k, 1)
+        first = min(max(int(np.ceil(self.settling_time / self.dt)) - 1, 0), k - 1)
+        return bool(
+            np.max(self._pos_err[first:k]) < self.success_threshold
+            and np.max(self._ang_err[first:k]) < self.orientation_threshold
+        )
+
+    def episode_metrics(self) -> dict[str, float]:
+        """Metrics of the episode so far (see ``metric_specs``)."""
+        k = max(self._k, 1)
+        scored = max(k, self._k_scored)
+        pos, ang = self._pos_err[:scored], self._ang_err[:scored]
+        q = self.data.qpos[self._qa]
+        J = self.robot.jacobian(self._site, q)
+        drift = osp.null_space_projector(J, np.linalg.pinv(J)) @ (q - self._q_start)
+        speed = self._speed[:k]
+        return {
+            "position_rms": float(np.sqrt(np.mean(pos**2))),
+            "orientation_rms": float(np.sqrt(np.mean(ang**2))),
+            "max_position_error": float(np.max(pos)),
+            "max_orientation_error": float(np.max(ang)),
+            "final_position_error": float(pos[-1]),
+            "final_orientation_error": float(ang[-1]),
+            "rms_torque": float(np.sqrt(np.mean(self._tau[:k] ** 2))),
+            "peak_joint_speed": float(np.max(speed)),
+            "peak_speed_ratio": float(np.max(speed / self.robot.velocity_limit)),
+            "joint_drift": float(np.linalg.norm(drift)),
+            "saturation": float(np.mean(self._sat[:k])),
+        }
+
+    # ------------------------------------------------------------------ observation
+    def _quantize(self, q: np.ndarray) -> np.ndarray:
+        res = self.encoder_resolution
+        return np.round(q / res) * res if res > 0 else q.copy()
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        k = min(self._k, self.max_steps)
+        q = self._quantize(self.data.qpos[self._qa])
+        if self.encoder_resolution > 0:
+            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
+        else:
+            qd = self.data.qvel[self._da].copy()
+        x, R = self.robot.site_pose(self._site, q)
+        quat_ref = self._quat_ref[k]
+        raw = {
+            "q": q,
+            "qd": qd,
+            "x": x,
+            "quat": osp.align_quat(_quat(R), quat_ref),
+            "twist": self.robot.jacobian(self._site, q) @ qd,
+            "x_ref": self._x_ref[k],
+            "quat_ref": quat_ref,
+            "twist_ref": self._twist_ref[k],
+            "acc_ref": self._acc_ref[k],
+        }
+        return {key: np.clip(v, -self._obs_bounds[key][1], self._obs_bounds[key][1])
+                for key, v in raw.items()}
+
+    def controller_context(self) -> TaskContext:
+        return TaskContext(
+            robot=self.robot_name,
+            dt=self.dt,
+            action_kind="joint_torque",
+            action_scale=self.torque_limit.copy(),
+            site=SITE,
+            extras={"path": self.path},
+        )
+
+    # ------------------------------------------------------------------ pictures
+    def draw_task(self, scene: Any) -> None:
+        """The reference path, the target frame (reference) and the flange's frame."""
+        from cir_gym import rendering
+
+        k = min(self._k, self.max_steps)
+        if self.path != "regulation":
+            rendering.add_polyline(scene, self._x_ref, 0.004, rendering.REFERENCE,
+                                   max_segments=rendering.TRACE_SAMPLES)
+        rendering.add_frame(scene, self._x_ref[k], traj.matrix_from_quat(self._quat_ref[k]),
+                            0.12, 0.006, alpha=0.5)
+        rendering.add_sphere(scene, self._x_ref[k], 0.015, rendering.TARGET)
+        p, R = self.robot.site_pose(self._site, self.data.qpos[self._qa])
+        rendering.add_frame(scene, p, R, 0.08, 0.004)
+
+    def caption(self) -> str:
+        """``t``, the position error (mm) and the orientation error (deg) now."""
+        k = min(self._k, self.max_steps)
+        e_pos, e_ang = self._errors(k)
+        return (f"t = {k * self.dt:5.2f} s  |p_ref - p| = {1e3 * e_pos:7.2f} mm  "
+                f"angle {np.rad2deg(e_ang):6.2f} deg")
