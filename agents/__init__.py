@@ -6,9 +6,11 @@
 >>> policy = agents.load("cir_gym/JointTracking-v1", "ppo")  # doctest: +SKIP
 >>> action, state = policy.predict(obs)                      # doctest: +SKIP
 
-Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``; training is in
-:mod:`agents.train` (needs the ``train`` extra). This module imports neither torch nor SB3
-until :func:`load` is called.
+Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``: either one agent
+(``config.yml``, ``model.zip``, ...) or, trained over several seeds, one such directory per
+training seed, ``<agent-name>/seed_<k>/`` (:func:`seeds`; :mod:`agents.report` aggregates
+them). Training is in :mod:`agents.train` (needs the ``train`` extra). This module imports
+neither torch nor SB3 until :func:`load` is called.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-__all__ = ["TRAINED_DIR", "available", "env_dir_name", "load"]
+__all__ = ["TRAINED_DIR", "agent_dir", "available", "env_dir_name", "load", "seeds"]
 
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
@@ -26,16 +28,65 @@ def env_dir_name(env_id: str) -> str:
     return env_id.split(":")[-1].split("/")[-1]
 
 
+def _is_agent(p: Path) -> bool:
+    return p.is_dir() and (p / "config.yml").is_file() and (p / "model.zip").is_file()
+
+
+def _seed_dirs(p: Path) -> dict[int, Path]:
+    """{k: p/seed_<k>} for the agent directories ``seed_<k>`` inside ``p``."""
+    out = {}
+    if p.is_dir():
+        for d in p.iterdir():
+            tail = d.name[len("seed_"):]
+            if d.name.startswith("seed_") and tail.isdigit() and _is_agent(d):
+                out[int(tail)] = d
+    return dict(sorted(out.items()))
+
+
 def available(env_id: str) -> list[str]:
-    """Names of the shipped agents for ``env_id`` (directories of ``agents/trained/<Env-vN>/``)."""
+    """Names of the shipped agents for ``env_id`` (directories of ``agents/trained/<Env-vN>/``
+    holding one agent, or one per training seed in ``seed_<k>/``)."""
     root = TRAINED_DIR / env_dir_name(env_id)
     if not root.is_dir():
         return []
-    return sorted(p.name for p in root.iterdir()
-                  if p.is_dir() and (p / "config.yml").is_file() and (p / "model.zip").is_file())
+    return sorted(p.name for p in root.iterdir() if _is_agent(p) or _seed_dirs(p))
 
 
-def load(env_id: str, name: str, *, path: str | Path | None = None) -> Any:
+def seeds(env_id: str, name: str) -> list[int]:
+    """Training seeds of shipped agent ``name``: the k of its ``seed_<k>/`` directories, or the
+    one seed in ``config.yml`` of a single-seed agent directory."""
+    d = TRAINED_DIR / env_dir_name(env_id) / name
+    found = _seed_dirs(d)
+    if found:
+        return list(found)
+    if _is_agent(d):
+        import yaml
+
+        return [int((yaml.safe_load((d / "config.yml").read_text()) or {}).get("seed", 0))]
+    raise ValueError(f"no shipped agent {name!r} for {env_id}; available: {available(env_id)}")
+
+
+def agent_dir(env_id: str, name: str, seed: int | None = None) -> Path:
+    """The directory of shipped agent ``name`` (training seed ``seed``; default: its first)."""
+    d = TRAINED_DIR / env_dir_name(env_id) / name
+    found = _seed_dirs(d)
+    if not found and not _is_agent(d):
+        raise ValueError(f"no shipped agent {name!r} for {env_id}; available: "
+                         f"{available(env_id)}")
+    if not found:
+        if seed is not None and seed not in seeds(env_id, name):
+            raise ValueError(f"agent {name!r} for {env_id} has only seed "
+                             f"{seeds(env_id, name)}, not {seed}")
+        return d
+    if seed is None:
+        return next(iter(found.values()))
+    if seed not in found:
+        raise ValueError(f"agent {name!r} for {env_id} has seeds {list(found)}, not {seed}")
+    return found[seed]
+
+
+def load(env_id: str, name: str, *, path: str | Path | None = None,
+         seed: int | None = None) -> Any:
     """A shipped (or given) agent as a policy with SB3's ``predict`` and a ``name``.
 
     Args:
@@ -43,6 +94,9 @@ def load(env_id: str, name: str, *, path: str | Path | None = None) -> Any:
         name: a name from :func:`available` (ignored for lookup when ``path`` is given, but
             used as the policy's name).
         path: an agent directory (e.g. a training run's output) instead of the shipped one.
+        seed: the training seed of a multi-seed agent (default: its first, the lowest k of
+            ``seed_<k>/``; the leaderboard's main table shows that one, :mod:`agents.report`
+            all of them).
 
     Raises:
         ValueError: unknown agent, or a missing/corrupted/incompatible file (the message names
@@ -55,8 +109,5 @@ def load(env_id: str, name: str, *, path: str | Path | None = None) -> Any:
     from agents.policy import load_agent
 
     if path is None:
-        names = available(env_id)
-        if name not in names:
-            raise ValueError(f"no shipped agent {name!r} for {env_id}; available: {names}")
-        path = TRAINED_DIR / env_dir_name(env_id) / name
+        path = agent_dir(env_id, name, seed)
     return load_agent(Path(path), env_id=env_id, name=name)

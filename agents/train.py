@@ -485,11 +485,17 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
 
 def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None = None) -> Path:
     """Copy a run's model ("final" or "best"), statistics, config, curve and meta into
-    ``agents/trained/<EnvName-vN>/<name>/`` (or ``dest``); return that directory."""
+    ``agents/trained/<EnvName-vN>/<name>/`` (or ``dest``); return that directory.
+
+    A run named ``<name>/seed_<k>`` (``train(..., seed=k, name="ppo/seed_k")``) goes to
+    ``agents/trained/<EnvName-vN>/<name>/seed_<k>/``: one seed of a multi-seed agent."""
     run_dir = Path(run_dir)
     config = yaml.safe_load((run_dir / "config.yml").read_text())
+    name = run_dir.name
+    if re.fullmatch(r"seed_\d+", name):
+        name = f"{run_dir.parent.name}/{name}"
     target = Path(dest) if dest is not None else \
-        TRAINED_DIR / env_dir_name(config["env_id"]) / run_dir.name
+        TRAINED_DIR / env_dir_name(config["env_id"]) / name
     if which not in ("final", "best"):
         raise ValueError(f"which must be 'final' or 'best', got {which!r}")
     src = run_dir if which == "final" else run_dir / "best"

@@ -429,3 +429,67 @@ def test_shipped_agents_are_listed_load_and_act():
             actions, _ = policy.predict(batch, None, np.ones(3, dtype=bool))
             assert actions.shape == (3, *env.action_space.shape)
         env.close()
+
+
+# ---------------------------------------------------------------------- seeds and reporting
+def test_iqm_and_stratified_bootstrap():
+    from agents.report import interval, iqm, stratified_bootstrap_ci
+
+    assert iqm(np.array([0.0, 1.0, 2.0, 3.0, 100.0, -100.0, 1.5, 2.5])) == pytest.approx(1.75)
+    rng = np.random.default_rng(0)
+    scores = rng.normal(1.0, 0.1, size=(6, 10))
+    lo, hi = stratified_bootstrap_ci(scores, reps=500)
+    assert lo < iqm(scores) < hi and hi - lo < 0.2
+    # the bootstrap resamples runs within each column: a matrix whose rows are equal has no
+    # spread, however different its columns are
+    same_rows = np.tile(np.arange(10.0), (4, 1))
+    assert stratified_bootstrap_ci(same_rows, reps=200) == pytest.approx((iqm(same_rows),) * 2)
+    assert np.isnan(stratified_bootstrap_ci(scores[:1])).all()
+    point, lo2, hi2 = interval(scores, reps=500)  # rliable's when installed
+    assert point == pytest.approx(iqm(scores))
+    assert lo2 == pytest.approx(lo, abs=0.03) and hi2 == pytest.approx(hi, abs=0.03)
+
+
+def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkeypatch):
+    from agents.report import curve_band, read_curve, seed_table
+
+    env_dir = tmp_path / "JointTracking-v1"
+    shutil.copytree(tiny_runs["scratch"], env_dir / "old_single")  # the older layout
+    for k in (0, 3):
+        shutil.copytree(tiny_runs["scratch"], env_dir / "multi" / f"seed_{k}")
+    monkeypatch.setattr(agents, "TRAINED_DIR", tmp_path)
+    assert agents.available(ENV) == ["multi", "old_single"]
+    assert agents.seeds(ENV, "multi") == [0, 3] and agents.seeds(ENV, "old_single") == [0]
+    assert agents.load(ENV, "multi", seed=3).name == "multi"
+    with pytest.raises(ValueError, match="seeds"):
+        agents.load(ENV, "multi", seed=1)
+    table = seed_table(ENV, SHORT, episodes=2, seed=0)
+    rows = [r for r in table.splitlines() if r.startswith("| multi") or r.startswith("| old")]
+    assert rows[0].split("|")[2].strip() == "2" and "one seed" in rows[1]
+    band = curve_band([read_curve(env_dir / "multi" / f"seed_{k}", "rms_error")
+                       for k in (0, 3)], reps=100)
+    assert band["seeds"].shape[0] == 2 and np.all(band["low"] <= band["high"])
+
+
+def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
+    from agents.train import ship, train
+
+    run = train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
+                name="ppo/seed_2", seed=2, progress_bar=False, verbose=0)
+    assert run == tmp_path / "JointTracking-v1" / "ppo" / "seed_2"
+    target = ship(run, dest=tmp_path / "t" / "ppo" / "seed_2")
+    assert (target / "model.zip").is_file()
+    assert yaml.safe_load((target / "config.yml").read_text())["seed"] == 2
+
+
+def test_tune_gains_smoke(tmp_path):
+    from scripts.tune_gains import main
+
+    assert main(["--controller", "pd_gravity", "--trials", "2", "--train-episodes", "1",
+                 "--episodes", "1", "--variant", "exact model", "--set", "episode_duration=0.1",
+                 "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "JointTracking-v1.json").read_text())
+    assert data[0]["default"] == {"omega": 10.0, "zeta": 1.0}
+    assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
+    assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
+    assert (tmp_path / "studies.db").is_file()

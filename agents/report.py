@@ -1,0 +1,214 @@
+"""Agents reported the way the field reports them: over training seeds, IQM with bootstrap CIs.
+
+An agent trained with several seeds lives in ``agents/trained/<Env-vN>/<name>/seed_<k>/`` (each
+seed directory a complete agent: config, model, statistics, learning curve, meta); an older
+single-seed agent directory counts as one seed (:func:`agents.seeds`).
+
+Scores (Agarwal et al., "Deep RL at the edge of the statistical precipice", NeurIPS 2021, the
+method of the ``rliable`` library):
+
+* every seed's agent is evaluated on the same episodes (seeds ``seed … seed + n − 1``, as the
+  leaderboard runs them); the score matrix is (training seeds × evaluation episodes) of the
+  primary metric, each evaluation episode (a fixed reference and start) playing the part of a
+  task;
+* the point estimate is the **interquartile mean** (IQM, the mean of the middle 50 % of all
+  seed-episode scores; ``scipy.stats.trim_mean(x, 0.25)``);
+* its 95 % confidence interval is the percentile interval of a **stratified bootstrap**: each
+  replicate resamples the training seeds with replacement within every episode column
+  (``rliable.library.get_interval_estimates`` when rliable is installed — the ``report``
+  extra; the same procedure in numpy otherwise, :func:`stratified_bootstrap_ci`). With one seed
+  there is no interval (reported as such).
+
+Learning curves are aggregated the same way per evaluation point (:func:`curve_band`): the IQM
+over seeds of each seed's mean evaluation metric, with the bootstrap band over seeds.
+
+For the leaderboard, :func:`seed_table` evaluates every seed of every shipped agent of an
+environment on one variant and returns a markdown table.
+"""
+
+from __future__ import annotations
+
+import csv
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "SeedReport",
+    "curve_band",
+    "iqm",
+    "read_curve",
+    "seed_report",
+    "seed_table",
+    "stratified_bootstrap_ci",
+]
+
+REPS = 2000  # bootstrap replicates
+CONFIDENCE = 0.95
+
+
+def iqm(scores: np.ndarray) -> float:
+    """Interquartile mean of all entries: ``scipy.stats.trim_mean(x.ravel(), 0.25)``, written
+    out (sort, drop ⌊n/4⌋ at each end, mean of the rest)."""
+    x = np.sort(np.asarray(scores, dtype=np.float64).ravel())
+    if x.size == 0:
+        raise ValueError("iqm of an empty score array")
+    cut = int(0.25 * x.size)
+    return float(np.mean(x[cut:x.size - cut]))
+
+
+def stratified_bootstrap_ci(scores: np.ndarray, statistic: Callable[[np.ndarray], float] = iqm,
+                            reps: int = REPS, confidence: float = CONFIDENCE,
+                            seed: int = 0) -> tuple[float, float]:
+    """Percentile CI of ``statistic`` over a stratified bootstrap of the runs (rows), resampled
+    with replacement independently in every task column — rliable's ``StratifiedBootstrap``.
+
+    Args:
+        scores: (n_runs, n_tasks) or (n_runs,).
+    """
+    x = np.asarray(scores, dtype=np.float64)
+    if x.ndim == 1:
+        x = x[:, None]
+    n_runs, n_tasks = x.shape
+    if n_runs < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, n_runs, size=(reps, n_runs, n_tasks))
+    cols = np.arange(n_tasks)
+    stats = np.array([statistic(x[i, cols]) for i in idx])
+    alpha = (1.0 - confidence) / 2.0
+    lo, hi = np.percentile(stats, [100 * alpha, 100 * (1 - alpha)])
+    return float(lo), float(hi)
+
+
+def interval(scores: np.ndarray, reps: int = REPS, seed: int = 0) -> tuple[float, float, float]:
+    """(IQM, CI low, CI high) of a (runs × tasks) score matrix, with rliable when installed."""
+    x = np.asarray(scores, dtype=np.float64)
+    x = x[:, None] if x.ndim == 1 else x
+    point = iqm(x)
+    if x.shape[0] < 2:
+        return point, float("nan"), float("nan")
+    try:
+        from rliable import library as rly
+        from rliable import metrics
+    except ImportError:
+        lo, hi = stratified_bootstrap_ci(x, iqm, reps, seed=seed)
+        return point, lo, hi
+    with warnings.catch_warnings():  # arch: "random_state is deprecated" (rliable's call)
+        warnings.simplefilter("ignore", FutureWarning)
+        _, cis = rly.get_interval_estimates(
+            {"agent": x}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps,
+            random_state=np.random.RandomState(seed))  # rliable takes a RandomState
+    return point, float(cis["agent"][0, 0]), float(cis["agent"][1, 0])
+
+
+@dataclass
+class SeedReport:
+    """One agent on one variant over its training seeds.
+
+    Attributes:
+        name: the agent's name.
+        seeds: training seeds (one row of ``scores`` each).
+        scores: (n_seeds, n_episodes) primary metric.
+        success: (n_seeds, n_episodes) 0/1.
+        primary: the metric's name.
+        iqm, ci_low, ci_high: IQM of ``scores`` and its 95 % stratified-bootstrap CI (NaN with
+            one seed).
+    """
+
+    name: str
+    seeds: list[int]
+    scores: np.ndarray
+    success: np.ndarray
+    primary: str
+    iqm: float
+    ci_low: float
+    ci_high: float
+
+    @property
+    def seed_means(self) -> np.ndarray:
+        return self.scores.mean(axis=1)
+
+
+def seed_report(env_id: str, name: str, env_kwargs: dict[str, Any] | None = None, *,
+                episodes: int = 10, seed: int = 1000) -> SeedReport:
+    """Evaluate every training seed of shipped agent ``name`` on ``episodes`` episodes."""
+    import agents
+    import cir_gym
+    from cir_gym.evaluation import evaluate
+
+    primary = cir_gym.ENVIRONMENTS[env_id.split(":")[-1]][0].primary_metric
+    train_seeds = agents.seeds(env_id, name)
+    scores, success = [], []
+    for k in train_seeds:
+        policy = agents.load(env_id, name, seed=k)
+        result = evaluate(policy, env_id, episodes, seed, policy_name=name,
+                          **(env_kwargs or {}))
+        scores.append([ep.metrics.get(primary, np.nan) for ep in result.episodes])
+        success.append([float(ep.success) for ep in result.episodes])
+    s = np.array(scores, dtype=np.float64)
+    point, lo, hi = interval(s)
+    return SeedReport(name, train_seeds, s, np.array(success), primary, point, lo, hi)
+
+
+def _fmt(x: float) -> str:
+    return "—" if not np.isfinite(x) else f"{x:.3g}"
+
+
+def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
+               seed: int = 1000, names: list[str] | None = None) -> str:
+    """Markdown table: every shipped agent of ``env_id`` (or ``names``) over its training seeds
+    on one variant (``env_kwargs``): seeds, IQM of the primary metric [95 % CI], success IQM
+    [CI], each seed's mean. The leaderboard's one call per variant."""
+    import agents
+
+    names = agents.available(env_id) if names is None else names
+    if not names:
+        return ""
+    reports = [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed) for n in names]
+    primary = reports[0].primary
+    lines = [
+        f"Agents over training seeds: IQM of `{primary}` over (seeds × {episodes} episodes), "
+        f"95 % stratified-bootstrap CI over seeds ({REPS} replicates; agents/report.py).",
+        "",
+        f"| agent | seeds | IQM {primary} | 95 % CI | success (IQM) | success CI | per seed |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in reports:
+        s_point, s_lo, s_hi = interval(r.success)
+        per_seed = ", ".join(f"{m:.3g}" for m in r.seed_means)
+        ci = "one seed: none" if len(r.seeds) < 2 else f"[{_fmt(r.ci_low)}, {_fmt(r.ci_high)}]"
+        s_ci = "—" if len(r.seeds) < 2 else f"[{_fmt(s_lo)}, {_fmt(s_hi)}]"
+        lines.append(f"| {r.name} | {len(r.seeds)} | {_fmt(r.iqm)} | {ci} | {_fmt(s_point)} | "
+                     f"{s_ci} | {per_seed} |")
+    return "\n".join(lines)
+
+
+def read_curve(agent_dir: Path, primary: str) -> tuple[np.ndarray, np.ndarray]:
+    """(timesteps, mean primary metric) of an agent directory's ``learning_curve.csv``."""
+    with (Path(agent_dir) / "learning_curve.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    return (np.array([int(r["timesteps"]) for r in rows]),
+            np.array([float(r[f"mean_{primary}"]) for r in rows]))
+
+
+def curve_band(curves: list[tuple[np.ndarray, np.ndarray]], reps: int = REPS
+               ) -> dict[str, np.ndarray]:
+    """Aggregate seeds' learning curves at the evaluation steps they all have.
+
+    Returns ``steps``, ``iqm``, ``low``, ``high`` (the stratified-bootstrap band over seeds,
+    NaN with one seed) and ``seeds`` (n_seeds, n_steps)."""
+    if not curves:
+        raise ValueError("no learning curves")
+    common = sorted(set.intersection(*(set(t.tolist()) for t, _ in curves)))
+    values = np.array([[v[list(t).index(s)] for s in common] for t, v in curves])
+    out = {"steps": np.array(common), "seeds": values,
+           "iqm": np.array([iqm(values[:, j]) for j in range(len(common))])}
+    bands = [interval(values[:, j], reps=reps)[1:] for j in range(len(common))]
+    out["low"] = np.array([b[0] for b in bands])
+    out["high"] = np.array([b[1] for b in bands])
+    return out
