@@ -22,6 +22,7 @@ from baselines.decentralized import (
 )
 from baselines.hybrid import HYBRID_CONTROLLERS
 from baselines.kinematic import KINEMATIC_CONTROLLERS
+from baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
@@ -39,6 +40,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         RobustControl,
         AdaptiveControl,
         *KINEMATIC_CONTROLLERS,
+        *OPERATIONAL_SPACE_CONTROLLERS,
         *HYBRID_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
