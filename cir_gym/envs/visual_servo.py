@@ -41,10 +41,13 @@ ACTIONS = ("twist", "joint_velocity")
 FEATURES = ("projected", "detected")
 #: (v_x, v_y, v_z) m/s and (ω_x, ω_y, ω_z) rad/s per unit of a twist action
 TWIST_LIMIT = (0.3, 0.3, 0.3, 1.0, 1.0, 1.0)
-#: the goal configuration: flange (= eye-in-hand optical frame) at (0.6, 0, 0.55) m looking
-#: along +x (world), well inside the joint limits; q7 = −1.2 leaves room for rotations about
-#: the optical axis of −105° … +200°
-Q_GOAL = (0.0, 0.321, 0.0, -1.798, 0.0, -0.548, -1.2)
+#: the goal configuration: flange (= eye-in-hand optical frame) at (0.826, 0, 0.45) m looking
+#: along +x (world), elbow at 1.07 rad (closed form in the arm's plane: wrist 0.70 m out,
+#: 0.09 m above the shoulder). Backing the camera up along its axis closes the elbow: there is
+#: room for 0.28 m (then joint 4 reaches its limit) and 0.08 m forward (then the arm nears its
+#: stretched singularity). q7 = −1.2 leaves room for rotations about the optical axis of
+#: −105° … +200°.
+Q_GOAL = (0.0, 0.923, 0.0, -1.0687, 0.0, -0.4209, -1.2)
 GOAL_DEPTH = 0.75  # m: target plane in front of the goal camera (ViSP's cdMo)
 IMAGE_WIDTH, IMAGE_HEIGHT, FOVY = 640, 480, 60.0  # the camera (flange_cam's fovy)
 MARKER_COLOURS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 0.0))
@@ -102,7 +105,7 @@ class _VisualServoBase(RobotEnv):
     marker_side: ClassVar[float] = 0.2  # m
     marker_radius: ClassVar[float] = 0.015  # m
     moving_offset: ClassVar[float] = 0.0  # m: the moving frame's origin along flange z
-    start_translation: ClassVar[tuple[float, float, float, float]] = (0.15, 0.15, -0.3, 0.2)
+    start_translation: ClassVar[tuple[float, float, float, float]] = (0.12, 0.12, -0.25, 0.05)
     start_rotation: ClassVar[tuple[float, float]] = (0.3, 1.0)  # rad: tilt, about the axis
     primary_metric: ClassVar[str] = "final_feature_error"
     success_threshold: ClassVar[float] = CONVERGED
@@ -496,7 +499,11 @@ class _VisualServoBase(RobotEnv):
     def _render_camera(self) -> None:
         if self._eye is None:
             self._eye = self._make_camera_renderer()
-        self._eye.update_scene(self.data, camera=self._cam_id)
+        # geom group 1 holds the robot file's translucent payload placeholder at the flange,
+        # around the camera: not part of this task, hidden from the camera
+        option = mujoco.MjvOption()
+        option.geomgroup[1] = 0
+        self._eye.update_scene(self.data, camera=self._cam_id, scene_option=option)
         self._eye.render(out=self._image)
 
     def _make_camera_renderer(self) -> mujoco.Renderer:
@@ -631,12 +638,13 @@ class VisualServoEnv(_VisualServoBase):
     vertical field of view 60°: f = 415.69 px, principal point (319.5, 239.5) px; its optical
     frame, z forward and y down, is the ``flange`` site frame) looks at a planar target, four
     coloured discs at the corners of a 0.2 m square (ViSP's tutorial-ibvs-4pts target). The
-    goal camera pose is fixed (joint configuration ``Q_GOAL``, camera at (0.6, 0, 0.55) m
-    looking along +x); the target faces it at 0.75 m, tilted per episode by a rotation vector
+    goal camera pose is fixed (joint configuration ``Q_GOAL``, camera at (0.826, 0, 0.45) m
+    looking along +x, with room to back up 0.28 m along its axis); the target faces it at
+    0.75 m, tilted per episode by a rotation vector
     of ≤ 0.2 rad (tilt) and turned about its normal by ≤ π. The desired features s* are the
     true camera's image of the target from the goal pose; the camera starts at a random offset
-    from the goal (the moving frame's pose in the goal frame: translation ±0.15 m sideways,
-    −0.3 … +0.2 m along the optical axis, rotation vector ±0.3 rad about x and y, ±1.0 rad
+    from the goal (the moving frame's pose in the goal frame: translation ±0.12 m sideways,
+    −0.25 … +0.05 m along the optical axis, rotation vector ±0.3 rad about x and y, ±1.0 rad
     about the optical axis), reachable and with every feature ≥ 40 px inside the image.
     The arm is velocity-servoed (MuJoCo velocity actuators, k_v = 200 B_ii(q_goal), within the
     data-sheet torque limits, gravity compensated): the environment's own resolved-rate
@@ -727,7 +735,7 @@ class VisualServoEnv(_VisualServoBase):
     marker_side: ClassVar[float] = 0.2
     marker_radius: ClassVar[float] = 0.015
     moving_offset: ClassVar[float] = 0.0
-    start_translation: ClassVar[tuple[float, float, float, float]] = (0.15, 0.15, -0.3, 0.2)
+    start_translation: ClassVar[tuple[float, float, float, float]] = (0.12, 0.12, -0.25, 0.05)
     target_tilt: ClassVar[float] = 0.2  # rad
 
 
@@ -770,12 +778,12 @@ class VisualServoEyeToHandEnv(_VisualServoBase):
 
     ## Description
     Chapter 7's other camera placement: a fixed camera (640 × 480 px, fovy 60°, f = 415.69 px,
-    principal point (319.5, 239.5) px) on a stand at (1.425, 0, 0.55) m looks back along −x at
+    principal point (319.5, 239.5) px) on a stand at (1.606, 0, 0.45) m looks back along −x at
     a 0.2 m plate on link7 (centre 30 mm beyond the flange along its axis) carrying four
     coloured discs at the corners of a 0.16 m square. At the goal configuration ``Q_GOAL`` the
     plate faces the camera 0.75 m away; the desired features s* are the true camera's image of
     the markers there. The plate starts at a random offset from its goal pose (translation
-    ±0.1 m sideways, −0.15 … +0.15 m along its normal, rotation vector ±0.3 rad about x and
+    ±0.1 m sideways, −0.2 … +0.05 m along its normal, rotation vector ±0.3 rad about x and
     y, ±1.0 rad about the normal), reachable and with every feature ≥ 40 px inside the image.
     The arm is velocity-servoed as in ``VisualServo-v0``.
 
@@ -837,8 +845,8 @@ class VisualServoEyeToHandEnv(_VisualServoBase):
     marker_side: ClassVar[float] = 0.16
     marker_radius: ClassVar[float] = 0.012
     moving_offset: ClassVar[float] = 0.03  # m beyond the flange (link7 z = 0.045 + 0.03)
-    start_translation: ClassVar[tuple[float, float, float, float]] = (0.1, 0.1, -0.15, 0.15)
-    camera_position: ClassVar[tuple[float, float, float]] = (1.425, 0.0, 0.55)
+    start_translation: ClassVar[tuple[float, float, float, float]] = (0.1, 0.1, -0.2, 0.05)
+    camera_position: ClassVar[tuple[float, float, float]] = (1.606, 0.0, 0.45)
 
     def _add_markers_and_camera(self, spec: mujoco.MjSpec) -> None:
         link7 = spec.body("link7")
