@@ -52,6 +52,7 @@ GOAL_DEPTH = 0.75  # m: target plane in front of the goal camera (ViSP's cdMo)
 IMAGE_WIDTH, IMAGE_HEIGHT, FOVY = 640, 480, 60.0  # the camera (flange_cam's fovy)
 MARKER_COLOURS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 0.0))
 SERVO_BANDWIDTH = 200.0  # 1/s: velocity-servo gain k_v,i = 200 B_ii(q_goal)
+TIMESTEP = 0.002  # s: physics step (implicitfast integrates the servo damping stably)
 JOINT_MARGIN = 0.01  # rad: closer to a joint limit ends the episode
 START_IMAGE_MARGIN = 40.0  # px: random starts keep every feature this far inside the image
 CONVERGED = 1.0  # px: success threshold of the final feature error
@@ -240,6 +241,7 @@ class _VisualServoBase(RobotEnv):
     # ------------------------------------------------------------------ model
     def _build_model(self) -> mujoco.MjModel:
         spec = mujoco.MjSpec.from_file(str(ASSETS / "scenes" / self.scene))
+        spec.option.timestep = TIMESTEP
         self._add_markers_and_camera(spec)
         for body in spec.bodies:  # the arm's own controller compensates gravity (set before
             body.gravcomp = 1.0  # compiling: MuJoCo counts gravity-compensated bodies then)
@@ -300,9 +302,9 @@ class _VisualServoBase(RobotEnv):
     def _moving_jacobian(self, q: np.ndarray) -> np.ndarray:
         """Geometric Jacobian (6, 7) of the moving frame's origin (world frame)."""
         J = self.robot.jacobian(self._flange, q)
-        R = self.robot.site_pose(self._flange, q)[1]
-        r = self.moving_offset * R[:, 2]
-        J[:3] -= np.cross(r, J[3:].T).T  # v_o = v_f + ω × r
+        if self.moving_offset:
+            r = self.moving_offset * self.robot.site_pose(self._flange, q)[1][:, 2]
+            J[:3] -= np.cross(r, J[3:].T).T  # v_o = v_f + ω × r
         return J
 
     def _true_features(self) -> np.ndarray | None:
@@ -463,7 +465,11 @@ class _VisualServoBase(RobotEnv):
         if not np.all(np.isfinite(q)):  # a corrupted state: the physics step reports it
             return np.zeros(self.n)
         V = a * self.twist_limit
-        return np.linalg.pinv(self._moving_jacobian(q)) @ self._world_twist(V, q)
+        J = self._moving_jacobian(q)
+        try:
+            return J.T @ np.linalg.solve(J @ J.T, self._world_twist(V, q))  # J⁺ V
+        except np.linalg.LinAlgError:  # exactly singular: the least-squares solution
+            return np.linalg.lstsq(J, self._world_twist(V, q), rcond=None)[0]
 
     def _world_twist(self, V: np.ndarray, q: np.ndarray) -> np.ndarray:
         raise NotImplementedError
