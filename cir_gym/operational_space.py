@@ -32,8 +32,10 @@ hemisphere η ≥ 0 (:func:`quat_error`); both forms give the same error for Q a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -138,6 +140,9 @@ def orientation_angle(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
 def skew(v: ArrayLike) -> np.ndarray:
     """S(v) (..., 3, 3) with S(v) x = v × x."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 1:  # the common single-vector case, without np.stack (~10x faster)
+        x, y, w = v.tolist()
+        return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
     z = np.zeros(v.shape[:-1])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
     return np.stack(
@@ -147,6 +152,8 @@ def skew(v: ArrayLike) -> np.ndarray:
 
 def _coefficients(theta: np.ndarray) -> tuple[np.ndarray, ...]:
     """a, b, c, d(θ) of J_l = I + a S + b S², J_l⁻¹ = I − S/2 + c S², d = c'(θ)/θ."""
+    if np.ndim(theta) == 0:  # numpy scalars, so that c[..., None, None] works
+        return tuple(map(np.float64, _scalar_coefficients(float(theta))))
     small = theta < _SMALL_ANGLE
     t = np.where(small, 1.0, theta)  # a safe angle for the closed forms
     t2 = theta**2
@@ -157,6 +164,18 @@ def _coefficients(theta: np.ndarray) -> tuple[np.ndarray, ...]:
     c_prime = -2 / t**3 + half_cot / (2 * t**2) + 1 / (4 * t * np.sin(t / 2) ** 2)
     d = np.where(small, 1 / 360 + t2 / 7560 + t2**2 / 201600, c_prime / t)
     return a, b, c, d
+
+
+def _scalar_coefficients(t: float) -> tuple[float, float, float, float]:
+    """:func:`_coefficients` of one angle with the math module (the controllers' hot path)."""
+    t2 = t * t
+    if t < _SMALL_ANGLE:
+        return (0.5 - t2 / 24 + t2**2 / 720, 1 / 6 - t2 / 120 + t2**2 / 5040,
+                1 / 12 + t2 / 720 + t2**2 / 30240, 1 / 360 + t2 / 7560 + t2**2 / 201600)
+    half_cot = math.cos(t / 2) / math.sin(t / 2)
+    c_prime = -2 / t**3 + half_cot / (2 * t2) + 1 / (4 * t * math.sin(t / 2) ** 2)
+    return ((1 - math.cos(t)) / t2, (t - math.sin(t)) / t**3, 1 / t2 - half_cot / (2 * t),
+            c_prime / t)
 
 
 def left_jacobian(phi: ArrayLike) -> np.ndarray:
@@ -260,24 +279,31 @@ def pose_error_kinematics(
     x, R = robot.site_pose(site, q)
     J = robot.jacobian(site, q)
     jdqd = robot.jacobian_dot_qdot(site, q, qd)
-    quat = traj.quat_from_matrix(R)
     twist_ref = np.asarray(twist_ref, dtype=float)
     acc_ref = np.asarray(acc_ref, dtype=float)
     twist = J @ qd
-    phi = rotvec_error(quat_ref, quat)
-    Jl_inv = left_jacobian_inverse(phi)
-    Jr_inv = left_jacobian_inverse(-phi)
+    # φ = log(Q̄ ⊗ Q⁻¹) with MuJoCo's quaternion C calls (single pose: the hot path)
+    quat, conj, q_err = np.empty(4), np.empty(4), np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    mujoco.mju_negQuat(conj, quat)
+    mujoco.mju_mulQuat(q_err, np.asarray(quat_ref, dtype=float), conj)
+    phi = rotvec_from_quat(q_err / np.linalg.norm(q_err))
+    _, _, c, d = _scalar_coefficients(float(np.linalg.norm(phi)))
+    S = skew(phi)
+    S2 = S @ S
+    Jl_inv = np.eye(3) - 0.5 * S + c * S2  # J_l⁻¹(φ)
+    Jr_inv = np.eye(3) + 0.5 * S + c * S2  # J_r⁻¹(φ) = J_l⁻¹(−φ)
     w_ref, w = twist_ref[3:], twist[3:]
     phi_dot = Jl_inv @ w_ref - Jr_inv @ w
+    # d/dt J_l⁻¹(φ) and d/dt J_r⁻¹(φ) = D J_l⁻¹(−φ)[−φ̇] (left_jacobian_inverse_dot)
+    Sd = skew(phi_dot)
+    common = d * float(phi @ phi_dot) * S2 + c * (Sd @ S + S @ Sd)
+    Jl_inv_dot, Jr_inv_dot = common - 0.5 * Sd, common + 0.5 * Sd
     J_A = J.copy()
     J_A[3:] = Jr_inv @ J[3:]
     ref_rate = np.concatenate((twist_ref[:3], Jl_inv @ w_ref))
-    ref_acc = np.concatenate(
-        (acc_ref[:3], Jl_inv @ acc_ref[3:] + left_jacobian_inverse_dot(phi, phi_dot) @ w_ref)
-    )
-    JA_dot_qd = np.concatenate(
-        (jdqd[:3], Jr_inv @ jdqd[3:] + left_jacobian_inverse_dot(-phi, -phi_dot) @ w)
-    )
+    ref_acc = np.concatenate((acc_ref[:3], Jl_inv @ acc_ref[3:] + Jl_inv_dot @ w_ref))
+    JA_dot_qd = np.concatenate((jdqd[:3], Jr_inv @ jdqd[3:] + Jr_inv_dot @ w))
     return PoseErrorKinematics(
         error=np.concatenate((np.asarray(x_ref, dtype=float) - x, phi)),
         error_rate=np.concatenate((twist_ref[:3] - twist[:3], phi_dot)),

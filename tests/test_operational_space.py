@@ -109,8 +109,9 @@ def test_jacobians_are_batched() -> None:
     phi, v = rng.standard_normal((5, 3)), rng.standard_normal((5, 3))
     Jb, Db = osp.left_jacobian_inverse(phi), osp.left_jacobian_inverse_dot(phi, v)
     for i in range(5):
-        np.testing.assert_allclose(Jb[i], osp.left_jacobian_inverse(phi[i]), atol=0)
-        np.testing.assert_allclose(Db[i], osp.left_jacobian_inverse_dot(phi[i], v[i]), atol=0)
+        np.testing.assert_allclose(Jb[i], osp.left_jacobian_inverse(phi[i]), atol=1e-15)
+        np.testing.assert_allclose(Db[i], osp.left_jacobian_inverse_dot(phi[i], v[i]),
+                                   atol=1e-15)
 
 
 def test_pose_error_kinematics_against_finite_differences(robot: Robot) -> None:
