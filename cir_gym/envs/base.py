@@ -391,9 +391,15 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             self._renderer.update_scene(self.data, camera=self.camera)
             if not self.draw_markers:
                 return self._renderer.render()
-            self.draw_task(self._renderer.scene)
-            frame = self._renderer.render()
-            return rendering.draw_caption(frame, self.caption())
+            scene = self._renderer.scene
+            rendering.begin_frame(scene)  # add_polyline: 2-D overlays, drawn after the 3-D scene
+            try:
+                self.draw_task(scene)
+                frame = self._renderer.render()
+            except BaseException:
+                rendering.finish_frame(np.zeros((1, 1, 3), np.uint8), scene)  # drop the overlays
+                raise
+            return rendering.finish_frame(frame, scene, self.caption())
         if self.render_mode == "human":
             if self._viewer is None:
                 if not _has_display():  # else mujoco.viewer exits the whole process
