@@ -2,18 +2,25 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from gymnasium.utils.env_checker import check_env
 
 import baselines
 from cir_gym import operational_space as osp
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import InvalidArgument
-from cir_gym.envs.cartesian_tracking import NEAR_SINGULAR_Q2, NEAR_SINGULAR_Q6, CartesianTrackingEnv
+from cir_gym.envs.cartesian_tracking import (
+    NEAR_SINGULAR_Q2,
+    NEAR_SINGULAR_Q6,
+    PATHS,
+    CartesianTrackingEnv,
+)
 from cir_gym.envs.joint_tracking import RANDOM_RANGES
 
 ENV_ID = "cir_gym/CartesianTracking-v0"
@@ -59,6 +66,16 @@ def _mid_episode_obs(path: str = "circle", steps: int = 200, seed: int = 3) -> d
 
 
 # ---------------------------------------------------------------------- the environment
+@pytest.mark.parametrize("path", PATHS)
+def test_every_path_passes_the_gymnasium_checker(path: str) -> None:
+    """Every ``path`` (test_conformance checks the leaderboard variants, not this argument)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = gym.make(ENV_ID, path=path, episode_duration=0.05)
+        check_env(env.unwrapped, skip_render_check=True)
+        env.close()
+
+
 def test_bad_path_is_rejected_by_name() -> None:
     with pytest.raises(InvalidArgument, match="path"):
         CartesianTrackingEnv(path="spiral")
