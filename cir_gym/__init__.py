@@ -1,7 +1,8 @@
 """cir_gym: Gymnasium/MuJoCo environments for an industrial-robot-control course.
 
-``import cir_gym`` registers the environments (ids ``cir_gym/<Name>-v<N>``); they also work as
-``gymnasium.make("cir_gym:cir_gym/<Name>-v0")`` in a fresh process.
+``import cir_gym`` registers the environments (ids ``cir_gym/<Name>-v<N>``, the keys of
+``cir_gym.ENVIRONMENTS``); they also work as ``gymnasium.make("cir_gym:cir_gym/<Name>-v<N>")``
+in a fresh process.
 """
 
 from __future__ import annotations

@@ -17,7 +17,15 @@ import numpy as np
 
 from cir_gym.metrics import MetricSpec, aggregate
 
-__all__ = ["EpisodeResult", "EvaluationResult", "Policy", "evaluate", "metric_specs"]
+__all__ = [
+    "EpisodeResult",
+    "EvaluationResult",
+    "Policy",
+    "evaluate",
+    "metric_specs",
+    "rank",
+    "variant_primary_metric",
+]
 
 
 class Policy(Protocol):
@@ -81,6 +89,42 @@ class EvaluationResult:
 
     def spec(self, name: str) -> MetricSpec:
         return next(s for s in self.specs if s.name == name)
+
+    def ranked_on(self, metric: str) -> EvaluationResult:
+        """This result with ``metric`` (one of ``specs``) as its primary metric, e.g. a
+        leaderboard variant's own (:func:`variant_primary_metric`); the episodes are shared."""
+        if metric not in {s.name for s in self.specs}:
+            raise ValueError(f"{metric!r} is not a metric of {self.env_id}; metrics: "
+                             f"{[s.name for s in self.specs]}")
+        return EvaluationResult(self.env_id, self.policy_name, self.episodes, self.specs,
+                                metric, dt=self.dt)
+
+    def rank_key(self) -> tuple[float, float]:
+        """Sort key of :func:`rank`: the highest success rate first, then the best mean of the
+        primary metric (in its own direction; NaN last)."""
+        mean = self.summary[self.primary_metric]["mean"]
+        if not np.isfinite(mean):
+            return (-self.success_rate, float("inf"))
+        return (-self.success_rate, -mean if self.spec(self.primary_metric).better == "higher"
+                else mean)
+
+
+def rank(results: list[EvaluationResult]) -> list[EvaluationResult]:
+    """``results`` best first: success rate, then the primary metric's mean (NaN last).
+
+    Success comes first because an episode that ends early (at a joint limit, on an
+    obstacle, at the following-error monitor) can still show a good value of a metric it
+    stopped accumulating.
+    """
+    return sorted(results, key=EvaluationResult.rank_key)
+
+
+def variant_primary_metric(env_cls: type, variant: str) -> str:
+    """The metric a leaderboard variant of ``env_cls`` is ranked on: its entry in the class's
+    ``leaderboard_primary_metrics`` (variant name → metric name, next to
+    ``leaderboard_variants``), else the class's ``primary_metric``."""
+    own = getattr(env_cls, "leaderboard_primary_metrics", {}) or {}
+    return str(own.get(variant, env_cls.primary_metric))
 
 
 def metric_specs(env: gym.Env) -> tuple[tuple[MetricSpec, ...], str]:

@@ -1,11 +1,15 @@
-"""Measure what redundancy buys (chapter 1): the kinematic controllers on RedundantIK(7)-v2.
+"""Measure what redundancy buys (chapter 1): the kinematic controllers on RedundantIK-v3 and
+RedundantIK7-v4.
 
-    python scripts/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 4
+    python scripts/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 2
 
 On the same seeds for every controller it reports
-* ``clik_nullspace`` vs ``clik``: minimum manipulability (% increase) at their task errors,
-  with its self-motion search (the default) and with the projected gradient alone
-  (``search_arc=0``, the row "clik_nullspace, gradient only");
+* the null-space laws against ``clik`` on "manipulability": minimum manipulability (% increase)
+  at their task errors, for the textbook law ``clik_projected_gradient`` (q̇₀ = k₀ ∇w, nothing
+  else), for ``clik_nullspace`` (∇ ln w, joint-limit barrier, null-space scaling to the
+  velocity limits, saturation at the joint limits, self-motion search) and for
+  ``clik_nullspace`` without its search (``search_arc=0``, the row "clik_nullspace, no
+  search": everything else of it stays on);
 * obstacle: collisions (episodes ending with clearance < 0) and the median minimum clearance;
 * joint limits: episodes that hit a joint limit, per controller, with ``objective="joint_limits"``;
 * joint drift ‖q(T) − q(0)‖ of the closed path, per controller, over the completed laps;
@@ -14,25 +18,35 @@ On the same seeds for every controller it reports
   the commanded joint speeds of ``clik`` (J† grows like 1/σ_min) and ``clik_dls`` (bounded),
   saved as ``singular_path.png``.
 It prints a markdown table and writes it to ``<out>/redundancy.md``.
+
+Each episode's reset (the "obstacle" placement and the "manipulability" start search take
+seconds) is done once per seed and copied (``copy.deepcopy`` of the reset environment) for
+every controller, which then runs the episode as :func:`cir_gym.evaluation.evaluate` would
+(``--check`` compares the two on a few seeds).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-ENVS = {"RedundantIK": "cir_gym/RedundantIK-v3", "RedundantIK7": "cir_gym/RedundantIK7-v3"}
+ENVS = {"RedundantIK": "cir_gym/RedundantIK-v3", "RedundantIK7": "cir_gym/RedundantIK7-v4"}
 ALL = ("jacobian_transpose", "pseudo_inverse", "clik", "clik_dls", "clik_weighted",
-       "clik_nullspace", "clik_augmented")
-GRADIENT_ONLY = "clik_nullspace, gradient only"  # the textbook law: no self-motion search
-VARIANTS = {GRADIENT_ONLY: ("clik_nullspace", {"search_arc": 0.0})}
+       "clik_projected_gradient", "clik_nullspace", "clik_augmented")
+TEXTBOOK = "clik_projected_gradient"  # the textbook law: q̇ = J†(x̄̇ + K e) + (I − J†J) k₀ ∇w
+NO_SEARCH = "clik_nullspace, no search"  # search_arc = 0; log-gradient, barrier, scaling on
+VARIANTS = {NO_SEARCH: ("clik_nullspace", {"search_arc": 0.0})}
 ORACLE = "clearing motion (oracle)"  # the env's certificate: needs the whole reference
 METRICS = ("rms_task_error", "min_manipulability", "min_joint_limit_margin", "min_clearance",
            "joint_drift")
+OBSTACLE_POLICIES = ("clik", "clik_dls", TEXTBOOK, "clik_nullspace", ORACLE)
+CHUNK = 10  # seeds per worker job
 
 
 def _register() -> None:
@@ -49,6 +63,8 @@ class ClearingMotion:
     """Plays back the env's ``clearing_motion()`` (SB3's ``predict``): not a controller, it
     was planned with the whole reference in advance; what any causal controller is held to.
     ``state`` counts the control steps."""
+
+    name = ORACLE
 
     def __init__(self, env: gym.Env) -> None:
         from cir_gym.envs.redundant_ik import LAP_STRIDE
@@ -68,32 +84,84 @@ class ClearingMotion:
         return np.clip(qd / self.env.velocity_limit, -1.0, 1.0), np.array([k + 1.0])
 
 
-def run(job: tuple[str, str, str, int]) -> tuple[tuple[str, str, str], dict[str, np.ndarray]]:
-    """One (env, objective, controller) on ``episodes`` seeds → metric arrays."""
-    _register()
+def make_policy(name: str, env: Any) -> Any:
+    """The controller (or variant, or the oracle) ``name`` for ``env``."""
     from baselines.kinematic import KINEMATIC_CONTROLLERS
+
+    if name == ORACLE:
+        return ClearingMotion(env)
+    controller, gains = VARIANTS.get(name, (name, {}))
+    cls = next(c for c in KINEMATIC_CONTROLLERS if c.name == controller)
+    return cls(env.unwrapped.controller_context(), **gains)
+
+
+def episode(policy: Any, env: Any) -> dict[str, float]:
+    """One episode of ``policy`` from ``env``'s current (just reset) state, as ``evaluate``
+    runs it: the metrics, success and whether it terminated."""
+    obs, state, start, done = env._obs(), None, np.ones(1, dtype=bool), False
+    while not done:
+        action, state = policy.predict(obs, state=state, episode_start=start)
+        start = np.zeros(1, dtype=bool)
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    out = {m: float(info["episode_metrics"][m]) for m in METRICS}
+    out["success"] = float(info["is_success"])
+    out["completed"] = float(not terminated)
+    out["singular_steps"] = float(getattr(policy, "singular_steps", 0))
+    return out
+
+
+def run(job: tuple[str, str, tuple[str, ...], int, int]
+        ) -> dict[tuple[str, str, str], list[dict[str, float] | None]]:
+    """(env, objective, policies, first seed, seeds) → per policy, per seed: the episode's
+    numbers (None where the policy raised, e.g. SingularJacobian). Each seed is reset once."""
+    _register()
+    env_name, objective, names, first, count = job
+    env = gym.make(ENVS[env_name], objective=objective).unwrapped
+    out: dict[tuple[str, str, str], list[dict[str, float] | None]] = {
+        (env_name, objective, name): [] for name in names}
+    for seed in range(first, first + count):
+        env.reset(seed=seed)
+        for name in names:
+            fresh = copy.deepcopy(env)
+            policy = make_policy(name, fresh)
+            try:
+                out[(env_name, objective, name)].append(episode(policy, fresh))
+            except FloatingPointError as exc:  # a singular Jacobian: reported, not hidden
+                print(f"{env_name} {objective} {name} seed {seed}: {exc}")
+                out[(env_name, objective, name)].append(None)
+    env.close()
+    return out
+
+
+def check(episodes: int = 2) -> None:
+    """The copied-reset episodes equal :func:`cir_gym.evaluation.evaluate`'s (every metric)."""
     from cir_gym.evaluation import evaluate
 
-    env_name, objective, name, episodes = job
-    env = gym.make(ENVS[env_name], objective=objective)
-    if name == ORACLE:
-        policy = ClearingMotion(env)
-    else:
-        controller, gains = VARIANTS.get(name, (name, {}))
-        cls = next(c for c in KINEMATIC_CONTROLLERS if c.name == controller)
-        policy = cls(env.unwrapped.controller_context(), **gains)
-    try:
-        result = evaluate(policy, ENVS[env_name], n_episodes=episodes, seed=0, env=env)
-    except FloatingPointError as exc:  # a singular Jacobian: reported, not hidden
-        print(f"{env_name} {objective} {name}: {exc}")
-        return (env_name, objective, name), {}
-    finally:
-        env.close()
-    out = {m: np.array([ep.metrics[m] for ep in result.episodes]) for m in METRICS}
-    out["success"] = np.array([ep.success for ep in result.episodes], dtype=float)
-    out["completed"] = np.array([not ep.terminated for ep in result.episodes], dtype=float)
-    out["singular_steps"] = np.array([float(getattr(policy, "singular_steps", 0))])
-    return (env_name, objective, name), out
+    _register()
+    for env_name in ENVS:
+        for objective, name in (("obstacle", "clik_nullspace"), ("manipulability", TEXTBOOK),
+                                ("joint_limits", "clik")):
+            ours = run((env_name, objective, (name,), 0, episodes))[(env_name, objective, name)]
+            env = gym.make(ENVS[env_name], objective=objective)
+            theirs = evaluate(make_policy(name, env), ENVS[env_name], episodes, seed=0, env=env)
+            for a, b in zip(ours, theirs.episodes, strict=True):
+                assert a is not None and all(a[m] == b.metrics[m] for m in METRICS), (a, b)
+                assert a["success"] == b.success and a["completed"] == (not b.terminated)
+            print(f"check: {env_name} {objective} {name}: {episodes} episodes identical")
+
+
+def _collect(results: dict[tuple[str, str, str], list[dict[str, float] | None]]
+             ) -> dict[tuple[str, str, str], dict[str, np.ndarray]]:
+    """Per (env, objective, policy): metric arrays over the seeds; {} if it ever raised."""
+    out = {}
+    for key, rows in results.items():
+        if any(r is None for r in rows):
+            out[key] = {}
+            continue
+        out[key] = {m: np.array([r[m] for r in rows]) for m in rows[0]}
+        out[key]["singular_steps"] = np.array([np.sum(out[key]["singular_steps"])])
+    return out
 
 
 def singular_path(out: Path) -> dict[str, float]:
@@ -150,6 +218,76 @@ def singular_path(out: Path) -> dict[str, float]:
     return peaks
 
 
+def _increase(r: dict[str, np.ndarray], plain: dict[str, np.ndarray]) -> str:
+    """'+x % (median per seed, higher on k/n seeds, lower on j)' of min manipulability."""
+    ratio = r["min_manipulability"] / plain["min_manipulability"]
+    inc = 100 * (np.mean(r["min_manipulability"]) / np.mean(plain["min_manipulability"]) - 1)
+    return (f"**{inc:+.1f} %** (median per seed {100 * (np.median(ratio) - 1):+.1f} %, higher "
+            f"on {int(np.sum(ratio > 1.001))}/{ratio.size} seeds, lower on "
+            f"{int(np.sum(ratio < 0.999))}); RMS task error {np.mean(r['rms_task_error']):.2e} m")
+
+
+def summary(e: str, results: dict[tuple[str, str, str], dict[str, np.ndarray]]) -> list[str]:
+    """The bullet points of one environment."""
+    lines = []
+    plain = results[(e, "manipulability", "clik")]
+    if plain:
+        lines.append(
+            f"- manipulability (the start is, by construction, the posture whose "
+            f"minimum-norm lap is least manipulable: plain CLIK is poor there by design): "
+            f"clik's RMS task error {np.mean(plain['rms_task_error']):.2e} m; the mean minimum "
+            f"manipulability against clik's:")
+        for label, what in ((TEXTBOOK, "the textbook law, q̇₀ = k₀ ∇w"),
+                            (NO_SEARCH, "∇ ln w, barrier, scaling, saturation"),
+                            ("clik_nullspace", "the same plus the self-motion search")):
+            r = results[(e, "manipulability", label)]
+            lines.append(f"  - {label} ({what}): " + (_increase(r, plain) if r else
+                                                       "raised SingularJacobian"))
+    plain = results[(e, "obstacle", "clik")]
+    if plain:
+        hit = plain["min_clearance"] < 0
+        lines.append(
+            f"- obstacle (placed, by construction, on the sweep of the minimum-norm motion, so "
+            f"clik collides in {int(hit.sum())}/{hit.size} episodes by design; every obstacle "
+            f"comes with a clearing motion, \"{ORACLE}\" plays it back): kept a positive "
+            f"clearance over the whole lap in the episodes where clik collides:")
+        for label in (TEXTBOOK, "clik_nullspace"):
+            r = results[(e, "obstacle", label)]
+            if r:
+                kept = int(np.sum(hit & (r["min_clearance"] > 0)))
+                lines.append(f"  - {label}: **{kept}**/{int(hit.sum())} (median min clearance "
+                             f"{np.median(r['min_clearance']):.4f} m, success "
+                             f"{100 * np.mean(r['success']):.0f} %)")
+    return lines
+
+
+def table(e: str, results: dict[tuple[str, str, str], dict[str, np.ndarray]]) -> list[str]:
+    """The per-controller table of one environment."""
+    lines = ["| objective | controller | success | RMS task error (m): mean / worst | "
+             "min manipulability | limit hits | collisions | median min clearance (m) | "
+             "joint drift (rad), completed laps | algorithmic-singular steps |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for (env_name, objective, name), r in results.items():
+        if env_name != e:
+            continue
+        if not r:
+            lines.append(f"| {objective} | {name} | raised SingularJacobian | | | | | | | |")
+            continue
+        hits = int(np.sum(r["min_joint_limit_margin"] <= 0))
+        collisions = int(np.sum(r["min_clearance"] < 0))
+        clearance = f"{np.median(r['min_clearance']):.4f}" if objective == "obstacle" else "–"
+        done = r["completed"] > 0
+        drift = (f"{np.mean(r['joint_drift'][done]):.3f} ({int(done.sum())})" if done.any()
+                 else "– (0)")
+        singular = f"{int(r['singular_steps'][0])}" if name == "clik_augmented" else "–"
+        lines.append(
+            f"| {objective} | {name} | {100 * np.mean(r['success']):.0f} % | "
+            f"{np.mean(r['rms_task_error']):.2e} / {np.max(r['rms_task_error']):.2e} | "
+            f"{np.mean(r['min_manipulability']):.4f} | {hits} | {collisions} | {clearance} | "
+            f"{drift} | {singular} |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=100)
@@ -157,74 +295,34 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--envs", default="RedundantIK,RedundantIK7",
                         help="comma-separated: RedundantIK, RedundantIK7")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
+    parser.add_argument("--check", action="store_true",
+                        help="only compare the copied-reset episodes with evaluate()'s")
     args = parser.parse_args(argv)
+    if args.check:
+        check()
+        return
     args.out.mkdir(parents=True, exist_ok=True)
     envs = [e for e in args.envs.split(",") if e]
-    jobs = [(e, "manipulability", c, args.episodes) for e in envs for c in ALL]
-    jobs += [(e, "manipulability", GRADIENT_ONLY, args.episodes) for e in envs]
-    jobs += [(e, "joint_limits", c, args.episodes) for e in envs for c in ALL]
-    jobs += [(e, "obstacle", c, args.episodes) for e in envs
-             for c in ("clik", "clik_dls", "clik_nullspace", ORACLE)]
+    groups = [(e, "manipulability", (*ALL, NO_SEARCH)) for e in envs]
+    groups += [(e, "joint_limits", ALL) for e in envs]
+    groups += [(e, "obstacle", OBSTACLE_POLICIES) for e in envs]
+    jobs = [(e, objective, names, first, min(CHUNK, args.episodes - first))
+            for e, objective, names in groups for first in range(0, args.episodes, CHUNK)]
+    raw: dict[tuple[str, str, str], list[dict[str, float] | None]] = {}
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        results = dict(pool.map(run, jobs))
+        for part in pool.map(run, jobs):  # in job order: seeds ascending per key
+            for key, rows in part.items():
+                raw.setdefault(key, []).extend(rows)
+    results = _collect(raw)
 
     lines = [f"# Redundancy measurements ({args.episodes} seeds, 0..{args.episodes - 1})", "",
              "Generated by `python scripts/eval_redundancy.py`. RMS task error: mean and worst "
-             "episode; a terminated episode is scored over the whole lap. Limit hits / "
-             "collisions: episodes ending at a joint limit / on the obstacle. Joint drift: "
-             "‖q(T) − q(0)‖ over the completed laps only.", ""]
+             "episode; a terminated episode is scored over the whole lap against the reference "
+             "the stopped arm no longer follows. Limit hits / collisions: episodes ending at a "
+             "joint limit / on the obstacle. Joint drift: ‖q(T) − q(0)‖ over the completed "
+             "laps only.", ""]
     for e in envs:
-        lines += [f"## {ENVS[e]}", ""]
-        plain = results[(e, "manipulability", "clik")]
-        ns = results[(e, "manipulability", "clik_nullspace")]
-        if plain and ns:
-            for label, r in (("clik_nullspace", ns),
-                             (GRADIENT_ONLY, results[(e, "manipulability", GRADIENT_ONLY)])):
-                ratio = r["min_manipulability"] / plain["min_manipulability"]
-                inc = 100 * (np.mean(r["min_manipulability"])
-                             / np.mean(plain["min_manipulability"]) - 1)
-                lines.append(
-                    f"- manipulability: {label} raises the mean minimum manipulability by "
-                    f"**{inc:.1f} %** (median per seed {100 * (np.median(ratio) - 1):.1f} %, "
-                    f"higher on {int(np.sum(ratio > 1.001))}/{ratio.size} seeds, lower on "
-                    f"{int(np.sum(ratio < 0.999))}); RMS task error "
-                    f"{np.mean(plain['rms_task_error']):.2e} m (clik) vs "
-                    f"{np.mean(r['rms_task_error']):.2e} m.")
-        plain, ns = results[(e, "obstacle", "clik")], results[(e, "obstacle", "clik_nullspace")]
-        if plain and ns:
-            hit = plain["min_clearance"] < 0
-            kept = int(np.sum(hit & (ns["min_clearance"] > 0)))
-            lines.append(
-                f"- obstacle: clik collides in {int(hit.sum())}/{hit.size} episodes; "
-                f"clik_nullspace keeps a positive clearance over the whole lap in **{kept}** of "
-                f"them (median min clearance {np.median(ns['min_clearance']):.4f} m). Every "
-                f"episode has a clearing motion (the env places only such obstacles); "
-                f"\"{ORACLE}\" plays it back.")
-        lines.append("")
-        lines += ["| objective | controller | success | RMS task error (m): mean / worst | "
-                  "min manipulability | limit hits | collisions | median min clearance (m) | "
-                  "joint drift (rad), completed laps | algorithmic-singular steps |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
-        for (env_name, objective, name), r in results.items():
-            if env_name != e:
-                continue
-            if not r:
-                lines.append(f"| {objective} | {name} | raised SingularJacobian | | | | | | | |")
-                continue
-            hits = int(np.sum(r["min_joint_limit_margin"] <= 0))
-            collisions = int(np.sum(r["min_clearance"] < 0))
-            clearance = (f"{np.median(r['min_clearance']):.4f}" if objective == "obstacle"
-                         else "–")
-            done = r["completed"] > 0
-            drift = (f"{np.mean(r['joint_drift'][done]):.3f} ({int(done.sum())})" if done.any()
-                     else "– (0)")
-            singular = f"{int(r['singular_steps'][0])}" if name == "clik_augmented" else "–"
-            lines.append(
-                f"| {objective} | {name} | {100 * np.mean(r['success']):.0f} % | "
-                f"{np.mean(r['rms_task_error']):.2e} / {np.max(r['rms_task_error']):.2e} | "
-                f"{np.mean(r['min_manipulability']):.4f} | {hits} | {collisions} | {clearance} | "
-                f"{drift} | {singular} |")
-        lines.append("")
+        lines += [f"## {ENVS[e]}", "", *summary(e, results), "", *table(e, results), ""]
     if "RedundantIK" in envs:
         peaks = singular_path(args.out)
         lines += ["## Near-singular path (planar3r: reference to 1 mm beyond full reach and back)",

@@ -70,7 +70,7 @@ _KINEMATIC = ("kinematic env: q ← q + Δt q̇ with q̇ clipped to the velocity
               "info['diverged'] is False by construction")
 NEVER_DIVERGES: dict[str, str] = {
     "cir_gym/RedundantIK-v3": _KINEMATIC,
-    "cir_gym/RedundantIK7-v3": _KINEMATIC,
+    "cir_gym/RedundantIK7-v4": _KINEMATIC,
 }
 
 

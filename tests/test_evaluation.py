@@ -10,7 +10,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import baselines
-from cir_gym.evaluation import evaluate
+from cir_gym.evaluation import EpisodeResult, EvaluationResult, evaluate, rank
 from cir_gym.metrics import MetricSpec, aggregate, cvar
 from scripts.cli import main
 from scripts.leaderboard import run_leaderboard
@@ -151,3 +151,50 @@ def test_a_policy_with_the_wrong_action_shape_is_reported_with_the_expected_shap
 
     with pytest.raises(ValueError, match=r"expects shape \(7,\)"):
         evaluate(Broken(), ENV, 1, 0, **SHORT)
+
+
+# ---------------------------------------------------------------------- ranking
+def _result(name: str, successes: list[bool], errors: list[float], manipulability: list[float]
+            ) -> EvaluationResult:
+    specs = (MetricSpec("rms_task_error", "m", "lower", ""),
+             MetricSpec("min_manipulability", "", "higher", ""))
+    episodes = [EpisodeResult(i, 0.0, 1, s, False, {"rms_task_error": e,
+                                                    "min_manipulability": w})
+                for i, (s, e, w) in enumerate(zip(successes, errors, manipulability,
+                                                  strict=True))]
+    return EvaluationResult("cir_gym/RedundantIK-v3", name, episodes, specs, "rms_task_error")
+
+
+def test_rank_puts_success_first_then_the_primary_metric_in_its_direction():
+    stopped = _result("stopped", [False, False], [1e-6, 1e-6], [0.9, 0.9])  # tiny error, failed
+    good = _result("good", [True, True], [1e-4, 1e-4], [0.2, 0.2])
+    better = _result("better", [True, True], [1e-5, 1e-5], [0.1, 0.1])
+    nan = _result("nan", [True, True], [np.nan, np.nan], [np.nan, np.nan])
+    assert [r.policy_name for r in rank([stopped, nan, good, better])] == [
+        "better", "good", "nan", "stopped"]
+    by_w = [r.ranked_on("min_manipulability") for r in (stopped, good, better)]
+    assert [r.policy_name for r in rank(by_w)] == ["good", "better", "stopped"]  # higher wins
+    with pytest.raises(ValueError, match="not a metric"):
+        good.ranked_on("nope")
+
+
+def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
+    """The old table ranked on the primary metric alone: a controller stopped by a collision
+    (0 % success, small error) came first."""
+    from cir_gym.envs.redundant_ik import RedundantIKEnv
+    from cir_gym.evaluation import variant_primary_metric
+    from scripts.leaderboard import _best, ranked_table, rl_summary
+
+    metric = variant_primary_metric(RedundantIKEnv, "manipulability")
+    rows = [r.ranked_on(metric) for r in (
+        _result("stopped", [False], [1e-6], [0.9]),
+        _result("clik", [True], [1e-5], [0.1]),
+        _result("clik_nullspace", [True], [2e-5], [0.3]))]
+    table = ranked_table(rows).splitlines()
+    assert "min_manipulability" in table[0]
+    assert [line.split("|")[1:3] for line in table[2:]] == [
+        [" 1 ", " clik_nullspace "], [" 2 ", " clik "], [" 3 ", " stopped "]]
+    assert _best(rows).policy_name == "clik_nullspace"
+    assert "| manipulability | `min_manipulability` | clik_nullspace" in rl_summary(
+        {"manipulability": rows})
+    assert variant_primary_metric(RedundantIKEnv, "no such variant") == "rms_task_error"

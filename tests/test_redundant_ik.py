@@ -1,4 +1,4 @@
-"""RedundantIK-v3, RedundantIK7-v3 and the chapter-1 kinematic controllers: theory checks."""
+"""RedundantIK-v3, RedundantIK7-v4 and the chapter-1 kinematic controllers: theory checks."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from cir_gym.envs.redundant_ik import (
 from cir_gym.robot import Robot
 
 ENV = "cir_gym/RedundantIK-v3"
-ENV7 = "cir_gym/RedundantIK7-v3"
+ENV7 = "cir_gym/RedundantIK7-v4"
 CONTROLLERS = {cls.name: cls for cls in kinematic.KINEMATIC_CONTROLLERS}
 
 
@@ -260,12 +260,39 @@ def _stretched_observation(env: gym.Env) -> dict:
     return obs
 
 
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_projected_gradient_is_the_textbook_law(env_id):
+    """clik_projected_gradient: q̇ = J†(x̄̇ + K e) + (I − J†J) k₀ ∇w with ∇w of w = sqrt(det JJᵀ)
+    (finite differences here), nothing else; clik_nullspace ascends ∇ ln w plus its barrier."""
+    env = gym.make(env_id, episode_duration=0.5)
+    obs, _ = env.reset(seed=0)
+    policy = controller("clik_projected_gradient", env)
+    q, n = obs["q"], env.unwrapped.n
+    J = policy.task_jacobian(q)
+    v = policy.reference_velocity(obs) + 50.0 * policy.task_error(obs)
+    qd = policy.control(obs, np.zeros(0))
+    np.testing.assert_allclose(J @ qd, v, atol=1e-9)  # the task, untouched by the null space
+
+    def w(x):
+        return redundancy.manipulability(policy.task_jacobian(x))
+
+    h = 1e-6
+    grad = np.array([(w(q + h * e) - w(q - h * e)) / (2 * h) for e in np.eye(n)])
+    J_pinv = np.linalg.pinv(J)
+    np.testing.assert_allclose(qd - J_pinv @ v, (np.eye(n) - J_pinv @ J) @ (30.0 * grad),
+                               rtol=1e-6, atol=1e-9)
+    enhanced = controller("clik_nullspace", env, search_arc=0.0)
+    np.testing.assert_allclose(enhanced.objective_gradient(obs) - enhanced.limit_barrier(obs),
+                               20.0 * grad / w(q), rtol=1e-6, atol=1e-9)
+
+
 @pytest.mark.parametrize("name", sorted(CONTROLLERS))
 def test_controllers_never_return_nan_at_the_stretched_arm(name):
     env = gym.make(ENV)
     obs = _stretched_observation(env)
     policy = controller(name, env)
-    if name in ("clik", "pseudo_inverse", "clik_weighted", "clik_nullspace"):
+    if name in ("clik", "pseudo_inverse", "clik_weighted", "clik_nullspace",
+                "clik_projected_gradient"):
         with pytest.raises(kinematic.SingularJacobian, match="singular"):
             policy.predict(obs)
         return
@@ -328,7 +355,8 @@ def test_augmented_jacobian_detects_an_algorithmic_singularity_and_stays_finite(
 @pytest.mark.parametrize("env_id", [ENV, ENV7])
 @pytest.mark.parametrize("objective", ["manipulability", "joint_limits", "obstacle"])
 def test_reward_is_the_sum_of_its_terms(env_id, objective):
-    env = gym.make(env_id, objective=objective, episode_duration=0.5)
+    short = {} if objective == "obstacle" else {"episode_duration": 0.5}  # a lap to place it
+    env = gym.make(env_id, objective=objective, **short)
     env.reset(seed=1)
     rng = np.random.default_rng(0)
     for _ in range(env.unwrapped.max_steps):
@@ -365,21 +393,76 @@ def test_joint_limit_is_hard_and_terminates():
     assert np.all(base._q <= base.upper) and np.any(base._q == base.upper)
 
 
-def test_terminated_episode_is_scored_over_the_whole_lap():
-    env = gym.make(ENV, objective="joint_limits")
-    env.reset(seed=0)
-    base = env.unwrapped
-    errors = []
-    for _ in range(base.max_steps):
-        _, _, terminated, _, info = env.step(np.ones(3))
-        errors.append(info["task_error"])
-        if terminated:
-            break
-    k = len(errors)
+@pytest.mark.parametrize(("env_id", "seed"), [(ENV, 2), (ENV7, 10)])
+def test_terminated_episode_is_scored_against_the_reference_it_no_longer_follows(env_id, seed):
+    """clik runs the narrowed joint into its limit on these seeds while tracking to < 0.1 mm;
+    the arm then stays at (p, R) while x̄(t), R̄(t) move on, and the metrics are those of the
+    whole lap with that error (v3 held the last error: the stopped arm scored as tracking)."""
+    env = gym.make(env_id, objective="joint_limits")
+    steps = rollout(controller("clik", env), env, seed)
+    base, info = env.unwrapped, steps[-1][2]
+    errors = [step[2]["task_error"] for step in steps]
+    rotations = [step[2].get("orientation_error", 0.0) for step in steps]
+    k, terminated = len(errors), info["joint_limit_violation"]
     assert terminated and k < base.max_steps and info["reward_termination"] == -50.0
     assert not info["is_success"]
-    e = np.array(errors + [errors[-1]] * (base.max_steps - k))  # the stopped arm's error held
-    assert info["episode_metrics"]["rms_task_error"] == pytest.approx(np.sqrt(np.mean(e**2)))
+    p, R = base._forward(base._q)  # the stopped arm
+    later = range(k + 1, base.max_steps + 1)  # the references it would have followed
+    e = np.array(errors + [np.linalg.norm(base._x_ref[j] - p) for j in later])
+    metrics = info["episode_metrics"]
+    assert metrics["rms_task_error"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+    assert metrics["max_task_error"] == pytest.approx(np.max(e), rel=1e-12)
+    assert errors[-1] < 1e-4 < 0.01 < metrics["max_task_error"]  # the reference moved on
+    if base.task_dim == 6:
+        r = np.array(rotations + [np.linalg.norm(redundancy.orientation_error(base._R_ref[j], R))
+                                  for j in later])
+        assert metrics["rms_orientation_error"] == pytest.approx(np.sqrt(np.mean(r**2)),
+                                                                 rel=1e-12)
+    assert metrics["min_joint_limit_margin"] == 0.0  # the stopped arm sits on its limit
+
+
+def test_an_obstacle_episode_never_starts_without_an_obstacle(monkeypatch):
+    """v3 went on without an obstacle when no draw could be placed (e.g. on short laps, where
+    the links cannot sweep past one); now reset raises, naming episode_duration."""
+    env = RedundantIKEnv(objective="obstacle", episode_duration=0.5)
+    no_obstacle = np.array([env_module.DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
+    monkeypatch.setattr(env, "_draw_obstacle", lambda q0: no_obstacle.copy())
+    with pytest.raises(InvalidArgument, match=r"no clearable obstacle.*episode_duration=0.5 s"):
+        env.reset(seed=0)
+
+
+@pytest.mark.parametrize("seed", [4, 6])
+def test_iiwa_quaternions_share_one_continuous_hemisphere(seed):
+    """quat and quat_ref both take the sign with ⟨Q, Q_home⟩ ≥ 0: along a tracked lap each is
+    continuous and they agree. On these seeds R̄(t) crosses w = 0 (the tool points down,
+    166° from the world frame), where v3's w ≥ 0 on quat_ref flipped it mid-episode."""
+    env = gym.make(ENV7)
+    policy = controller("clik", env)
+    obs, _ = env.reset(seed=seed)
+    quats, refs = [obs["quat"]], [obs["quat_ref"]]
+    for _obs, _, _ in rollout(policy, env, seed):
+        quats.append(_obs["quat"])
+        refs.append(_obs["quat_ref"])
+    Q, Q_ref = np.array(quats), np.array(refs)
+    home = env.unwrapped._quat_home
+    assert np.min(Q_ref[:, 0]) < 0 < np.max(Q_ref[:, 0])  # w changes sign along the lap
+    for q in (Q, Q_ref):
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+        assert np.all(q @ home >= 0)
+        assert np.min(np.sum(q[1:] * q[:-1], axis=1)) > 0.99  # no sign flip between steps
+    assert np.min(np.sum(Q * Q_ref, axis=1)) > 0.999  # tracked: the same quaternion, same sign
+
+
+def test_each_variant_is_ranked_on_its_own_objective():
+    from cir_gym.evaluation import variant_primary_metric
+
+    for cls in (RedundantIKEnv, RedundantIK7Env):
+        names = {s.name for s in cls.metric_specs}
+        assert set(cls.leaderboard_primary_metrics) == set(cls.leaderboard_variants)
+        assert set(cls.leaderboard_primary_metrics.values()) <= names
+        assert variant_primary_metric(cls, "manipulability") == "min_manipulability"
+        assert variant_primary_metric(cls, "obstacle") == "min_clearance"
+        assert variant_primary_metric(cls, "joint limits") == "min_joint_limit_margin"
 
 
 @pytest.mark.parametrize("env_id", [ENV, ENV7])

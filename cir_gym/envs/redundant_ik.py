@@ -23,6 +23,7 @@ from gymnasium import spaces
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
 from cir_gym.metrics import MetricSpec
+from cir_gym.operational_space import align_quat
 from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,
@@ -105,6 +106,12 @@ class _RedundantIKBase(RobotEnv):
         "joint limits": {"objective": "joint_limits"},
     }
     primary_metric: ClassVar[str] = "rms_task_error"
+    #: what each variant is ranked on after the success rate: its own objective's metric
+    leaderboard_primary_metrics: ClassVar[dict[str, str]] = {
+        "manipulability": "min_manipulability",
+        "obstacle": "min_clearance",
+        "joint limits": "min_joint_limit_margin",
+    }
 
     def _setup(
         self,
@@ -161,6 +168,8 @@ class _RedundantIKBase(RobotEnv):
         self._obstacle_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "obstacle")
         self.capsules = LinkCapsules(model)
         self.home = model.key("home").qpos[self.robot.qpos_adr].copy()
+        # quaternions are observed on the hemisphere ⟨Q, Q_home⟩ ≥ 0 of the home orientation
+        self._quat_home = traj.quat_from_matrix(self._forward(self.home)[1])
 
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         p = self.pos_dim
@@ -473,6 +482,13 @@ class _RedundantIKBase(RobotEnv):
             if box[-1] > 0:
                 self._set_obstacle(box)
                 break
+        else:  # only "obstacle" gets here (v3 went on without an obstacle)
+            raise InvalidArgument(
+                f"objective='obstacle': no clearable obstacle on {OBSTACLE_PATH_TRIES} paths of "
+                f"30 draws each with episode_duration={self.max_steps * self.dt:g} s: the links "
+                f"must sweep 3 cm past an obstacle that a self-motion can also avoid, which a "
+                f"short lap does not allow (the default duration placed one on every seed "
+                f"tested, 0-99); use a longer episode_duration")
         if self.objective == "manipulability":
             q0 = self._poorly_conditioned_start(q0)
         if self.initial_error > 0:
@@ -540,9 +556,8 @@ class _RedundantIKBase(RobotEnv):
         }
         if self.task_dim == 6:
             info["orientation_error"] = e_rot
-        if terminated:  # scored over the whole lap: the stopped arm's last values held
-            self._trace[:, k + 1 :] = self._trace[:, k : k + 1]
-            self._k_scored = self.max_steps
+        if terminated:  # scored over the whole lap: the arm stays where it stopped
+            self._score_stopped_arm(k, np.array(p), np.array(R))
         if self._done:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
@@ -551,6 +566,21 @@ class _RedundantIKBase(RobotEnv):
                 ok = ok and metrics["max_orientation_error"] < 10.0 * self.success_threshold
             info["is_success"] = bool(not terminated and ok)
         return self._obs(), reward, terminated, truncated, info
+
+    def _score_stopped_arm(self, k: int, p: np.ndarray, R: np.ndarray) -> None:
+        """Fill the trace after control step ``k`` as if the arm stayed at the pose (p, R) where
+        the episode terminated: its error against the reference it no longer follows (which
+        moves on to the end of the lap); manipulability, joint-limit margin and clearance of
+        the stopped arm, unchanged. v3 held the last error instead, so an arm stopped by a
+        collision or a joint limit scored its last (small) tracking error for the whole lap.
+        """
+        later = np.arange(k + 1, self.max_steps)
+        self._trace[:, later] = self._trace[:, k : k + 1]
+        self._trace[0, later] = np.linalg.norm(self._x_ref[later + 1] - p, axis=1)
+        if self.task_dim == 6:
+            self._trace[1, later] = [np.linalg.norm(orientation_error(self._R_ref[j + 1], R))
+                                     for j in later]
+        self._k_scored = self.max_steps
 
     def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
         """The base class's check, plus: strings or objects are not actions (even "0.1")."""
@@ -610,9 +640,8 @@ class _RedundantIKBase(RobotEnv):
         p, R = self._forward(self._q)
         raw = {"q": self._q, "x": p, "x_ref": self._x_ref[k], "xd_ref": self._xd_ref[k]}
         if self.task_dim == 6:
-            quat = np.empty(4)
-            mujoco.mju_mat2Quat(quat, R.ravel())
-            raw |= {"quat": quat, "quat_ref": self._quat_ref[k],
+            raw |= {"quat": align_quat(traj.quat_from_matrix(R), self._quat_home),
+                    "quat_ref": self._quat_ref[k],
                     "omega_ref": self._omega_ref[k]}
         raw |= {"q_lower": self.lower, "q_upper": self.upper, "obstacle": self._obstacle}
         return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key])
@@ -714,8 +743,12 @@ class RedundantIKEnv(_RedundantIKBase):
     minimum-norm (pseudo-inverse CLIK) motion, at least radius + 8 cm away from the path and
     3 cm away from the arm at q(0), and only if a motion along the self-motion clears it by
     5 mm over the whole lap within the joint and velocity limits (``clearing_motion()`` returns
-    that motion); a new path is drawn until such an obstacle exists (every "obstacle" episode
-    has one).
+    that motion); a new path is drawn until such an obstacle exists, so every "obstacle"
+    episode has one: after 20 paths ``reset`` raises ``InvalidArgument`` naming
+    ``episode_duration`` (a lap too short for the links to sweep past an obstacle, e.g.
+    0.5 s; the default placed one on every seed tested). The placement is why plain CLIK
+    collides in every "obstacle" episode, and the "manipulability" start why it is poorly
+    manipulable: by construction of the variants.
 
     ## Episode End
     Truncated after ``episode_duration`` s (one lap). Terminated when a step would cross a
@@ -748,20 +781,27 @@ class RedundantIKEnv(_RedundantIKBase):
     and a controller may reconfigure the arm, is excluded), ``min_joint_limit_margin`` (rad, higher is better), ``min_clearance`` (m,
     higher is better; about 14 m to the far-away dummy obstacle of the other objectives),
     ``joint_drift`` (‖q(T) − q(0)‖ after the closed path, rad). A terminated episode is scored
-    over the whole lap with the stopped arm's last values held (the reference moves on, so
-    this under-states its error). Success: no termination and
-    ``max_task_error`` < ``success_threshold``.
+    over the whole lap as if the arm stayed where it stopped: its error against the reference
+    it no longer follows, its manipulability, margin and clearance unchanged. Success: no
+    termination and ``max_task_error`` < ``success_threshold``. The leaderboard ranks each
+    variant by success rate, then by the metric of its own objective
+    (``leaderboard_primary_metrics``): ``min_manipulability`` ("manipulability"),
+    ``min_clearance`` ("obstacle"), ``min_joint_limit_margin`` ("joint limits").
 
     ## Reference controllers
     ``baselines.available("cir_gym/RedundantIK-v3")``: jacobian_transpose, pseudo_inverse,
-    clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
+    clik, clik_dls, clik_weighted, clik_projected_gradient, clik_nullspace, clik_augmented.
 
     ## Version History
     - v3: an "obstacle" is kept only if a motion along the self-motion clears it over the
       whole lap within the joint and velocity limits (:meth:`clearing_motion`); v2 checked one
       instant: 15 of the 21 planar and 13 of the 16 iiwa episodes (of 100) that
       clik_nullspace collided in had no such motion. "manipulability" and "joint_limits"
-      episodes are identical to v2's.
+      episodes are identical to v2's. Later, without a new version (observations, rewards and
+      episodes unchanged): a terminated episode's metrics score the stopped arm against the
+      moving reference (they held its last error, so a collision scored as good tracking);
+      ``reset`` raises ``RuntimeError`` where it would have left an "obstacle" episode
+      without an obstacle (never on the seeds tested).
     - v2: the "manipulability" start is the self-motion posture (≥ 0.3 rad from the limits)
       whose minimum-norm lap, inside the joint limits, is least manipulable (v1's least
       manipulable posture at t = 0 was, on the iiwa, a stationary point of w along the
@@ -869,12 +909,17 @@ class RedundantIK7Env(_RedundantIKBase):
     | x | (3,) | tcp position | ±3 | m |
     | x_ref | (3,) | reference position x̄(t) | ±3 | m |
     | xd_ref | (3,) | reference velocity | ±10 | m/s |
-    | quat | (4,) | tcp orientation (w, x, y, z), w ≥ 0 | ±1 | |
-    | quat_ref | (4,) | reference orientation (w, x, y, z) | ±1 | |
+    | quat | (4,) | tcp orientation (w, x, y, z), on the home hemisphere (below) | ±1 | |
+    | quat_ref | (4,) | reference orientation (w, x, y, z), on the home hemisphere | ±1 | |
     | omega_ref | (3,) | reference angular velocity (world frame) | ±20 | rad/s |
     | q_lower | (7,) | this episode's lower joint limits | ±2π | rad |
     | q_upper | (7,) | this episode's upper joint limits | ±2π | rad |
     | obstacle | (4,) | sphere centre and radius; (10, 10, 10, 0) when there is none | ±20 | m |
+
+    Both quaternions take the sign with ⟨Q, Q_home⟩ ≥ 0, Q_home the tcp orientation at the
+    home keyframe ((0.12, 0, 0.99, 0): the tool points down, 166° from the world frame), so
+    both are continuous while the orientation stays within π of home (the reference stays
+    within 0.3 rad of it); w may be negative.
 
     ## Rewards
     As ``RedundantIK-v3``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
@@ -912,13 +957,19 @@ class RedundantIK7Env(_RedundantIKBase):
     10 ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK7-v3")``: jacobian_transpose, pseudo_inverse,
-    clik, clik_dls, clik_weighted, clik_nullspace, clik_augmented.
+    ``baselines.available("cir_gym/RedundantIK7-v4")``: jacobian_transpose, pseudo_inverse,
+    clik, clik_dls, clik_weighted, clik_projected_gradient, clik_nullspace, clik_augmented.
 
     ## Version History
-    As ``RedundantIK-v3`` (v3: obstacles clearable over the whole lap; v2: the
-    "manipulability" start; v1: obstacles, joint windows, termination penalty; v0: initial
-    version).
+    - v4: ``quat`` and ``quat_ref`` on one continuous hemisphere, ⟨Q, Q_home⟩ ≥ 0. v3 forced
+      w ≥ 0 on ``quat_ref``, which flipped sign mid-episode wherever w crossed 0 (3 of the
+      first 40 "manipulability" episodes), while ``quat`` (MuJoCo's ``mju_mat2Quat``,
+      documented w ≥ 0) kept the sign of its largest component and so did not follow it.
+      Terminated episodes scored against the moving reference and no episode without an
+      obstacle, as ``RedundantIK-v3``'s later note. Otherwise as v3.
+    - v0–v3: as ``RedundantIK-v3`` (v3: obstacles clearable over the whole lap; v2: the
+      "manipulability" start; v1: obstacles, joint windows, termination penalty; v0: initial
+      version).
     """
 
     robot_name: ClassVar[str] = "iiwa14"
@@ -987,7 +1038,8 @@ class RedundantIK7Env(_RedundantIKBase):
         sigma, sigma_d = s / timing.length, sd / timing.length
         self._R_ref[:] = traj.matrix_from_axis_angle(axis, alpha * np.sin(2 * np.pi * sigma)) \
             @ R_home
-        self._quat_ref[:] = traj.quat_from_matrix(self._R_ref)
+        # the hemisphere of the home orientation (continuous: R̄ stays within 0.3 rad of it)
+        self._quat_ref[:] = align_quat(traj.quat_from_matrix(self._R_ref), self._quat_home)
         rate = alpha * 2 * np.pi * np.cos(2 * np.pi * sigma) * sigma_d
         self._omega_ref[:] = rate[:, None] * axis
 
@@ -998,7 +1050,7 @@ REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
         "objective (ch. 1)",
     ),
-    "cir_gym/RedundantIK7-v3": (
+    "cir_gym/RedundantIK7-v4": (
         RedundantIK7Env,
         "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
     ),
