@@ -790,7 +790,7 @@ class RedundantIKEnv(_RedundantIKBase):
 
     ## Reference controllers
     ``baselines.available("cir_gym/RedundantIK-v3")``: jacobian_transpose, pseudo_inverse,
-    clik, clik_dls, clik_weighted, clik_projected_gradient, clik_nullspace, clik_augmented.
+    clik, clik_dls, clik_weighted, clik_nullspace, clik_projected_gradient, clik_augmented.
 
     ## Version History
     - v3: an "obstacle" is kept only if a motion along the self-motion clears it over the
@@ -958,7 +958,7 @@ class RedundantIK7Env(_RedundantIKBase):
 
     ## Reference controllers
     ``baselines.available("cir_gym/RedundantIK7-v4")``: jacobian_transpose, pseudo_inverse,
-    clik, clik_dls, clik_weighted, clik_projected_gradient, clik_nullspace, clik_augmented.
+    clik, clik_dls, clik_weighted, clik_nullspace, clik_projected_gradient, clik_augmented.
 
     ## Version History
     - v4: ``quat`` and ``quat_ref`` on one continuous hemisphere, ⟨Q, Q_home⟩ ≥ 0. v3 forced
