@@ -48,16 +48,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import mujoco
 import numpy as np
 
 from baselines.base import Controller, InvalidGain
-from cir_gym import trajectories as traj
 from cir_gym.envs.base import TaskContext
 from cir_gym.ft_sensor import contact_wrench
 from cir_gym.operational_space import (
     dynamically_consistent_inverse,
     null_space_projector,
-    rotvec_error,
     task_inertia,
 )
 from cir_gym.robot import ModelError, Robot, apply_model_error
@@ -75,18 +74,38 @@ __all__ = [
 
 #: Orientation of the tip frame in the hole frame when the peg is aligned with the bore.
 ALIGNED = np.diag([-1.0, 1.0, -1.0])
-ALIGNED_QUAT = traj.quat_from_matrix(ALIGNED)
 
 
-def selection_matrix(search: bool = False) -> np.ndarray:
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector θ r (3,) of a rotation matrix, θ ∈ [0, π] (MuJoCo's C routines: the
+    shorter rotation, as :func:`cir_gym.operational_space.rotvec_from_quat`, ~20× cheaper)."""
+    quat, phi = np.empty(4), np.empty(3)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    mujoco.mju_quat2Vel(phi, quat, 1.0)
+    return phi
+
+
+def _matrix(quat: np.ndarray) -> np.ndarray:
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
+    return R.reshape(3, 3)
+
+
+def selection_matrix(search: bool = False, face: bool = False) -> np.ndarray:
     """Σ (6, 6): 1 on the force-controlled directions of the hole frame (see the module doc).
 
     ``search=False``: insertion, Σ = diag(1, 1, 0, 1, 1, 0) (zero lateral force and tilting
     moment, motion along and about the axis). ``search=True``: spiral search on the block's
     face, Σ = diag(0, 0, 1, 0, 0, 0): the face is the constraint now (natural: v_z = 0), so
     press along the axis and move in the plane, holding the peg square to the face.
+    ``face=True``: above the bore and on the face, Σ = diag(1, 1, 0, 0, 0, 0): the peg is held
+    square to the nominal face (a free tilt there tips the peg over the hole's edge).
     """
-    return np.diag([0.0, 0.0, 1.0, 0.0, 0.0, 0.0] if search else [1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
+    if search:
+        return np.diag([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    if face:
+        return np.diag([1.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    return np.diag([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
 
 
 def _check_positive(owner: str, **values: float) -> None:
@@ -141,7 +160,7 @@ class _TipController(Controller):
 
     @staticmethod
     def hole_frame(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        return obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
+        return obs["hole_pos"], _matrix(obs["hole_quat"])
 
     def measured_wrench_at_tip(self, obs: dict[str, np.ndarray], q: np.ndarray,
                                p_tip: np.ndarray) -> np.ndarray:
@@ -163,6 +182,7 @@ class HybridForcePositionGains:
         k_f: force feedback gain K_F on the force-controlled directions (dimensionless).
         d_f: damping of the lateral force-controlled directions (N s/m).
         d_f_rot: damping of the tilting directions (N m s/rad).
+        contact_force: axial push (N) above which the peg is on the block.
         k_tilt: weak rotational stiffness toward the nominal axis in the moment-controlled
             directions (N m/rad): a compliance centre at the tip, so that the peg does not
             wander in free space, weak enough that the bore's walls tilt it (2° ≈ 0.2 N m).
@@ -179,7 +199,8 @@ class HybridForcePositionGains:
     k_f: float = 1.0
     d_f: float = 150.0
     d_f_rot: float = 2.0
-    k_tilt: float = 5.0
+    contact_force: float = 2.0
+    k_tilt: float = 0.5
     speed: float = 0.01
     guard_speed: float = 0.002
     guard_height: float = 0.0015
@@ -219,7 +240,7 @@ class HybridForcePosition(_TipController):
         Lambda = R6.T @ Lambda_world @ R6
         x = R_h.T @ (p_tip - p_h)
         R_rel = R_h.T @ R_tip
-        phi = rotvec_error(ALIGNED_QUAT, traj.quat_from_matrix(R_rel))  # hole frame
+        phi = _rotvec(ALIGNED @ R_rel.T)  # log(R̄ Rᵀ) in the hole frame, R̄ = ALIGNED
         return {
             "q": q, "qd": qd, "R_h": R_h, "J": J, "x": x, "phi": phi, "Lambda": Lambda,
             "Lambda_world": Lambda_world,
@@ -233,7 +254,8 @@ class HybridForcePosition(_TipController):
         g = self.gains
         w = g.omega_n if omega_n is None else omega_n
         v = f["v"]
-        h_force = gamma_ref + g.k_f * (gamma_ref - f["gamma"])
+        gamma = f["gamma"]
+        h_force = gamma_ref + g.k_f * (gamma_ref - gamma)
         h_force[:3] -= g.d_f * v[:3]
         h_force[3:] -= g.d_f_rot * v[3:]
         h_force[3:] += g.k_tilt * f["phi"]  # a weak spring toward the nominal axis (compliance)
@@ -261,7 +283,8 @@ class HybridForcePosition(_TipController):
         state[0] += self.dt
         self.advance_reference(state, float(f["x"][2]))
         x_ref = np.array([f["x"][0], f["x"][1], state[1]])
-        h = self.hybrid_wrench(f, x_ref, selection_matrix(), np.zeros(6))
+        in_bore = f["x"][2] < -self.gains.guard_height
+        h = self.hybrid_wrench(f, x_ref, selection_matrix(face=not in_bore), np.zeros(6))
         return self.torque(f, h)
 
 
@@ -270,7 +293,6 @@ class HybridSpiralGains(HybridForcePositionGains):
     """Gains of :class:`HybridSpiral`: those of hybrid_force_position, plus
 
     Attributes:
-        contact_force: axial push (N) above which the peg is on the block.
         drop: drop below the contact height (m) that means the hole is found.
         search_force: axial push during the search (N).
         pitch: spiral pitch (m, distance between turns).
@@ -279,11 +301,10 @@ class HybridSpiralGains(HybridForcePositionGains):
             (rad/s): stiff enough that the tip slides across the face against friction.
     """
 
-    contact_force: float = 4.0
     drop: float = 0.0005
-    search_force: float = 6.0
+    search_force: float = 4.0
     pitch: float = 0.0005
-    search_speed: float = 0.01
+    search_speed: float = 0.005
     omega_search: float = 80.0
 
 
@@ -328,6 +349,9 @@ class HybridSpiral(HybridForcePosition):
             h = self.hybrid_wrench(f, x_ref, selection_matrix(True),
                                    np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0]),
                                    g.omega_search)
+            # the axial push is feed-forward plus damping: force feedback against the stiff
+            # face (11 kg of task inertia on a 1 ms contact, a delayed sensor) makes it bounce
+            h[2] = -g.search_force - g.d_f * f["v"][2]
             return self.torque(f, h)
         self.advance_reference(state, float(x[2]))
         x_ref = np.array([x[0], x[1], state[1]])
@@ -383,7 +407,7 @@ class PositionOnly(_TipController):
         state[0] = max(state[0] - g.speed * self.dt, goal)
         x_ref = p_h + R_h @ np.array([0.0, 0.0, state[0]])
         R_ref = R_h @ ALIGNED
-        phi = rotvec_error(traj.quat_from_matrix(R_ref), traj.quat_from_matrix(R_tip))
+        phi = _rotvec(R_ref @ R_tip.T)
         twist = J @ qd
         h = np.concatenate((g.k_p * (x_ref - p_tip) - g.k_d * twist[:3],
                             g.k_p_rot * phi - g.k_d_rot * twist[3:]))

@@ -36,6 +36,11 @@ Physics settings (the numbers are the module constants below; why each one):
   (a few iterations usually) for stiff contacts.
 * ``MARGIN`` = 0: a margin at or above the radial gap makes the walls push on a peg that does
   not touch them (artificial jamming). With margin 0 a contact exists only at penetration.
+* ``NATIVE_CCD`` = False: cylinder–box pairs go through MuJoCo's general convex collision;
+  its native (default) GJK/EPA gave, for a peg's flat end sliding across the top edge of a
+  wall box, a second contact with the normal reversed (+z, the box "above" the peg) at the
+  same point, ~100 N pairs that cancel in the net force but not in the friction they bring
+  (stick-slip, 100 N spikes); libccd's MPR gives consistent normals there.
 * ``FRICTION`` = 0.3 (steel on steel, lubricated to dry ≈ 0.15–0.6): the friction coefficient
   in the notes' jamming and wedging conditions (Whitney 1982).
 """
@@ -77,6 +82,7 @@ SOLVER = mujoco.mjtSolver.mjSOL_NEWTON
 ITERATIONS = 50
 TOLERANCE = 1e-10
 MARGIN = 0.0
+NATIVE_CCD = False
 FRICTION = 0.3
 
 PEG_CONTYPE = 2
@@ -186,6 +192,8 @@ def build_peg_in_hole(
     opt.solver = SOLVER
     opt.iterations = ITERATIONS
     opt.tolerance = TOLERANCE
+    if not NATIVE_CCD:
+        opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
 
     holder = spec.body("payload")
     # the robot file compiles with inertiafromgeom="false": the peg's inertial is explicit
@@ -217,6 +225,13 @@ def build_peg_in_hole(
     quat = np.array([1.0, 0.0, 0.0, 0.0] if hole_quat is None else hole_quat, dtype=float)
     block = spec.worldbody.add_body(name="block", pos=pos.tolist(), quat=quat.tolist())
     block.add_site(name="hole", pos=[0.0, 0.0, 0.0])
+    spec.worldbody.add_camera(  # a close-up of the hole for render(): 14 cm away, from above
+        name="hole_cam",
+        pos=(pos + np.array([0.06, -0.12, 0.06])).tolist(),
+        mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY,
+        targetbody="block",
+        fovy=45.0,
+    )
     rgba = [0.45, 0.5, 0.6, 1.0]
     r_h = geom.hole_radius
     d = geom.depth

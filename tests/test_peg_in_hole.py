@@ -7,10 +7,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from baselines.hybrid import selection_matrix
+from baselines.hybrid import _rotvec, selection_matrix
 from cir_gym import peg_hole_geometry as geo
+from cir_gym import trajectories as traj
 from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.peg_in_hole import PegInHoleEnv
+from cir_gym.operational_space import rotvec_error
 
 
 def _exact_env(**kwargs: float) -> PegInHoleEnv:
@@ -143,3 +145,13 @@ def test_the_true_hole_pose_is_drawn_within_the_uncertainty() -> None:
         _, info = env.reset(seed=seed)
         assert np.linalg.norm(info["hole_offset"]) <= 0.002 + 1e-15
         assert 0.0 <= info["hole_tilt"] <= 2.0
+
+
+def test_the_controllers_fast_rotation_vector_is_operational_space_rotvec_error() -> None:
+    """baselines.hybrid._rotvec (MuJoCo's C routines) == log(R̄ Rᵀ) of cir_gym.operational_space,
+    at random rotations (every angle in (0, π))."""
+    rng = np.random.default_rng(0)
+    quats = rng.normal(size=(50, 2, 4))
+    for q_ref, q in quats / np.linalg.norm(quats, axis=-1, keepdims=True):
+        R_ref, R = traj.matrix_from_quat(q_ref), traj.matrix_from_quat(q)
+        np.testing.assert_allclose(_rotvec(R_ref @ R.T), rotvec_error(q_ref, q), atol=1e-9)
