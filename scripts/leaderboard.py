@@ -164,7 +164,7 @@ def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None
             f"{100 * r.success_rate:.0f} % success)")
     if reference is not None:
         c = reference.summary[primary]["mean"]
-        if np.isfinite(c) and c != 0 and s["mean"] != 0:
+        if np.isfinite(c) and c > 0 and s["mean"] > 0:  # a ratio of clearances < 0 says nothing
             higher = r.spec(primary).better == "higher"
             factor = c / s["mean"] if higher else s["mean"] / c
             text += f", **{factor:.3g}×** the best controller's"

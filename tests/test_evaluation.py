@@ -198,3 +198,13 @@ def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
     assert "| manipulability | `min_manipulability` | clik_nullspace" in rl_summary(
         {"manipulability": rows})
     assert variant_primary_metric(RedundantIKEnv, "no such variant") == "rms_task_error"
+
+
+def test_the_factor_to_the_best_controller_is_left_out_when_a_value_is_not_positive():
+    from scripts.leaderboard import _summary_cell
+
+    best = _result("clik_nullspace", [True], [1e-5], [0.3]).ranked_on("min_manipulability")
+    zero = _result("agent:ppo", [False], [1e-2], [0.0]).ranked_on("min_manipulability")
+    half = _result("agent:ppo", [False], [1e-2], [0.15]).ranked_on("min_manipulability")
+    assert "×" not in _summary_cell(zero, best)
+    assert "**2×** the best controller's" in _summary_cell(half, best)
