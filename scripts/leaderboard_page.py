@@ -1,0 +1,315 @@
+"""``<out>/index.html``: the leaderboard as one static page, with a video per variant.
+
+Written by :func:`scripts.leaderboard.run_leaderboard` (``cir-gym leaderboard``) after
+``leaderboard.md`` and its figures, from the same results. The page needs no server and no
+network: plain HTML and CSS in one file, images by relative path (the per-variant figures
+beside it, the learning curves in ``results/learning_curves``, the videos in
+``<out>/videos``). It holds, per environment and variant, the controllers-vs-RL summary, the
+ranked table, the comparison figure and a GIF of one episode (the leaderboard's first seed)
+of the best controller and the best agent side by side (best = :func:`scripts.leaderboard.
+_best`: the highest success rate, then the best primary metric), each frame showing the task
+(:meth:`cir_gym.envs.base.RobotEnv.draw_task`) and its caption. A small inline script marks
+the page (``<html data-broken="N">``) with the number of images that failed to load, which the
+browser test reads; it changes nothing else.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+import re
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import cir_gym
+
+#: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
+VIDEO_SIZE = 180
+VIDEO_FPS = 8
+VIDEO_SECONDS = 6.0
+#: where the learning curves live (scripts/plot_learning_curves.py)
+LEARNING_CURVES = Path(__file__).resolve().parents[1] / "results" / "learning_curves"
+
+CSS = """
+body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1200px; padding: 0 1em;
+       color: #1d1f24; background: #fafafa; }
+h1 { margin-top: 0.6em; } h2 { border-bottom: 2px solid #c8ccd4; padding-top: 0.6em; }
+nav a { margin-right: 1em; }
+table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.85em; background: #fff; }
+th, td { border: 1px solid #c8ccd4; padding: 0.2em 0.5em; text-align: right; }
+th { background: #eceef2; } td:nth-child(2), th:nth-child(2) { text-align: left; }
+.summary td, .summary th { text-align: left; }
+.row { display: flex; flex-wrap: wrap; gap: 1em; align-items: flex-start; }
+figure { margin: 0; } figcaption { font-size: 0.8em; color: #555; max-width: 380px; }
+img.figure { max-width: 560px; width: 100%; } img.curve { max-width: 640px; width: 100%; }
+code { background: #eceef2; padding: 0 0.2em; }
+.scroll { overflow-x: auto; }
+"""
+
+#: counts the images that did not load (naturalWidth 0) into <html data-broken>
+CHECK_SCRIPT = """
+window.addEventListener("load", function () {
+  var broken = 0, imgs = document.getElementsByTagName("img");
+  for (var i = 0; i < imgs.length; i++) {
+    if (!imgs[i].complete || imgs[i].naturalWidth === 0) { broken++; }
+  }
+  document.documentElement.setAttribute("data-broken", String(broken));
+  document.documentElement.setAttribute("data-images", String(imgs.length));
+});
+"""
+
+
+# ---------------------------------------------------------------------- markdown → HTML
+def _inline(text: str) -> str:
+    """Escape ``text`` and render ``**bold**``, ``*em*`` and ```code``` spans."""
+    out = html.escape(text, quote=False)
+    out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+    out = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
+    return re.sub(r"(?<![*\w])\*([^*]+)\*(?![*\w])", r"<em>\1</em>", out)
+
+
+def markdown_to_html(md: str, table_class: str = "") -> str:
+    """The markdown the leaderboard writes (paragraphs and pipe tables) as HTML."""
+    blocks: list[str] = []
+    lines = md.strip("\n").split("\n")
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("|"):
+            rows = []
+            while i < len(lines) and lines[i].startswith("|"):
+                rows.append(lines[i])
+                i += 1
+            cells = [[c.strip() for c in r.strip().strip("|").split("|")] for r in rows]
+            body = [c for c in cells[1:] if not all(set(x) <= set("-: ") for x in c)]
+            cls = f' class="{table_class}"' if table_class else ""
+            head = "".join(f"<th>{_inline(c)}</th>" for c in cells[0])
+            trs = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>"
+                          for r in body)
+            blocks.append(f'<div class="scroll"><table{cls}><thead><tr>{head}</tr></thead>'
+                          f"<tbody>{trs}</tbody></table></div>")
+            continue
+        if line.strip():
+            para = []
+            while i < len(lines) and lines[i].strip() and not lines[i].startswith("|"):
+                para.append(lines[i])
+                i += 1
+            blocks.append(f"<p>{_inline(' '.join(para))}</p>")
+            continue
+        i += 1
+    return "\n".join(blocks)
+
+
+# ---------------------------------------------------------------------- videos
+def episode_frames(env_id: str, policy_name: str, env_kwargs: dict[str, Any], seed: int,
+                   size: int = VIDEO_SIZE, fps: int = VIDEO_FPS,
+                   seconds: float = VIDEO_SECONDS) -> list[np.ndarray]:
+    """Frames (size × size RGB) of one episode of ``policy_name`` at ≈ ``fps`` frames/s, the
+    first ``seconds`` of it (the episode goes on to its end: the last frame is its end)."""
+    import gymnasium as gym
+
+    from scripts.cli import make_policy
+
+    policy = make_policy(env_id, policy_name, env_kwargs, {})
+    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
+    dt = env.unwrapped.dt
+    every = max(1, round(1.0 / (fps * dt)))
+    limit = max(1, round(seconds * fps))
+    frames: list[np.ndarray] = []
+    obs, _ = env.reset(seed=seed)
+    state, start, done, k = None, True, False, 0
+    while not done:
+        if k % every == 0 and len(frames) < limit:
+            frames.append(env.render())
+        action, state = policy.predict(obs, state=state, episode_start=[start],
+                                       deterministic=True)
+        start = False
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+        k += 1
+    if len(frames) < limit:
+        frames.append(env.render())  # the final state
+    env.close()
+    return frames
+
+
+def labelled(frames: list[np.ndarray], label: str) -> list[np.ndarray]:
+    """``frames`` with a 12 px dark strip below carrying ``label``."""
+    from cir_gym import rendering
+
+    w = frames[0].shape[1]
+    strip = np.full((12, w, 3), 30, dtype=np.uint8)
+    mask = rendering.text_mask(label, 1)[:, : w - 4]
+    strip[3: 3 + mask.shape[0], 2: 2 + mask.shape[1]][mask] = 235
+    return [np.vstack((f, strip)) for f in frames]
+
+
+def side_by_side(left: list[np.ndarray], right: list[np.ndarray]) -> list[np.ndarray]:
+    """Pairs of frames with a 4 px gap; the shorter clip holds its last frame."""
+    n = max(len(left), len(right))
+    gap = np.full((left[0].shape[0], 4, 3), 250, dtype=np.uint8)
+    return [np.hstack((left[min(i, len(left) - 1)], gap, right[min(i, len(right) - 1)]))
+            for i in range(n)]
+
+
+def save_gif(frames: list[np.ndarray], path: str | Path, fps: float, colours: int = 255
+             ) -> Path:
+    """Write RGB ``frames`` as a small looping GIF: one palette for all frames and, from the
+    second frame on, the pixels that did not change left transparent (so a fixed camera costs
+    only what moves: ~100 KB for 50 frames of 360 × 190 px, ~6× less than per-frame palettes).
+    """
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sample = np.vstack(frames[:: max(1, len(frames) // 8)])
+    palette_image = Image.fromarray(sample).quantize(colors=colours,
+                                                      method=Image.Quantize.FASTOCTREE,
+                                                      dither=Image.Dither.NONE)
+    palette = palette_image.getpalette()[: 3 * colours]
+    palette += [0] * (3 * colours - len(palette)) + [0, 0, 0]  # index `colours`: transparent
+    images, previous = [], None
+    for frame in frames:
+        index = np.asarray(Image.fromarray(np.ascontiguousarray(frame)).quantize(
+            palette=palette_image, dither=Image.Dither.NONE))
+        shown = index.copy()
+        if previous is not None:
+            shown[index == previous] = colours
+        previous = index
+        image = Image.frombytes("P", (index.shape[1], index.shape[0]),
+                                shown.astype(np.uint8).tobytes())
+        image.putpalette(palette)
+        images.append(image)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps),
+                   loop=0, optimize=False, disposal=1, transparency=colours)
+    return path
+
+
+def make_video(job: tuple[str, dict[str, Any], list[str], int, str]) -> str:
+    """Write one variant's GIF; return "" or the error (a failed video never stops the page)."""
+    env_id, env_kwargs, policies, seed, path = job
+    try:
+        clips = [labelled(episode_frames(env_id, p, env_kwargs, seed), p) for p in policies]
+        frames = clips[0] if len(clips) == 1 else side_by_side(*clips)
+        save_gif(frames, path, fps=VIDEO_FPS)
+        return ""
+    except Exception as exc:  # reported on the page instead
+        return f"{type(exc).__name__}: {exc}"
+
+
+# ---------------------------------------------------------------------- the page
+def _learning_curve(env_id: str) -> Path | None:
+    """results/learning_curves/<Name>-vN.png, else the newest version's curve of <Name>."""
+    name = env_id.split("/")[-1]
+    exact = LEARNING_CURVES / f"{name}.png"
+    if exact.is_file():
+        return exact
+    base = name.rsplit("-v", 1)[0]
+    found = sorted(LEARNING_CURVES.glob(f"{base}-v*.png"),
+                   key=lambda p: int(re.sub(r"\D", "", p.stem.rsplit("-v", 1)[1]) or 0))
+    return found[-1] if found else None
+
+
+def _rel(path: Path, out: Path) -> str:
+    return Path(os.path.relpath(path.resolve(), out.resolve())).as_posix()
+
+
+def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: list[str],
+               episodes: int, seed: int, env_overrides: dict[str, Any] | None = None,
+               workers: int | None = None, videos: bool = True) -> Path:
+    """Write ``out/index.html`` (and ``out/videos/*.gif``) from the leaderboard's results.
+
+    Args:
+        out: the leaderboard's output directory (its figures are already there).
+        results: (env_id, variant, policy) → EvaluationResult, as run_leaderboard holds them.
+        env_ids, episodes, seed, env_overrides: as given to run_leaderboard.
+        workers: processes for the videos (default: one per core).
+        videos: False writes the page without GIFs.
+    """
+    from scripts.leaderboard import _best, _slug, ranked_table, rl_summary
+
+    out.mkdir(parents=True, exist_ok=True)
+    sections: list[tuple[str, str, list[tuple[str, str, str, list[Any], str, list[str]]]]] = []
+    jobs = []
+    for env_id in env_ids:
+        cls, description = cir_gym.ENVIRONMENTS[env_id]
+        variants = getattr(cls, "leaderboard_variants", {"default": {}})
+        rows_of = {v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
+                   for v in variants}
+        entries = []
+        for variant, kwargs in variants.items():
+            rows = rows_of[variant]
+            ctrl = _best([r for r in rows if not r.policy_name.startswith("agent:")])
+            agent = _best([r for r in rows if r.policy_name.startswith("agent:")])
+            shown = [r.policy_name for r in (ctrl, agent) if r is not None]
+            name = env_id.split("/")[-1]
+            gif = out / "videos" / f"{name}_{_slug(variant)}.gif"
+            if videos and shown:
+                jobs.append((env_id, {**kwargs, **(env_overrides or {})}, shown, seed, str(gif)))
+            setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
+            fig = out / f"{name}_{_slug(variant)}.png"
+            entries.append((variant, setting, str(gif) if videos and shown else "", rows,
+                            str(fig), shown))
+        sections.append((env_id, description + "\n\n" + rl_summary(rows_of), entries))
+
+    errors: dict[str, str] = {}
+    if jobs:
+        n = min(len(jobs), workers or os.cpu_count() or 1)
+        if n > 1:
+            with ProcessPoolExecutor(max_workers=n) as pool:
+                messages = list(pool.map(make_video, jobs))
+        else:
+            messages = [make_video(j) for j in jobs]
+        errors = {j[4]: m for j, m in zip(jobs, messages, strict=True) if m}
+
+    body = ["<h1>cir_gym leaderboard</h1>",
+            f"<p>{episodes} episodes per policy, seeds {seed}…{seed + episodes - 1} (the same "
+            "for every policy), ranked by success rate, then by each variant's primary metric "
+            "(mean over episodes); <em>worst</em> is the worst episode, CVaR20% the mean of the "
+            "worst 20 %. Each video is one episode (seed "
+            f"{seed}, the first {VIDEO_SECONDS:g} s at {VIDEO_FPS} frames/s) of the best "
+            "controller (left) and the best agent (right) with the task drawn: the reference "
+            "(cyan), the target (yellow), obstacles and forces. Generated by "
+            "<code>cir-gym leaderboard</code>; the same tables are in "
+            "<a href=\"leaderboard.md\">leaderboard.md</a>.</p>",
+            "<nav>" + "".join(f'<a href="#{_slug(e)}">{html.escape(e.split("/")[-1])}</a>'
+                              for e, _, _ in sections) + "</nav>"]
+    for env_id, description, entries in sections:
+        body.append(f'<h2 id="{_slug(env_id)}">{html.escape(env_id)}</h2>')
+        body.append(markdown_to_html(description, "summary"))
+        curve = _learning_curve(env_id)
+        if curve is not None:
+            body.append(f'<figure><img class="curve" src="{_rel(curve, out)}" alt="learning '
+                        f'curves {html.escape(env_id)}"><figcaption>Learning curves '
+                        f"({html.escape(curve.stem)}).</figcaption></figure>")
+        for variant, setting, gif, rows, fig, shown in entries:
+            body.append(f"<h3>{html.escape(variant)} <small>({html.escape(setting)})</small>"
+                        "</h3>")
+            row = []
+            if gif and gif not in errors:
+                who = " vs ".join(html.escape(s) for s in shown)
+                row.append(f'<figure><img src="{_rel(Path(gif), out)}" alt="video '
+                           f'{html.escape(env_id)} {html.escape(variant)}"><figcaption>{who}'
+                           "</figcaption></figure>")
+            elif gif:
+                row.append(f"<p>video failed: {html.escape(errors[gif])}</p>")
+            if Path(fig).is_file():
+                row.append(f'<figure><img class="figure" src="{_rel(Path(fig), out)}" '
+                           f'alt="{html.escape(env_id)} {html.escape(variant)}"></figure>')
+            body.append('<div class="row">' + "".join(row) + "</div>")
+            body.append(markdown_to_html(ranked_table(rows)))
+    page = ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+            "<title>cir_gym leaderboard</title>\n"
+            "<link rel=\"icon\" href=\"data:,\">\n"
+            f"<style>{CSS}</style>\n<script>{CHECK_SCRIPT}</script>\n</head>\n<body>\n"
+            + "\n".join(body) + "\n</body>\n</html>\n")
+    index = out / "index.html"
+    index.write_text(page, encoding="utf-8")
+    print(f"wrote {index} ({len(jobs) - len(errors)} videos"
+          + (f", {len(errors)} failed" if errors else "") + ")", file=sys.stderr)
+    return index

@@ -1,0 +1,114 @@
+"""scripts/leaderboard_page.py: the static results page, its GIFs, and the page in Chromium.
+
+The browser test (slow) runs ``run_leaderboard`` on one environment with short episodes,
+loads ``index.html`` from disk in Debian's headless Chromium (skipped when /usr/bin/chromium
+is missing: ``apt-get install chromium``) and checks: no console message, every image loaded
+(the page's own check writes ``data-broken``), and a screenshot in which the tables are drawn.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scripts.leaderboard_page import labelled, markdown_to_html, save_gif, side_by_side
+
+CHROMIUM = "/usr/bin/chromium"
+#: flags from the machine notes: no sandbox as root, no GPU, no background network traffic
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+
+def test_markdown_tables_and_inline_marks_become_html() -> None:
+    md = ("Intro with `code` and **bold** & <tag>.\n\n| rank | policy |\n|---|---|\n"
+          "| 1 | *pid* |\n| 2 | pd |\n")
+    out = markdown_to_html(md, "summary")
+    assert "<code>code</code>" in out and "<strong>bold</strong>" in out
+    assert "&amp; &lt;tag&gt;" in out
+    assert '<table class="summary">' in out
+    assert out.count("<tr>") == 3 and "<th>rank</th>" in out and "<td><em>pid</em></td>" in out
+
+
+def test_gif_round_trip_keeps_the_frames_and_stays_small(tmp_path: Path) -> None:
+    from PIL import Image, ImageSequence
+
+    rng = np.random.default_rng(0)
+    colours = rng.integers(0, 255, (20, 3), dtype=np.uint8)
+    y, x = np.mgrid[0:160, 0:160]  # a smooth shading: more colours than a GIF palette holds
+    background = np.stack((x * 1.5, y * 1.5, (x + y) * 0.6), axis=2).astype(np.uint8)
+    frames = []
+    for k in range(20):  # a red square moving over a fixed background, a changing "caption"
+        f = background.copy()
+        f[40:56, 4 * k: 4 * k + 16] = (230, 20, 20)
+        f[0:4, 0:8] = colours[k]
+        frames.append(f)
+    path = save_gif(frames, tmp_path / "clip.gif", fps=10)
+    decoded = [np.asarray(f.convert("RGB")) for f in ImageSequence.Iterator(Image.open(path))]
+    assert len(decoded) == len(frames)
+    for k, (a, b) in enumerate(zip(decoded, frames, strict=True)):
+        assert np.abs(a.astype(int) - b).mean() < 6.0
+        assert a[44, 4 * k + 8, 0] > 180 and a[44, 4 * k + 8, 1] < 60  # the square is red
+    # one palette, unchanged pixels transparent: smaller than cir_gym.plotting.save_video's GIF
+    from cir_gym.plotting import save_video
+
+    plain = save_video(frames, tmp_path / "plain.gif", fps=10)
+    assert path.stat().st_size < 0.5 * plain.stat().st_size
+
+
+def test_labelled_side_by_side_frames() -> None:
+    a = [np.zeros((50, 40, 3), np.uint8)] * 3
+    b = [np.full((50, 40, 3), 100, np.uint8)] * 5
+    pair = side_by_side(labelled(a, "pid"), labelled(b, "agent:ppo"))
+    assert len(pair) == 5 and pair[0].shape == (62, 84, 3)
+    assert np.any(pair[0][50:, :40] > 200)  # the label's ink in the strip
+    np.testing.assert_array_equal(pair[4][:50, :40], a[-1])  # the shorter clip holds
+
+
+def _chromium(*args: str, user_dir: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={user_dir}", *args],
+                          capture_output=True, text=True, timeout=120, check=False)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Debian's chromium is not installed")
+def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) -> None:
+    import cir_gym
+    from scripts.leaderboard import run_leaderboard
+
+    env_id = "cir_gym/JointTracking-v1"
+    variants = len(cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants)
+    out = tmp_path / "results"
+    run_leaderboard(out, episodes=1, envs=[env_id], workers=2,
+                    env_overrides={"episode_duration": 0.6})
+    index = out / "index.html"
+    text = index.read_text()
+    gifs = sorted((out / "videos").glob("*.gif"))
+    assert len(gifs) == variants and all(g.stat().st_size < 1_000_000 for g in gifs)
+    assert "http://" not in text and "https://" not in text  # nothing fetched at view time
+
+    dom = _chromium("--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000",
+                    "--dump-dom", index.as_uri(), user_dir=tmp_path / "profile")
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    console = [line for line in dom.stderr.splitlines() if ":CONSOLE" in line]
+    assert not console, console
+    html_tag = re.search(r"<html[^>]*>", dom.stdout).group(0)
+    images = int(re.search(r'data-images="(\d+)"', html_tag).group(1))
+    assert images >= 2 * variants + 1  # a video and a figure per variant, a learning curve
+    assert 'data-broken="0"' in html_tag, html_tag
+
+    shot = tmp_path / "shot.png"
+    _chromium("--window-size=1280,2400", f"--screenshot={shot}", index.as_uri(),
+              user_dir=tmp_path / "profile")
+    from PIL import Image
+
+    pixels = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    border = np.all(pixels == (200, 204, 212), axis=2)  # the tables' cell borders (#c8ccd4)
+    header = np.all(pixels == (236, 238, 242), axis=2)  # their header cells (#eceef2)
+    assert border.sum() > 2000 and header.sum() > 2000
+    assert border.any(axis=1).sum() > 20  # many horizontal rules: table rows on screen
+    shutil.rmtree(tmp_path / "profile", ignore_errors=True)
