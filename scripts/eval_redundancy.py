@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -46,7 +47,7 @@ ORACLE = "clearing motion (oracle)"  # the env's certificate: needs the whole re
 METRICS = ("rms_task_error", "min_manipulability", "min_joint_limit_margin", "min_clearance",
            "joint_drift")
 OBSTACLE_POLICIES = ("clik", "clik_dls", TEXTBOOK, "clik_nullspace", ORACLE)
-CHUNK = 10  # seeds per worker job
+CHUNK = 5  # seeds per worker job
 
 
 def _register() -> None:
@@ -131,6 +132,8 @@ def run(job: tuple[str, str, tuple[str, ...], int, int]
                 print(f"{env_name} {objective} {name} seed {seed}: {exc}")
                 out[(env_name, objective, name)].append(None)
     env.close()
+    print(f"done: {env_name} {objective} seeds {first}..{first + count - 1}", file=sys.stderr,
+          flush=True)
     return out
 
 
