@@ -67,7 +67,8 @@ GREEN = (0.1, 0.8, 0.2, 1.0)
 BLUE = (0.15, 0.35, 0.95, 1.0)
 #: the reference (path, ghost arm): translucent cyan
 REFERENCE = (0.1, 0.8, 0.95, 0.35)
-#: a ghost arm at the reference pose: fainter than REFERENCE (it covers the arm)
+#: a ghost arm at the reference pose: fainter than REFERENCE (it covers the arm); the
+#: joint-space envs fade it further while the arm is on the reference
 GHOST = (0.1, 0.8, 0.95, 0.22)
 #: the target point / frame origin: opaque yellow
 TARGET = (1.0, 0.85, 0.1, 1.0)
@@ -626,7 +627,9 @@ def draw_joint_tracking(env: Any, scene: mujoco.MjvScene) -> None:
             ghost.key = key
         add_polyline(scene, ghost.trace, 0.006, REFERENCE, max_segments=TRACE_SAMPLES)
     data = ghost.pose(env.data.qpos, adr, ref[k])
-    add_ghost(scene, env.model, data, GHOST)
+    # faint while the arm is on the reference (it would hide the arm), clearer as they part
+    err = float(np.linalg.norm(ref[k] - env.data.qpos[adr]))
+    add_ghost(scene, env.model, data, (*GHOST[:3], 0.06 + 0.24 * min(1.0, err / 0.1)))
     if site >= 0:
         add_sphere(scene, data.site_xpos[site], 0.02, TARGET)
         add_sphere(scene, env.data.site_xpos[site], 0.015, GREEN)

@@ -291,3 +291,23 @@ def test_rendering_does_not_change_the_episode() -> None:
         env.close()
         runs.append(np.array(trace))
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_captions_report_the_primary_error_of_the_step() -> None:
+    """JointTracking: ‖q̄ − q‖ of the last observation; RedundantIK: the step's task error."""
+    env = gym.make("cir_gym/JointTracking-v1")
+    env.reset(seed=2)
+    for _ in range(10):
+        obs, *_ = env.step(np.full(env.action_space.shape, 0.05))
+    text = env.unwrapped.caption()
+    err = np.linalg.norm(obs["q_ref"] - env.unwrapped.data.qpos[env.unwrapped.robot.qpos_adr])
+    assert f"{err:.4f} rad" in text and text.startswith(f"t {10 * env.unwrapped.dt:5.2f} s")
+    env.close()
+    env = gym.make("cir_gym/RedundantIK-v3", objective="joint_limits")
+    env.reset(seed=2)
+    for _ in range(10):
+        _, _, _, _, info = env.step(np.full(env.action_space.shape, 0.3))
+    text = env.unwrapped.caption()
+    assert f"e {1e3 * info['task_error']:5.2f} mm" in text
+    assert f"margin {info['joint_limit_margin']:.3f} rad" in text
+    env.close()
