@@ -3,7 +3,9 @@
     python scripts/plot_learning_curves.py [--out results/learning_curves] [--env ID ...]
 
 For each environment with shipped agents (``agents/trained/<EnvName-vN>/``) the primary metric
-of every agent's ``learning_curve.csv`` is drawn against training steps. For every distinct
+of every agent's ``learning_curve.csv`` is drawn against training steps; an agent trained over
+several seeds (``seed_<k>/``) is drawn as the IQM over seeds with its 95 % stratified-bootstrap
+band and each seed's curve thin (:func:`agents.report.curve_band`). For every distinct
 training setting of those agents (e.g. the exact model and an unknown 3 kg payload) each
 applicable controller is run through :func:`cir_gym.evaluation.evaluate` on the *same* seeds
 and number of episodes as the curves' evaluations (``agents.train.EVAL_SEED``): the best one
@@ -14,7 +16,6 @@ in the agent's colour.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 from typing import Any
@@ -24,14 +25,9 @@ import yaml
 import agents
 import baselines
 import cir_gym
+from agents.report import curve_band, read_curve
 from agents.train import EVAL_SEED
 from cir_gym.evaluation import evaluate
-
-
-def read_curve(agent_dir: Path, primary: str) -> tuple[list[int], list[float]]:
-    with (agent_dir / "learning_curve.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    return ([int(r["timesteps"]) for r in rows], [float(r[f"mean_{primary}"]) for r in rows])
 
 
 def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int
@@ -76,7 +72,8 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
     bases: list[tuple[str, str, str]] = []  # (controller, setting label, colour) of residuals
     for i, name in enumerate(names):
-        d = agents.TRAINED_DIR / agents.env_dir_name(env_id) / name
+        seed_dirs = [agents.agent_dir(env_id, name, k) for k in agents.seeds(env_id, name)]
+        d = seed_dirs[0]
         config = yaml.safe_load((d / "config.yml").read_text())
         kwargs = config.get("env_kwargs") or {}
         label = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "defaults"
@@ -84,8 +81,16 @@ def plot_env(env_id: str, out: Path) -> Path | None:
             episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
             scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED)
         color = colors[i % len(colors)]
-        steps, values = read_curve(d, primary)
-        ax.plot(steps, values, "o-", ms=3, color=color, label=f"{name} ({label})")
+        if len(seed_dirs) == 1:
+            steps, values = read_curve(d, primary)
+            ax.plot(steps, values, "o-", ms=3, color=color, label=f"{name} ({label}, 1 seed)")
+        else:  # IQM over seeds, 95 % stratified-bootstrap band, each seed thin
+            band = curve_band([read_curve(sd, primary) for sd in seed_dirs])
+            ax.plot(band["steps"], band["iqm"], "o-", ms=3, color=color,
+                    label=f"{name} ({label}, IQM of {len(seed_dirs)} seeds, 95 % CI)")
+            ax.fill_between(band["steps"], band["low"], band["high"], color=color, alpha=0.2)
+            for row in band["seeds"]:
+                ax.plot(band["steps"], row, "-", lw=0.6, alpha=0.5, color=color)
         if config.get("residual"):
             bases.append((config["residual"]["controller"], label, color))
     for j, (label, by_name) in enumerate(scores.items()):
