@@ -104,6 +104,19 @@ def test_ibvs_fails_at_180_degrees_where_pbvs_converges() -> None:
     assert pbvs["is_success"], pbvs["episode_metrics"]
 
 
+def test_pbvs_loses_the_features_where_ibvs_with_the_mean_interaction_matrix_converges(
+) -> None:
+    """A large translation with a 145° rotation about the optical axis, the target near the
+    image border: PBVS's rotation swings the features out of the image (Chaumette &
+    Hutchinson 2006); IBVS with L̂ = ½ (L + L*) keeps them in view and converges."""
+    offset = (0.2, -0.15, 0.05, 0.0, 0.41, 2.53)
+    pbvs, _, _ = run(EYE_IN_HAND, "pbvs", start_offset=offset, pixel_noise=0.0)
+    assert pbvs["feature_lost"] and not pbvs["is_success"]
+    ibvs, _, _ = run(EYE_IN_HAND, "ibvs", gains={"depth": "mean"}, start_offset=offset,
+                     pixel_noise=0.0)
+    assert ibvs["is_success"], ibvs["episode_metrics"]
+
+
 def test_eye_to_hand_ibvs_through_the_robot_jacobian_converges() -> None:
     """The eye-to-hand law with joint velocities through J(q), and with a twist, converge."""
     for action in ("joint_velocity", "twist"):
