@@ -571,19 +571,38 @@ def test_make_rejects_env_with_env_kwargs():
 
 @pytest.mark.parametrize("name", ["pid", "p_pi_cascade"])
 def test_integrators_do_not_wind_up_while_the_torque_saturates(name):
-    """Conditional integration: a saturated joint pushed further by its error keeps its
-    integral (before, it grew by dt · e every step)."""
-    policy = baselines.make(name, ENV)
+    """Back-calculation: under a constant error that saturates every joint the integral
+    settles (at u − u_sat = N k e); the plain integrator grows by Δt e every step."""
     env = gym.make(ENV)
     obs, _ = env.reset(seed=0)
-    far = {**obs, "q": obs["q"] - 1.0}  # a 1-rad error on every joint: the commands saturate
-    state = policy.initial_state(far)
-    for _ in range(50):
-        command = policy.control(far, state)
-    assert np.all(np.abs(command) > policy.action_scale)
-    np.testing.assert_allclose(state, 0.0)
-    # where the command is within its limit the integral still integrates
-    near = {**obs, "q": obs["q"] - 1e-3, "qd": obs["qd_ref"]}
-    state = policy.initial_state(near)
-    policy.control(near, state)
-    assert np.all(state != 0.0)
+    far = {**obs, "q": obs["q"] - 1.0, "qd": obs["qd_ref"]}  # 1 rad on every joint: saturated
+    states = {}
+    for mode in ("back_calculation", "clamping", "none"):
+        policy = baselines.make(name, ENV, anti_windup=mode)
+        state = policy.initial_state(far)
+        history = []
+        for _ in range(2000):
+            command = policy.control(far, state)
+            history.append(state.copy())
+        assert np.all(np.abs(command) > policy.action_scale)
+        states[mode] = np.array(history)
+    back = states["back_calculation"]
+    np.testing.assert_allclose(back[-1], back[-500], rtol=1e-6)  # settled
+    np.testing.assert_allclose(states["clamping"][-1], 0.0, atol=1e-12)  # never integrated
+    assert np.all(np.abs(states["none"][-1]) > 10 * np.abs(back[-1]))  # wound up
+    with pytest.raises(ValueError, match="anti_windup"):
+        baselines.make(name, ENV, anti_windup="sometimes")
+
+
+@pytest.mark.parametrize("name", ["pid", "p_pi_cascade"])
+def test_anti_windup_lets_regulation_reach_its_setpoint(name):
+    """A large regulation move saturates the torque for a while: the wound-up integral of the
+    plain loops then overshoots and has not recovered by the end of the 4-s episode (final
+    error 0.067 rad for pid and 3.6 rad for the cascade on seed 2000); with back-calculation
+    the arm settles (< 1e-10 rad)."""
+    kwargs = {"reference": "regulation"}
+    final = {}
+    for mode in ("back_calculation", "none"):
+        policy = baselines.make(name, ENV, env_kwargs=kwargs, anti_windup=mode)
+        final[mode] = evaluate(policy, ENV, 1, 2000, **kwargs).episodes[0].metrics["final_error"]
+    assert final["back_calculation"] < 1e-6 and final["none"] > 0.05
