@@ -142,6 +142,28 @@ def test_shipped_files_are_in_rl_zoo3_format(algo):
         assert entry["env_wrapper"] == "agents.observation.TaskObservation"
 
 
+@pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
+def test_shipped_entries_name_registered_environments(algo):
+    """A stale id (an env whose version was bumped) would silently train with `default`."""
+    from agents.hyperparameters import SECTIONS
+
+    data = yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())
+    ids = set(cir_gym.ENVIRONMENTS) | {"default"}
+    keys = set(data) - set(SECTIONS)
+    for section in SECTIONS:
+        keys |= set(data.get(section) or {})
+    assert keys <= ids, sorted(keys - ids)
+
+
+def test_every_environment_gets_the_agents_flat_observation():
+    """What rl-zoo3's env_wrapper (and agents.train) applies works on every registered env."""
+    for env_id in cir_gym.ENVIRONMENTS:
+        env = TaskObservation(gym.make(env_id))
+        obs, _ = env.reset(seed=0)
+        assert env.observation_space.contains(obs) and obs.ndim == 1, env_id
+        env.close()
+
+
 @pytest.mark.filterwarnings("ignore")
 def test_rl_zoo3_trains_from_the_shipped_file(tmp_path):
     """python -m rl_zoo3.train ... --conf-file agents/hyperparams/ppo.yml (a short run)."""
