@@ -123,6 +123,9 @@ def classic_cases(out: Path) -> list[str]:
             axp.set_xlabel("x, goal camera frame (m)", fontsize=8)
             axp.set_ylabel("z, along the goal optical axis (m)", fontsize=8)
             axp.set_title(f"{label}: camera path\n(retreat {m['retreat']:.2f} m)", fontsize=8)
+            lo, hi = np.minimum(p.min(0), 0.0) - 0.05, np.maximum(p.max(0), 0.0) + 0.05
+            axp.set_xlim(lo[0], hi[0])  # at least ±5 cm around the path and the goal
+            axp.set_ylim(lo[2], hi[2])
             axp.set_aspect("equal", adjustable="datalim")
             axp.grid(alpha=0.3)
     fig.tight_layout()

@@ -163,6 +163,7 @@ def test_detected_features_match_the_projection(env_id: str) -> None:
         env.close()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not _gl_available(), reason="no OpenGL backend")
 def test_detected_episode_ends_within_1_px_of_the_projected_one() -> None:
     """Same seed, IBVS: the detected-feature episode's final error is within 1 px of the
