@@ -19,9 +19,12 @@ scene.maxgeom``) the rest is dropped silently, so a marker never raises in the m
 overlay) with a built-in 5 × 7 pixel font: ASCII plus ° ± × · Δ θ τ µ ≤ ≥ ω ‖ →; combining marks
 (q̄) are dropped, any other character is drawn as "?".
 
-Rendering cost: software GL draws a capsule (a few hundred triangles) in ~10 µs; a polyline is
-subsampled to ``max_segments`` capsules. ``benchmarks/bench_render.py`` measures the cost per
-frame with and without the task's markers.
+Rendering cost: in software GL (llvmpipe) every geom is a draw call of ~0.1-0.3 ms at 320 px,
+comparable to the whole bare robot, so a task should add a handful of geoms. Long lines
+(paths, traces) therefore go through :func:`add_polyline`, which in a frame of
+``RobotEnv.render`` (between :func:`begin_frame` and :func:`finish_frame`) is drawn into the
+image as a 2-D overlay (on top of the scene, no occlusion) for ~0.3 ms whatever its length.
+``benchmarks/bench_render.py`` measures the cost per frame against the bare robot.
 
 The second half of the module draws the shipped environments' tasks (their ``draw_task`` and
 ``caption`` call these), so that each env module keeps one short method.
@@ -54,13 +57,23 @@ __all__ = [
     "add_line",
     "add_polyline",
     "add_sphere",
+    "begin_frame",
     "caption_scale",
     "draw_caption",
+    "draw_joint_tracking",
+    "draw_polyline_2d",
+    "draw_redundant_ik",
+    "finish_frame",
+    "joint_margins",
+    "joint_tracking_caption",
     "limit_colour",
+    "place_world_geoms",
+    "project_points",
+    "redundant_ik_caption",
     "text_mask",
+    "tint_bodies",
+    "tint_joint_limits",
 ]
-
-RGBA = "tuple[float, float, float, float] | np.ndarray"
 
 RED = (0.9, 0.15, 0.1, 1.0)
 GREEN = (0.1, 0.8, 0.2, 1.0)

@@ -311,3 +311,28 @@ def test_captions_report_the_primary_error_of_the_step() -> None:
     assert f"e {1e3 * info['task_error']:5.2f} mm" in text
     assert f"margin {info['joint_limit_margin']:.3f} rad" in text
     env.close()
+
+
+@needs_gl
+@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v1", "cir_gym/RedundantIK-v3"])
+def test_overlay_projection_matches_the_rendered_scene(env_id: str) -> None:
+    """project_points (the 2-D overlays' camera) puts a point where GL draws a sphere there,
+    for the free camera (JointTracking) and a model camera (RedundantIK's "top")."""
+    env = gym.make(env_id, render_mode="rgb_array", width=240, height=180)
+    env.reset(seed=0)
+    u = env.unwrapped
+    u.caption = lambda: ""
+    u.draw_task = lambda scene: None
+    bare = env.render().copy()
+    point = np.array([0.3, 0.55, 0.05])  # on the floor, clear of both arms
+
+    def draw(scene: mujoco.MjvScene) -> None:
+        rendering.add_sphere(scene, point, 0.035, (1.0, 0.0, 1.0, 1.0))
+
+    u.draw_task = draw
+    marked = env.render().copy()
+    uv, depth = rendering.project_points(u._renderer.scene, point[None], 240, 180)
+    env.close()
+    changed = np.argwhere(np.any(marked != bare, axis=2))
+    assert depth[0] > 0 and len(changed) > 10
+    assert np.linalg.norm(changed.mean(axis=0)[::-1] - uv[0]) < 2.5, (changed.mean(0), uv)
