@@ -121,6 +121,7 @@ class _VisualServoBase(RobotEnv):
         MetricSpec("detection_failures", "", "lower", "markers not found in the image"),
     )
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
+        "projected features": {},
         "calibration error": {"camera_error": (0.05, 10.0, 0.01, 0.02)},
     }
 
