@@ -12,31 +12,41 @@ v_z = v̄ (insertion) and ω_z = 0 (the peg need not turn). The selection matrix
 
     Σ = diag(1, 1, 0, 1, 1, 0)  in (x, y, z, rot x, rot y, rot z) of the hole frame
 
-(:func:`selection_matrix`). The commanded wrench at the tip is
+(:func:`selection_matrix`). Σ applies in the bore (the tip deeper than ``guard_height``
+below the nominal top face). Above and on the face the peg is not yet in the bore, so nothing
+tilts it back if it tilts: Σ_face = diag(1, 1, 0, 0, 0, 0) holds it square to the nominal
+axis (zero lateral force, motion along the axis and in the three rotations). The commanded
+wrench at the tip is
 
-    h_c = Σ [γ̄ + K_F (γ̄ − γ̂) − D_F ẋ] + Λ_h (I − Σ) [K_P (x̄ − x) − K_D ẋ],   γ̄ = 0,
+    h_c = Σ [γ̄ + K_F (γ̄ − γ̂) − D_F ẋ + K_tilt φ] + M (I − Σ) [K_P (x̄ − x) − K_D ẋ],  γ̄ = 0,
 
-the motion law an acceleration through the task-space inertia Λ_h = R Λ(q) Rᵀ of the tip in
-the hole frame (the inverse-dynamics form: a motion command along the axis then accelerates
-the tip along the axis only, ẍ = (I − Σ) a + Λ⁻¹ Σ h_f, instead of dragging it sideways
-through the off-diagonal inertia), with γ̂ the measured wrench the peg exerts on the
-environment (the F/T reading minus the peg's weight, moved to the tip,
-:func:`cir_gym.ft_sensor.contact_wrench`), and
-τ = g(q) + J_tipᵀ h_c + N_dynᵀ τ_posture (gravity of the nominal arm and peg; the posture term
-acts in the null space of the dynamically consistent inverse, so it leaves the tip alone).
-The force loop is an accommodation law: a measured push γ̂ commands the opposite force, the
-damping D_F keeps the force-controlled directions still in free space. The axial motion
-command is saturated at ``push_force``: when the peg lands beside the hole the controller
-presses with a bounded force instead of driving its position error into the block.
+with the motion law an acceleration through the task-space inertia Λ_h = R Λ(q) Rᵀ of the
+tip in the hole frame: above the bore M = Λ_h (the inverse-dynamics form: a motion command
+along the axis accelerates the tip along the axis only, ẍ = (I − Σ) a + Λ⁻¹ Σ h_f, instead of
+dragging it sideways through the off-diagonal inertia); in the bore M = (I − Σ) Λ_h, the
+motion wrench filtered by the selection matrix (its components on the force-controlled
+directions, Λ's coupling terms times the axial command, pushed the peg into the walls and
+tilted it: it jammed at 15–20 mm, two-point contact, ~100 N, before this filter). γ̂ is the
+measured wrench the peg exerts on the environment (the F/T reading minus the peg's weight,
+moved to the tip, :func:`cir_gym.ft_sensor.contact_wrench`); K_F = 0 by default (see
+:class:`HybridForcePositionGains`: proportional force feedback chattered on the stiff walls),
+so the force-controlled directions follow γ̄ = 0 by accommodation, −D_F ẋ, plus a weak tilt
+spring K_tilt toward the nominal axis (a compliance centre at the tip, weak enough that the
+walls tilt the peg by the hole's 2°). Joint torques: τ = g(q) + J_tipᵀ h_c + N_dynᵀ τ_posture
+(gravity of the nominal arm and peg; the posture term acts in the null space of the
+dynamically consistent inverse, so it leaves the tip alone). The axial command is saturated
+at ``push_force`` and the axial reference advances at ``guard_speed`` within
+``guard_height`` of the nominal face (a guarded move: landing on the face at 10 mm/s with the
+arm's 11 kg of task-space inertia is a ~200 N impact).
 
 ``hybrid_spiral`` adds the classic search: while the peg rests on the block beside the hole
 (axial contact force above ``contact_force`` and no drop below the surface height found at
-contact) the roles of x, y and z swap — Σ_search = diag(0, 0, 1, 1, 1, 0): the tip follows an
-Archimedean spiral r = p θ / 2π (pitch p ≤ the hole radius) in the hole plane while pressing
-with ``search_force`` along the axis, holding the peg square to the face (a peg left free to
-tilt while dragged across the face tips over on the sensor's delay and catches its edge).
-A drop of ``drop`` below the contact height means the tip found the hole: the controller
-returns to Σ and inserts.
+contact) the roles of x, y and z swap — Σ_search = diag(0, 0, 1, 0, 0, 0): the tip follows an
+Archimedean spiral r = p θ / 2π (pitch p = the hole's diametral clearance scale, 0.5 mm) in
+the hole plane at ``omega_search`` (stiff enough to slide against friction) while pressing
+with ``search_force`` (feed-forward plus damping: force feedback against the face bounced),
+holding the peg square to the face. A drop of ``drop`` below the contact height means the tip
+found the hole: the controller returns to Σ and inserts.
 
 ``position_only`` is stiff Cartesian position control of the tip to the nominal hole's axis
 (τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback): the reason force control exists. With the
