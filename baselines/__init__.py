@@ -21,6 +21,7 @@ from baselines.decentralized import (
     PPIFeedforward,
 )
 from baselines.hybrid import HYBRID_CONTROLLERS
+from baselines.interaction import INTERACTION_CONTROLLERS
 from baselines.kinematic import KINEMATIC_CONTROLLERS
 from baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
@@ -42,6 +43,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         *KINEMATIC_CONTROLLERS,
         *OPERATIONAL_SPACE_CONTROLLERS,
         *HYBRID_CONTROLLERS,
+        *INTERACTION_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
     )

@@ -108,14 +108,14 @@ PRESETS: dict[str, SensorSpec] = {
         noise_std=(0.1, 0.005),
         resolution=(0.01, 0.001),
         sample_rate=100.0,
-        cutoff=50.0,
+        cutoff=20.0,
         delay=0.005,
     ),
     "ati_gamma": SensorSpec(
         noise_std=(0.01, 0.0005),
         resolution=(1.0 / 160.0, 1.0 / 2000.0),
         sample_rate=1000.0,
-        cutoff=200.0,
+        cutoff=100.0,
         delay=0.001,
     ),
 }
