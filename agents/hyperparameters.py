@@ -85,6 +85,7 @@ TRAINING_KEYS = {
     "task_errors": "add k_ref - k features to the observation (true/false)",
     "zero_init_action": "zero the last layer of the actor (the action mean starts at 0)",
     "early_termination": "training only: {max_error, penalty} (agents/shaping.py)",
+    "reward_offset": "training only: added to every step's reward (agents/shaping.py)",
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",

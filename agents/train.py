@@ -61,7 +61,7 @@ from agents.hyperparameters import (
 )
 from agents.observation import ObservationLayout, TaskObservation
 from agents.residual import ResidualAction, check_scale
-from agents.shaping import EarlyTermination
+from agents.shaping import EarlyTermination, RewardOffset
 
 __all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
 
@@ -76,7 +76,8 @@ class EnvFactory:
     def __init__(self, env_id: str, env_kwargs: dict[str, Any], layout: ObservationLayout,
                  residual: str | None = None, scale: Any = None,
                  controller_kwargs: dict[str, Any] | None = None,
-                 early_termination: dict[str, float] | None = None) -> None:
+                 early_termination: dict[str, float] | None = None,
+                 reward_offset: float = 0.0) -> None:
         self.env_id = env_id if ":" in env_id else f"cir_gym:{env_id}"  # workers must import
         self.env_kwargs = env_kwargs
         self.layout = layout
@@ -84,11 +85,14 @@ class EnvFactory:
         self.scale = scale
         self.controller_kwargs = controller_kwargs or {}
         self.early_termination = early_termination  # training envs only
+        self.reward_offset = reward_offset  # training envs only
 
     def __call__(self) -> gym.Env:
         env = gym.make(self.env_id, **self.env_kwargs)
         if self.early_termination:
             env = EarlyTermination(env, **self.early_termination)
+        if self.reward_offset:
+            env = RewardOffset(env, self.reward_offset)
         if self.residual:
             env = ResidualAction(env, self.residual, self.scale, **self.controller_kwargs)
         env = TaskObservation(env, self.layout)
@@ -375,7 +379,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     factory = EnvFactory(config["env_id"], config.get("env_kwargs") or {}, layout,
                          res.get("controller"), res.get("scale"), res.get("controller_kwargs"))
     train_factory = EnvFactory(factory.env_id, factory.env_kwargs, layout, factory.residual,
-                               factory.scale, factory.controller_kwargs, early or None)
+                               factory.scale, factory.controller_kwargs, early or None,
+                               float(hp.get("reward_offset", 0.0)))
     n_envs = int(hp.get("n_envs", 1))
     seed = int(config["seed"])
     total = int(config["n_timesteps"])

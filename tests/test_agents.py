@@ -209,6 +209,25 @@ def test_gravity_feature_is_the_nominal_gravity_in_action_units():
         ObservationLayout(keys=("q",), shapes=((7,),), features=("jacobian",))
 
 
+def test_reward_offset_shifts_training_rewards_only(tmp_path):
+    from agents.shaping import RewardOffset
+    from agents.train import EnvFactory
+
+    env = gym.make(ENV, **SHORT)
+    layout = ObservationLayout.from_space(env.observation_space)
+    plain, shifted = EnvFactory(ENV, SHORT, layout)(), EnvFactory(ENV, SHORT, layout,
+                                                                 reward_offset=1.0)()
+    rewards = []
+    for e in (plain, shifted):
+        e.reset(seed=4)
+        rewards.append(e.step(np.zeros(7))[1])
+    assert rewards[1] == pytest.approx(rewards[0] + 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        RewardOffset(env, float("nan"))
+    path = tiny_hyperparams(tmp_path, reward_offset=0.5)
+    assert load_hyperparams("ppo", ENV, path=path)["reward_offset"] == 0.5
+
+
 # ---------------------------------------------------------------------- observation
 def test_task_errors_are_added_for_every_key_with_a_ref():
     env = TaskObservation(gym.make(ENV, **SHORT))
