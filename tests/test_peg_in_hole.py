@@ -155,3 +155,48 @@ def test_the_controllers_fast_rotation_vector_is_operational_space_rotvec_error(
     for q_ref, q in quats / np.linalg.norm(quats, axis=-1, keepdims=True):
         R_ref, R = traj.matrix_from_quat(q_ref), traj.matrix_from_quat(q)
         np.testing.assert_allclose(_rotvec(R_ref @ R.T), rotvec_error(q_ref, q), atol=1e-9)
+
+
+@pytest.mark.slow
+def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
+    """On the same hole pose (seed 1000, 3 mm chamfer): hybrid_force_position reaches 90 % of
+    the depth below 50 N; position_only, stiff to the nominal hole, ends at the force limit."""
+    import baselines
+    from cir_gym.evaluation import evaluate
+
+    hybrid = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v0",
+                            env_kwargs={"chamfer": 0.003})
+    ep = evaluate(hybrid, "cir_gym/PegInHole-v0", 1, seed=1000, chamfer=0.003).episodes[0]
+    assert ep.success and ep.metrics["peak_force"] < 50.0
+    stiff = baselines.make("position_only", "cir_gym/PegInHole-v0")
+    ep = evaluate(stiff, "cir_gym/PegInHole-v0", 1, seed=1000, chamfer=0.003).episodes[0]
+    assert not ep.success and ep.metrics["peak_force"] > 100.0
+
+
+def test_the_chamfer_is_a_45_degree_cone_from_the_bore_to_the_top_face() -> None:
+    """Each chamfer box's inner face is the plane through (r_h, −c) and (r_h + c, 0) in the
+    (radial, axial) plane of its side, and no box stands above the block's top face."""
+    c = 0.002
+    model, g = geo.build_peg_in_hole(clearance=5e-4, chamfer=c)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    centre = data.site_xpos[model.site("hole").id]
+    for i in range(model.ngeom):
+        name = model.geom(i).name
+        if model.geom_bodyid[i] != model.body("block").id or name == "bottom":
+            continue
+        R = data.geom_xmat[i].reshape(3, 3)
+        corners = np.array([data.geom_xpos[i] + R @ (np.array([a, b, e]) * model.geom_size[i])
+                            for a in (-1, 1) for b in (-1, 1) for e in (-1, 1)])
+        assert np.max(corners[:, 2] - centre[2]) < 1e-12, name
+        if not name.startswith("chamfer"):
+            continue
+        normal = -R[:, 0]  # the inner face's outward normal (into the hole, upward)
+        point = data.geom_xpos[i] + R[:, 0] * -model.geom_size[i][0]
+        radial = np.array([*(point - centre)[:2], 0.0])
+        radial /= np.linalg.norm(radial)
+        for r, z in ((g.hole_radius, -c), (g.hole_radius + c, 0.0)):
+            q = centre + r * radial + np.array([0.0, 0.0, z])
+            # the polygon's facet plane: exact along the facet's mid-line
+            assert abs(float((q - point) @ normal)) < 1e-12, (name, r, z)
+        assert normal[2] == pytest.approx(np.sqrt(0.5), abs=1e-12)
