@@ -128,6 +128,10 @@ class _CommonGains:
     stiffness: the surface stiffness k̂ the law is designed for (N/m); None = the env's nominal
         value, or the law's worst case in the env's range when the env draws it.
     approach_speed: guarded-approach speed along −n̂ until first contact (m/s).
+    slow_height: height above the nominal surface below which the approach slows down (m),
+        more than the surface's height uncertainty.
+    slow_speed: the approach speed below ``slow_height`` (m/s): the impact on the stiffest
+        surface is ≈ v √(k_e m̂), about 10 N at 1 cm/s.
     contact_force: measured normal force that declares the first contact (N).
     bias_time: time held still at the start to re-bias the sensor (s).
     motion_omega: natural frequency of the tangential/orientation motion control (rad/s).
@@ -137,6 +141,8 @@ class _CommonGains:
 
     stiffness: float | None = None
     approach_speed: float = 0.025
+    slow_height: float = 0.008
+    slow_speed: float = 0.01
     contact_force: float = 2.0
     bias_time: float = 0.1
     motion_omega: float = 40.0
@@ -144,8 +150,8 @@ class _CommonGains:
     posture_omega: float = 10.0
 
     def __post_init__(self) -> None:
-        _positive(self, "stiffness", "approach_speed", "contact_force", "motion_omega",
-                  "inner_omega", "posture_omega")
+        _positive(self, "stiffness", "approach_speed", "slow_height", "slow_speed",
+                  "contact_force", "motion_omega", "inner_omega", "posture_omega")
         _positive(self, "bias_time", allow_zero=("bias_time",))
 
 
@@ -304,8 +310,9 @@ class _Interaction(Controller):
             return float(state[_Z]), 0.0
         # the speed ramps up over APPROACH_RAMP s: a step would shake the tool's weight
         # through the sensor (m a) and fake a contact
-        ramp = min(1.0, (state[_TIME] - self.gains.bias_time) / APPROACH_RAMP)
-        speed = ramp * self.gains.approach_speed
+        g = self.gains
+        ramp = min(1.0, (state[_TIME] - g.bias_time) / APPROACH_RAMP)
+        speed = ramp * (g.approach_speed if state[_Z] > g.slow_height else g.slow_speed)
         state[_Z] -= speed * self.dt
         return float(state[_Z]), -speed
 
@@ -483,19 +490,20 @@ class ExplicitForce(_Interaction):
             self.k_if = min(self.k_if, self.omega_s)
         self.d = 2.0 * g.zeta * math.sqrt(self.k_hat * self.m_hat)
 
+    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
+        # bumpless transfer: u starts at the measured force, not at a step to f̄
+        state[_COMMON] = (f - obs["f_ref"][0]) / self.k_if
+
     def law(self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float,
             holding: bool) -> np.ndarray:
         p, v = self.path_in_plane(obs)
         w = self.gains.motion_omega
         a_p = w * w * (p - obs["tool_pos"]) + 2 * w * (v - obs["tool_vel"])
         x_dot_n = float(self.normal @ obs["tool_vel"])
-        if holding:
-            z0 = state[_Z]
+        if state[_CONTACT] == 0.0:  # hold still, then the guarded approach: PD on z along n̂
+            z, z_dot = self.approach(state, holding)
             x_n = float(self.normal @ (obs["tool_pos"] - self.surface_point))
-            f_n = self.m_hat * (w * w * (z0 - x_n) - 2 * w * x_dot_n)
-        elif state[_CONTACT] == 0.0:  # guarded approach: velocity control along −n̂
-            _, z_dot = self.approach(state, holding)
-            f_n = -self.d * (x_dot_n - z_dot)
+            f_n = self.m_hat * (w * w * (z - x_n) + 2 * w * (z_dot - x_dot_n))
         else:
             e = obs["f_ref"][0] - f
             state[_COMMON] += e * self.dt

@@ -115,10 +115,10 @@ def test_impedance_presses_with_kd_times_the_setpoint_penetration(stiffness: flo
 def test_explicit_force_above_its_crossover_rule_fails_on_the_stiff_surface() -> None:
     """K_if = 0.5 ω_n holds the contact at 1e5 N/m; K_if = 3 ω_n (> 2ζω_n, Routh) oscillates
     until the force limit stops the episode or the contact is lost."""
-    env_kwargs = {"stiffness": 1.0e5, "force_ref": 20.0, "episode_duration": 1.9}
+    env_kwargs = {"stiffness": 1.0e5, "force_ref": 20.0, "episode_duration": 2.8}
     ok, _, _ = _run("explicit_force", env_kwargs, crossover_ratio=0.5, cap_at_sensor=False)
     assert not ok[-1]["force_limit_exceeded"]
-    pressed = [i["contact_force"] for i in ok[-150:]]
+    pressed = [i["contact_force"] for i in ok[-150:]]  # 2.5-2.8 s, wiping
     assert min(pressed) > 0.5 and abs(np.mean(pressed) - 20.0) < 2.0
     bad, _, _ = _run("explicit_force", env_kwargs, crossover_ratio=3.0, cap_at_sensor=False)
     lost = np.mean([not i["in_contact"] for i in bad[len(bad) // 2:]])
@@ -127,10 +127,10 @@ def test_explicit_force_above_its_crossover_rule_fails_on_the_stiff_surface() ->
 
 def test_admittance_on_the_position_interface_regulates_the_force() -> None:
     env_kwargs = {"control": "position", "stiffness": 1.0e4, "force_ref": 15.0,
-                  "episode_duration": 1.9}
+                  "episode_duration": 2.8}
     infos, _, _ = _run("admittance", env_kwargs)
     pressed = [i["contact_force"] for i in infos[-150:]]
-    assert abs(np.mean(pressed) - 15.0) < 0.5 and min(pressed) > 10.0
+    assert abs(np.mean(pressed) - 15.0) < 2.0 and min(pressed) > 8.0  # wiping since 2 s
 
 
 @pytest.mark.parametrize("name", ["impedance", "explicit_force"])

@@ -152,8 +152,12 @@ class AdmittanceContactEnv(RobotEnv):
     surface: from t = 2 s the tip's reference moves by 5 cm · sin(2π · 0.25 Hz · (t − 2)) along
     a random horizontal direction (peak 0.079 m/s), on the nominal surface.
 
-    The normal force is the force the tool exerts on the plate along the *true* surface's inward
-    normal, f = −n · F_plate (N), from MuJoCo's contact forces; it is in ``info`` only. The
+    The true normal force f (N, ``info["contact_force"]``, never observed) is the load in the
+    surface's spring and damper, k x + c ẋ: what a load cell under the plate reads, equal to the
+    tool's contact force at rest. MuJoCo's per-step contact force is not used for it: while the
+    tool slides (friction 0.1), the stiff contact at a 1-ms step exchanges the load between tip
+    and plate in 1-ms bounces (one step 0, the next twice the load); the plate's spring carries
+    the mean. ``info["in_contact"]``: the tool touched the plate during the control period. The
     controllers measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`), which
     includes the tool's weight, a bias, noise, quantisation, a low-pass filter, a delay and
     sampling with zero-order hold (presets ``"robotiq_ft300"``, ``"ati_gamma"``, ``"ideal"``);
