@@ -188,9 +188,11 @@ def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episode
     return "\n".join(lines)
 
 
-def read_curve(agent_dir: Path, primary: str) -> tuple[np.ndarray, np.ndarray]:
-    """(timesteps, mean primary metric) of an agent directory's ``learning_curve.csv``."""
-    with (Path(agent_dir) / "learning_curve.csv").open() as f:
+def read_curve(path: Path, primary: str) -> tuple[np.ndarray, np.ndarray]:
+    """(timesteps, column ``mean_<primary>``) of an agent directory's ``learning_curve.csv``
+    (or of that CSV file itself); ``primary="return"`` reads the mean evaluation return."""
+    path = Path(path)
+    with (path / "learning_curve.csv" if path.is_dir() else path).open() as f:
         rows = list(csv.DictReader(f))
     return (np.array([int(r["timesteps"]) for r in rows]),
             np.array([float(r[f"mean_{primary}"]) for r in rows]))

@@ -115,11 +115,51 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     return path
 
 
+def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
+    """The issue-20 lever runs (``<curves>/*.csv``, copies of their ``learning_curve.csv``)
+    against the shipped JointTracking-v1 ``ppo`` curve, on the same evaluation episodes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env_id = "cir_gym/JointTracking-v1"
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    runs = [("shipped ppo (baseline)", agents.agent_dir(env_id, "ppo"))]
+    runs += [(f.stem, f) for f in sorted(curves.glob("*.csv"))]
+    for label, src in runs:
+        steps, values = read_curve(src, primary)
+        keep = steps <= 1_500_000
+        axes[0].plot(steps[keep], values[keep], "o-", ms=3, label=label)
+        steps, returns = read_curve(src, "return")
+        axes[1].plot(steps[steps <= 1_500_000], returns[steps <= 1_500_000], "o-", ms=3,
+                     label=label)
+    axes[0].set_ylabel(f"{primary} (rad), evaluation")
+    axes[1].set_ylabel("mean return (env reward), evaluation")
+    for ax in axes:
+        ax.set_xlabel("training steps")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{env_id} from scratch: issue-20 levers (seeds {EVAL_SEED}…, one training "
+                 f"seed each, loaded machine)", fontsize=10)
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "JointTracking-v1_levers.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--out", default="results/learning_curves")
     p.add_argument("--env", action="append", help="environment id (repeatable; default: all)")
+    p.add_argument("--levers", metavar="DIR", help="also plot the lever curves in DIR/*.csv "
+                   "(results/learning_curves/levers) against the shipped JointTracking ppo")
     args = p.parse_args(argv)
+    if args.levers:
+        print(f"  {plot_levers(Path(args.levers), Path(args.out))}", file=sys.stderr)
+        return 0
     for env_id in args.env or list(cir_gym.ENVIRONMENTS):
         key = env_id.split(":")[-1]
         if key not in cir_gym.ENVIRONMENTS:
