@@ -140,10 +140,13 @@ class AdmittanceContactEnv(RobotEnv):
 
     ## Description
     Chapter 6's interaction-control problem. The KUKA iiwa 14 carries a 0.3 kg tool with a
-    hemispherical tip behind a wrist force/torque sensor. Below it, a plate on a prismatic joint
-    with a real spring and damper (``stiffness`` N/m, ``damping`` N s/m: the surface's contact
-    stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref`` cannot
-    do; the tool-plate contact itself is stiff; scene ``assets/scenes/admittance_contact.xml``).
+    hemispherical tip behind a wrist force/torque sensor. Below it, a 0.2-kg plate on a prismatic
+    joint with a real spring and damper (``stiffness`` N/m, ``damping`` N s/m: the surface's
+    contact stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref``
+    cannot do; the tool-plate contact itself is stiff: < 1 µm of penetration at 20 N; scene
+    ``assets/scenes/admittance_contact.xml``). At 1e5 N/m the plate's own mode is at
+    √(k/m)/2π ≈ 110 Hz, lightly damped at the default damping: the tool's sliding excites it, and
+    it shows in the force as a ±5 N ripple that no controller's bandwidth reaches.
     The tool starts 3 cm above the *nominal* surface (the plane z = 0.20 m, normal +z); the
     true surface is off by a height and a tilt drawn per episode (U(±``height_error``) m,
     U(±``tilt_error``) rad about a random horizontal axis), known to the controllers only
@@ -727,14 +730,15 @@ class AdmittanceContactEnv(RobotEnv):
         rendering.add_polyline(scene, self._pos_ref[:: max(1, len(self._pos_ref) // 120)],
                                0.003, rendering.REFERENCE)
         tip = self.data.site_xpos[self._site]
-        scale = 0.005  # m per N
+        scale = 0.005  # m per N; arrows end at the tip, pushing on the surface
         rendering.add_sphere(scene, self._pos_ref[k], 0.008, rendering.TARGET)
-        if self._f_ref > 0:
-            rendering.add_arrow(scene, tip, -self._f_ref * scale * SURFACE_NORMAL, 0.006,
-                                rendering.BLUE)
-        f = self.measured_contact_wrench()[:3]
-        if np.linalg.norm(f) > 0.2:
-            rendering.add_arrow(scene, tip, f * scale, 0.005, rendering.RED)
+        side = np.array([0.0, 0.05, 0.0])
+        if self._f_ref > 0:  # reference force (blue), beside the measured one
+            f_ref = -self._f_ref * scale * SURFACE_NORMAL
+            rendering.add_arrow(scene, tip - f_ref + side[[1, 0, 2]], f_ref, 0.006, rendering.BLUE)
+        f = self.measured_contact_wrench()[:3] * scale  # measured (red): the sensor, compensated
+        if np.linalg.norm(f) > 0.2 * scale:
+            rendering.add_arrow(scene, tip - f - side, f, 0.006, rendering.RED)
 
     def caption(self) -> str:
         k = min(self._k, self.max_steps)
