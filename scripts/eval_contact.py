@@ -129,6 +129,39 @@ def agent_rows(episodes: int, seed: int) -> dict[str, dict[str, Any]]:
     return out
 
 
+def plot_learning_curves(reference: float, path: Path) -> bool:
+    """Each shipped agent's evaluation curve (mean force RMS error) against the best controller's
+    RMS error on the randomize variant; False when there is no agent."""
+    import csv
+
+    from agents import TRAINED_DIR, available
+    from agents.train import env_dir_name
+
+    names = available(ENV_ID)
+    if not names:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for name in names:
+        rows = list(csv.DictReader(open(TRAINED_DIR / env_dir_name(ENV_ID) / name
+                                        / "learning_curve.csv")))
+        ax.plot([float(r["timesteps"]) for r in rows],
+                [float(r["mean_force_rms_error"]) for r in rows], "o-", label=name)
+    ax.axhline(reference, color="k", ls="--", lw=0.8, label="best controller")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("force RMS error (N)")
+    ax.set_title("AdmittanceContact-v0, randomize=True", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=3)
@@ -213,6 +246,9 @@ def main(argv: list[str] | None = None) -> None:
                      f"{100 * r['stopped']:.0f} %: {verdict} the best controller")
     if not agents_rows:
         lines.append("- no shipped agent in agents/trained/AdmittanceContact-v0")
+    elif plot_learning_curves(ref["force_rms_error"], out / "learning_curves.png"):
+        lines.append("- learning curves (evaluation episodes during training, seeds 100000+): "
+                     "`learning_curves.png`")
     lines += ["", "Figures: `force_vs_time.png`, `explicit_force_crossover.png`; numbers in "
               "`results.json`.", ""]
     (out / "README.md").write_text("\n".join(lines))
