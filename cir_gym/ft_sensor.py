@@ -32,7 +32,7 @@ Presets (:data:`PRESETS`), from the sensors' documents as summarised in
 * ``"ati_gamma"``: ATI Gamma SI-32-2.5 class: about 6 mN resolution, sampled up to 7 kHz
   (ATI data sheet). Here sampled at the physics rate (1 kHz; faster sampling cannot be
   represented), noise std 0.01 N / 0.0005 N m, resolution 1/160 N / 1/2000 N m (torque:
-  assumption), cut-off 100 Hz, delay 1 ms (assumptions).
+  assumption), cut-off 200 Hz, delay 1 ms (assumptions).
 * ``"ideal"``: the exact MuJoCo wrench every physics step (tests, upper bounds).
 """
 
@@ -117,7 +117,7 @@ PRESETS: dict[str, SensorSpec] = {
         noise_std=(0.01, 0.0005),
         resolution=(1.0 / 160.0, 1.0 / 2000.0),
         sample_rate=1000.0,
-        cutoff=100.0,
+        cutoff=200.0,
         delay=0.001,
     ),
 }
