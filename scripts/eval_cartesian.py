@@ -21,13 +21,16 @@ Every line of the README is written here: regenerate it, do not edit it by hand.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 import agents
 import baselines
+from agents.report import read_curve
 from cir_gym.envs.cartesian_tracking import NEAR_SINGULAR_Q2, NEAR_SINGULAR_Q6
 from cir_gym.evaluation import EvaluationResult, evaluate
 from cir_gym.plotting import _plt
@@ -202,6 +205,45 @@ def regulation(seeds: int) -> list[str]:
     ]
 
 
+def learning_curves(out: Path) -> list[str]:
+    """The shipped agents' learning curves (their own evaluations during training)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    rows = []
+    for name in agents.available(ENV):
+        directory = agents.TRAINED_DIR / agents.env_dir_name(ENV) / name
+        steps, rms = read_curve(directory, "position_rms")
+        config = yaml.safe_load((directory / "config.yml").read_text())
+        meta = json.loads((directory / "meta.json").read_text())
+        setting = config.get("env_kwargs") or {}
+        ax.semilogy(steps, 1e3 * rms, "o-", label=f"{name} {setting or ''}")
+        rows.append(f"| {name} | {setting or 'exact model'} | {meta['timesteps']} | "
+                    f"{meta['steps_per_s']:.0f} | {meta['wall_time_s'] / 60:.0f} | "
+                    f"{'yes' if meta.get('finished') else 'no (interrupted)'} | "
+                    f"{meta.get('shipped_model', 'final')} | "
+                    f"{', '.join(f'{1e3 * v:.2f}' for v in rms)} |")
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("position RMS (mm, log), 5 evaluation episodes")
+    ax.set_title("CartesianTracking-v0: learning curves")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "learning_curves.png", dpi=110)
+    plt.close(fig)
+    return [
+        "Training budget (2 shared cores, loaded by the other helpers' jobs): what each agent "
+        "got, and its evaluations during training (seeds 100000-100004; not the seeds of the "
+        "tables above).",
+        "",
+        "| agent | setting | steps | steps/s | minutes | finished | shipped model | position "
+        "RMS at each evaluation (mm) |",
+        "|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+        "![learning curves](learning_curves.png)",
+        "",
+    ]
+
+
 SECTIONS = {"1": "payload", "2": "near_singular", "3": "regulation", "4": "agents"}
 
 
@@ -223,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             lines = near_singular(args.episodes, out)
         elif key == "4":
             lines = payload_table(args.episodes, out, agents.available(ENV))
+            lines += learning_curves(out)
         else:
             lines = regulation(2 * args.episodes)
         command = f"--episodes {args.episodes} --sections {key}"
