@@ -134,6 +134,44 @@ def classic_cases(out: Path) -> list[str]:
     return rows
 
 
+def free_space_retreat(angle: float, gain: float = 0.5, dt: float = 0.04,
+                       duration: float = 15.0) -> tuple[float, float]:
+    """IBVS (current L, exact depths) without a robot: a camera rotated by ``angle`` about its
+    optical axis from the goal (target 0.75 m ahead, the envs' camera and twist limits).
+    Returns (retreat (m), final feature error (px))."""
+    from cir_gym import trajectories as traj
+    from cir_gym.envs.visual_servo import TWIST_LIMIT
+    from cir_gym.vision import Camera, interaction_matrix, project
+
+    cam = Camera.from_fovy(60.0, 640, 480)
+    h = 0.1
+    points = np.array([[-h, -h, 0.75], [h, -h, 0.75], [h, h, 0.75], [-h, h, 0.75]])
+    s_ref = project(points, cam)
+    R = traj.matrix_from_axis_angle(np.array([0.0, 0.0, 1.0]), angle)
+    c, z_min = np.zeros(3), 0.0
+    for _ in range(int(duration / dt)):
+        P = (points - c) @ R  # the points in the camera frame
+        s = project(P, cam)
+        V = -gain * np.linalg.pinv(interaction_matrix(s, P[:, 2], cam)) @ (s - s_ref).ravel()
+        V /= max(1.0, float(np.max(np.abs(V) / np.array(TWIST_LIMIT))))
+        c = c + dt * R @ V[:3]
+        w = float(np.linalg.norm(V[3:]))
+        if w > 0:
+            R = R @ traj.matrix_from_axis_angle(V[3:] / w, w * dt)
+        z_min = min(z_min, c[2])
+    e = float(np.sqrt(np.mean(np.sum((s - s_ref) ** 2, axis=1))))
+    return -z_min, e
+
+
+def free_space() -> list[str]:
+    rows = ["| rotation about the optical axis | IBVS retreat without the robot (m) | "
+            "final error after 15 s (px) |", "|---:|---:|---:|"]
+    for deg in (75.0, 90.0, 115.0, 150.0, 170.0):
+        retreat, e = free_space_retreat(np.deg2rad(deg))
+        rows.append(f"| {deg:.0f}° | {retreat:.2f} | {e:.2f} |")
+    return rows
+
+
 def seeds(n: int, n_other: int) -> list[str]:
     """``n`` seeds for the first controller (ibvs, the default), ``n_other`` for the rest."""
     rows = ["| environment | controller | success | final error (px), mean / worst | "
@@ -227,6 +265,7 @@ def main() -> None:
         sections = json.loads(store.read_text())
     if "cases" in parts:
         sections["cases"] = classic_cases(args.out)
+        sections["free_space"] = free_space()
     if "seeds" in parts:
         sections["seeds"] = seeds(args.episodes, args.sweep_episodes)
         sections["seeds_n"] = args.episodes
