@@ -34,16 +34,12 @@ def _random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 def _moved(points: np.ndarray, twist: np.ndarray, h: float) -> np.ndarray:
     """Points (fixed in the world) seen from the camera after it moves with a constant twist
-    (v, ω) (optical frame) for h seconds: the camera's new pose in its old frame is
-    (exp(h ω), its centre after the screw motion); points map by the inverse."""
+    (v, ω) (optical frame) for h seconds: its new pose in its old frame is (exp(h[ω]×), c)
+    with c = ∫₀ʰ exp(τ[ω]×) v dτ = h v + h²/2 ω × v + h³/6 ω × (ω × v) + O(h⁴); points map
+    by the inverse."""
     v, w = twist[:3], twist[3:]
-    theta = np.linalg.norm(w) * h
-    axis = w / np.linalg.norm(w)
-    R = traj.matrix_from_axis_angle(axis, theta)
-    # centre of a constant twist: ∫ R(τ) v dτ, by fine quadrature
-    taus = np.linspace(0.0, h, 2001)
-    Rs = [traj.matrix_from_axis_angle(axis, np.linalg.norm(w) * tau) for tau in taus]
-    c = np.trapezoid(np.array([Ri @ v for Ri in Rs]), taus, axis=0)
+    R = traj.matrix_from_axis_angle(w / np.linalg.norm(w), np.linalg.norm(w) * h)
+    c = h * v + h**2 / 2 * np.cross(w, v) + h**3 / 6 * np.cross(w, np.cross(w, v))
     return (points - c) @ R  # Rᵀ (P − c) row-wise
 
 
