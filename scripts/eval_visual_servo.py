@@ -2,7 +2,8 @@
 projected features, calibration errors, and the cost of detected-feature episodes.
 
     python scripts/eval_visual_servo.py --out results/visual_servo/ [--episodes 100]
-        [--detected-episodes 20] [--sweep-episodes 20] [--parts cases,seeds,detected,sweep]
+        [--detected-episodes 20] [--sweep-episodes 20]
+        [--parts cases,seeds,detected,sweep,agent]
 
 Writes ``<out>/README.md`` (the tables, with how each number was measured) and figures:
 ``classic_cases.png`` (image-plane feature paths and camera paths, IBVS beside PBVS, for a
@@ -249,6 +250,25 @@ def sweep(n: int, out: Path) -> list[str]:
     return rows
 
 
+def agent(n: int) -> list[str]:
+    """The shipped from-scratch PPO agent against IBVS on the same seeds."""
+    import agents
+
+    rows = ["| policy | success | final error (px), mean / worst | convergence time (s), median "
+            "| feature lost or joint limit |", "|---|---:|---:|---:|---:|"]
+    for label, policy in (("agent:ppo", agents.load(EYE_IN_HAND, "ppo")),
+                          ("ibvs", baselines.make("ibvs", EYE_IN_HAND))):
+        res = evaluate(policy, EYE_IN_HAND, n_episodes=n, seed=SEED, policy_name=label)
+        s = res.summary
+        ended = sum(ep.terminated for ep in res.episodes)
+        rows.append(f"| {label} | {100 * res.success_rate:.0f} % | "
+                    f"{s['final_feature_error']['mean']:.2f} / "
+                    f"{s['final_feature_error']['worst']:.2f} | "
+                    f"{s['convergence_time']['median']:.2f} | {ended} of {n} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/visual_servo"))
@@ -275,6 +295,8 @@ def main() -> None:
     if "sweep" in parts:
         sections["sweep"] = sweep(args.sweep_episodes, args.out)
         sections["sweep_n"] = args.sweep_episodes
+    if "agent" in parts:
+        sections["agent"] = agent(args.sweep_episodes)
     store.write_text(json.dumps(sections, indent=1))
     print(f"wrote {store}; README.md is written by hand from these tables")
 
