@@ -75,8 +75,13 @@ def main() -> None:
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("results/peg_in_hole"))
     parser.add_argument("--skip-sweeps", action="store_true")
+    parser.add_argument("--picture-only", action="store_true",
+                        help="only render insertion.png (hybrid_spiral, seed 1000, mid-search)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.picture_only:
+        picture(args.out)
+        return
     t_start = time.perf_counter()
     main_runs = [run(name, args.episodes) for name in ("hybrid_spiral", "position_only")]
     main_runs.append(run("hybrid_force_position", args.episodes, chamfer=0.003))
@@ -111,6 +116,26 @@ def _write(out: Path, lines: list[str], main_runs: list[dict[str, Any]],
     (out / "peg_in_hole.md").write_text(text)
     (out / "results.json").write_text(json.dumps({"main": main_runs, **sweeps}, indent=1))
     return text
+
+
+def picture(out: Path, seed: int = 1000, steps: int = 2600) -> None:
+    """The env's own rendering (draw_task: cut-away block, true bore axis, contact force) of
+    hybrid_spiral on ``seed`` after ``steps`` control steps, to ``insertion.png``."""
+    import gymnasium as gym
+    from PIL import Image
+
+    env = gym.make(ENV_ID, render_mode="rgb_array", width=640, height=480)
+    policy = baselines.make("hybrid_spiral", ENV_ID, env=env)
+    obs, _ = env.reset(seed=seed)
+    state, start = None, np.array([True])
+    for _ in range(steps):
+        action, state = policy.predict(obs, state, start)
+        start = np.array([False])
+        obs, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            break
+    Image.fromarray(env.render()).save(out / "insertion.png")
+    env.close()
 
 
 def _figures(sweeps: dict[str, list[dict[str, Any]]], out: Path) -> None:
