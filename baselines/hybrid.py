@@ -137,6 +137,11 @@ class _TipController(Controller):
 
     def __init__(self, context: TaskContext, gains: Any = None, *, robot: Robot | None = None,
                  **overrides: Any) -> None:
+        if context.action_kind != "joint_torque":
+            raise ValueError(
+                f"controller {self.name!r} commands joint torques: make the env with "
+                f"control='torque', not {context.action_kind!r}"
+            )
         super().__init__(context, gains, **overrides)
         extras = context.extras
         self.robot = robot if robot is not None else context.nominal_robot()
