@@ -1,0 +1,268 @@
+"""Python overhead of ``env.step`` and of the controllers' ``predict`` against MuJoCo's own cost.
+
+    python benchmarks/bench_step.py [--steps 200] [--repeat 15] [--batch 16] [--env ID ...]
+                                    [--out results/benchmarks.md]
+
+Ratios, not absolute times: every pair of loops is timed alternately in the same run and the
+best of ``--repeat`` trials is kept, so a loaded machine slows both sides alike.
+
+Environments (each built with ``gymnasium.make`` and its default wrappers, zero action, resets
+not timed):
+
+- physics-driven envs (every env whose ``step`` runs ``mj_step``: the torque-driven ones and
+  VisualServo, whose joint velocity servos are simulated): overhead = time of ``env.step``
+  minus ``frame_skip`` × ``mj_step`` on a fresh ``MjData`` of the same model (zero control),
+  timed in the same run. Gymnasium's ``Reacher-v5`` is measured the same way; the table gives
+  each env's overhead / Reacher's overhead.
+- kinematic envs (RedundantIK, RedundantIK7: no dynamics in ``step``): overhead = time of
+  ``env.step`` minus ``mj_kinematics + mj_comPos + mj_jacSite`` (the end-effector site), and
+  the ratio of that overhead to the same kinematics.
+
+Controllers: every controller in ``baselines.CONTROLLERS`` on the first registered env it
+applies to: ``predict`` on one observation (fresh state each call: the first step of an
+episode) against one ``mj_step`` of that env's model; then ``predict`` on ``--batch`` stacked
+observations, per row.
+
+Prints markdown and writes it to ``--out`` under the heading ``## env.step and predict``,
+replacing only that section (other sections of the file, e.g. vector-env scaling, are kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+import baselines
+import cir_gym
+
+KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
+REFERENCE = "Reacher-v5"
+SECTION = "## env.step and predict"
+OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
+
+
+def best_pair(
+    mine: Callable[[], float], raw: Callable[[], float], repeat: int
+) -> tuple[float, float]:
+    """Best-of-``repeat`` seconds per call of two loops timed alternately.
+
+    Each loop returns its own per-call time (so it can leave out resets).
+    """
+    mine()
+    raw()
+    t_mine, t_raw = [], []
+    for _ in range(repeat):
+        t_mine.append(mine())
+        t_raw.append(raw())
+    return min(t_mine), min(t_raw)
+
+
+def step_loop(env: gym.Env, steps: int) -> Callable[[], float]:
+    """Seconds per ``env.step`` (zero action) over up to ``steps`` steps; resets untimed."""
+    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    left = [0]
+
+    def loop() -> float:
+        if left[0] < steps:
+            env.reset(seed=0)
+            left[0] = env.spec.max_episode_steps or 10**9
+        n = 0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(action)
+            n += 1
+            if terminated or truncated:
+                break
+        t = time.perf_counter() - t0
+        left[0] = 0 if (terminated or truncated) else left[0] - n
+        return t / n
+
+    return loop
+
+
+def physics_loop(model: mujoco.MjModel, frame_skip: int, steps: int) -> Callable[[], float]:
+    """Seconds per ``frame_skip`` × ``mj_step`` at zero control on a fresh MjData."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    qpos0, qvel0 = data.qpos.copy(), data.qvel.copy()
+
+    def loop() -> float:
+        data.qpos[:] = qpos0
+        data.qvel[:] = qvel0
+        data.time = 0.0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            for _ in range(frame_skip):
+                mujoco.mj_step(model, data)
+        return (time.perf_counter() - t0) / steps
+
+    return loop
+
+
+def kinematics_loop(model: mujoco.MjModel, site: int, steps: int) -> Callable[[], float]:
+    """Seconds per mj_kinematics + mj_comPos + mj_jacSite on a fresh MjData."""
+    data = mujoco.MjData(model)
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+
+    def loop() -> float:
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            mujoco.mj_jacSite(model, data, jacp, jacr, site)
+        return (time.perf_counter() - t0) / steps
+
+    return loop
+
+
+def bench_envs(ids: list[str], steps: int, repeat: int) -> list[str]:
+    rows = []
+    results = {}
+    for env_id in [REFERENCE, *ids]:
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        u = env.unwrapped
+        mine = step_loop(env, steps)
+        if env_id in KINEMATIC:
+            site = u.model.nsite - 1
+            ctx = u.controller_context()
+            if ctx.site is not None:
+                site = mujoco.mj_name2id(u.model, mujoco.mjtObj.mjOBJ_SITE, ctx.site)
+            raw = kinematics_loop(u.model, site, steps)
+            what = "mj_kinematics + mj_comPos + mj_jacSite"
+        else:
+            raw = physics_loop(u.model, u.frame_skip, steps)
+            what = f"{u.frame_skip} × mj_step"
+        t_step, t_raw = best_pair(mine, raw, repeat)
+        results[env_id] = (t_step, t_raw, what, env_id in KINEMATIC)
+        env.close()
+        print(f"  {env_id}: step {t_step * 1e6:.1f} µs, {what} {t_raw * 1e6:.1f} µs", flush=True)
+    ref_over = results[REFERENCE][0] - results[REFERENCE][1]
+    rows.append(
+        "| env | MuJoCo part | step / MuJoCo part | overhead / Reacher-v5's overhead "
+        "| overhead / MuJoCo part |"
+    )
+    rows.append("|---|---|---:|---:|---:|")
+    for env_id, (t_step, t_raw, what, kin) in results.items():
+        over = t_step - t_raw
+        vs_ref = "—" if kin else f"{over / ref_over:.2f}"
+        rows.append(
+            f"| {env_id} | {what} | {t_step / t_raw:.2f} | {vs_ref} | {over / t_raw:.2f} |"
+        )
+    return rows
+
+
+def stack(obs: dict, n: int) -> dict:
+    return {k: np.stack([np.asarray(v)] * n) for k, v in obs.items()}
+
+
+def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> list[str]:
+    rows = [
+        f"| controller | env | predict(1 obs) / mj_step | predict({batch} obs) per row / mj_step |",
+        "|---|---|---:|---:|",
+    ]
+    envs: dict[str, gym.Env] = {}
+    for name in baselines.CONTROLLERS:
+        env_id = next((i for i in ids if name in baselines.available(i)), None)
+        if env_id is None:
+            continue
+        if env_id not in envs:
+            envs[env_id] = gym.make(env_id)
+        env = envs[env_id]
+        obs, _ = env.reset(seed=0)
+        policy = baselines.make(name, env_id, env=env)
+        u = env.unwrapped
+
+        def single(policy=policy, obs=obs) -> float:
+            t0 = time.perf_counter()
+            for _ in range(calls):
+                policy.predict(obs)
+            return (time.perf_counter() - t0) / calls
+
+        raw = physics_loop(u.model, 1, calls)
+        t_pred, t_step = best_pair(single, raw, repeat)
+        many = stack(obs, batch)
+        try:
+            batched_policy = baselines.make(name, env_id, env=env)
+            batched_policy.predict(many)
+
+            def batched(policy=batched_policy, many=many) -> float:
+                t0 = time.perf_counter()
+                for _ in range(max(1, calls // batch)):
+                    policy.predict(many)
+                return (time.perf_counter() - t0) / (max(1, calls // batch) * batch)
+
+            t_batch, t_step2 = best_pair(batched, raw, repeat)
+            per_row = f"{t_batch / t_step2:.2f}"
+        except Exception as exc:  # a controller that takes single observations only
+            per_row = f"not batched ({type(exc).__name__})"
+        print(f"  {name} on {env_id}: predict {t_pred * 1e6:.1f} µs, mj_step {t_step * 1e6:.1f} µs",
+              flush=True)
+        rows.append(f"| {name} | {env_id} | {t_pred / t_step:.2f} | {per_row} |")
+    for env in envs.values():
+        env.close()
+    return rows
+
+
+def write_section(path: Path, body: str) -> None:
+    """Replace (or append) the ``SECTION`` of ``path``, keeping every other ``## `` section."""
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
+    block = f"{SECTION}\n\n{body.strip()}\n\n"
+    text = pattern.sub(lambda _: block, text) if pattern.search(text) else (
+        text.rstrip() + "\n\n" + block
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text.rstrip() + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=200, help="steps/calls per timed trial")
+    parser.add_argument("--repeat", type=int, default=15, help="trials; the best is kept")
+    parser.add_argument("--batch", type=int, default=16, help="rows of the batched predict")
+    parser.add_argument("--env", nargs="*", default=None, help="env ids (default: all)")
+    parser.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    ids = args.env or list(cir_gym.ENVIRONMENTS)
+    print("env.step:", flush=True)
+    env_rows = bench_envs(ids, args.steps, args.repeat)
+    print("controllers:", flush=True)
+    ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch)
+    body = "\n".join(
+        [
+            f"`python benchmarks/bench_step.py --steps {args.steps} --repeat {args.repeat} "
+            f"--batch {args.batch}` (mujoco {mujoco.__version__}, gymnasium {gym.__version__}; "
+            "best of the trials, the two sides of each ratio timed alternately in one run).",
+            "",
+            "`env.step` through `gymnasium.make` (default wrappers), zero action, resets not "
+            "timed. Overhead = step − MuJoCo part (the raw C calls on a fresh MjData of the "
+            "same model). Reacher-v5 is Gymnasium's, measured the same way.",
+            "",
+            *env_rows,
+            "",
+            "Controllers' `predict` (fresh state: an episode's first step) against one "
+            "`mj_step` of the env's model; batched: stacked copies of the observation.",
+            "",
+            *ctrl_rows,
+        ]
+    )
+    print()
+    print(body)
+    if str(args.out) != "-":
+        write_section(args.out, body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
