@@ -440,7 +440,10 @@ class _VisualServoBase(RobotEnv):
         e = float(self._err[self._k])
         r_features = -(1.0 - float(np.mean(np.exp(-(e**2) / np.array([100.0, 10.0, 1.0])**2))))
         r_action = -self.action_weight * float(a @ a) / a.size
-        r_term = -self.termination_penalty if terminated else 0.0
+        # a failure is charged the rest of the episode at the worst feature reward (−1 per
+        # step) on top of the penalty, so that ending an episode early never pays
+        r_term = (-self.termination_penalty - float(self.max_steps - self._k)) if terminated \
+            else 0.0
         reward = r_features + r_action + r_term
         truncated = self._k >= self.max_steps and not terminated
         if not self._done:
@@ -688,8 +691,10 @@ class VisualServoEnv(_VisualServoBase):
     - r_features = −(1 − (1/3) Σ_s exp(−e² / s²)), s ∈ (100, 10, 1) px, e the true feature
       error (RMS point distance ‖s − s*‖/2, px), in [−1, 0];
     - r_action = −``action_weight`` ‖a‖² / dim(a);
-    - r_termination = −``termination_penalty`` on the step that loses a feature, reaches a
-      joint limit or diverges, else 0.
+    - r_termination = −``termination_penalty`` − (steps left in the episode) on the step that
+      loses a feature, reaches a joint limit or diverges, else 0: the rest of the episode is
+      charged at the worst feature reward, so ending early never pays (with a constant
+      penalty a PPO agent learned to lose the features at once).
 
     ## Starting State
     At rest at the start offset (see Description), drawn until reachable inside the joint
@@ -718,7 +723,7 @@ class VisualServoEnv(_VisualServoBase):
     | control_freq | 25.0 | control frequency (Hz); ViSP's 40 ms period |
     | episode_duration | 15.0 | s |
     | action_weight | 0.01 | weight of the action-size cost |
-    | termination_penalty | 50.0 | reward lost on a failure |
+    | termination_penalty | 50.0 | reward lost on a failure, on top of the steps left |
     | render_mode | None | None, "human" or "rgb_array" (camera "side", the camera image inset) |
     | width | 480 | frame width (px) |
     | height | 360 | frame height (px) |
@@ -831,7 +836,7 @@ class VisualServoEyeToHandEnv(_VisualServoBase):
     | control_freq | 25.0 | control frequency (Hz); ViSP's 40 ms period |
     | episode_duration | 15.0 | s |
     | action_weight | 0.01 | weight of the action-size cost |
-    | termination_penalty | 50.0 | reward lost on a failure |
+    | termination_penalty | 50.0 | reward lost on a failure, on top of the steps left |
     | render_mode | None | None, "human" or "rgb_array" (camera "side", the camera image inset) |
     | width | 480 | frame width (px) |
     | height | 360 | frame height (px) |
