@@ -19,6 +19,7 @@ metrics. The base class owns what every task does the same way:
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import sys
 import warnings
@@ -59,6 +60,30 @@ GL_DISABLED = ("disable", "disabled", "off", "false", "0")
 MIN_CONTROL_FREQ = 1.0  # Hz: below, one step would hold ≥ 1 s of physics (1e-9 Hz hangs)
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverged
+
+# Hot-path helpers of _check_action/_simulate: the ufuncs themselves (np.max, np.clip add a
+# Python dispatch layer that costs more than the 7-element work), the state mj_getState copies.
+_ABS = np.absolute
+_MAX = np.maximum.reduce
+_SUM = np.add.reduce
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
+_isfinite = math.isfinite
+_STATE = int(
+    mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL | mujoco.mjtState.mjSTATE_ACT
+)
+_UNSTABLE_WARNINGS = sorted(
+    int(w)
+    for w in (
+        mujoco.mjtWarning.mjWARN_BADQACC,
+        mujoco.mjtWarning.mjWARN_BADQPOS,
+        mujoco.mjtWarning.mjWARN_BADQVEL,
+        mujoco.mjtWarning.mjWARN_BADCTRL,
+    )
+)
+# MuJoCo's four are neighbours (a slice of the counters); if a future enum splits them, the
+# slice widens and _simulate counts them one by one instead (RobotEnv._instability_warnings)
+_UNSTABLE_FIRST, _UNSTABLE_LAST = _UNSTABLE_WARNINGS[0], _UNSTABLE_WARNINGS[-1]
+_UNSTABLE_CONTIGUOUS = _UNSTABLE_LAST - _UNSTABLE_FIRST + 1 == len(_UNSTABLE_WARNINGS)
 
 
 def _has_display() -> bool:
@@ -279,13 +304,19 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
         self._renderer: mujoco.Renderer | None = None
         self._viewer: Any = None
-        self._safe_qpos = self.data.qpos.copy()
-        self._safe_qvel = self.data.qvel.copy()
-        self._safe_act = self.data.act.copy()
+        size = mujoco.mj_stateSize(model, _STATE)
+        self._safe_state = np.zeros(size)  # the last finite (qpos, qvel, act), see _simulate
+        self._scratch_state = np.zeros(size)
+        mujoco.mj_getState(model, self.data, self._safe_state, _STATE)
+        self._warn_data: mujoco.MjData | None = None  # self.data of the cached view below
+        self._warn_view = np.zeros(0, np.int32)
 
     # ------------------------------------------------------------------ validation
     def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
         """Validate an action; return it as float64 clipped to [-1, 1] and whether it was clipped.
+
+        The result is a new array (never the caller's). One reduction, max |a|, decides both
+        finiteness (NaN propagates, inf exceeds 1) and clipping; the errors come only after.
 
         Raises:
             ValueError: wrong shape, a non-numeric dtype, or NaN/inf entries.
@@ -311,41 +342,58 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                     f"action has shape {a.shape}; this environment expects shape {shape} "
                     f"(values in [-1, 1])"
                 )
+        if a.size == 0 or _MAX(_ABS(a)) <= 1.0:  # the common case: finite and in range
+            return a, False
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
-        clipped = np.clip(a, -1.0, 1.0)
-        return clipped, bool(np.any(clipped != a))
+        return _CLIP(a, -1.0, 1.0, out=a), True
 
     # ------------------------------------------------------------------ physics
     def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:
-        """Hold ``ctrl`` for ``frame_skip`` steps; return True (and restore) if it diverged."""
-        d = self.data
-        if np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)):
-            self._safe_qpos[:] = d.qpos  # the last finite state, restored on divergence
-            self._safe_qvel[:] = d.qvel
-            self._safe_act[:] = d.act
+        """Hold ``ctrl`` for ``frame_skip`` steps; return True (and restore) if it diverged.
+
+        Cost beyond ``mj_step``: one ``mj_getState`` and one sum for the finite check of the
+        state before (kept to restore it on divergence), a bytes compare of MuJoCo's
+        instability-warning counters and two reductions (max |q̇|, Σ q) after; the exact
+        element-wise checks run only when these flag something.
+        """
+        m, d = self.model, self.data
+        scratch = self._scratch_state
+        mujoco.mj_getState(m, d, scratch, _STATE)
+        if _isfinite(_SUM(scratch)):  # all finite (an overflowing sum only skips this save)
+            self._scratch_state, self._safe_state = self._safe_state, scratch
         d.ctrl[:] = ctrl
         if qfrc is not None:
             d.qfrc_applied[:] = qfrc
-        diverged = False
-        warnings_before = self._instability_warnings()
-        with np.errstate(all="ignore"):
-            for _ in range(self.frame_skip):
-                mujoco.mj_step(self.model, d)
-            # MuJoCo resets a bad state or zeroes a huge control and counts a warning
-            diverged = self._instability_warnings() > warnings_before
-            if not diverged:
+        if self._warn_data is not d:  # a view of MuJoCo's counters, rebuilt if data changed
+            number = d.warning.number
+            self._warn_view = number[_UNSTABLE_FIRST : _UNSTABLE_LAST + 1]
+            self._warn_data = d
+        warnings_before = (
+            self._warn_view.tobytes() if _UNSTABLE_CONTIGUOUS else self._instability_warnings()
+        )
+        for _ in range(self.frame_skip):
+            mujoco.mj_step(m, d)
+        # MuJoCo resets a bad state or zeroes a huge control and counts a warning (the
+        # counters only grow, so changed bytes mean a new warning)
+        diverged = (
+            self._warn_view.tobytes() != warnings_before
+            if _UNSTABLE_CONTIGUOUS
+            else self._instability_warnings() > warnings_before
+        )
+        if not diverged and not (
+            _MAX(_ABS(d.qvel), initial=0.0) <= MAX_JOINT_SPEED and _isfinite(_SUM(d.qpos))
+        ):  # NaN fails every comparison: exact checks only here
+            with np.errstate(all="ignore"):
                 diverged = bool(
                     not np.all(np.isfinite(d.qpos))
                     or not np.all(np.isfinite(d.qvel))
                     or np.max(np.abs(d.qvel), initial=0.0) > MAX_JOINT_SPEED
                 )
         if diverged:
-            mujoco.mj_resetData(self.model, d)
-            d.qpos[:] = self._safe_qpos
-            d.qvel[:] = self._safe_qvel
-            d.act[:] = self._safe_act
-            mujoco.mj_forward(self.model, d)
+            mujoco.mj_resetData(m, d)
+            mujoco.mj_setState(m, d, self._safe_state, _STATE)
+            mujoco.mj_forward(m, d)
         return diverged
 
     _UNSTABLE = (
@@ -363,9 +411,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
         mujoco.mj_forward(self.model, self.data)
-        self._safe_qpos[:] = self.data.qpos
-        self._safe_qvel[:] = self.data.qvel
-        self._safe_act[:] = self.data.act
+        mujoco.mj_getState(self.model, self.data, self._safe_state, _STATE)
 
     # ------------------------------------------------------------------ rendering
     #: render() draws the task's markers (:meth:`draw_task`) and the :meth:`caption`; set False
