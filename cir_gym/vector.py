@@ -1,0 +1,291 @@
+"""A native batched JointTracking on ``mujoco.batch.Batch``: one C thread pool, no env per process.
+
+>>> from cir_gym.vector import JointTrackingVectorEnv
+>>> envs = JointTrackingVectorEnv(num_envs=64)            # doctest: +SKIP
+>>> obs, infos = envs.reset(seed=0)                       # env i is JointTracking reset(seed=i)
+>>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
+
+What is batched and what is not:
+
+* the physics of all ``num_envs`` copies is one ``Batch.step(nstep=frame_skip)`` call (MuJoCo's
+  threads; bit-identical to ``mj_step`` on one MjData per copy, MuJoCo's documentation says);
+* the task's step (action check, torques, divergence check, tracking error, the four reward
+  terms, following-error stop, observation) is the single env's arithmetic on ``(num_envs, n)``
+  arrays, written here again in array form (``JointTrackingEnv.step`` is the specification; the
+  test compares the two env by env);
+* resets are the single env's own: one ``JointTrackingEnv`` (the template) draws each copy's
+  reference and initial state with that copy's random generator, and its MjData's integration
+  state is written into the copy's row; episode metrics are the template's ``episode_metrics``
+  on the copy's history.
+
+Supported: JointTracking's default sensing and actuation (no ``drive``, ``torque_noise``,
+``encoder_resolution``; no per-episode ``randomize``: those raise InvalidArgument); every other
+argument (reference, episode length, payload, friction, reward weights...) as in the single env.
+
+Autoreset is Gymnasium's ``SAME_STEP`` mode: a finished copy is reset in the same ``step``; its
+last observation and info are in ``infos["final_obs"]`` / ``infos["final_info"]`` (masks
+``"_final_obs"``, ``"_final_info"``). Copy ``i`` of ``reset(seed=s)`` is the single env after
+``reset(seed=s + i)``, and its later episodes those of ``reset()`` (the same generator).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import mujoco.batch
+import numpy as np
+from gymnasium.vector.utils import batch_space
+
+from cir_gym.envs.base import (
+    _UNSTABLE_WARNINGS as _UNSTABLE,  # MuJoCo's instability warnings, as RobotEnv counts them
+)
+from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_number
+from cir_gym.envs.joint_tracking import JointTrackingEnv
+
+__all__ = ["JointTrackingVectorEnv"]
+
+_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+_UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
+
+
+class JointTrackingVectorEnv(gym.vector.VectorEnv):
+    """``num_envs`` copies of ``cir_gym/JointTracking-v1`` stepped by one ``mujoco.batch.Batch``.
+
+    Args:
+        num_envs: number of copies (≥ 1).
+        nthread: MuJoCo threads (0: all CPUs).
+        **kwargs: JointTracking's arguments (see ``JointTrackingEnv``), except ``drive``,
+            ``torque_noise``, ``encoder_resolution``, ``randomize`` and ``render_mode``.
+
+    Raises:
+        InvalidArgument: ``num_envs`` < 1, an unsupported argument, or one JointTracking rejects.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int = 64, nthread: int = 0, **kwargs: Any) -> None:
+        num_envs = int(check_number("num_envs", num_envs, 1, 1e6))
+        nthread = int(check_number("nthread", nthread, 0, 1024))
+        for name, default in _UNSUPPORTED.items():
+            if name in kwargs and kwargs[name] != default:
+                raise InvalidArgument(
+                    f"JointTrackingVectorEnv supports {name}={default!r} only (got "
+                    f"{kwargs[name]!r}); use gymnasium.make_vec('cir_gym/JointTracking-v1', ...)"
+                )
+        if kwargs.get("render_mode") is not None:
+            raise InvalidArgument("JointTrackingVectorEnv does not render (render_mode=None)")
+        self.template = JointTrackingEnv(**kwargs)  # validates every other argument
+        t = self.template
+        self.num_envs = num_envs
+        self.single_observation_space = t.observation_space
+        self.single_action_space = t.action_space
+        self.observation_space = batch_space(t.observation_space, num_envs)
+        self.action_space = batch_space(t.action_space, num_envs)
+        self.metadata = {**self.metadata, "render_fps": t.metadata["render_fps"]}
+        self.spec = None
+        self.render_mode = None
+
+        self.batch = mujoco.batch.Batch(t.model, nsim=num_envs, nthread=nthread)
+        self._qpos = self.batch.bind("qpos")
+        self._qvel = self.batch.bind("qvel")
+        self._ctrl = self.batch.bind("ctrl")
+        self._state_row = np.zeros(mujoco.mj_stateSize(t.model, _INTEGRATION))
+
+        N, n, steps = num_envs, t.n, t.max_steps
+        # an own generator per copy (unseeded until reset(seed=...))
+        self._rngs = [gym.utils.seeding.np_random()[0] for _ in range(N)]
+        self._ref = np.zeros((N, 3, steps + 1, n))
+        self._err = np.zeros((N, steps, n))
+        self._tau = np.zeros((N, steps, n))
+        self._sat = np.zeros((N, steps), dtype=bool)
+        self._k = np.zeros(N, dtype=np.int64)
+        self._k_scored = np.zeros(N, dtype=np.int64)
+        self._limit = np.zeros(N)
+        self._judged_from = np.zeros(N, dtype=np.int64)
+        self._a_prev = np.zeros((N, n))
+        self._rows = np.arange(N)
+        self._bounds = {k: t._obs_bounds[k] for k in ("q", "qd", "q_ref", "qd_ref", "qdd_ref")}
+
+    # ------------------------------------------------------------------ resets
+    def _reset_copy(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Reset copy ``i`` with the template and its generator; write its state into row i."""
+        t = self.template
+        t._np_random = self._rngs[i]
+        obs, info = t.reset()
+        self.batch.reset(ids=[i], stage=int(mujoco.mjtStage.mjSTAGE_NONE))
+        mujoco.mj_getState(t.model, t.data, self._state_row, _INTEGRATION)
+        self.batch.state[i] = self._state_row
+        self._ref[i] = t._ref
+        self._limit[i] = t._following_error_limit
+        self._judged_from[i] = t._judged_from
+        self._k[i] = 0
+        self._k_scored[i] = 0
+        self._a_prev[i] = 0.0
+        return obs, info
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed must be an int or {self.num_envs} seeds, got {seed!r}")
+        for i, s in enumerate(seeds):
+            if s is not None:
+                self._rngs[i], _ = gym.utils.seeding.np_random(s)
+        obs_list, infos = [], {}
+        for i in range(self.num_envs):
+            obs, info = self._reset_copy(i)
+            obs_list.append(obs)
+            infos = self._add_info(infos, info, i)
+        return {k: np.stack([o[k] for o in obs_list]) for k in self._bounds}, infos
+
+    # ------------------------------------------------------------------ step
+    def _check_actions(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        shape = self.action_space.shape
+        try:
+            raw = np.asarray(actions)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"actions must be a numeric array of shape {shape}") from exc
+        if raw.dtype.kind not in "biuf" or raw.shape != shape:
+            raise ValueError(
+                f"actions must be a numeric array of shape {shape} with values in [-1, 1], "
+                f"got shape {raw.shape} dtype {raw.dtype}"
+            )
+        a = raw.astype(np.float64)
+        mag = np.abs(a)
+        if not np.all(np.isfinite(mag)):
+            bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+            raise ValueError(f"actions of envs {bad.tolist()} contain NaN or inf")
+        clipped = np.any(mag > 1.0, axis=1)
+        np.clip(a, -1.0, 1.0, out=a)
+        return a, clipped
+
+    def step(
+        self, actions: Any
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        t = self.template
+        a, clipped = self._check_actions(actions)
+        if np.any(self._k >= t.max_steps):
+            raise RuntimeError("step() on a finished copy; the vector env resets them itself")
+        safe_q, safe_qd = self._qpos.copy(), self._qvel.copy()
+        warnings_before = self.batch.warning[:, _UNSTABLE, 1].sum(axis=1)
+        tau = a * t.torque_limit
+        self._ctrl[:] = tau
+        self.batch.step(nstep=t.frame_skip)
+        q, qd = self._qpos, self._qvel
+        with np.errstate(all="ignore"):
+            diverged = (
+                (self.batch.warning[:, _UNSTABLE, 1].sum(axis=1) > warnings_before)
+                | ~np.all(np.isfinite(q), axis=1)
+                | ~np.all(np.isfinite(qd), axis=1)
+                | (np.max(np.abs(qd), axis=1) > MAX_JOINT_SPEED)
+            )
+        if np.any(diverged):  # the last finite state, as RobotEnv._simulate restores it
+            q[diverged] = safe_q[diverged]
+            qd[diverged] = safe_qd[diverged]
+        qa, da = t._qa, t._da
+        qj, qdj = q[:, qa], qd[:, da]
+        rows, k = self._rows, self._k.copy()
+        self._k += 1
+        k1 = self._k
+        q_err = self._ref[rows, 0, k1] - qj
+        self._err[rows, k] = q_err
+        self._tau[rows, k] = tau
+        self._sat[rows, k] = clipped | np.any(np.abs(a) >= 1.0, axis=1)
+
+        n = t.n
+        err_sq = np.einsum("ij,ij->i", q_err, q_err)
+        r_track = -(1.0 - np.mean(np.exp(-err_sq[:, None] / t.error_scales**2), axis=1))
+        r_torque = -t.torque_weight * np.einsum("ij,ij->i", a, a) / n
+        da_ = a - self._a_prev
+        r_rate = -t.action_rate_weight * np.einsum("ij,ij->i", da_, da_) / n
+        joint_error = np.sqrt(err_sq)
+        stopped = (
+            ~diverged & (joint_error > self._limit)
+            if t.max_following_error is not None
+            else np.zeros_like(diverged)
+        )
+        unplayed = (t.max_steps - k1) * t._worst_step if t.charge_unplayed_steps else 0.0
+        r_div = np.where(diverged, -(t.divergence_penalty + unplayed), 0.0)
+        r_follow = np.where(stopped, -(t.following_error_penalty + unplayed), 0.0)
+        self._a_prev[:] = a
+        reward = r_track + r_torque + r_rate + r_follow + r_div
+        terminated = diverged | stopped
+        truncated = (k1 >= t.max_steps) & ~terminated
+        kk = np.minimum(k1, t.max_steps)
+        raw_obs = {
+            "q": qj,
+            "qd": qdj,
+            "q_ref": self._ref[rows, 0, kk],
+            "qd_ref": self._ref[rows, 1, kk],
+            "qdd_ref": self._ref[rows, 2, kk],
+        }
+        obs = {key: np.clip(v, -self._bounds[key], self._bounds[key]) for key, v in raw_obs.items()}
+        terms = {
+            "reward_tracking": r_track,
+            "reward_torque": r_torque,
+            "reward_action_rate": r_rate,
+            "reward_following_error": r_follow,
+            "reward_diverged": r_div,
+            "joint_error": joint_error,
+        }
+        ones = np.ones(self.num_envs, dtype=bool)
+        infos: dict[str, Any] = {}
+        for key, value in (*terms.items(), ("following_error_exceeded", stopped),
+                           ("diverged", diverged)):
+            infos[key] = value
+            infos["_" + key] = ones
+        for i in np.flatnonzero(terminated | truncated):
+            i = int(i)
+            infos = self._finish_copy(
+                i, obs, infos, bool(diverged[i]), bool(stopped[i]), q_err[i],
+                {key: float(v[i]) for key, v in terms.items()},
+            )
+        return obs, reward, terminated, truncated, infos
+
+    def _finish_copy(
+        self,
+        i: int,
+        obs: dict[str, np.ndarray],
+        infos: dict[str, Any],
+        diverged: bool,
+        stopped: bool,
+        q_err: np.ndarray,
+        terms: dict[str, float],
+    ) -> dict[str, Any]:
+        """Episode end of copy ``i``: metrics and success as the single env, then its reset."""
+        t = self.template
+        if stopped:  # scored over the whole horizon: the last error held
+            self._err[i, self._k[i] :] = q_err
+            self._k_scored[i] = t.max_steps
+        t._err[:] = self._err[i]
+        t._tau[:] = self._tau[i]
+        t._sat[:] = self._sat[i]
+        t._k, t._k_scored = int(self._k[i]), int(self._k_scored[i])
+        settled = self._err[i, self._judged_from[i] : max(t._k, t._k_scored)]
+        final_info = {
+            **terms,
+            "following_error_exceeded": stopped,
+            "diverged": diverged,
+            "episode_metrics": t.episode_metrics(),
+            "is_success": not diverged
+            and not stopped
+            and float(np.max(np.abs(settled))) < t.success_threshold,
+        }
+        final_obs = {key: v[i].copy() for key, v in obs.items()}
+        new_obs, reset_info = self._reset_copy(i)
+        for key in obs:
+            obs[key][i] = new_obs[key]
+        infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
+        return self._add_info(infos, reset_info, i)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.template.close()

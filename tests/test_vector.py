@@ -1,0 +1,85 @@
+"""cir_gym.vector.JointTrackingVectorEnv against the single JointTracking env, copy by copy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cir_gym.envs.base import InvalidArgument
+from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.vector import JointTrackingVectorEnv
+
+N = 3
+KW = {"episode_duration": 0.1}  # 50 steps: the run below crosses an autoreset
+REWARD_TOL = 1e-12  # reward sums (einsum vs @ may differ in the last bit); states are exact
+
+
+def _run_singles(seed: int, actions: np.ndarray, **kw) -> list[list[tuple]]:
+    """Per copy: (obs, reward, terminated, truncated, final_obs) per step, resets inline."""
+    out = []
+    for i in range(actions.shape[1]):
+        env = JointTrackingEnv(**kw)
+        obs, _ = env.reset(seed=seed + i)
+        rows = [(obs, None, None, None, None)]
+        for a in actions[:, i]:
+            obs, rew, term, trunc, info = env.step(a)
+            final = None
+            if term or trunc:
+                final = (obs, info)
+                obs, _ = env.reset()
+            rows.append((obs, rew, term, trunc, final))
+        out.append(rows)
+    return out
+
+
+@pytest.mark.parametrize("kw", [KW, {**KW, "reference": "sine", "payload_mass": 2.0}])
+def test_each_copy_is_the_single_env_with_seed_plus_i(kw):
+    rng = np.random.default_rng(1)
+    steps = 60
+    actions = rng.uniform(-1.3, 1.3, (steps, N, 7)).astype(np.float32)  # some get clipped
+    want = _run_singles(10, actions, **kw)
+    envs = JointTrackingVectorEnv(num_envs=N, nthread=1, **kw)
+    obs, _ = envs.reset(seed=10)
+    for i in range(N):
+        for key in obs:
+            np.testing.assert_array_equal(obs[key][i], want[i][0][0][key])
+    ended = 0
+    for k in range(steps):
+        obs, rew, term, trunc, infos = envs.step(actions[k])
+        for i in range(N):
+            w_obs, w_rew, w_term, w_trunc, w_final = want[i][k + 1]
+            for key in obs:
+                np.testing.assert_array_equal(obs[key][i], w_obs[key], err_msg=f"{k} {i} {key}")
+            assert rew[i] == pytest.approx(w_rew, rel=REWARD_TOL, abs=REWARD_TOL)
+            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc)
+            if w_final is not None:
+                ended += 1
+                f_obs, f_info = w_final
+                assert infos["_final_obs"][i]
+                for key in f_obs:
+                    np.testing.assert_array_equal(infos["final_obs"][i][key], f_obs[key])
+                got = infos["final_info"]
+                assert bool(got["is_success"][i]) == f_info["is_success"]
+                for name, value in f_info["episode_metrics"].items():
+                    assert got["episode_metrics"][name][i] == pytest.approx(value, rel=1e-12)
+    assert ended == N  # every copy crossed one episode end
+
+
+def test_unsupported_and_bad_arguments_are_named():
+    with pytest.raises(InvalidArgument, match="torque_noise"):
+        JointTrackingVectorEnv(num_envs=2, torque_noise=0.1)
+    with pytest.raises(InvalidArgument, match="num_envs"):
+        JointTrackingVectorEnv(num_envs=0)
+    with pytest.raises(InvalidArgument, match="control_freq"):
+        JointTrackingVectorEnv(num_envs=2, control_freq=-1.0)
+
+
+def test_bad_actions_raise_value_errors():
+    envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **KW)
+    envs.reset(seed=0)
+    with pytest.raises(ValueError, match="shape"):
+        envs.step(np.zeros(7))
+    bad = np.zeros((2, 7))
+    bad[1, 3] = np.nan
+    with pytest.raises(ValueError, match=r"envs \[1\]"):
+        envs.step(bad)
