@@ -1,7 +1,7 @@
 """Python overhead of ``env.step`` and of the controllers' ``predict`` against MuJoCo's own cost.
 
     python benchmarks/bench_step.py [--steps 200] [--repeat 15] [--batch 16] [--env ID ...]
-                                    [--out results/benchmarks.md]
+                                    [--num-envs 64] [--nthread 1] [--out results/benchmarks.md]
 
 Ratios, not absolute times: every pair of loops is timed alternately in the same run and the
 best of ``--repeat`` trials is kept, so a loaded machine slows both sides alike.
@@ -23,6 +23,10 @@ applies to: ``predict`` on one observation (fresh state each call: the first ste
 episode) against one ``mj_step`` of that env's model; then ``predict`` on ``--batch`` stacked
 observations, per row.
 
+Vector env: env-steps/s of ``--num-envs`` JointTracking copies in
+``cir_gym.vector.JointTrackingVectorEnv``, of the same model's raw ``mujoco.batch.Batch.step``
+and of Gymnasium's ``SyncVectorEnv`` of the single env (``gymnasium.make_vec``).
+
 Prints markdown and writes it to ``--out`` under the heading ``## env.step and predict``,
 replacing only that section (other sections of the file, e.g. vector-env scaling, are kept).
 """
@@ -36,6 +40,7 @@ import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -213,6 +218,54 @@ def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> li
     return rows
 
 
+def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[str]:
+    """env-steps/s of JointTracking: the batched vector env, its raw batched physics, and
+    Gymnasium's SyncVectorEnv of the single env; ``max_following_error=None`` (zero torques
+    would end every episode within a few dozen steps: resets are not what this times)."""
+    import mujoco.batch
+
+    from cir_gym.vector import JointTrackingVectorEnv
+
+    kw = {"max_following_error": None}
+    vec = JointTrackingVectorEnv(num_envs, nthread=nthread, **kw)
+    vec.reset(seed=0)
+    sync = gym.make_vec("cir_gym/JointTracking-v1", num_envs=num_envs, vectorization_mode="sync",
+                        **kw)
+    sync.reset(seed=0)
+    raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=nthread)
+    raw.state[:] = vec.batch.state
+    skip = vec.template.frame_skip
+    zeros = np.zeros(vec.action_space.shape, dtype=np.float32)
+    n_vec = max(1, steps // 4)  # vector steps per trial
+
+    def timed(step: Callable[[], Any], n: int) -> Callable[[], float]:
+        def loop() -> float:
+            t0 = time.perf_counter()
+            for _ in range(n):
+                step()
+            return (time.perf_counter() - t0) / (n * num_envs)
+
+        return loop
+
+    t_vec, t_raw = best_pair(
+        timed(lambda: vec.step(zeros), n_vec), timed(lambda: raw.step(nstep=skip), n_vec), repeat
+    )
+    t_sync = min(timed(lambda: sync.step(zeros), max(1, n_vec // 4))() for _ in range(3))
+    vec.close()
+    sync.close()
+    return [
+        f"JointTracking-v1 × {num_envs}, zero torques, `max_following_error=None`, "
+        f"MuJoCo threads: {nthread or 'all CPUs'}.",
+        "",
+        "| what | env-steps/s | vs SyncVectorEnv |",
+        "|---|---:|---:|",
+        f"| gymnasium SyncVectorEnv of the single env | {1 / t_sync:,.0f} | 1.00 |",
+        f"| cir_gym.vector.JointTrackingVectorEnv | {1 / t_vec:,.0f} | {t_sync / t_vec:.2f} |",
+        f"| raw mujoco.batch.Batch.step(nstep={skip}), same model | {1 / t_raw:,.0f} "
+        f"| {t_sync / t_raw:.2f} |",
+    ]
+
+
 def write_section(path: Path, body: str) -> None:
     """Replace (or append) the ``SECTION`` of ``path``, keeping every other ``## `` section."""
     text = path.read_text() if path.exists() else "# Benchmarks\n"
@@ -230,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=200, help="steps/calls per timed trial")
     parser.add_argument("--repeat", type=int, default=15, help="trials; the best is kept")
     parser.add_argument("--batch", type=int, default=16, help="rows of the batched predict")
+    parser.add_argument("--num-envs", type=int, default=64, help="copies of the vector env")
+    parser.add_argument("--nthread", type=int, default=1, help="MuJoCo threads (0: all CPUs)")
     parser.add_argument("--env", nargs="*", default=None, help="env ids (default: all)")
     parser.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = parser.parse_args(argv)
@@ -239,6 +294,8 @@ def main(argv: list[str] | None = None) -> int:
     env_rows = bench_envs(ids, args.steps, args.repeat)
     print("controllers:", flush=True)
     ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch)
+    print("vector env:", flush=True)
+    vec_rows = bench_vector(args.num_envs, args.steps, args.repeat, args.nthread)
     body = "\n".join(
         [
             f"`python benchmarks/bench_step.py --steps {args.steps} --repeat {args.repeat} "
@@ -255,6 +312,10 @@ def main(argv: list[str] | None = None) -> int:
             "`mj_step` of the env's model; batched: stacked copies of the observation.",
             "",
             *ctrl_rows,
+            "",
+            "Batched JointTracking (`cir_gym/vector.py`):",
+            "",
+            *vec_rows,
         ]
     )
     print()
