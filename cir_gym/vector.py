@@ -44,7 +44,7 @@ from cir_gym.envs.base import (
 from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_number
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 
-__all__ = ["JointTrackingVectorEnv"]
+__all__ = ["JointTrackingVectorEnv", "sb3_vec_env"]
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
@@ -128,7 +128,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        super().reset(seed=seed)
+        super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
         elif isinstance(seed, int):
@@ -289,3 +289,72 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         self.template.close()
+
+
+def sb3_vec_env(venv: JointTrackingVectorEnv) -> Any:
+    """``venv`` as a Stable-Baselines3 ``VecEnv`` (imports SB3 only when called).
+
+    Episode ends follow SB3's conventions: ``dones = terminated | truncated``, the last
+    observation in ``infos[i]["terminal_observation"]``, ``infos[i]["TimeLimit.truncated"]``;
+    ``is_success`` and ``episode_metrics`` of the finished episode are in ``infos[i]`` too.
+    ``seed(s)`` makes the next ``reset()`` seed copy i with s + i, as the vector env does.
+    """
+    return _sb3_class()(venv)
+
+
+def _sb3_class() -> type:
+    from stable_baselines3.common.vec_env import VecEnv
+
+    class JointTrackingSB3VecEnv(VecEnv):
+        """SB3 ``VecEnv`` over a :class:`JointTrackingVectorEnv` (see :func:`sb3_vec_env`)."""
+
+        def __init__(self, venv: JointTrackingVectorEnv) -> None:
+            self.venv = venv
+            self.render_mode = None
+            super().__init__(venv.num_envs, venv.single_observation_space,
+                             venv.single_action_space)
+            self._actions: np.ndarray | None = None
+
+        def reset(self) -> dict[str, np.ndarray]:
+            seeds = None if all(s is None for s in self._seeds) else list(self._seeds)
+            obs, _ = self.venv.reset(seed=seeds)
+            self._reset_seeds()
+            self._reset_options()
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = actions
+
+        def step_wait(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, list]:
+            obs, rew, term, trunc, infos = self.venv.step(self._actions)
+            dones = term | trunc
+            out: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+            for i in np.flatnonzero(dones):
+                final = infos["final_info"]
+                out[i] = {
+                    "terminal_observation": infos["final_obs"][i],
+                    "TimeLimit.truncated": bool(trunc[i] and not term[i]),
+                    "is_success": bool(final["is_success"][i]),
+                    "episode_metrics": {k: float(v[i]) for k, v in
+                                        final["episode_metrics"].items()},
+                }
+            return obs, rew.astype(np.float32), dones, out
+
+        def close(self) -> None:
+            self.venv.close()
+
+        def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+            """The template env's attribute (every copy shares its arguments)."""
+            return [getattr(self.venv.template, attr_name)] * len(self._get_indices(indices))
+
+        def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+            raise NotImplementedError("the copies of a JointTrackingVectorEnv share one template")
+
+        def env_method(self, method_name: str, *args: Any, indices: Any = None,
+                       **kwargs: Any) -> list[Any]:
+            raise NotImplementedError("the copies of a JointTrackingVectorEnv are array rows")
+
+        def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+            return [False] * len(self._get_indices(indices))
+
+    return JointTrackingSB3VecEnv

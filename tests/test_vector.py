@@ -83,3 +83,29 @@ def test_bad_actions_raise_value_errors():
     bad[1, 3] = np.nan
     with pytest.raises(ValueError, match=r"envs \[1\]"):
         envs.step(bad)
+
+
+def test_sb3_adapter_follows_sb3_conventions_and_trains():
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from cir_gym.vector import sb3_vec_env
+
+    envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **KW)
+    vec = sb3_vec_env(envs)
+    assert isinstance(vec, VecEnv)
+    vec.seed(5)
+    obs = vec.reset()
+    single = JointTrackingEnv(**KW)
+    want, _ = single.reset(seed=6)  # copy 1 of seed 5
+    np.testing.assert_array_equal(obs["q"][1], want["q"])
+    zeros = np.zeros((2, 7), dtype=np.float32)
+    for _ in range(50):  # the 50-step episode ends at the 50th step at the latest
+        obs, rew, dones, infos = vec.step(zeros)
+        if dones.any():
+            break
+    assert dones.all() and rew.dtype == np.float32
+    for info in infos:
+        assert "terminal_observation" in info and isinstance(info["is_success"], bool)
+        assert set(info["episode_metrics"]) >= {"rms_error", "max_error"}
+    PPO("MultiInputPolicy", vec, n_steps=8, batch_size=16, n_epochs=1, device="cpu").learn(16)
