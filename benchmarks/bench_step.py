@@ -1,10 +1,12 @@
 """Python overhead of ``env.step`` and of the controllers' ``predict`` against MuJoCo's own cost.
 
-    python benchmarks/bench_step.py [--steps 200] [--repeat 15] [--batch 16] [--env ID ...]
+    python benchmarks/bench_step.py [--steps 100] [--repeat 10] [--batch 16] [--env ID ...]
                                     [--num-envs 64] [--nthread 1] [--out results/benchmarks.md]
 
 Ratios, not absolute times: every pair of loops is timed alternately in the same run and the
-best of ``--repeat`` trials is kept, so a loaded machine slows both sides alike.
+best of ``--repeat`` trials is kept, so a loaded machine slows both sides alike. Time is the
+process's CPU time (``time.process_time``: other jobs' time slices are not counted; MuJoCo's
+batch threads are), so short trials on a shared machine still measure the code.
 
 Environments (each built with ``gymnasium.make`` and its default wrappers, zero action, resets
 not timed):
@@ -81,13 +83,13 @@ def step_loop(env: gym.Env, steps: int) -> Callable[[], float]:
             env.reset(seed=0)
             left[0] = env.spec.max_episode_steps or 10**9
         n = 0
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for _ in range(steps):
             _, _, terminated, truncated, _ = env.step(action)
             n += 1
             if terminated or truncated:
                 break
-        t = time.perf_counter() - t0
+        t = time.process_time() - t0
         left[0] = 0 if (terminated or truncated) else left[0] - n
         return t / n
 
@@ -104,11 +106,11 @@ def physics_loop(model: mujoco.MjModel, frame_skip: int, steps: int) -> Callable
         data.qpos[:] = qpos0
         data.qvel[:] = qvel0
         data.time = 0.0
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for _ in range(steps):
             for _ in range(frame_skip):
                 mujoco.mj_step(model, data)
-        return (time.perf_counter() - t0) / steps
+        return (time.process_time() - t0) / steps
 
     return loop
 
@@ -119,12 +121,12 @@ def kinematics_loop(model: mujoco.MjModel, site: int, steps: int) -> Callable[[]
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
 
     def loop() -> float:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for _ in range(steps):
             mujoco.mj_kinematics(model, data)
             mujoco.mj_comPos(model, data)
             mujoco.mj_jacSite(model, data, jacp, jacr, site)
-        return (time.perf_counter() - t0) / steps
+        return (time.process_time() - t0) / steps
 
     return loop
 
@@ -188,10 +190,10 @@ def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> li
         u = env.unwrapped
 
         def single(policy=policy, obs=obs) -> float:
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             for _ in range(calls):
                 policy.predict(obs)
-            return (time.perf_counter() - t0) / calls
+            return (time.process_time() - t0) / calls
 
         raw = physics_loop(u.model, 1, calls)
         t_pred, t_step = best_pair(single, raw, repeat)
@@ -201,10 +203,10 @@ def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> li
             batched_policy.predict(many)
 
             def batched(policy=batched_policy, many=many) -> float:
-                t0 = time.perf_counter()
+                t0 = time.process_time()
                 for _ in range(max(1, calls // batch)):
                     policy.predict(many)
-                return (time.perf_counter() - t0) / (max(1, calls // batch) * batch)
+                return (time.process_time() - t0) / (max(1, calls // batch) * batch)
 
             t_batch, t_step2 = best_pair(batched, raw, repeat)
             per_row = f"{t_batch / t_step2:.2f}"
@@ -240,10 +242,10 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
 
     def timed(step: Callable[[], Any], n: int) -> Callable[[], float]:
         def loop() -> float:
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             for _ in range(n):
                 step()
-            return (time.perf_counter() - t0) / (n * num_envs)
+            return (time.process_time() - t0) / (n * num_envs)
 
         return loop
 
@@ -280,8 +282,8 @@ def write_section(path: Path, body: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=int, default=200, help="steps/calls per timed trial")
-    parser.add_argument("--repeat", type=int, default=15, help="trials; the best is kept")
+    parser.add_argument("--steps", type=int, default=100, help="steps/calls per timed trial")
+    parser.add_argument("--repeat", type=int, default=10, help="trials; the best is kept")
     parser.add_argument("--batch", type=int, default=16, help="rows of the batched predict")
     parser.add_argument("--num-envs", type=int, default=64, help="copies of the vector env")
     parser.add_argument("--nthread", type=int, default=1, help="MuJoCo threads (0: all CPUs)")
@@ -300,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
         [
             f"`python benchmarks/bench_step.py --steps {args.steps} --repeat {args.repeat} "
             f"--batch {args.batch}` (mujoco {mujoco.__version__}, gymnasium {gym.__version__}; "
-            "best of the trials, the two sides of each ratio timed alternately in one run).",
+            "process CPU time, best of the trials, the two sides of each ratio timed "
+            "alternately in one run).",
             "",
             "`env.step` through `gymnasium.make` (default wrappers), zero action, resets not "
             "timed. Overhead = step − MuJoCo part (the raw C calls on a fresh MjData of the "
