@@ -241,6 +241,12 @@ def learning_curves(out: Path) -> list[str]:
         "",
         "![learning curves](learning_curves.png)",
         "",
+        "`python scripts/plot_learning_curves.py --env cir_gym/CartesianTracking-v0 --out "
+        "results/cartesian_tracking` draws the same curves against the controllers run on the "
+        "curves' own evaluation seeds (dashed: the best controller; dotted: the residual's base):",
+        "",
+        "![learning curves against the controllers](CartesianTracking-v0.png)",
+        "",
     ]
 
 
