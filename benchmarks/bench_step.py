@@ -20,6 +20,9 @@ not timed):
   ``env.step`` minus ``mj_kinematics + mj_comPos + mj_jacSite`` (the end-effector site), and
   the ratio of that overhead to the same kinematics.
 
+Plumbing: RobotEnv's ``_check_action`` (a finite in-range action) and ``_simulate`` minus
+the ``frame_skip`` × ``mj_step`` it runs, per env, in units of one ``mj_step``.
+
 Controllers: every controller in ``baselines.CONTROLLERS`` on the first registered env it
 applies to: ``predict`` on one observation (fresh state each call: the first step of an
 episode) against one ``mj_step`` of that env's model; then ``predict`` on ``--batch`` stacked
@@ -168,6 +171,51 @@ def bench_envs(ids: list[str], steps: int, repeat: int) -> list[str]:
     return rows
 
 
+def bench_plumbing(ids: list[str], steps: int, repeat: int) -> list[str]:
+    """RobotEnv's shared per-step plumbing: ``_check_action`` and ``_simulate`` minus its
+    ``frame_skip`` × ``mj_step``, on the env's own MjData (the state evolves alike on both
+    sides: each side steps the same data in turn)."""
+    rows = [
+        "| env | _check_action / mj_step | (_simulate − physics) / mj_step |",
+        "|---|---:|---:|",
+    ]
+    for env_id in ids:
+        if env_id in KINEMATIC:
+            continue
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        u = env.unwrapped
+        action = np.full(env.action_space.shape, 0.1, dtype=env.action_space.dtype)
+        ctrl = u.data.ctrl.copy()
+        m, d, skip = u.model, u.data, u.frame_skip
+
+        def check(u=u, action=action) -> float:
+            t0 = time.process_time()
+            for _ in range(steps):
+                u._check_action(action)
+            return (time.process_time() - t0) / steps
+
+        def simulate(u=u, ctrl=ctrl) -> float:
+            t0 = time.process_time()
+            for _ in range(steps):
+                u._simulate(ctrl)
+            return (time.process_time() - t0) / steps
+
+        def physics(m=m, d=d, skip=skip) -> float:
+            t0 = time.process_time()
+            for _ in range(steps):
+                for _ in range(skip):
+                    mujoco.mj_step(m, d)
+            return (time.process_time() - t0) / steps
+
+        t_sim, t_phys = best_pair(simulate, physics, repeat)
+        t_check = min(check() for _ in range(repeat))
+        one = t_phys / skip
+        rows.append(f"| {env_id} | {t_check / one:.2f} | {(t_sim - t_phys) / one:.2f} |")
+        env.close()
+    return rows
+
+
 def stack(obs: dict, n: int) -> dict:
     return {k: np.stack([np.asarray(v)] * n) for k, v in obs.items()}
 
@@ -294,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     ids = args.env or list(cir_gym.ENVIRONMENTS)
     print("env.step:", flush=True)
     env_rows = bench_envs(ids, args.steps, args.repeat)
+    plumbing_rows = bench_plumbing(ids, args.steps, args.repeat)
     print("controllers:", flush=True)
     ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch)
     print("vector env:", flush=True)
@@ -310,6 +359,11 @@ def main(argv: list[str] | None = None) -> int:
             "same model). Reacher-v5 is Gymnasium's, measured the same way.",
             "",
             *env_rows,
+            "",
+            "RobotEnv's shared plumbing per step (cir_gym/envs/base.py), in units of one "
+            "`mj_step` of the env's model:",
+            "",
+            *plumbing_rows,
             "",
             "Controllers' `predict` (fresh state: an episode's first step) against one "
             "`mj_step` of the env's model; batched: stacked copies of the observation.",
