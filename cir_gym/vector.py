@@ -105,6 +105,8 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self._limit = np.zeros(N)
         self._judged_from = np.zeros(N, dtype=np.int64)
         self._a_prev = np.zeros((N, n))
+        self._safe_q = np.zeros((N, t.model.nq))
+        self._safe_qd = np.zeros((N, t.model.nv))
         self._rows = np.arange(N)
         self._bounds = {k: t._obs_bounds[k] for k in ("q", "qd", "q_ref", "qd_ref", "qdd_ref")}
 
@@ -117,6 +119,8 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self.batch.reset(ids=[i], stage=int(mujoco.mjtStage.mjSTAGE_NONE))
         mujoco.mj_getState(t.model, t.data, self._state_row, _INTEGRATION)
         self.batch.state[i] = self._state_row
+        self._safe_q[i] = t.data.qpos
+        self._safe_qd[i] = t.data.qvel
         self._ref[i] = t._ref
         self._limit[i] = t._following_error_limit
         self._judged_from[i] = t._judged_from
@@ -175,12 +179,14 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         a, clipped = self._check_actions(actions)
         if np.any(self._k >= t.max_steps):
             raise RuntimeError("step() on a finished copy; the vector env resets them itself")
-        safe_q, safe_qd = self._qpos.copy(), self._qvel.copy()
+        q, qd = self._qpos, self._qvel
+        finite = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(qd), axis=1)
+        self._safe_q[finite] = q[finite]  # the last finite state, restored on divergence
+        self._safe_qd[finite] = qd[finite]
         warnings_before = self.batch.warning[:, _UNSTABLE, 1].sum(axis=1)
         tau = a * t.torque_limit
         self._ctrl[:] = tau
         self.batch.step(nstep=t.frame_skip)
-        q, qd = self._qpos, self._qvel
         with np.errstate(all="ignore"):
             diverged = (
                 (self.batch.warning[:, _UNSTABLE, 1].sum(axis=1) > warnings_before)
@@ -189,8 +195,8 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
                 | (np.max(np.abs(qd), axis=1) > MAX_JOINT_SPEED)
             )
         if np.any(diverged):  # the last finite state, as RobotEnv._simulate restores it
-            q[diverged] = safe_q[diverged]
-            qd[diverged] = safe_qd[diverged]
+            q[diverged] = self._safe_q[diverged]
+            qd[diverged] = self._safe_qd[diverged]
         qa, da = t._qa, t._da
         qj, qdj = q[:, qa], qd[:, da]
         rows, k = self._rows, self._k.copy()

@@ -109,3 +109,26 @@ def test_sb3_adapter_follows_sb3_conventions_and_trains():
         assert "terminal_observation" in info and isinstance(info["is_success"], bool)
         assert set(info["episode_metrics"]) >= {"rms_error", "max_error"}
     PPO("MultiInputPolicy", vec, n_steps=8, batch_size=16, n_epochs=1, device="cpu").learn(16)
+
+
+def test_a_nan_in_one_copy_diverges_that_copy_as_the_single_env():
+    """NaN injected into copy 1's velocities: that copy (only) ends diverged with the single
+    env's final observation and reward; the others go on."""
+    actions = np.random.default_rng(2).uniform(-0.3, 0.3, (4, 2, 7))
+    single = JointTrackingEnv(**KW)
+    single.reset(seed=8)  # copy 1 of seed 7
+    envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **KW)
+    envs.reset(seed=7)
+    for a in actions[:3]:
+        single.step(a[1])
+        envs.step(a)
+    single.data.qvel[0] = np.nan
+    envs.batch.bind("qvel")[1, 0] = np.nan
+    w_obs, w_rew, w_term, _, w_info = single.step(actions[3, 1])
+    obs, rew, term, _, infos = envs.step(actions[3])
+    assert w_term and w_info["diverged"]
+    assert list(term) == [False, True] and list(infos["diverged"]) == [False, True]
+    assert rew[1] == pytest.approx(w_rew, rel=REWARD_TOL)
+    for key in w_obs:
+        np.testing.assert_array_equal(infos["final_obs"][1][key], w_obs[key])
+        assert np.all(np.isfinite(obs[key]))
