@@ -361,7 +361,8 @@ def main(argv: list[str] | None = None) -> int:
             *env_rows,
             "",
             "RobotEnv's shared plumbing per step (cir_gym/envs/base.py), in units of one "
-            "`mj_step` of the env's model:",
+            "`mj_step` of the env's model (a difference of two timings: with many substeps "
+            "(VisualServo: 20) it is below their spread and can come out negative):",
             "",
             *plumbing_rows,
             "",
