@@ -16,6 +16,7 @@ browser test reads; it changes nothing else.
 from __future__ import annotations
 
 import html
+import multiprocessing
 import os
 import re
 import sys
@@ -260,7 +261,10 @@ def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: lis
     if jobs:
         n = min(len(jobs), workers or os.cpu_count() or 1)
         if n > 1:
-            with ProcessPoolExecutor(max_workers=n) as pool:
+            # spawn, not fork: a process forked after its parent made a GL (EGL/OSMesa)
+            # context hangs creating its own (seen: the leaderboard test after render tests)
+            spawn = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as pool:
                 messages = list(pool.map(make_video, jobs))
         else:
             messages = [make_video(j) for j in jobs]
