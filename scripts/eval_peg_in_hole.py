@@ -75,12 +75,19 @@ def main() -> None:
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("results/peg_in_hole"))
     parser.add_argument("--skip-sweeps", action="store_true")
+    parser.add_argument("--agent", type=Path, action="append", default=[],
+                        help="only evaluate this trained agent directory (repeatable) on the "
+                        "same seeds, with the env arguments it was trained with; "
+                        "writes agents.md")
     parser.add_argument("--picture-only", action="store_true",
                         help="only render insertion.png (hybrid_spiral, seed 1000, mid-search)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.picture_only:
         picture(args.out)
+        return
+    if args.agent:
+        evaluate_agents(args.agent, args.episodes, args.out)
         return
     t_start = time.perf_counter()
     main_runs = [run(name, args.episodes) for name in ("hybrid_spiral", "position_only")]
@@ -116,6 +123,35 @@ def _write(out: Path, lines: list[str], main_runs: list[dict[str, Any]],
     (out / "peg_in_hole.md").write_text(text)
     (out / "results.json").write_text(json.dumps({"main": main_runs, **sweeps}, indent=1))
     return text
+
+
+def evaluate_agents(paths: list[Path], episodes: int, out: Path) -> None:
+    """Trained agents on seeds 1000, 1001, … (the hole poses every controller met), each with the
+    env arguments of its config.yml; the table goes to ``<out>/agents.md``."""
+    from agents.policy import load_agent, read_config
+
+    rows = []
+    for path in paths:
+        config = read_config(path)
+        kwargs = dict(config.get("env_kwargs") or {})
+        policy = load_agent(path, ENV_ID)
+        t0 = time.perf_counter()
+        result = evaluate(policy, ENV_ID, episodes, seed=1000, policy_name=str(path), **kwargs)
+        wall = time.perf_counter() - t0
+        peaks = np.array([ep.metrics["peak_force"] for ep in result.episodes])
+        meta = json.loads((path / "meta.json").read_text())
+        r = {"controller": f"{path.name} ({meta['timesteps']} steps)", "env_kwargs": kwargs,
+             "episodes": episodes, "success_rate": result.success_rate,
+             "success_and_peak_le_50N": float(np.mean(
+                 [ep.success and ep.metrics["peak_force"] <= 50.0 for ep in result.episodes])),
+             "force_limit_failures": float(np.mean(peaks > 100.0)),
+             "summary": result.summary, "wall_time_s": wall}
+        rows.append(row(r))
+    text = "\n".join(["# PegInHole-v0: trained agents on the controllers' seeds", "",
+                      f"Seeds 1000–{1000 + episodes - 1}; scripts/eval_peg_in_hole.py --agent.",
+                      "", HEADER, *rows]) + "\n"
+    (out / "agents.md").write_text(text)
+    print(text)
 
 
 def picture(out: Path, seed: int = 1000, steps: int = 2600) -> None:
