@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from cir_gym.envs.base import make_env
 from cir_gym.metrics import MetricSpec, aggregate
 
 __all__ = [
@@ -174,7 +175,7 @@ def evaluate(
     name = policy_name or getattr(policy, "name", None) or type(policy).__name__
     own_env = env is None
     if env is None:
-        env = gym.make(env_id, **env_kwargs)
+        env = make_env(env_id, **env_kwargs)  # no TimeLimit cuts a longer episode
     elif env_kwargs:
         raise ValueError("pass env_kwargs or an env, not both")
     specs, primary = metric_specs(env)

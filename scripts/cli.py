@@ -16,11 +16,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
-
 import baselines
 import cir_gym
-from cir_gym.envs.base import constructor_arguments
+from cir_gym.envs.base import constructor_arguments, make_env
 from cir_gym.evaluation import EvaluationResult, evaluate
 
 
@@ -208,7 +206,7 @@ def record_video(
     """One episode rendered with ``rgb_array`` frames at ≤ 25 fps."""
     from cir_gym.plotting import save_video
 
-    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
+    env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
     every = max(1, round(1.0 / (25 * env.unwrapped.dt)))
     frames = []
     obs, _ = env.reset(seed=seed)

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 import cir_gym
+from cir_gym.envs.base import make_env
 
 #: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
 VIDEO_SIZE = 180
@@ -111,12 +112,11 @@ def episode_frames(env_id: str, policy_name: str, env_kwargs: dict[str, Any], se
                    seconds: float = VIDEO_SECONDS) -> list[np.ndarray]:
     """Frames (size × size RGB) of one episode of ``policy_name`` at ≈ ``fps`` frames/s, the
     first ``seconds`` of it (the episode goes on to its end: the last frame is its end)."""
-    import gymnasium as gym
 
     from scripts.cli import make_policy
 
     policy = make_policy(env_id, policy_name, env_kwargs, {})
-    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
+    env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
     dt = env.unwrapped.dt
     every = max(1, round(1.0 / (fps * dt)))
     limit = max(1, round(seconds * fps))

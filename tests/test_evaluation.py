@@ -208,3 +208,23 @@ def test_the_factor_to_the_best_controller_is_left_out_when_a_value_is_not_posit
     half = _result("agent:ppo", [False], [1e-2], [0.15]).ranked_on("min_manipulability")
     assert "×" not in _summary_cell(zero, best)
     assert "**2×** the best controller's" in _summary_cell(half, best)
+
+
+def test_an_episode_longer_than_the_registered_spec_is_played_in_full():
+    """The registered max_episode_steps (the default episode) must not cut a longer episode
+    that env_kwargs ask for: evaluate plays it to its own truncation, with its metrics."""
+    import warnings
+
+    import gymnasium as gym
+
+    import baselines
+
+    env_id = "cir_gym/JointTracking-v1"
+    registered = gym.spec(env_id).max_episode_steps
+    policy = baselines.make("pd_gravity", env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "TimeLimit ends the episode" warning either
+        result = evaluate(policy, env_id, 1, 0, episode_duration=4.2)
+    episode = result.episodes[0]
+    assert registered is not None and episode.length == 2100 > registered
+    assert not episode.terminated and episode.metrics

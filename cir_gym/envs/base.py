@@ -35,6 +35,7 @@ from cir_gym.metrics import MetricSpec
 from cir_gym.robot import Robot
 
 __all__ = [
+    "EpisodeLongerThanSpec",
     "InvalidArgument",
     "RobotEnv",
     "TaskContext",
@@ -199,6 +200,24 @@ def default_max_episode_steps(cls: type) -> int | None:
     return max(1, round(duration * freq))
 
 
+class EpisodeLongerThanSpec(UserWarning):
+    """An env made with a longer episode than its registered ``max_episode_steps``: the
+    ``TimeLimit`` that ``gymnasium.make`` adds would cut it (:func:`make_env` adds none)."""
+
+
+def make_env(env_id: str, **kwargs: Any) -> gym.Env:
+    """``gymnasium.make(env_id, **kwargs)`` without the registered spec's ``TimeLimit``.
+
+    Every cir_gym env truncates itself after its own ``episode_duration``; the spec's
+    ``max_episode_steps`` is that of the default arguments, so an episode made longer through
+    ``kwargs`` would be cut by the ``TimeLimit``. The evaluator, the CLI and the training code
+    make their environments here.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EpisodeLongerThanSpec)
+        return gym.make(env_id, max_episode_steps=-1, **kwargs)
+
+
 class EntryPoint:
     """A picklable ``gymnasium.register`` entry point that rejects unknown keyword arguments.
 
@@ -223,7 +242,7 @@ class EntryPoint:
                 f"{self.cls.__name__}: this episode has {steps} steps but the registered "
                 f"max_episode_steps is {limit}; unless gymnasium.make got max_episode_steps="
                 f"{steps} (or -1), its TimeLimit ends the episode at step {limit}",
-                UserWarning,
+                EpisodeLongerThanSpec,
                 stacklevel=2,
             )
         return env
