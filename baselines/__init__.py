@@ -25,7 +25,6 @@ from baselines.interaction import INTERACTION_CONTROLLERS
 from baselines.kinematic import KINEMATIC_CONTROLLERS
 from baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
-from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
 __all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
 
@@ -42,10 +41,9 @@ CONTROLLERS: dict[str, type[Controller]] = {
         AdaptiveControl,
         *KINEMATIC_CONTROLLERS,
         *OPERATIONAL_SPACE_CONTROLLERS,
-        *HYBRID_CONTROLLERS,
         *INTERACTION_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
-        *VISUAL_SERVO_CONTROLLERS,
+        *HYBRID_CONTROLLERS,
     )
 }
 
