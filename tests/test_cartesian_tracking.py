@@ -281,3 +281,30 @@ def test_near_singular_plain_law_overspeeds_and_the_damped_law_does_not() -> Non
     assert info_plain["episode_metrics"]["peak_speed_ratio"] > 2.0
     assert info_dls["episode_metrics"]["peak_speed_ratio"] < 1.0
     assert not info_dls["diverged"]
+
+
+def test_a_path_that_leaves_the_reachable_workspace_is_drawn_again():
+    """Seed 1001's first draw takes the flange where CLIK's J loses rank (every
+    operational-space law saturated on it); the env redraws it, and the exact inverse
+    dynamics then tracks the path it gets to the issue's accuracy."""
+    import baselines
+    from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
+    from cir_gym.evaluation import evaluate
+
+    env = gym.make("cir_gym/CartesianTracking-v0").unwrapped
+    env.reset(seed=1001)
+    q0 = env.data.qpos[env._qa].copy()
+    assert env._kinematically_feasible(q0)
+    original = CartesianTrackingEnv._kinematically_feasible
+    try:
+        CartesianTrackingEnv._kinematically_feasible = lambda self, q: True
+        env.reset(seed=1001)
+        first = env._x_ref.copy()
+    finally:
+        CartesianTrackingEnv._kinematically_feasible = original
+    assert not env._kinematically_feasible(env.data.qpos[env._qa].copy())
+    env.reset(seed=1001)
+    assert not np.array_equal(first, env._x_ref)
+    policy = baselines.make("os_inverse_dynamics", "cir_gym/CartesianTracking-v0")
+    episode = evaluate(policy, "cir_gym/CartesianTracking-v0", 1, 1001).episodes[0]
+    assert episode.success and episode.metrics["position_rms"] <= 1e-4

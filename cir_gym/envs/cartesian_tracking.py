@@ -28,6 +28,11 @@ from cir_gym.robot import ModelError, Robot, apply_model_error
 PATHS = ("random", "segment", "circle", "figure_eight", "near_singular", "regulation")
 SHAPES = ("segment", "circle", "figure_eight")  # what path="random" draws from
 SITE = "flange"
+#: a drawn path is kept only if CLIK on the nominal kinematics follows it (see
+#: CartesianTrackingEnv._kinematically_feasible); else it is drawn again, at most this often
+MAX_PATH_DRAWS = 50
+MIN_SINGULAR_VALUE = 0.05  # of J (6 × 7) along the path; feasible paths stay above ~0.15
+FEASIBILITY_STRIDE = 10  # control steps between the checked samples
 
 #: half-width (rad) of the box around the home posture where starts and goals are drawn
 POSTURE_SPREAD = 0.3
@@ -78,7 +83,11 @@ class CartesianTrackingEnv(RobotEnv):
     | regulation | a constant pose, the flange pose of a goal posture in home ± 0.3 rad; the start is another such posture |
 
     Segments, circles and figure eights rotate by U(0.2, 0.6) rad about a random axis over the
-    episode (quintic timing), all reaching their end at ``episode_duration``.
+    episode (quintic timing), all reaching their end at ``episode_duration``. A drawn path is
+    kept only if closed-loop inverse kinematics on the nominal kinematics follows it from q(0)
+    inside the joint limits with the smallest singular value of J above 0.05; otherwise it is drawn again (some draws leave the reachable workspace, e.g.
+    seed 1001's, where every operational-space law saturated). A seed whose first draw passes
+    keeps the path it had before this check.
 
     ## Action Space
     ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320, 176, 176, 110, 40,
@@ -178,7 +187,7 @@ class CartesianTrackingEnv(RobotEnv):
     os_inverse_dynamics, os_inverse_dynamics_dls, os_khatib.
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version (with the kinematic feasibility check of the drawn paths).
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
@@ -403,8 +412,15 @@ class CartesianTrackingEnv(RobotEnv):
             _restore_inertial_arrays(self.model, self._nominal_arrays)
             apply_model_error(self.model, self.episode_model_error)
             self.robot.invalidate()
-        q0 = self._make_reference()
-        self._quat_ref[:] = osp.continuous_quats(self._quat_ref)
+        for _ in range(MAX_PATH_DRAWS):
+            q0 = self._make_reference()
+            self._quat_ref[:] = osp.continuous_quats(self._quat_ref)
+            if self.path in ("regulation", "near_singular") or self._kinematically_feasible(q0):
+                break
+        else:
+            raise RuntimeError(
+                f"no kinematically feasible {self.path!r} path in {MAX_PATH_DRAWS} draws"
+            )
         if self.initial_error > 0:
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
         self._reset_physics(q0, np.zeros(self.n))
@@ -420,6 +436,30 @@ class CartesianTrackingEnv(RobotEnv):
             np.inf if follow is None else e_ang + self.max_orientation_following_error,
         )
         return self._obs(), {"model_error": self.episode_model_error}
+
+    def _kinematically_feasible(self, q0: np.ndarray) -> bool:
+        """Whether closed-loop inverse kinematics on the nominal kinematics follows the reference
+        from q0 inside the joint limits with the smallest singular value of J above ``MIN_SINGULAR_VALUE`` (checked every ``FEASIBILITY_STRIDE``
+        control steps: q̇ = J⁺(ẋ̄ + K_clik e), K_clik = 1 / (2 · stride · dt))."""
+        r, site = self.robot, self._site
+        stride = FEASIBILITY_STRIDE
+        h = stride * self.dt
+        gain = 0.5 / h
+        q = q0.copy()
+        for k in range(0, self.max_steps + 1, stride):
+            J = r.jacobian(site, q)
+            JJt = J @ J.T
+            if np.sqrt(max(np.linalg.eigvalsh(JJt)[0], 0.0)) < MIN_SINGULAR_VALUE:
+                return False
+            p, R = r.site_pose(site, q)
+            e = np.concatenate((
+                self._x_ref[k] - p,
+                osp.rotvec_error(self._quat_ref[k], traj.quat_from_matrix(R)),
+            ))
+            q = q + h * (J.T @ np.linalg.solve(JJt, self._twist_ref[k] + gain * e))
+            if np.any(q < r.lower) or np.any(q > r.upper):
+                return False
+        return True
 
     def _errors(self, k: int) -> tuple[float, float]:
         """‖p̄_k − p‖ (m) and θ̃ (rad) of the true flange pose now."""
