@@ -213,9 +213,10 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     ``kwargs`` would be cut by the ``TimeLimit``. The evaluator, the CLI and the training code
     make their environments here.
     """
+    kwargs.setdefault("max_episode_steps", -1)  # a caller's own limit still applies
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EpisodeLongerThanSpec)
-        return gym.make(env_id, max_episode_steps=-1, **kwargs)
+        return gym.make(env_id, **kwargs)
 
 
 class EntryPoint:
