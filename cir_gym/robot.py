@@ -22,7 +22,17 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["ASSETS", "ModelError", "Robot", "RobotFileError", "robot_path"]
+__all__ = [
+    "ASSETS",
+    "MODEL_ERROR_RANGES",
+    "ModelError",
+    "Robot",
+    "RobotFileError",
+    "draw_model_error",
+    "inertial_arrays",
+    "restore_inertial_arrays",
+    "robot_path",
+]
 
 ASSETS = Path(__file__).parent / "assets"
 ROBOTS = ("iiwa14", "planar2r", "planar3r")
@@ -106,6 +116,45 @@ def apply_model_error(model: mujoco.MjModel, error: ModelError) -> None:
     model.dof_damping[:] = error.viscous_friction
     model.dof_frictionloss[:] = error.coulomb_friction
     mujoco.mj_setConst(model, mujoco.MjData(model))
+
+
+
+#: Uniform ranges of a random model error, drawn per episode by the torque-driven envs'
+#: ``randomize=True`` (±20 % masses, frictions up to 1).
+MODEL_ERROR_RANGES: dict[str, tuple[float, float]] = {
+    "payload_mass": (0.0, 5.0),  # kg
+    "mass_scale": (0.8, 1.2),
+    "viscous_friction": (0.0, 1.0),  # N m s/rad
+    "coulomb_friction": (0.0, 1.0),  # N m
+}
+
+#: The model fields :func:`apply_model_error` writes.
+INERTIAL_FIELDS = (
+    "body_mass",
+    "body_inertia",
+    "body_ipos",
+    "body_iquat",
+    "dof_damping",
+    "dof_frictionloss",
+)
+
+
+def draw_model_error(rng: np.random.Generator) -> ModelError:
+    """A model error drawn uniformly from :data:`MODEL_ERROR_RANGES` (in its key order)."""
+    return ModelError(**{k: float(rng.uniform(*r)) for k, r in MODEL_ERROR_RANGES.items()})
+
+
+def inertial_arrays(model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """Copies of the fields a model error changes (to undo it with
+    :func:`restore_inertial_arrays` before applying another one)."""
+    return {f: getattr(model, f).copy() for f in INERTIAL_FIELDS}
+
+
+def restore_inertial_arrays(model: mujoco.MjModel, arrays: dict[str, np.ndarray]) -> None:
+    """Put back the values of :func:`inertial_arrays` (``apply_model_error`` then recomputes
+    the constants)."""
+    for f, v in arrays.items():
+        getattr(model, f)[:] = v
 
 
 class Robot:

@@ -32,7 +32,7 @@ import numpy as np
 
 from cir_gym import rendering
 from cir_gym.metrics import MetricSpec
-from cir_gym.robot import Robot
+from cir_gym.robot import ModelError, Robot
 
 __all__ = [
     "EpisodeLongerThanSpec",
@@ -142,6 +142,35 @@ def check_number(
         lo = "(" if low_open else "["
         raise InvalidArgument(f"{name} must be in {lo}{low}, {high}], got {value!r}")
     return v
+
+
+def model_error_arguments(
+    payload_mass: Any, mass_scale: Any, viscous_friction: Any, coulomb_friction: Any
+) -> ModelError:
+    """The four model-error arguments of the torque-driven envs, checked, as a ModelError."""
+    return ModelError(
+        payload_mass=check_number("payload_mass", payload_mass, 0.0, 50.0),
+        mass_scale=check_number("mass_scale", mass_scale, 0.0, 10.0, low_open=True),
+        viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
+        coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
+    )
+
+
+def check_encoder_resolution(value: Any) -> float:
+    """An encoder quantum (rad): 0 (exact) or in [1e-12, 0.1]; else InvalidArgument."""
+    res = check_number("encoder_resolution", value, 0.0, 0.1)
+    if 0.0 < res < 1e-12:
+        raise InvalidArgument(
+            f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, got {value!r}"
+        )
+    return res
+
+
+def check_flag(name: str, value: Any) -> bool:
+    """``value`` as a bool (a Python or numpy bool only); else InvalidArgument."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidArgument(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def as_float_array(name: str, value: Any) -> np.ndarray:

@@ -15,15 +15,19 @@ from cir_gym.envs.base import (
     RobotEnv,
     TaskContext,
     as_float_array,
+    check_encoder_resolution,
+    check_flag,
     check_number,
-)
-from cir_gym.envs.joint_tracking import (
-    RANDOM_RANGES,
-    _inertial_arrays,
-    _restore_inertial_arrays,
+    model_error_arguments,
 )
 from cir_gym.metrics import MetricSpec
-from cir_gym.robot import ModelError, Robot, apply_model_error
+from cir_gym.robot import (
+    Robot,
+    apply_model_error,
+    draw_model_error,
+    inertial_arrays,
+    restore_inertial_arrays,
+)
 
 PATHS = ("random", "segment", "circle", "figure_eight", "near_singular", "regulation")
 SHAPES = ("segment", "circle", "figure_eight")  # what path="random" draws from
@@ -63,7 +67,7 @@ class CartesianTrackingEnv(RobotEnv):
     singularity. The simulator holds the true robot; controllers get the nominal model through
     :meth:`controller_context` (site ``flange``), so the model-error arguments (payload, mass
     scale, friction) are unknown to them — exactly as in ``JointTracking-v1``, whose
-    :class:`~cir_gym.robot.ModelError` and ``RANDOM_RANGES`` are reused unchanged.
+    :class:`~cir_gym.robot.ModelError` and ``MODEL_ERROR_RANGES`` are reused unchanged.
 
     The shared operational-space science (orientation errors, the analytic Jacobian of the pose
     error, J̇q̇, Λ(q), the dynamically consistent pseudo-inverse) is in
@@ -152,7 +156,7 @@ class CartesianTrackingEnv(RobotEnv):
     | coulomb_friction | 0.0 | true joint Coulomb friction (N m), unmodelled |
     | torque_noise | 0.0 | std of Gaussian noise added to the applied torque (N m) |
     | encoder_resolution | 0.0 | position quantum of the encoders (rad, 0 = exact, else in [1e-12, 0.1]) |
-    | randomize | False | per reset, draw payload_mass, mass_scale, viscous_friction, coulomb_friction from JointTracking's ``RANDOM_RANGES`` (uniform), overriding those 4 arguments |
+    | randomize | False | per reset, draw payload_mass, mass_scale, viscous_friction, coulomb_friction from ``cir_gym.robot.MODEL_ERROR_RANGES`` (uniform), overriding those 4 arguments |
     | initial_error | 0.0 | max initial joint offset from the start posture (rad) |
     | error_scales | (0.1, 0.01, 0.001) | reward kernel widths (m, each in [1e-9, 1e3]) |
     | orientation_scale | 0.1 | metres of pose error per radian of orientation error in the reward (m/rad) |
@@ -242,22 +246,12 @@ class CartesianTrackingEnv(RobotEnv):
         if path not in PATHS:
             raise InvalidArgument(f"path must be one of {PATHS}, got {path!r}")
         self.path = path
-        self.model_error = ModelError(
-            payload_mass=check_number("payload_mass", payload_mass, 0.0, 50.0),
-            mass_scale=check_number("mass_scale", mass_scale, 0.0, 10.0, low_open=True),
-            viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
-            coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
+        self.model_error = model_error_arguments(
+            payload_mass, mass_scale, viscous_friction, coulomb_friction
         )
         self.torque_noise = check_number("torque_noise", torque_noise, 0.0, 1000.0)
-        self.encoder_resolution = check_number("encoder_resolution", encoder_resolution, 0.0, 0.1)
-        if 0.0 < self.encoder_resolution < 1e-12:
-            raise InvalidArgument(
-                f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, "
-                f"got {encoder_resolution!r}"
-            )
-        if not isinstance(randomize, (bool, np.bool_)):
-            raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
-        self.randomize = bool(randomize)
+        self.encoder_resolution = check_encoder_resolution(encoder_resolution)
+        self.randomize = check_flag("randomize", randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
         scales = np.atleast_1d(as_float_array("error_scales", error_scales))
         if scales.ndim != 1 or scales.size == 0 or not np.all((scales >= 1e-9) & (scales <= 1e3)):
@@ -291,7 +285,7 @@ class CartesianTrackingEnv(RobotEnv):
         self.settling_time = check_number("settling_time", settling_time, 0.0, 3600.0)
 
         self.robot = Robot.from_name(self.robot_name)  # the simulator's (true) robot
-        self._nominal_arrays = _inertial_arrays(self.robot.model)
+        self._nominal_arrays = inertial_arrays(self.robot.model)
         apply_model_error(self.robot.model, self.model_error)
         super().__init__(
             self.robot.model,
@@ -407,9 +401,8 @@ class CartesianTrackingEnv(RobotEnv):
         super().reset(seed=seed)
         rng = self.np_random
         if self.randomize:
-            draw = {k: float(rng.uniform(*r)) for k, r in RANDOM_RANGES.items()}
-            self.episode_model_error = ModelError(**draw)
-            _restore_inertial_arrays(self.model, self._nominal_arrays)
+            self.episode_model_error = draw_model_error(rng)
+            restore_inertial_arrays(self.model, self._nominal_arrays)
             apply_model_error(self.model, self.episode_model_error)
             self.robot.invalidate()
         for _ in range(MAX_PATH_DRAWS):

@@ -14,21 +14,27 @@ from cir_gym.envs.base import (
     RobotEnv,
     TaskContext,
     as_float_array,
+    check_encoder_resolution,
+    check_flag,
     check_number,
+    model_error_arguments,
 )
 from cir_gym.metrics import MetricSpec
-from cir_gym.robot import ModelError, Robot, apply_model_error
+from cir_gym.robot import (
+    MODEL_ERROR_RANGES,
+    ModelError,
+    Robot,
+    apply_model_error,
+    draw_model_error,
+    inertial_arrays,
+    restore_inertial_arrays,
+)
 
 REFERENCES = ("random", "regulation", "quintic", "sine")
 MAX_GEAR_RATIO = 1.0e4
 
-# Ranges drawn per episode when randomize=True (uniform).
-RANDOM_RANGES = {
-    "payload_mass": (0.0, 5.0),  # kg
-    "mass_scale": (0.8, 1.2),
-    "viscous_friction": (0.0, 1.0),  # N m s/rad
-    "coulomb_friction": (0.0, 1.0),  # N m
-}
+#: Ranges drawn per episode when randomize=True (uniform): cir_gym.robot's.
+RANDOM_RANGES = MODEL_ERROR_RANGES
 
 
 class JointTrackingEnv(RobotEnv):
@@ -218,22 +224,12 @@ class JointTrackingEnv(RobotEnv):
         if reference not in REFERENCES:
             raise InvalidArgument(f"reference must be one of {REFERENCES}, got {reference!r}")
         self.reference = reference
-        self.model_error = ModelError(
-            payload_mass=check_number("payload_mass", payload_mass, 0.0, 50.0),
-            mass_scale=check_number("mass_scale", mass_scale, 0.0, 10.0, low_open=True),
-            viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
-            coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
+        self.model_error = model_error_arguments(
+            payload_mass, mass_scale, viscous_friction, coulomb_friction
         )
         self.torque_noise = check_number("torque_noise", torque_noise, 0.0, 1000.0)
-        self.encoder_resolution = check_number("encoder_resolution", encoder_resolution, 0.0, 0.1)
-        if 0.0 < self.encoder_resolution < 1e-12:
-            raise InvalidArgument(
-                f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, "
-                f"got {encoder_resolution!r}"
-            )
-        if not isinstance(randomize, (bool, np.bool_)):
-            raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
-        self.randomize = bool(randomize)
+        self.encoder_resolution = check_encoder_resolution(encoder_resolution)
+        self.randomize = check_flag("randomize", randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
         scales = np.atleast_1d(as_float_array("error_scales", error_scales))
         if (
@@ -292,7 +288,7 @@ class JointTrackingEnv(RobotEnv):
         # not the notes' B̄_r = N⁻¹B̄N⁻¹, the link seen from the motor (cir_gym.motor)
         self.armature = self.gear_ratio**2 * self.rotor_inertia
         self._set_motor_inertia(self.armature)
-        self._nominal_arrays = _inertial_arrays(self.robot.model)
+        self._nominal_arrays = inertial_arrays(self.robot.model)
         self._apply_model_error(self.model_error)
         super().__init__(
             self.robot.model,
@@ -418,9 +414,8 @@ class JointTrackingEnv(RobotEnv):
         super().reset(seed=seed)
         rng = self.np_random
         if self.randomize:
-            draw = {k: float(rng.uniform(*r)) for k, r in RANDOM_RANGES.items()}
-            self.episode_model_error = ModelError(**draw)
-            _restore_inertial_arrays(self.model, self._nominal_arrays)
+            self.episode_model_error = draw_model_error(rng)
+            restore_inertial_arrays(self.model, self._nominal_arrays)
             self._apply_model_error(self.episode_model_error)
             self.robot.invalidate()
         q0, qd0 = self._make_reference()
@@ -567,22 +562,3 @@ class JointTrackingEnv(RobotEnv):
             rotor_inertia=self.rotor_inertia.copy(),
         )
 
-
-_INERTIAL_FIELDS = (
-    "body_mass",
-    "body_inertia",
-    "body_ipos",
-    "body_iquat",
-    "dof_damping",
-    "dof_frictionloss",
-)
-
-
-def _inertial_arrays(model: Any) -> dict[str, np.ndarray]:
-    return {f: getattr(model, f).copy() for f in _INERTIAL_FIELDS}
-
-
-def _restore_inertial_arrays(model: Any, arrays: dict[str, np.ndarray]) -> None:
-    """Put back the nominal values (``apply_model_error`` then recomputes the constants)."""
-    for f, v in arrays.items():
-        getattr(model, f)[:] = v
