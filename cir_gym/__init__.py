@@ -24,10 +24,23 @@ if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
     else:
         _os.environ["MUJOCO_GL"] = "disable"
 
+from typing import Any as _Any
+
 from cir_gym.envs import ENVIRONMENTS, register_envs
 from cir_gym.robot import ModelError, Robot
 
-__all__ = ["ENVIRONMENTS", "ModelError", "Robot", "register_envs"]
+__all__ = ["ENVIRONMENTS", "ModelError", "Robot", "make_vec", "register_envs"]
+
+
+def make_vec(env_id: str, num_envs: int = 1, **kwargs: _Any) -> _Any:
+    """``num_envs`` copies of ``env_id`` as a Gymnasium vector env: natively batched on
+    ``mujoco.batch`` where :mod:`cir_gym.vector` has it, else a SyncVectorEnv (same autoreset
+    mode and seeding); see :func:`cir_gym.vector.make_vec` (imported on first use)."""
+    from cir_gym.vector import make_vec as _make_vec
+
+    return _make_vec(env_id, num_envs, **kwargs)
+
+
 __version__ = "0.1.0"
 
 register_envs()

@@ -1,9 +1,22 @@
-"""A native batched JointTracking on ``mujoco.batch.Batch``: one C thread pool, no env per process.
+"""Native batched joint tracking on ``mujoco.batch.Batch``: one C thread pool, no env per process.
 
->>> from cir_gym.vector import JointTrackingVectorEnv
->>> envs = JointTrackingVectorEnv(num_envs=64)            # doctest: +SKIP
->>> obs, infos = envs.reset(seed=0)                       # env i is JointTracking reset(seed=i)
+>>> import cir_gym, gymnasium as gym
+>>> envs = cir_gym.make_vec("cir_gym/JointTracking-v1", num_envs=64)    # doctest: +SKIP
+>>> envs = gym.make_vec("cir_gym/JointTracking-v1", num_envs=64,
+...                     vectorization_mode="vector_entry_point")        # doctest: +SKIP
+>>> obs, infos = envs.reset(seed=0)                # env i is JointTracking reset(seed=i)
 >>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
+
+Native batched envs (``VECTOR_ENVS``): ``cir_gym/JointTracking-v1``
+(:class:`JointTrackingVectorEnv`) and ``cir_gym/ElasticJointTracking-v2``
+(:class:`ElasticJointTrackingVectorEnv`: the same step on the elastic model, plus the motor
+keys of the observation). Both ids have a ``vector_entry_point`` (:func:`vector_entry_point`),
+so ``gymnasium.make_vec`` builds them by default. Every other id, and these two with an
+unsupported argument (below), get :func:`make_vec`'s fallback: Gymnasium's ``SyncVectorEnv``
+of the single env with the same autoreset mode (``SAME_STEP``) and seeding, so code written
+for one works on the other. The other torque envs (CartesianTracking, AdmittanceContact,
+PegInHole) have task steps of their own (operational-space errors, contact forces) that are
+not written in array form here: they use the fallback.
 
 What is batched and what is not:
 
@@ -18,9 +31,10 @@ What is batched and what is not:
   state is written into the copy's row; episode metrics are the template's ``episode_metrics``
   on the copy's history.
 
-Supported: JointTracking's default sensing and actuation (no ``drive``, ``torque_noise``,
-``encoder_resolution``; no per-episode ``randomize``: those raise InvalidArgument); every other
-argument (reference, episode length, payload, friction, reward weights...) as in the single env.
+Supported: the default sensing and actuation (no ``drive``, ``torque_noise``,
+``encoder_resolution``; no per-episode ``randomize``: the classes raise InvalidArgument,
+:func:`make_vec` falls back to ``SyncVectorEnv``); every other argument (reference, episode
+length, payload, friction, reward weights, stiffness...) as in the single env.
 
 Autoreset is Gymnasium's ``SAME_STEP`` mode: a finished copy is reset in the same ``step``; its
 last observation and info are in ``infos["final_obs"]`` / ``infos["final_info"]`` (masks
@@ -42,9 +56,18 @@ from cir_gym.envs.base import (
     _UNSTABLE_WARNINGS as _UNSTABLE,  # MuJoCo's instability warnings, as RobotEnv counts them
 )
 from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_number
+from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 
-__all__ = ["JointTrackingVectorEnv", "sb3_vec_env"]
+__all__ = [
+    "VECTOR_ENVS",
+    "ElasticJointTrackingVectorEnv",
+    "JointTrackingVectorEnv",
+    "make_vec",
+    "native_vector_env",
+    "sb3_vec_env",
+    "vector_entry_point",
+]
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
@@ -56,27 +79,39 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
     Args:
         num_envs: number of copies (≥ 1).
         nthread: MuJoCo threads (0: all CPUs).
-        **kwargs: JointTracking's arguments (see ``JointTrackingEnv``), except ``drive``,
+        **kwargs: the single env's arguments (see ``env_class``), except ``drive``,
             ``torque_noise``, ``encoder_resolution``, ``randomize`` and ``render_mode``.
 
     Raises:
-        InvalidArgument: ``num_envs`` < 1, an unsupported argument, or one JointTracking rejects.
+        InvalidArgument: ``num_envs`` < 1, an unsupported argument, or one the single env
+            rejects.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP}
+    #: the single env whose step this class batches (its ``step`` is the specification)
+    env_class: ClassVar[type[JointTrackingEnv]] = JointTrackingEnv
+    env_id: ClassVar[str] = "cir_gym/JointTracking-v1"
+
+    @classmethod
+    def unsupported(cls, kwargs: dict[str, Any]) -> str | None:
+        """Why ``kwargs`` cannot be batched here (the first unsupported argument), or None."""
+        for name, default in _UNSUPPORTED.items():
+            if name in kwargs and kwargs[name] != default:
+                return f"{name}={kwargs[name]!r} (supported: {name}={default!r} only)"
+        if kwargs.get("render_mode") is not None:
+            return f"render_mode={kwargs['render_mode']!r} (the batched env does not render)"
+        return None
 
     def __init__(self, num_envs: int = 64, nthread: int = 0, **kwargs: Any) -> None:
         num_envs = int(check_number("num_envs", num_envs, 1, 1e6))
         nthread = int(check_number("nthread", nthread, 0, 1024))
-        for name, default in _UNSUPPORTED.items():
-            if name in kwargs and kwargs[name] != default:
-                raise InvalidArgument(
-                    f"JointTrackingVectorEnv supports {name}={default!r} only (got "
-                    f"{kwargs[name]!r}); use gymnasium.make_vec('cir_gym/JointTracking-v1', ...)"
-                )
-        if kwargs.get("render_mode") is not None:
-            raise InvalidArgument("JointTrackingVectorEnv does not render (render_mode=None)")
-        self.template = JointTrackingEnv(**kwargs)  # validates every other argument
+        reason = self.unsupported(kwargs)
+        if reason is not None:
+            raise InvalidArgument(
+                f"{type(self).__name__} cannot batch {reason}; cir_gym.make_vec("
+                f"{self.env_id!r}, ...) falls back to a SyncVectorEnv of the single env"
+            )
+        self.template = self.env_class(**kwargs)  # validates every other argument
         t = self.template
         self.num_envs = num_envs
         self.single_observation_space = t.observation_space
@@ -108,7 +143,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self._safe_q = np.zeros((N, t.model.nq))
         self._safe_qd = np.zeros((N, t.model.nv))
         self._rows = np.arange(N)
-        self._bounds = {k: t._obs_bounds[k] for k in ("q", "qd", "q_ref", "qd_ref", "qdd_ref")}
+        self._bounds = {k: t._obs_bounds[k] for k in t.observation_space.spaces}
 
     # ------------------------------------------------------------------ resets
     def _reset_copy(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -233,6 +268,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
             "q_ref": self._ref[rows, 0, kk],
             "qd_ref": self._ref[rows, 1, kk],
             "qdd_ref": self._ref[rows, 2, kk],
+            **self._extra_obs(q, qd),
         }
         obs = {key: np.clip(v, -self._bounds[key], self._bounds[key]) for key, v in raw_obs.items()}
         terms = {
@@ -245,17 +281,30 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         }
         ones = np.ones(self.num_envs, dtype=bool)
         infos: dict[str, Any] = {}
-        for key, value in (*terms.items(), ("following_error_exceeded", stopped),
-                           ("diverged", diverged)):
+        for key, value in (
+            *terms.items(),
+            ("following_error_exceeded", stopped),
+            ("diverged", diverged),
+        ):
             infos[key] = value
             infos["_" + key] = ones
         for i in np.flatnonzero(terminated | truncated):
             i = int(i)
             infos = self._finish_copy(
-                i, obs, infos, bool(diverged[i]), bool(stopped[i]), q_err[i],
+                i,
+                obs,
+                infos,
+                bool(diverged[i]),
+                bool(stopped[i]),
+                q_err[i],
                 {key: float(v[i]) for key, v in terms.items()},
             )
         return obs, reward, terminated, truncated, infos
+
+    def _extra_obs(self, q: np.ndarray, qd: np.ndarray) -> dict[str, np.ndarray]:
+        """Observation keys beyond JointTracking's, from the batch's qpos (N, nq) and qvel
+        (N, nv) (none here)."""
+        return {}
 
     def _finish_copy(
         self,
@@ -297,6 +346,115 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self.template.close()
 
 
+class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
+    """``num_envs`` copies of ``cir_gym/ElasticJointTracking-v2`` on one ``mujoco.batch.Batch``.
+
+    ElasticJointTracking inherits JointTracking's ``step`` (actuators on the motor hinges,
+    0.5-ms physics: ``frame_skip`` 4, ``charge_unplayed_steps`` on by default); its observation
+    adds the motor positions and velocities ``q_motor``, ``qd_motor`` (7,) (rad and rad/s, link
+    units), read here from the batch's rows as the single env reads them. Arguments and
+    limits as :class:`JointTrackingVectorEnv` (``stiffness``, ``stiffness_scale`` supported).
+    """
+
+    env_class: ClassVar[type[JointTrackingEnv]] = ElasticJointTrackingEnv
+    env_id: ClassVar[str] = "cir_gym/ElasticJointTracking-v2"
+
+    def _extra_obs(self, q: np.ndarray, qd: np.ndarray) -> dict[str, np.ndarray]:
+        t = self.template
+        return {"q_motor": q[:, t._ma], "qd_motor": qd[:, t._md]}
+
+
+#: env id → its native batched class
+VECTOR_ENVS: dict[str, type[JointTrackingVectorEnv]] = {
+    cls.env_id: cls for cls in (JointTrackingVectorEnv, ElasticJointTrackingVectorEnv)
+}
+
+
+def _env_key(env_id: str) -> str:
+    """``"cir_gym:cir_gym/X-v1"`` → ``"cir_gym/X-v1"`` (the module prefix gym.make accepts)."""
+    return env_id.split(":")[-1]
+
+
+def native_vector_env(
+    env_id: str, env_kwargs: dict[str, Any]
+) -> type[JointTrackingVectorEnv] | None:
+    """The native batched class for ``env_id`` with ``env_kwargs``, or None when there is none
+    (another id, or an argument it does not batch: see ``unsupported``)."""
+    cls = VECTOR_ENVS.get(_env_key(env_id))
+    if cls is None or cls.unsupported(env_kwargs) is not None:
+        return None
+    return cls
+
+
+def make_vec(
+    env_id: str,
+    num_envs: int = 1,
+    *,
+    nthread: int = 0,
+    max_episode_steps: int | None = None,
+    **kwargs: Any,
+) -> gym.vector.VectorEnv:
+    """``num_envs`` copies of ``env_id``: natively batched where possible, else SyncVectorEnv.
+
+    Args:
+        env_id: a registered cir_gym id.
+        num_envs: number of copies (≥ 1).
+        nthread: MuJoCo threads of a native batched env (0: all CPUs); unused otherwise.
+        max_episode_steps: as in ``gymnasium.make``. A native env truncates at its own episode
+            end, so it accepts only None, -1 or at least that many steps; a smaller value
+            raises InvalidArgument (use ``gymnasium.make_vec(..., vectorization_mode="sync")``
+            for a TimeLimit shorter than the episode).
+        **kwargs: the environment's arguments.
+
+    Returns:
+        A :class:`JointTrackingVectorEnv` / :class:`ElasticJointTrackingVectorEnv` when
+        ``VECTOR_ENVS`` has ``env_id`` and it batches ``kwargs``; otherwise Gymnasium's
+        ``SyncVectorEnv`` of ``gymnasium.make(env_id, ...)`` with ``SAME_STEP`` autoreset.
+        Either way copy i of ``reset(seed=s)`` is the single env reset with seed s + i.
+    """
+    cls = native_vector_env(env_id, kwargs)
+    if cls is None:
+        make_kw = {} if max_episode_steps is None else {"max_episode_steps": max_episode_steps}
+        num = int(check_number("num_envs", num_envs, 1, 1e6))
+        spec = gym.spec(_env_key(env_id))
+        return gym.vector.SyncVectorEnv(
+            [lambda: gym.make(spec, **make_kw, **kwargs) for _ in range(num)],
+            autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+        )
+    venv = cls(num_envs=num_envs, nthread=nthread, **kwargs)
+    steps = venv.template.max_steps
+    if max_episode_steps is not None and max_episode_steps != -1 and max_episode_steps < steps:
+        venv.close()
+        raise InvalidArgument(
+            f"max_episode_steps={max_episode_steps} would cut this {steps}-step episode; the "
+            f"batched {env_id} truncates at its own end: pass max_episode_steps=-1 (or ≥ "
+            f"{steps}), or gymnasium.make_vec(..., vectorization_mode='sync') for a TimeLimit"
+        )
+    return venv
+
+
+def vector_entry_point(env_id: str, num_envs: int = 1, **kwargs: Any) -> JointTrackingVectorEnv:
+    """What ``gymnasium.make_vec`` calls for an id of ``VECTOR_ENVS`` (registered by
+    ``cir_gym.envs.register_envs`` as its ``vector_entry_point``): the native batched env.
+
+    Raises:
+        InvalidArgument: an argument the native env does not batch (``unsupported``): with
+            ``vectorization_mode="sync"`` gymnasium builds a SyncVectorEnv instead, and
+            :func:`make_vec` falls back to one by itself.
+    """
+    max_episode_steps = kwargs.pop("max_episode_steps", None)
+    cls = VECTOR_ENVS[_env_key(env_id)]
+    reason = cls.unsupported(kwargs)
+    if reason is not None:
+        raise InvalidArgument(
+            f"{env_id}'s batched env cannot batch {reason}; use gymnasium.make_vec(..., "
+            f"vectorization_mode='sync') or cir_gym.make_vec (which falls back to it)"
+        )
+    venv = make_vec(env_id, num_envs, max_episode_steps=max_episode_steps, **kwargs)
+    assert isinstance(venv, JointTrackingVectorEnv)
+    return venv
+
+
 def sb3_vec_env(venv: JointTrackingVectorEnv) -> Any:
     """``venv`` as a Stable-Baselines3 ``VecEnv`` (imports SB3 only when called).
 
@@ -317,8 +475,7 @@ def _sb3_class() -> type:
         def __init__(self, venv: JointTrackingVectorEnv) -> None:
             self.venv = venv
             self.render_mode = None
-            super().__init__(venv.num_envs, venv.single_observation_space,
-                             venv.single_action_space)
+            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
             self._actions: np.ndarray | None = None
 
         def reset(self) -> dict[str, np.ndarray]:
@@ -341,8 +498,9 @@ def _sb3_class() -> type:
                     "terminal_observation": infos["final_obs"][i],
                     "TimeLimit.truncated": bool(trunc[i] and not term[i]),
                     "is_success": bool(final["is_success"][i]),
-                    "episode_metrics": {k: float(v[i]) for k, v in
-                                        final["episode_metrics"].items()},
+                    "episode_metrics": {
+                        k: float(v[i]) for k, v in final["episode_metrics"].items()
+                    },
                 }
             return obs, rew.astype(np.float32), dones, out
 
@@ -356,8 +514,9 @@ def _sb3_class() -> type:
         def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
             raise NotImplementedError("the copies of a JointTrackingVectorEnv share one template")
 
-        def env_method(self, method_name: str, *args: Any, indices: Any = None,
-                       **kwargs: Any) -> list[Any]:
+        def env_method(
+            self, method_name: str, *args: Any, indices: Any = None, **kwargs: Any
+        ) -> list[Any]:
             raise NotImplementedError("the copies of a JointTrackingVectorEnv are array rows")
 
         def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:

@@ -1,24 +1,33 @@
-"""cir_gym.vector.JointTrackingVectorEnv against the single JointTracking env, copy by copy."""
+"""cir_gym.vector's batched envs against the single envs, copy by copy; make_vec and the
+registered vector entry points."""
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
+import cir_gym
+from cir_gym.envs import BATCHED_ENVIRONMENTS
 from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.joint_tracking import JointTrackingEnv
-from cir_gym.vector import JointTrackingVectorEnv
+from cir_gym.vector import (
+    VECTOR_ENVS,
+    ElasticJointTrackingVectorEnv,
+    JointTrackingVectorEnv,
+    make_vec,
+)
 
 N = 3
 KW = {"episode_duration": 0.1}  # 50 steps: the run below crosses an autoreset
 REWARD_TOL = 1e-12  # reward sums (einsum vs @ may differ in the last bit); states are exact
 
 
-def _run_singles(seed: int, actions: np.ndarray, **kw) -> list[list[tuple]]:
+def _run_singles(seed: int, actions: np.ndarray, env_cls=JointTrackingEnv, **kw) -> list[list]:
     """Per copy: (obs, reward, terminated, truncated, final_obs) per step, resets inline."""
     out = []
     for i in range(actions.shape[1]):
-        env = JointTrackingEnv(**kw)
+        env = env_cls(**kw)
         obs, _ = env.reset(seed=seed + i)
         rows = [(obs, None, None, None, None)]
         for a in actions[:, i]:
@@ -32,14 +41,24 @@ def _run_singles(seed: int, actions: np.ndarray, **kw) -> list[list[tuple]]:
     return out
 
 
-@pytest.mark.parametrize("kw", [KW, {**KW, "reference": "sine", "payload_mass": 2.0}])
-def test_each_copy_is_the_single_env_with_seed_plus_i(kw):
+@pytest.mark.parametrize(
+    ("vec_cls", "kw"),
+    [
+        (JointTrackingVectorEnv, KW),
+        (JointTrackingVectorEnv, {**KW, "reference": "sine", "payload_mass": 2.0}),
+        # the elastic env: frame_skip 4, motor keys, charge_unplayed_steps on; a 0.4 stiffness
+        # scale and 3 kg make the clipped random torques trip the following-error monitor
+        (ElasticJointTrackingVectorEnv, {**KW, "payload_mass": 3.0, "stiffness_scale": 0.4}),
+    ],
+)
+def test_each_copy_is_the_single_env_with_seed_plus_i(vec_cls, kw):
     rng = np.random.default_rng(1)
     steps = 60
     actions = rng.uniform(-1.3, 1.3, (steps, N, 7)).astype(np.float32)  # some get clipped
-    want = _run_singles(10, actions, **kw)
-    envs = JointTrackingVectorEnv(num_envs=N, nthread=1, **kw)
+    want = _run_singles(10, actions, vec_cls.env_class, **kw)
+    envs = vec_cls(num_envs=N, nthread=1, **kw)
     obs, _ = envs.reset(seed=10)
+    assert set(obs) == set(want[0][0][0]) == set(envs.single_observation_space.spaces)
     for i in range(N):
         for key in obs:
             np.testing.assert_array_equal(obs[key][i], want[i][0][0][key])
@@ -132,3 +151,78 @@ def test_a_nan_in_one_copy_diverges_that_copy_as_the_single_env():
     for key in w_obs:
         np.testing.assert_array_equal(infos["final_obs"][1][key], w_obs[key])
         assert np.all(np.isfinite(obs[key]))
+
+
+def _compare_with_gym_make(envs: gym.vector.VectorEnv, env_id: str, seed: int, **kw) -> int:
+    """Step ``envs`` and one ``gymnasium.make(env_id)`` per copy (seed + i) with the same
+    random actions past an episode end; assert equal observations, rewards, ends and final
+    metrics; return how many episodes ended."""
+    n = envs.num_envs
+    singles = [gym.make(env_id, **kw) for _ in range(n)]
+    obs, _ = envs.reset(seed=seed)
+    for i, single in enumerate(singles):
+        w_obs, _ = single.reset(seed=seed + i)
+        for key in w_obs:
+            np.testing.assert_array_equal(obs[key][i], w_obs[key])
+    actions = np.random.default_rng(3).uniform(-0.2, 0.2, (55, n, 7)).astype(np.float32)
+    ended = 0
+    for a in actions:
+        obs, rew, term, trunc, infos = envs.step(a)
+        for i, single in enumerate(singles):
+            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
+            assert rew[i] == pytest.approx(w_rew, rel=REWARD_TOL, abs=REWARD_TOL)
+            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc)
+            if w_term or w_trunc:
+                ended += 1
+                metrics = infos["final_info"]["episode_metrics"]
+                for name, value in w_info["episode_metrics"].items():
+                    assert metrics[name][i] == value
+                for key in w_obs:
+                    np.testing.assert_array_equal(infos["final_obs"][i][key], w_obs[key])
+                w_obs, _ = single.reset()
+            for key in w_obs:
+                np.testing.assert_array_equal(obs[key][i], w_obs[key])
+    return ended
+
+
+@pytest.mark.parametrize("env_id", BATCHED_ENVIRONMENTS)
+def test_gymnasium_make_vec_builds_the_batched_env_equal_to_the_single_envs(env_id):
+    assert set(BATCHED_ENVIRONMENTS) == set(VECTOR_ENVS)  # the registration's list is complete
+    for mode in ("vector_entry_point", None):  # None: the registered vector entry point
+        envs = gym.make_vec(env_id, num_envs=2, vectorization_mode=mode, nthread=1, **KW)
+        assert type(envs) is VECTOR_ENVS[env_id] and envs.spec.id == env_id
+        envs.close()
+    sync = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync", **KW)
+    assert isinstance(sync, gym.vector.SyncVectorEnv)  # the other modes are Gymnasium's
+    sync.close()
+    envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **KW)
+    assert _compare_with_gym_make(envs, env_id, 20, **KW) == 2  # both crossed an episode end
+
+
+def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
+    drive = {**KW, "drive": "industrial"}  # not batched: a SyncVectorEnv of the single env
+    envs = cir_gym.make_vec("cir_gym/JointTracking-v1", 2, **drive)
+    assert isinstance(envs, gym.vector.SyncVectorEnv)
+    assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v1", 5, **drive) == 2
+    native = cir_gym.make_vec("cir_gym/JointTracking-v1", 2, **KW)
+    assert type(native) is JointTrackingVectorEnv
+    other = cir_gym.make_vec("cir_gym/RedundantIK-v3", 2)  # no batched env: sync
+    assert isinstance(other, gym.vector.SyncVectorEnv)
+    for venv in (envs, native, other):
+        venv.close()
+
+
+def test_make_vec_names_what_it_cannot_batch():
+    with pytest.raises(InvalidArgument, match=r"drive='industrial'.*sync"):
+        gym.make_vec(
+            "cir_gym/JointTracking-v1",
+            2,
+            vectorization_mode="vector_entry_point",
+            drive="industrial",
+        )
+    with pytest.raises(InvalidArgument, match=r"max_episode_steps=10 would cut this 50-step"):
+        make_vec("cir_gym/JointTracking-v1", 2, max_episode_steps=10, **KW)
+    longer = make_vec("cir_gym/JointTracking-v1", 2, max_episode_steps=-1, episode_duration=8.0)
+    assert longer.template.max_steps == 4000
+    longer.close()

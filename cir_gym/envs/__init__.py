@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
@@ -14,6 +16,7 @@ from cir_gym.envs.redundant_ik import REDUNDANT_IK_ENVIRONMENTS, RedundantIK7Env
 from cir_gym.envs.visual_servo import VISUAL_SERVO_ENVIRONMENTS
 
 __all__ = [
+    "BATCHED_ENVIRONMENTS",
     "ENVIRONMENTS",
     "ElasticJointTrackingEnv",
     "JointTrackingEnv",
@@ -35,10 +38,37 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
     ),
     **REDUNDANT_IK_ENVIRONMENTS,
     **VISUAL_SERVO_ENVIRONMENTS,
-    "cir_gym/AdmittanceContact-v0": (AdmittanceContactEnv, "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)"),
-    "cir_gym/PegInHole-v0": (PegInHoleEnv, "iiwa14 inserting a peg into a hole known only approximately: hybrid force/position control (ch. 6)"),
-    "cir_gym/CartesianTracking-v0": (CartesianTrackingEnv, "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)"),
+    "cir_gym/AdmittanceContact-v0": (
+        AdmittanceContactEnv,
+        "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)",
+    ),
+    "cir_gym/PegInHole-v0": (
+        PegInHoleEnv,
+        "iiwa14 inserting a peg into a hole known only approximately: hybrid force/position control (ch. 6)",
+    ),
+    "cir_gym/CartesianTracking-v0": (
+        CartesianTrackingEnv,
+        "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)",
+    ),
 }
+
+
+#: ids with a native batched env on ``mujoco.batch`` (``cir_gym.vector.VECTOR_ENVS``; named here
+#: so that registering them does not import ``mujoco.batch``)
+BATCHED_ENVIRONMENTS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+
+
+class VectorEntryPoint:
+    """``gymnasium.register``'s ``vector_entry_point`` of one id: imports ``cir_gym.vector`` on
+    first use and returns :func:`cir_gym.vector.vector_entry_point`'s batched env."""
+
+    def __init__(self, env_id: str) -> None:
+        self.env_id = env_id
+
+    def __call__(self, num_envs: int = 1, **kwargs: Any) -> gym.vector.VectorEnv:
+        from cir_gym.vector import vector_entry_point
+
+        return vector_entry_point(self.env_id, num_envs, **kwargs)
 
 
 def register_envs() -> None:
@@ -49,6 +79,11 @@ def register_envs() -> None:
     the step at which the env truncates itself: ``gymnasium.make``'s TimeLimit ends the same
     step. Made with a longer episode, pass ``max_episode_steps`` (or -1) to ``gymnasium.make``
     (the entry point warns).
+
+    The ids of ``BATCHED_ENVIRONMENTS`` also get a ``vector_entry_point``:
+    ``gymnasium.make_vec(id, num_envs)`` (mode None or ``"vector_entry_point"``) builds the
+    native batched env of :mod:`cir_gym.vector`; ``vectorization_mode="sync"`` still gives
+    Gymnasium's SyncVectorEnv.
     """
     for env_id, (cls, _) in ENVIRONMENTS.items():
         if env_id not in gym.registry:
@@ -58,4 +93,7 @@ def register_envs() -> None:
                 entry_point=EntryPoint(cls, steps),
                 disable_env_checker=False,
                 max_episode_steps=steps,
+                vector_entry_point=(
+                    VectorEntryPoint(env_id) if env_id in BATCHED_ENVIRONMENTS else None
+                ),
             )
