@@ -4,6 +4,8 @@ cir-gym list
 cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...]
                  [--plot out.png] [--video out.gif]
 cir-gym leaderboard [--episodes N] [--out results/]
+cir-gym leaderboard --from DIR [--out DIR]    (a sweep's table: tables and figures)
+cir-gym sweep GRID.yaml --out DIR [--workers N] [--ray ADDRESS|auto|local] [--retries N]
 cir-gym train ...      (see ``agents.train``)
 cir-gym identify ...   (see ``scripts.identify``)
 """
@@ -226,8 +228,18 @@ def record_video(
 def cmd_leaderboard(args: argparse.Namespace) -> int:
     from scripts.leaderboard import run_leaderboard
 
+    if args.from_dir is not None:
+        from scripts.leaderboard import leaderboard_from
+
+        try:
+            md = leaderboard_from(Path(args.from_dir), Path(args.out) if args.out else None)
+        except FileNotFoundError as exc:  # no sweep table in DIR
+            raise CliError(str(exc)) from exc
+        print(md.read_text())
+        print(f"wrote {md} and {md.parent / 'index.html'}", file=sys.stderr)
+        return 0
     run_leaderboard(
-        Path(args.out),
+        Path(args.out or "results"),
         episodes=args.episodes,
         seed=args.seed,
         envs=[_check_env_id(e) for e in args.env] if args.env else None,
@@ -260,6 +272,28 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ValueError as exc:  # bad residual controller, existing run without --resume, ...
         raise CliError(str(exc)) from exc
     return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from scripts.sweep import GridError, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers must be >= 1, got {args.workers}")
+    if args.retries < 0:
+        raise CliError(f"--retries must be >= 0, got {args.retries}")
+    try:
+        summary = run_sweep(
+            args.grid, args.out, workers=args.workers, ray=args.ray, retries=args.retries
+        )
+    except GridError as exc:
+        raise CliError(str(exc)) from exc
+    except ImportError as exc:  # --ray without the sweep extra
+        raise CliError(str(exc)) from exc
+    print(
+        f"{summary.tasks} tasks: {summary.skipped} already finished, {summary.ran} run "
+        f"({summary.failed} failed) in {summary.seconds:.1f} s; table {summary.table}"
+    )
+    return 1 if summary.failed else 0
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -302,9 +336,51 @@ def build_parser() -> argparse.ArgumentParser:
     lb = sub.add_parser("leaderboard", help="every policy on every environment (the main job)")
     lb.add_argument("--episodes", type=int, default=10)
     lb.add_argument("--seed", type=int, default=1000)
-    lb.add_argument("--out", default="results")
+    lb.add_argument(
+        "--out", default=None, help="output directory (default: results, or DIR with --from)"
+    )
     lb.add_argument("--env", action="append", help="restrict to these ids (repeatable)")
+    lb.add_argument(
+        "--from",
+        dest="from_dir",
+        metavar="DIR",
+        default=None,
+        help="render a sweep's table (cir-gym sweep --out DIR) instead of running",
+    )
     lb.set_defaults(func=cmd_leaderboard)
+
+    sw = sub.add_parser(
+        "sweep",
+        help="a grid (YAML) of evaluations and training runs as "
+        "independent tasks, on a local pool or Ray",
+    )
+    sw.add_argument("grid", metavar="GRID", help="grid file (see scripts/sweep.py, sweeps/)")
+    sw.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="results: tasks/*.json, results.parquet (or .csv), runs/",
+    )
+    sw.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local processes (default: one per core); CPUs with --ray local",
+    )
+    sw.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        default=None,
+        help="run on Ray: a cluster address, 'auto' (the running cluster) or "
+        "'local' (start one here); needs the sweep extra",
+    )
+    sw.add_argument(
+        "--retries",
+        type=int,
+        default=2,
+        help="retries of a task that raised or whose worker died (default 2)",
+    )
+    sw.set_defaults(func=cmd_sweep)
 
     t = sub.add_parser("train", help="train an SB3 agent (needs the train extra)")
     t.add_argument("--env", required=True)

@@ -74,8 +74,12 @@ def _inline(text: str) -> str:
     return re.sub(r"(?<![*\w])\*([^*]+)\*(?![*\w])", r"<em>\1</em>", out)
 
 
+IMAGE = re.compile(r"!\[([^\]]*)\]\(([^)\s]+)\)")
+
+
 def markdown_to_html(md: str, table_class: str = "") -> str:
-    """The markdown the leaderboard writes (paragraphs and pipe tables) as HTML."""
+    """The markdown the leaderboards write (headings, paragraphs, pipe tables and image lines
+    ``![alt](src)``) as HTML."""
     blocks: list[str] = []
     lines = md.strip("\n").split("\n")
     i = 0
@@ -90,14 +94,36 @@ def markdown_to_html(md: str, table_class: str = "") -> str:
             body = [c for c in cells[1:] if not all(set(x) <= set("-: ") for x in c)]
             cls = f' class="{table_class}"' if table_class else ""
             head = "".join(f"<th>{_inline(c)}</th>" for c in cells[0])
-            trs = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>"
-                          for r in body)
-            blocks.append(f'<div class="scroll"><table{cls}><thead><tr>{head}</tr></thead>'
-                          f"<tbody>{trs}</tbody></table></div>")
+            trs = "".join(
+                "<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in body
+            )
+            blocks.append(
+                f'<div class="scroll"><table{cls}><thead><tr>{head}</tr></thead>'
+                f"<tbody>{trs}</tbody></table></div>"
+            )
+            continue
+        image = IMAGE.fullmatch(line.strip())
+        if image:
+            blocks.append(
+                f'<figure><img class="figure" src="{html.escape(image[2])}" '
+                f'alt="{html.escape(image[1])}"></figure>'
+            )
+            i += 1
+            continue
+        heading = re.fullmatch(r"(#{1,4}) (.+)", line.strip())
+        if heading:
+            n = len(heading[1])
+            blocks.append(f"<h{n}>{_inline(heading[2])}</h{n}>")
+            i += 1
             continue
         if line.strip():
-            para = []
-            while i < len(lines) and lines[i].strip() and not lines[i].startswith("|"):
+            para = [line]  # the first line always (a stray "![" or "#" is text)
+            i += 1
+            while (
+                i < len(lines)
+                and lines[i].strip()
+                and not lines[i].startswith(("|", "# ", "## ", "### ", "#### ", "!["))
+            ):
                 para.append(lines[i])
                 i += 1
             blocks.append(f"<p>{_inline(' '.join(para))}</p>")
@@ -106,10 +132,29 @@ def markdown_to_html(md: str, table_class: str = "") -> str:
     return "\n".join(blocks)
 
 
+def html_page(title: str, body: str) -> str:
+    """A complete HTML document around ``body`` with the page's CSS and image check."""
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+        f"<title>{html.escape(title)}</title>\n"
+        '<link rel="icon" href="data:,">\n'
+        f"<style>{CSS}</style>\n<script>{CHECK_SCRIPT}</script>\n</head>\n<body>\n"
+        + body
+        + "\n</body>\n</html>\n"
+    )
+
+
 # ---------------------------------------------------------------------- videos
-def episode_frames(env_id: str, policy_name: str, env_kwargs: dict[str, Any], seed: int,
-                   size: int = VIDEO_SIZE, fps: int = VIDEO_FPS,
-                   seconds: float = VIDEO_SECONDS) -> list[np.ndarray]:
+def episode_frames(
+    env_id: str,
+    policy_name: str,
+    env_kwargs: dict[str, Any],
+    seed: int,
+    size: int = VIDEO_SIZE,
+    fps: int = VIDEO_FPS,
+    seconds: float = VIDEO_SECONDS,
+) -> list[np.ndarray]:
     """Frames (size × size RGB) of one episode of ``policy_name`` at ≈ ``fps`` frames/s, the
     first ``seconds`` of it (the episode goes on to its end: the last frame is its end)."""
 
@@ -126,8 +171,7 @@ def episode_frames(env_id: str, policy_name: str, env_kwargs: dict[str, Any], se
     while not done:
         if k % every == 0 and len(frames) < limit:
             frames.append(env.render())
-        action, state = policy.predict(obs, state=state, episode_start=[start],
-                                       deterministic=True)
+        action, state = policy.predict(obs, state=state, episode_start=[start], deterministic=True)
         start = False
         obs, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
@@ -145,7 +189,7 @@ def labelled(frames: list[np.ndarray], label: str) -> list[np.ndarray]:
     w = frames[0].shape[1]
     strip = np.full((12, w, 3), 30, dtype=np.uint8)
     mask = rendering.text_mask(label, 1)[:, : w - 4]
-    strip[3: 3 + mask.shape[0], 2: 2 + mask.shape[1]][mask] = 235
+    strip[3 : 3 + mask.shape[0], 2 : 2 + mask.shape[1]][mask] = 235
     return [np.vstack((f, strip)) for f in frames]
 
 
@@ -153,12 +197,13 @@ def side_by_side(left: list[np.ndarray], right: list[np.ndarray]) -> list[np.nda
     """Pairs of frames with a 4 px gap; the shorter clip holds its last frame."""
     n = max(len(left), len(right))
     gap = np.full((left[0].shape[0], 4, 3), 250, dtype=np.uint8)
-    return [np.hstack((left[min(i, len(left) - 1)], gap, right[min(i, len(right) - 1)]))
-            for i in range(n)]
+    return [
+        np.hstack((left[min(i, len(left) - 1)], gap, right[min(i, len(right) - 1)]))
+        for i in range(n)
+    ]
 
 
-def save_gif(frames: list[np.ndarray], path: str | Path, fps: float, colours: int = 255
-             ) -> Path:
+def save_gif(frames: list[np.ndarray], path: str | Path, fps: float, colours: int = 255) -> Path:
     """Write RGB ``frames`` as a small looping GIF: one palette for all frames and, from the
     second frame on, the pixels that did not change left transparent (so a fixed camera costs
     only what moves: ~100 KB for 50 frames of 360 × 190 px, ~6× less than per-frame palettes).
@@ -168,25 +213,37 @@ def save_gif(frames: list[np.ndarray], path: str | Path, fps: float, colours: in
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     sample = np.vstack(frames[:: max(1, len(frames) // 8)])
-    palette_image = Image.fromarray(sample).quantize(colors=colours,
-                                                      method=Image.Quantize.FASTOCTREE,
-                                                      dither=Image.Dither.NONE)
+    palette_image = Image.fromarray(sample).quantize(
+        colors=colours, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
+    )
     palette = palette_image.getpalette()[: 3 * colours]
     palette += [0] * (3 * colours - len(palette)) + [0, 0, 0]  # index `colours`: transparent
     images, previous = [], None
     for frame in frames:
-        index = np.asarray(Image.fromarray(np.ascontiguousarray(frame)).quantize(
-            palette=palette_image, dither=Image.Dither.NONE))
+        index = np.asarray(
+            Image.fromarray(np.ascontiguousarray(frame)).quantize(
+                palette=palette_image, dither=Image.Dither.NONE
+            )
+        )
         shown = index.copy()
         if previous is not None:
             shown[index == previous] = colours
         previous = index
-        image = Image.frombytes("P", (index.shape[1], index.shape[0]),
-                                shown.astype(np.uint8).tobytes())
+        image = Image.frombytes(
+            "P", (index.shape[1], index.shape[0]), shown.astype(np.uint8).tobytes()
+        )
         image.putpalette(palette)
         images.append(image)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps),
-                   loop=0, optimize=False, disposal=1, transparency=colours)
+    images[0].save(
+        path,
+        save_all=True,
+        append_images=images[1:],
+        duration=round(1000 / fps),
+        loop=0,
+        optimize=False,
+        disposal=1,
+        transparency=colours,
+    )
     return path
 
 
@@ -210,8 +267,10 @@ def _learning_curve(env_id: str) -> Path | None:
     if exact.is_file():
         return exact
     base = name.rsplit("-v", 1)[0]
-    found = sorted(LEARNING_CURVES.glob(f"{base}-v*.png"),
-                   key=lambda p: int(re.sub(r"\D", "", p.stem.rsplit("-v", 1)[1]) or 0))
+    found = sorted(
+        LEARNING_CURVES.glob(f"{base}-v*.png"),
+        key=lambda p: int(re.sub(r"\D", "", p.stem.rsplit("-v", 1)[1]) or 0),
+    )
     return found[-1] if found else None
 
 
@@ -219,9 +278,17 @@ def _rel(path: Path, out: Path) -> str:
     return Path(os.path.relpath(path.resolve(), out.resolve())).as_posix()
 
 
-def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: list[str],
-               episodes: int, seed: int, env_overrides: dict[str, Any] | None = None,
-               workers: int | None = None, videos: bool = True) -> Path:
+def write_page(
+    out: Path,
+    results: dict[tuple[str, str, str], Any],
+    env_ids: list[str],
+    episodes: int,
+    seed: int,
+    env_overrides: dict[str, Any] | None = None,
+    workers: int | None = None,
+    videos: bool = True,
+    extra: dict[tuple[str, str], str] | None = None,
+) -> Path:
     """Write ``out/index.html`` (and ``out/videos/*.gif``) from the leaderboard's results.
 
     Args:
@@ -230,6 +297,8 @@ def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: lis
         env_ids, episodes, seed, env_overrides: as given to run_leaderboard.
         workers: processes for the videos (default: one per core).
         videos: False writes the page without GIFs.
+        extra: (env_id, variant) → markdown shown under that variant's ranked table (the
+            multi-seed agents' table).
     """
     from scripts.leaderboard import _best, _slug, ranked_table, rl_summary
 
@@ -239,8 +308,10 @@ def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: lis
     for env_id in env_ids:
         cls, description = cir_gym.ENVIRONMENTS[env_id]
         variants = getattr(cls, "leaderboard_variants", {"default": {}})
-        rows_of = {v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
-                   for v in variants}
+        rows_of = {
+            v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
+            for v in variants
+        }
         entries = []
         for variant, kwargs in variants.items():
             rows = rows_of[variant]
@@ -253,8 +324,9 @@ def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: lis
                 jobs.append((env_id, {**kwargs, **(env_overrides or {})}, shown, seed, str(gif)))
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
             fig = out / f"{name}_{_slug(variant)}.png"
-            entries.append((variant, setting, str(gif) if videos and shown else "", rows,
-                            str(fig), shown))
+            entries.append(
+                (variant, setting, str(gif) if videos and shown else "", rows, str(fig), shown)
+            )
         sections.append((env_id, description + "\n\n" + rl_summary(rows_of), entries))
 
     errors: dict[str, str] = {}
@@ -270,50 +342,60 @@ def write_page(out: Path, results: dict[tuple[str, str, str], Any], env_ids: lis
             messages = [make_video(j) for j in jobs]
         errors = {j[4]: m for j, m in zip(jobs, messages, strict=True) if m}
 
-    body = ["<h1>cir_gym leaderboard</h1>",
-            f"<p>{episodes} episodes per policy, seeds {seed}…{seed + episodes - 1} (the same "
-            "for every policy), ranked by success rate, then by each variant's primary metric "
-            "(mean over episodes); <em>worst</em> is the worst episode, CVaR20% the mean of the "
-            "worst 20 %. Each video is one episode (seed "
-            f"{seed}, the first {VIDEO_SECONDS:g} s at {VIDEO_FPS} frames/s) of the best "
-            "controller (left) and the best agent (right) with the task drawn: the reference "
-            "(cyan), the target (yellow), obstacles and forces. Generated by "
-            "<code>cir-gym leaderboard</code>; the same tables are in "
-            "<a href=\"leaderboard.md\">leaderboard.md</a>.</p>",
-            "<nav>" + "".join(f'<a href="#{_slug(e)}">{html.escape(e.split("/")[-1])}</a>'
-                              for e, _, _ in sections) + "</nav>"]
+    body = [
+        "<h1>cir_gym leaderboard</h1>",
+        f"<p>{episodes} episodes per policy, seeds {seed}…{seed + episodes - 1} (the same "
+        "for every policy), ranked by success rate, then by each variant's primary metric "
+        "(mean over episodes); <em>worst</em> is the worst episode, CVaR20% the mean of the "
+        "worst 20 %. Each video is one episode (seed "
+        f"{seed}, the first {VIDEO_SECONDS:g} s at {VIDEO_FPS} frames/s) of the best "
+        "controller (left) and the best agent (right) with the task drawn: the reference "
+        "(cyan), the target (yellow), obstacles and forces. Generated by "
+        "<code>cir-gym leaderboard</code>; the same tables are in "
+        '<a href="leaderboard.md">leaderboard.md</a>.</p>',
+        "<nav>"
+        + "".join(
+            f'<a href="#{_slug(e)}">{html.escape(e.split("/")[-1])}</a>' for e, _, _ in sections
+        )
+        + "</nav>",
+    ]
     for env_id, description, entries in sections:
         body.append(f'<h2 id="{_slug(env_id)}">{html.escape(env_id)}</h2>')
         body.append(markdown_to_html(description, "summary"))
         curve = _learning_curve(env_id)
         if curve is not None:
-            body.append(f'<figure><img class="curve" src="{_rel(curve, out)}" alt="learning '
-                        f'curves {html.escape(env_id)}"><figcaption>Learning curves '
-                        f"({html.escape(curve.stem)}).</figcaption></figure>")
+            body.append(
+                f'<figure><img class="curve" src="{_rel(curve, out)}" alt="learning '
+                f'curves {html.escape(env_id)}"><figcaption>Learning curves '
+                f"({html.escape(curve.stem)}).</figcaption></figure>"
+            )
         for variant, setting, gif, rows, fig, shown in entries:
-            body.append(f"<h3>{html.escape(variant)} <small>({html.escape(setting)})</small>"
-                        "</h3>")
+            body.append(f"<h3>{html.escape(variant)} <small>({html.escape(setting)})</small></h3>")
             row = []
             if gif and gif not in errors:
                 who = " vs ".join(html.escape(s) for s in shown)
-                row.append(f'<figure><img src="{_rel(Path(gif), out)}" alt="video '
-                           f'{html.escape(env_id)} {html.escape(variant)}"><figcaption>{who}'
-                           "</figcaption></figure>")
+                row.append(
+                    f'<figure><img src="{_rel(Path(gif), out)}" alt="video '
+                    f'{html.escape(env_id)} {html.escape(variant)}"><figcaption>{who}'
+                    "</figcaption></figure>"
+                )
             elif gif:
                 row.append(f"<p>video failed: {html.escape(errors[gif])}</p>")
             if Path(fig).is_file():
-                row.append(f'<figure><img class="figure" src="{_rel(Path(fig), out)}" '
-                           f'alt="{html.escape(env_id)} {html.escape(variant)}"></figure>')
+                row.append(
+                    f'<figure><img class="figure" src="{_rel(Path(fig), out)}" '
+                    f'alt="{html.escape(env_id)} {html.escape(variant)}"></figure>'
+                )
             body.append('<div class="row">' + "".join(row) + "</div>")
             body.append(markdown_to_html(ranked_table(rows)))
-    page = ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-            "<title>cir_gym leaderboard</title>\n"
-            "<link rel=\"icon\" href=\"data:,\">\n"
-            f"<style>{CSS}</style>\n<script>{CHECK_SCRIPT}</script>\n</head>\n<body>\n"
-            + "\n".join(body) + "\n</body>\n</html>\n")
+            if (extra or {}).get((env_id, variant)):
+                body.append(markdown_to_html(extra[(env_id, variant)]))
     index = out / "index.html"
-    index.write_text(page, encoding="utf-8")
-    print(f"wrote {index} ({len(jobs) - len(errors)} videos"
-          + (f", {len(errors)} failed" if errors else "") + ")", file=sys.stderr)
+    index.write_text(html_page("cir_gym leaderboard", "\n".join(body)), encoding="utf-8")
+    print(
+        f"wrote {index} ({len(jobs) - len(errors)} videos"
+        + (f", {len(errors)} failed" if errors else "")
+        + ")",
+        file=sys.stderr,
+    )
     return index
