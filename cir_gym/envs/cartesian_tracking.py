@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -44,6 +45,9 @@ POSTURE_SPREAD = 0.3
 #: of the iiwa loses rank where q2 = q6 = 0: A1 ∥ A3 and A5 ∥ A7 together)
 NEAR_SINGULAR_Q2 = np.deg2rad(2.0)
 NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-episode)
+
+
+_ABS, _MAX = np.abs, np.max
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -266,11 +270,13 @@ class CartesianTrackingEnv(RobotEnv):
         self.max_following_error = (
             None
             if max_following_error is None
-            else check_number("max_following_error", max_following_error, 0.0, 100.0,
-                              low_open=True)
+            else check_number("max_following_error", max_following_error, 0.0, 100.0, low_open=True)
         )
         self.max_orientation_following_error = check_number(
-            "max_orientation_following_error", max_orientation_following_error, 0.0, 10.0,
+            "max_orientation_following_error",
+            max_orientation_following_error,
+            0.0,
+            10.0,
             low_open=True,
         )
         self.following_error_penalty = check_number(
@@ -301,14 +307,30 @@ class CartesianTrackingEnv(RobotEnv):
         self._site = self.robot.site_id(SITE)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         self._obs_bounds = {
-            "q": (n, 2 * np.pi), "qd": (n, 50.0), "x": (3, 3.0), "quat": (4, 1.0),
-            "twist": (6, 50.0), "x_ref": (3, 3.0), "quat_ref": (4, 1.0), "twist_ref": (6, 50.0),
+            "q": (n, 2 * np.pi),
+            "qd": (n, 50.0),
+            "x": (3, 3.0),
+            "quat": (4, 1.0),
+            "twist": (6, 50.0),
+            "x_ref": (3, 3.0),
+            "quat_ref": (4, 1.0),
+            "twist_ref": (6, 50.0),
             "acc_ref": (6, 500.0),
         }
         self.observation_space = spaces.Dict(
-            {k: spaces.Box(-b, b, (size,), dtype=np.float64)
-             for k, (size, b) in self._obs_bounds.items()}
+            {
+                k: spaces.Box(-b, b, (size,), dtype=np.float64)
+                for k, (size, b) in self._obs_bounds.items()
+            }
         )
+        # the observation is built in one flat buffer per step (views handed out, one clip)
+        ends = np.cumsum([size for size, _ in self._obs_bounds.values()])
+        self._obs_slices = {
+            key: slice(int(end - size), int(end))
+            for (key, (size, _)), end in zip(self._obs_bounds.items(), ends, strict=True)
+        }
+        self._obs_high = np.concatenate([np.full(size, b) for size, b in self._obs_bounds.values()])
+        self._obs_low = -self._obs_high
         steps = self.max_steps
         self._x_ref = np.zeros((steps + 1, 3))
         self._quat_ref = np.zeros((steps + 1, 4))
@@ -445,41 +467,50 @@ class CartesianTrackingEnv(RobotEnv):
             if np.sqrt(max(np.linalg.eigvalsh(JJt)[0], 0.0)) < MIN_SINGULAR_VALUE:
                 return False
             p, R = r.site_pose(site, q)
-            e = np.concatenate((
-                self._x_ref[k] - p,
-                osp.rotvec_error(self._quat_ref[k], traj.quat_from_matrix(R)),
-            ))
+            e = np.concatenate(
+                (
+                    self._x_ref[k] - p,
+                    osp.rotvec_error(self._quat_ref[k], traj.quat_from_matrix(R)),
+                )
+            )
             q = q + h * (J.T @ np.linalg.solve(JJt, self._twist_ref[k] + gain * e))
             if np.any(q < r.lower) or np.any(q > r.upper):
                 return False
         return True
 
     def _errors(self, k: int) -> tuple[float, float]:
-        """‖p̄_k − p‖ (m) and θ̃ (rad) of the true flange pose now."""
+        """‖p̄_k − p‖ (m) and θ̃ (rad) of the true flange pose now.
+
+        Scalar arithmetic bit-identical to ``np.linalg.norm`` and
+        :func:`~cir_gym.operational_space.orientation_angle` (the step's hot path).
+        """
         p, R = self.robot.site_pose(self._site, self.data.qpos[self._qa])
-        e_pos = float(np.linalg.norm(self._x_ref[k] - p))
-        e_ang = float(osp.orientation_angle(self._quat_ref[k], _quat(R)))
+        d = self._x_ref[k] - p
+        e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
+        e_ang = osp.quat_angle(self._quat_ref[k].tolist(), _quat(R).tolist())
         return e_pos, e_ang
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, clipped = self._check_action(action)
+        k = self._k
         tau = a * self.torque_limit
+        self._tau[k] = tau  # recorded without the noise
         if self.torque_noise > 0:
             tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-        self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
+        if self.encoder_resolution > 0:  # the previous measurement, for the velocity estimate
+            self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
-        k = self._k
-        self._k += 1
-        e_pos, e_ang = self._errors(self._k)
+        self._k = k + 1
+        e_pos, e_ang = self._errors(k + 1)
         self._pos_err[k], self._ang_err[k] = e_pos, e_ang
-        self._tau[k] = a * self.torque_limit
-        self._speed[k] = np.abs(self.data.qvel[self._da])
-        self._sat[k] = clipped or bool(np.any(np.abs(a) >= 1.0))
+        self._speed[k] = _ABS(self.data.qvel[self._da])
+        self._sat[k] = clipped or bool(_MAX(_ABS(a)) >= 1.0)
 
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
-        r_track = -(1.0 - float(np.mean(np.exp(-e_sq / self.error_scales**2))))
+        kernel = np.exp(-e_sq / self.error_scales**2)
+        r_track = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
         r_torque = -self.torque_weight * float(a @ a) / self.n
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / self.n
@@ -550,27 +581,33 @@ class CartesianTrackingEnv(RobotEnv):
         return np.round(q / res) * res if res > 0 else q.copy()
 
     def _obs(self) -> dict[str, np.ndarray]:
+        """The observation: one new flat buffer, filled, clipped to the bounds once, handed
+        out as views (each step's arrays are new; nothing is shared with the env's state)."""
         k = min(self._k, self.max_steps)
-        q = self._quantize(self.data.qpos[self._qa])
-        if self.encoder_resolution > 0:
-            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
+        buf = np.empty(self._obs_high.size)
+        v = {key: buf[sl] for key, sl in self._obs_slices.items()}
+        q, qd = v["q"], v["qd"]
+        q[:] = self._quantize(self.data.qpos[self._qa])
+        if self.encoder_resolution <= 0:
+            qd[:] = self.data.qvel[self._da]
+        elif self._k > 0:
+            np.divide(q - self._q_meas_prev, self.dt, out=qd)
         else:
-            qd = self.data.qvel[self._da].copy()
+            qd[:] = 0.0
         x, R = self.robot.site_pose(self._site, q)
+        v["x"][:] = x
         quat_ref = self._quat_ref[k]
-        raw = {
-            "q": q,
-            "qd": qd,
-            "x": x,
-            "quat": osp.align_quat(_quat(R), quat_ref),
-            "twist": self.robot.jacobian(self._site, q) @ qd,
-            "x_ref": self._x_ref[k],
-            "quat_ref": quat_ref,
-            "twist_ref": self._twist_ref[k],
-            "acc_ref": self._acc_ref[k],
-        }
-        return {key: np.clip(v, -self._obs_bounds[key][1], self._obs_bounds[key][1])
-                for key, v in raw.items()}
+        quat = v["quat"]
+        mujoco.mju_mat2Quat(quat, R.ravel())
+        if osp.quat_dot(quat.tolist(), quat_ref.tolist()) < 0.0:  # align_quat: Q·Q̄ ≥ 0
+            np.negative(quat, out=quat)
+        np.matmul(self.robot.jacobian(self._site, q), qd, out=v["twist"])
+        v["x_ref"][:] = self._x_ref[k]
+        v["quat_ref"][:] = quat_ref
+        v["twist_ref"][:] = self._twist_ref[k]
+        v["acc_ref"][:] = self._acc_ref[k]
+        np.clip(buf, self._obs_low, self._obs_high, out=buf)
+        return v
 
     def controller_context(self) -> TaskContext:
         return TaskContext(
@@ -589,10 +626,12 @@ class CartesianTrackingEnv(RobotEnv):
 
         k = min(self._k, self.max_steps)
         if self.path != "regulation":
-            rendering.add_polyline(scene, self._x_ref, 0.004, rendering.REFERENCE,
-                                   max_segments=rendering.TRACE_SAMPLES)
-        rendering.add_frame(scene, self._x_ref[k], traj.matrix_from_quat(self._quat_ref[k]),
-                            0.12, 0.006, alpha=0.5)
+            rendering.add_polyline(
+                scene, self._x_ref, 0.004, rendering.REFERENCE, max_segments=rendering.TRACE_SAMPLES
+            )
+        rendering.add_frame(
+            scene, self._x_ref[k], traj.matrix_from_quat(self._quat_ref[k]), 0.12, 0.006, alpha=0.5
+        )
         rendering.add_sphere(scene, self._x_ref[k], 0.015, rendering.TARGET)
         p, R = self.robot.site_pose(self._site, self.data.qpos[self._qa])
         rendering.add_frame(scene, p, R, 0.08, 0.004)
@@ -601,5 +640,7 @@ class CartesianTrackingEnv(RobotEnv):
         """``t``, the position error (mm) and the orientation error (deg) now."""
         k = min(self._k, self.max_steps)
         e_pos, e_ang = self._errors(k)
-        return (f"t = {k * self.dt:5.2f} s  |p_ref - p| = {1e3 * e_pos:7.2f} mm  "
-                f"angle {np.rad2deg(e_ang):6.2f} deg")
+        return (
+            f"t = {k * self.dt:5.2f} s  |p_ref - p| = {1e3 * e_pos:7.2f} mm  "
+            f"angle {np.rad2deg(e_ang):6.2f} deg"
+        )
