@@ -5,10 +5,23 @@ A policy is anything with SB3's ``predict(observation, state, episode_start, det
 is reset with seed ``seed + i``, so every policy meets the same references, initial states
 and model errors. Metrics come from the environment's ``metric_specs`` and its
 ``info["episode_metrics"]`` at the last step; nothing else is computed here.
+
+Batched evaluation: where ``cir_gym.vector`` has a native batched env for the id and its
+arguments (JointTracking-v1 and ElasticJointTracking-v2 with the ideal drive, see
+``cir_gym.vector.native_vector_env``) and the policy gives the same actions for a batch of
+observations as for each one alone (:func:`batches_exactly`: the course controllers, whose
+``predict`` runs ``control`` row by row), :func:`evaluate` runs up to ``MAX_BATCH`` episodes
+at once on one ``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each
+copy is the single env step for step (``tests/test_vector.py``), so every ``EpisodeResult``
+is the sequential path's (``tests/test_evaluation.py`` compares them). Everything else —
+other ids, the industrial drive, ``record=True``, a given ``env``, trained agents (a torch
+network rounds a batch differently from one row, in the last float32 bit) — runs one episode
+after the other, as before.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -19,14 +32,22 @@ from cir_gym.envs.base import make_env
 from cir_gym.metrics import MetricSpec, aggregate
 
 __all__ = [
+    "MAX_BATCH",
     "EpisodeResult",
     "EvaluationResult",
     "Policy",
+    "batches_exactly",
     "evaluate",
     "metric_specs",
     "rank",
     "variant_primary_metric",
 ]
+
+
+#: most episodes run at once by the batched path (more are run in groups of this size)
+MAX_BATCH = 128
+#: MuJoCo threads of the batched path: 1, as the leaderboard already runs one worker per core
+BATCH_THREADS = 1
 
 
 class Policy(Protocol):
@@ -95,10 +116,13 @@ class EvaluationResult:
         """This result with ``metric`` (one of ``specs``) as its primary metric, e.g. a
         leaderboard variant's own (:func:`variant_primary_metric`); the episodes are shared."""
         if metric not in {s.name for s in self.specs}:
-            raise ValueError(f"{metric!r} is not a metric of {self.env_id}; metrics: "
-                             f"{[s.name for s in self.specs]}")
-        return EvaluationResult(self.env_id, self.policy_name, self.episodes, self.specs,
-                                metric, dt=self.dt)
+            raise ValueError(
+                f"{metric!r} is not a metric of {self.env_id}; metrics: "
+                f"{[s.name for s in self.specs]}"
+            )
+        return EvaluationResult(
+            self.env_id, self.policy_name, self.episodes, self.specs, metric, dt=self.dt
+        )
 
     def rank_key(self) -> tuple[float, float]:
         """Sort key of :func:`rank`: the highest success rate first, then the best mean of the
@@ -106,8 +130,10 @@ class EvaluationResult:
         mean = self.summary[self.primary_metric]["mean"]
         if not np.isfinite(mean):
             return (-self.success_rate, float("inf"))
-        return (-self.success_rate, -mean if self.spec(self.primary_metric).better == "higher"
-                else mean)
+        return (
+            -self.success_rate,
+            -mean if self.spec(self.primary_metric).better == "higher" else mean,
+        )
 
 
 def rank(results: list[EvaluationResult]) -> list[EvaluationResult]:
@@ -153,6 +179,7 @@ def evaluate(
     policy_name: str | None = None,
     deterministic: bool = True,
     env: gym.Env | None = None,
+    batched: bool | None = None,
     **env_kwargs: Any,
 ) -> EvaluationResult:
     """Run ``n_episodes`` episodes of ``policy`` on ``env_id`` with seeds seed, seed+1, ….
@@ -165,6 +192,13 @@ def evaluate(
         record: keep each episode's trajectory in ``EpisodeResult.trace`` (for plots).
         policy_name: label for tables (default: the policy's ``name`` or class name).
         env: use this environment instead of making one (``env_kwargs`` must then be empty).
+        batched: None (default): the episodes run batched on ``cir_gym.vector``'s native env
+            when the id and ``env_kwargs`` have one and :func:`batches_exactly` holds for the
+            policy (the same results as one at a time, faster), else one after the other.
+            False: always one after the other. True: batched whenever the env allows it, for
+            any policy whose ``predict`` takes stacked observations (a trained agent: its
+            network rounds a batch differently, so results agree with the sequential ones to
+            float rounding, not bit for bit); ValueError if the env does not allow it.
         **env_kwargs: environment arguments.
 
     Returns:
@@ -173,6 +207,16 @@ def evaluate(
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     name = policy_name or getattr(policy, "name", None) or type(policy).__name__
+    vec_cls = _batched_env_class(env_id, env, record, env_kwargs, batched)
+    if vec_cls is not None and (batched or batches_exactly(policy)):
+        specs, primary = (
+            tuple(vec_cls.env_class.metric_specs),
+            str(vec_cls.env_class.primary_metric),
+        )
+        episodes, dt = _evaluate_batched(
+            policy, vec_cls, n_episodes, seed, deterministic, name, env_kwargs
+        )
+        return EvaluationResult(env_id, name, episodes, specs, primary, dt=dt)
     own_env = env is None
     if env is None:
         env = make_env(env_id, **env_kwargs)  # no TimeLimit cuts a longer episode
@@ -226,6 +270,119 @@ def evaluate(
         if own_env:
             env.close()
     return EvaluationResult(env_id, name, episodes, specs, primary, dt=dt)
+
+
+def batches_exactly(policy: Any) -> bool:
+    """Whether ``policy.predict`` on stacked observations gives, row for row, the actions it
+    gives for each observation alone (bit for bit), so batched episodes are the sequential ones.
+
+    A policy says so with an attribute ``batches_exactly`` (bool). Without one: True for a
+    ``baselines.Controller`` (its ``predict`` runs ``control`` on each row with that row's
+    state), False for anything else (a trained agent's torch network rounds a batch of rows
+    differently from one row: actions differ by ~1e-7).
+    """
+    flag = getattr(policy, "batches_exactly", None)
+    if flag is not None:
+        return bool(flag)
+    base = sys.modules.get("baselines.base")  # a Controller exists only if baselines is imported
+    return base is not None and isinstance(policy, base.Controller)
+
+
+def _batched_env_class(
+    env_id: str, env: gym.Env | None, record: bool, env_kwargs: dict[str, Any], batched: bool | None
+) -> type | None:
+    """The native batched env class :func:`evaluate` may use, or None (see its ``batched``)."""
+    if batched is False:
+        return None
+    from cir_gym.vector import VECTOR_ENVS, native_vector_env
+
+    reasons = []
+    if env is not None:
+        reasons.append("an env was given")
+    if record:
+        reasons.append("record=True keeps per-step traces")
+    if env_kwargs.get("max_episode_steps", -1) != -1:
+        reasons.append("a max_episode_steps below the episode's end")
+    vec_cls = None if reasons else native_vector_env(env_id, env_kwargs)
+    if vec_cls is None and not reasons:
+        native = VECTOR_ENVS.get(env_id.split(":")[-1])
+        reasons.append(
+            f"the batched {env_id} cannot batch {native.unsupported(env_kwargs)}"
+            if native is not None
+            else f"cir_gym.vector has no batched {env_id} (it has {sorted(VECTOR_ENVS)})"
+        )
+    if reasons and batched:
+        raise ValueError(f"evaluate(batched=True) cannot batch: {'; '.join(reasons)}")
+    return vec_cls
+
+
+def _evaluate_batched(
+    policy: Policy,
+    vec_cls: type,
+    n_episodes: int,
+    seed: int,
+    deterministic: bool,
+    name: str,
+    env_kwargs: dict[str, Any],
+) -> tuple[list[EpisodeResult], float]:
+    """Episodes seed … seed + n_episodes − 1 in groups of ``MAX_BATCH`` copies of ``vec_cls``.
+
+    Copy i of a group is reset with its own seed and stepped until its first episode ends;
+    what it plays after its autoreset is discarded (the group runs until every copy has ended
+    once; the controllers' state of a restarted copy is reset by ``episode_start``). Returns
+    and lengths are summed per copy in the sequential path's order, so they are equal.
+    """
+    kwargs = {k: v for k, v in env_kwargs.items() if k != "max_episode_steps"}
+    episodes: list[EpisodeResult] = []
+    dt = 1.0
+    for first in range(0, n_episodes, MAX_BATCH):
+        seeds = list(range(seed + first, seed + min(first + MAX_BATCH, n_episodes)))
+        b = len(seeds)
+        venv = vec_cls(num_envs=b, nthread=BATCH_THREADS, **kwargs)
+        try:
+            dt = float(venv.template.dt)
+            shape = venv.action_space.shape
+            obs, _ = venv.reset(seed=seeds)
+            state = None
+            start = np.ones(b, dtype=bool)
+            total = np.zeros(b)
+            length = np.zeros(b, dtype=np.int64)
+            live = np.ones(b, dtype=bool)
+            ended: list[EpisodeResult | None] = [None] * b
+            while live.any():
+                action, state = policy.predict(
+                    obs, state=state, episode_start=start, deterministic=deterministic
+                )
+                if np.shape(action) != shape:
+                    raise ValueError(
+                        f"policy {name!r} returned actions of shape {np.shape(action)} for "
+                        f"{b} stacked observations; the batched {vec_cls.env_id} expects {shape} "
+                        "(evaluate(..., batched=False) runs one observation at a time)"
+                    )
+                obs, reward, terminated, truncated, infos = venv.step(action)
+                total[live] += reward[live]
+                length[live] += 1
+                start = terminated | truncated
+                for i in np.flatnonzero(start & live):
+                    final = infos["final_info"]
+                    ended[i] = EpisodeResult(
+                        seed=seeds[i],
+                        episode_return=float(total[i]),
+                        length=int(length[i]),
+                        success=bool(final["is_success"][i]),
+                        diverged=bool(final["diverged"][i]),
+                        metrics={  # without gymnasium's "_<name>" masks
+                            k: float(v[i])
+                            for k, v in final["episode_metrics"].items()
+                            if not k.startswith("_")
+                        },
+                        terminated=bool(terminated[i]),
+                    )
+                live &= ~start
+        finally:
+            venv.close()
+        episodes += [e for e in ended if e is not None]
+    return episodes, dt
 
 
 def _append(trace: dict[str, list], prefix: str, obs: Any) -> None:

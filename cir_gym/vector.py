@@ -55,7 +55,7 @@ from gymnasium.vector.utils import batch_space
 from cir_gym.envs.base import (
     _UNSTABLE_WARNINGS as _UNSTABLE,  # MuJoCo's instability warnings, as RobotEnv counts them
 )
-from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_number
+from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_kwargs, check_number
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 
@@ -71,6 +71,12 @@ __all__ = [
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
+
+
+def _row_dot(x: np.ndarray) -> np.ndarray:
+    """x_i · x_i for each row of x (N, n) → (N,), bit for bit the single env's ``x @ x``
+    (stacked matmul runs numpy's 1-D dot per row; einsum sums in another order)."""
+    return np.matmul(x[:, None, :], x[:, :, None])[:, 0, 0]
 
 
 class JointTrackingVectorEnv(gym.vector.VectorEnv):
@@ -111,6 +117,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
                 f"{type(self).__name__} cannot batch {reason}; cir_gym.make_vec("
                 f"{self.env_id!r}, ...) falls back to a SyncVectorEnv of the single env"
             )
+        check_kwargs(self.env_class, kwargs)  # an unknown argument: named, as gymnasium.make
         self.template = self.env_class(**kwargs)  # validates every other argument
         t = self.template
         self.num_envs = num_envs
@@ -243,11 +250,11 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self._sat[rows, k] = clipped | np.any(np.abs(a) >= 1.0, axis=1)
 
         n = t.n
-        err_sq = np.einsum("ij,ij->i", q_err, q_err)
+        err_sq = _row_dot(q_err)
         r_track = -(1.0 - np.mean(np.exp(-err_sq[:, None] / t.error_scales**2), axis=1))
-        r_torque = -t.torque_weight * np.einsum("ij,ij->i", a, a) / n
+        r_torque = -t.torque_weight * _row_dot(a) / n
         da_ = a - self._a_prev
-        r_rate = -t.action_rate_weight * np.einsum("ij,ij->i", da_, da_) / n
+        r_rate = -t.action_rate_weight * _row_dot(da_) / n
         joint_error = np.sqrt(err_sq)
         stopped = (
             ~diverged & (joint_error > self._limit)

@@ -154,14 +154,17 @@ def test_a_policy_with_the_wrong_action_shape_is_reported_with_the_expected_shap
 
 
 # ---------------------------------------------------------------------- ranking
-def _result(name: str, successes: list[bool], errors: list[float], manipulability: list[float]
-            ) -> EvaluationResult:
-    specs = (MetricSpec("rms_task_error", "m", "lower", ""),
-             MetricSpec("min_manipulability", "", "higher", ""))
-    episodes = [EpisodeResult(i, 0.0, 1, s, False, {"rms_task_error": e,
-                                                    "min_manipulability": w})
-                for i, (s, e, w) in enumerate(zip(successes, errors, manipulability,
-                                                  strict=True))]
+def _result(
+    name: str, successes: list[bool], errors: list[float], manipulability: list[float]
+) -> EvaluationResult:
+    specs = (
+        MetricSpec("rms_task_error", "m", "lower", ""),
+        MetricSpec("min_manipulability", "", "higher", ""),
+    )
+    episodes = [
+        EpisodeResult(i, 0.0, 1, s, False, {"rms_task_error": e, "min_manipulability": w})
+        for i, (s, e, w) in enumerate(zip(successes, errors, manipulability, strict=True))
+    ]
     return EvaluationResult("cir_gym/RedundantIK-v3", name, episodes, specs, "rms_task_error")
 
 
@@ -171,7 +174,11 @@ def test_rank_puts_success_first_then_the_primary_metric_in_its_direction():
     better = _result("better", [True, True], [1e-5, 1e-5], [0.1, 0.1])
     nan = _result("nan", [True, True], [np.nan, np.nan], [np.nan, np.nan])
     assert [r.policy_name for r in rank([stopped, nan, good, better])] == [
-        "better", "good", "nan", "stopped"]
+        "better",
+        "good",
+        "nan",
+        "stopped",
+    ]
     by_w = [r.ranked_on("min_manipulability") for r in (stopped, good, better)]
     assert [r.policy_name for r in rank(by_w)] == ["good", "better", "stopped"]  # higher wins
     with pytest.raises(ValueError, match="not a metric"):
@@ -186,17 +193,25 @@ def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
     from scripts.leaderboard import _best, ranked_table, rl_summary
 
     metric = variant_primary_metric(RedundantIKEnv, "manipulability")
-    rows = [r.ranked_on(metric) for r in (
-        _result("stopped", [False], [1e-6], [0.9]),
-        _result("clik", [True], [1e-5], [0.1]),
-        _result("clik_nullspace", [True], [2e-5], [0.3]))]
+    rows = [
+        r.ranked_on(metric)
+        for r in (
+            _result("stopped", [False], [1e-6], [0.9]),
+            _result("clik", [True], [1e-5], [0.1]),
+            _result("clik_nullspace", [True], [2e-5], [0.3]),
+        )
+    ]
     table = ranked_table(rows).splitlines()
     assert "min_manipulability" in table[0]
     assert [line.split("|")[1:3] for line in table[2:]] == [
-        [" 1 ", " clik_nullspace "], [" 2 ", " clik "], [" 3 ", " stopped "]]
+        [" 1 ", " clik_nullspace "],
+        [" 2 ", " clik "],
+        [" 3 ", " stopped "],
+    ]
     assert _best(rows).policy_name == "clik_nullspace"
     assert "| manipulability | `min_manipulability` | clik_nullspace" in rl_summary(
-        {"manipulability": rows})
+        {"manipulability": rows}
+    )
     assert variant_primary_metric(RedundantIKEnv, "no such variant") == "rms_task_error"
 
 
@@ -228,3 +243,82 @@ def test_an_episode_longer_than_the_registered_spec_is_played_in_full():
     episode = result.episodes[0]
     assert registered is not None and episode.length == 2100 > registered
     assert not episode.terminated and episode.metrics
+
+
+def _episode_fields(result: EvaluationResult) -> list[tuple]:
+    return [
+        (e.seed, e.length, e.success, e.diverged, e.terminated, e.metrics, e.episode_return)
+        for e in result.episodes
+    ]
+
+
+@pytest.mark.parametrize(
+    ("env_id", "env_kwargs"),
+    [
+        (ENV, {"episode_duration": 0.1}),
+        (ENV, {"episode_duration": 0.1, "payload_mass": 3.0}),
+        ("cir_gym/ElasticJointTracking-v2", {"episode_duration": 0.1}),
+    ],
+)
+def test_batched_evaluation_gives_the_sequential_episodes(env_id, env_kwargs, monkeypatch):
+    """Every controller of the env, 4 episodes: the batched path (taken by default for a
+    controller, spied on) and the sequential one give identical EpisodeResults (returns
+    included, bit for bit)."""
+    import cir_gym.evaluation as evaluation
+
+    calls = []
+    batched_path = evaluation._evaluate_batched
+    monkeypatch.setattr(
+        evaluation, "_evaluate_batched", lambda *a, **k: calls.append(1) or batched_path(*a, **k)
+    )
+    monkeypatch.setattr(evaluation, "MAX_BATCH", 3)  # 4 episodes: groups of 3 and 1
+    for name in baselines.available(env_id):
+        policy = baselines.make(name, env_id, env_kwargs=env_kwargs)
+        assert evaluation.batches_exactly(policy)
+        fast = evaluate(policy, env_id, n_episodes=4, seed=40, **env_kwargs)
+        slow = evaluate(policy, env_id, n_episodes=4, seed=40, batched=False, **env_kwargs)
+        assert _episode_fields(fast) == _episode_fields(slow), name
+        assert (fast.dt, fast.specs, fast.primary_metric) == (
+            slow.dt,
+            slow.specs,
+            slow.primary_metric,
+        )
+    assert len(calls) == len(baselines.available(env_id))
+
+
+def test_batched_evaluation_of_episodes_that_end_at_different_steps():
+    """Weak gains under an unknown payload: the following-error monitor stops some episodes
+    early, at different steps, while the others run on; each is the sequential episode."""
+    kwargs = {**SHORT, "payload_mass": 3.0, "episode_duration": 0.6}
+    policy = baselines.make("pd_gravity", ENV, env_kwargs=kwargs, omega=2.0)
+    fast = evaluate(policy, ENV, n_episodes=6, seed=3, **kwargs)
+    slow = evaluate(policy, ENV, n_episodes=6, seed=3, batched=False, **kwargs)
+    assert _episode_fields(fast) == _episode_fields(slow)
+    lengths = {e.length for e in fast.episodes}
+    assert len(lengths) > 1 and any(e.terminated for e in fast.episodes)
+
+
+def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
+    policy = baselines.make("computed_torque", ENV)
+    for kwargs in ({**SHORT, "drive": "industrial"}, {**SHORT, "max_episode_steps": 50}):
+        assert len(evaluate(policy, ENV, 2, **kwargs).episodes) == 2  # the sequential path
+    with pytest.raises(ValueError, match="drive='industrial'"):
+        evaluate(policy, ENV, 2, batched=True, drive="industrial", **SHORT)
+    with pytest.raises(ValueError, match="record=True"):
+        evaluate(policy, ENV, 2, batched=True, record=True, **SHORT)
+    clik = baselines.make("clik", "cir_gym/RedundantIK-v3")
+    with pytest.raises(ValueError, match="no batched cir_gym/RedundantIK-v3"):
+        evaluate(clik, "cir_gym/RedundantIK-v3", 2, batched=True)
+
+    class Opaque:  # a policy without the flag and not a Controller: sequential by default
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros(np.shape(obs["q"]), dtype=np.float32), None
+
+    from cir_gym.evaluation import batches_exactly
+
+    assert not batches_exactly(Opaque())
+    Opaque.batches_exactly = True
+    assert batches_exactly(Opaque())
+    ours = evaluate(Opaque(), ENV, 2, **SHORT)
+    theirs = evaluate(Opaque(), ENV, 2, batched=False, **SHORT)
+    assert _episode_fields(ours) == _episode_fields(theirs)
