@@ -166,6 +166,11 @@ class WrenchSensor:
         self._res = np.repeat(spec.resolution, 3)
         self._filtered = np.zeros(6)
         self._line = np.zeros((self.delay_steps + 1, 6))  # ring buffer of filtered values
+        self._nline = self.delay_steps + 1
+        self._filter = self.alpha < 1.0
+        self._noisy = bool(np.any(self._std > 0))
+        self._quantised = self._res > 0
+        self._any_quantised = bool(np.any(self._quantised))
         self._head = 0
         self._count = 0
         self.reading = np.zeros(6)
@@ -197,26 +202,43 @@ class WrenchSensor:
 
     def update(self, wrench: np.ndarray) -> np.ndarray:
         """Advance one physics step with the true wrench (6,); return the (held) reading."""
-        w = np.asarray(wrench, dtype=float)
-        if self.alpha < 1.0:
-            self._filtered += self.alpha * (w - self._filtered)
+        self._advance(np.asarray(wrench, dtype=float))
+        return self.reading.copy()
+
+    def update_many(self, wrenches: np.ndarray) -> np.ndarray:
+        """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
+        ((N, 6), oldest first): the same as N calls of :meth:`update`, bit for bit; return the
+        reading after the last."""
+        for w in np.asarray(wrenches, dtype=float):
+            self._advance(w)
+        return self.reading.copy()
+
+    def _advance(self, w: np.ndarray) -> None:
+        filtered = self._filtered
+        if self._filter:
+            filtered += self.alpha * (w - filtered)
         else:  # no filter: exactly the input
-            self._filtered[:] = w
-        self._head = (self._head + 1) % self._line.shape[0]
-        self._line[self._head] = self._filtered
+            filtered[:] = w
+        head = self._head + 1
+        if head == self._nline:
+            head = 0
+        self._head = head
+        self._line[head] = filtered
         self._count += 1
         if self._count >= self.sample_steps:
             self._count = 0
             self._sample()
-        return self.reading.copy()
 
     def _sample(self) -> None:
-        oldest = (self._head + 1) % self._line.shape[0]  # the value delay_steps ago
+        oldest = self._head + 1  # the value delay_steps ago
+        if oldest == self._nline:
+            oldest = 0
         value = self._line[oldest] + self.bias
-        if np.any(self._std > 0):
+        if self._noisy:
             value = value + self._std * self._rng.standard_normal(6)
-        quantised = self._res > 0
-        value[quantised] = np.round(value[quantised] / self._res[quantised]) * self._res[quantised]
+        if self._any_quantised:
+            q, res = self._quantised, self._res
+            value[q] = np.round(value[q] / res[q]) * res[q]
         self.reading = value
 
 

@@ -11,6 +11,7 @@ from gymnasium import spaces
 
 from cir_gym import rendering
 from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
     PRESETS,
     WrenchSensor,
@@ -36,6 +37,7 @@ __all__ = [
     "tool_robot",
 ]
 
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 SCENE = ASSETS / "scenes" / "admittance_contact.xml"
 JOINTS = [f"joint{i}" for i in range(1, 8)]
 SITE = "tcp"  # the tool tip: the lowest point of the hemisphere when the tool points down
@@ -68,10 +70,26 @@ RANDOM_RANGES = {
     "sensor_bias_torque": (-0.1, 0.1),  # N m, each axis
 }
 CONTROLS = ("torque", "position")
+#: physics step (s). 0.25 ms, not the robot file's 1 ms: the tool-plate contact is stiff (solref
+#: time constant 2 ms) and the tool slides on it with friction; at a 1-ms step (time constant =
+#: 2 steps, MuJoCo's limit) the sliding contact chatters in 1-ms bounces that ring the plate
+#: (measured at 1e5 N/m, 20 N, admittance: force RMS error 4.05 N at 1 ms, 1.40 N at 0.5 ms,
+#: 0.67 N at 0.25 ms; frictionless, 0.46 N at 1 ms): a discretisation error, not physics, so the
+#: step is refined until it is small (scripts/eval_contact.py, "physics step").
+TIMESTEP = 0.00025
 
 
-def build_model(stiffness: float, damping: float) -> mujoco.MjModel:
-    """The scene (robot, tool, sprung plate) with the plate's spring (N/m) and damper (N s/m).
+def build_model(
+    stiffness: float, damping: float, timestep: float = TIMESTEP, history: int = 1
+) -> mujoco.MjModel:
+    """The scene (robot, tool, sprung plate) with the plate's spring (N/m) and damper (N s/m),
+    simulated with the physics step ``timestep`` (s).
+
+    The wrist sensors ``ft_force``/``ft_torque`` and a ``plate_contact`` sensor (the net contact
+    force on the plate, world frame, N: MuJoCo's contact sensor, ``reduce="netforce"``) keep
+    their last ``history`` physics steps' values in MuJoCo's sensor history (``nsample``), so
+    a control period of that many steps runs in one ``mj_step`` call and the env reads every
+    step's values afterwards.
 
     The tool is added to the robot's ``payload`` body (beyond ``ft_site``) with MjSpec: the
     payload's inertial is the tool's (:data:`TOOL_MASS`, the centre of mass and inertia of
@@ -79,6 +97,16 @@ def build_model(stiffness: float, damping: float) -> mujoco.MjModel:
     nominal model. Geoms carry no mass (``inertiafromgeom="false"`` in the robot file).
     """
     spec = mujoco.MjSpec.from_file(str(SCENE))
+    spec.option.timestep = timestep
+    spec.add_sensor(
+        name="plate_contact",
+        type=mujoco.mjtSensor.mjSENS_CONTACT,
+        objtype=mujoco.mjtObj.mjOBJ_GEOM,
+        objname="surface_geom",
+        intprm=[2, 3, 1],  # data: force; reduce: netforce; one (net) contact
+    )
+    for name in ("ft_force", "ft_torque", "plate_contact"):
+        spec.sensor(name).nsample = history
     payload = spec.body("payload")
     payload.mass = TOOL_MASS
     payload.ipos = TOOL_COM
@@ -145,8 +173,10 @@ class AdmittanceContactEnv(RobotEnv):
     contact stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref``
     cannot do; the tool-plate contact itself is stiff: < 1 µm of penetration at 20 N; scene
     ``assets/scenes/admittance_contact.xml``). At 1e5 N/m the plate's own mode is at
-    √(k/m)/2π ≈ 110 Hz, lightly damped at the default damping: the tool's sliding excites it, and
-    it shows in the force as a ±5 N ripple that no controller's bandwidth reaches.
+    √(k/m)/2π ≈ 110 Hz, lightly damped at the default damping (ζ = 0.07). The physics step is
+    0.25 ms (``timestep``, :data:`TIMESTEP`): at MuJoCo's usual 1 ms the sliding stiff contact
+    chattered in 1-ms bounces that rang this mode (a ±5 N ripple at 1e5 N/m that shrinks as the
+    step is refined, so a discretisation error).
     The tool starts 3 cm above the *nominal* surface (the plane z = 0.20 m, normal +z); the
     true surface is off by a height and a tilt drawn per episode (U(±``height_error``) m,
     U(±``tilt_error``) rad about a random horizontal axis), known to the controllers only
@@ -157,9 +187,8 @@ class AdmittanceContactEnv(RobotEnv):
 
     The true normal force f (N, ``info["contact_force"]``, never observed) is the load in the
     surface's spring and damper, k x + c ẋ: what a load cell under the plate reads, equal to the
-    tool's contact force at rest. MuJoCo's per-step contact force is not used for it: while the
-    tool slides (friction 0.1), the stiff contact at a 1-ms step exchanges the load between tip
-    and plate in 1-ms bounces (one step 0, the next twice the load); the plate's spring carries
+    tool's contact force at rest. MuJoCo's per-step contact force is not used for it: it is not
+    smooth from one physics step to the next while the tool slides; the plate's spring carries
     the mean. ``info["in_contact"]``: the tool touched the plate during the control period. The
     controllers measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`), which
     includes the tool's weight, a bias, noise, quantisation, a low-pass filter, a delay and
@@ -223,7 +252,8 @@ class AdmittanceContactEnv(RobotEnv):
     | argument | default | meaning |
     |---|---|---|
     | control | "torque" | "torque" (joint torques) or "position" (Cartesian setpoint increments) |
-    | control_freq | 500.0 | control frequency (Hz); the physics step is 1 ms |
+    | control_freq | 500.0 | control frequency (Hz), the physics rate divided by an integer |
+    | timestep | 0.00025 | physics step (s), in [1e-4, 1e-3] (see :data:`TIMESTEP`) |
     | episode_duration | 5.0 | s |
     | stiffness | 10000.0 | surface stiffness (N/m), in [1e3, 1e5] |
     | damping | 20.0 | surface damping (N s/m), in [0, 1e4] |
@@ -288,6 +318,7 @@ class AdmittanceContactEnv(RobotEnv):
         control: str = "torque",
         control_freq: float = 500.0,
         episode_duration: float = 5.0,
+        timestep: float = TIMESTEP,
         stiffness: float = 10000.0,
         damping: float = 20.0,
         force_ref: float | None = None,
@@ -360,7 +391,13 @@ class AdmittanceContactEnv(RobotEnv):
             "success_threshold", success_threshold, 0.0, 100.0, low_open=True
         )
 
-        model = build_model(self.stiffness, self.damping)
+        # the solref time constant (2 ms) must stay ≥ 2 physics steps
+        self.timestep = check_number("timestep", timestep, 1.0e-4, 1.0e-3)
+        try:  # physics steps per control period; RobotEnv reports a bad control_freq
+            history = physics_steps(float(control_freq), self.timestep)
+        except (InvalidArgument, TypeError, ValueError, ZeroDivisionError, OverflowError):
+            history = 1
+        model = build_model(self.stiffness, self.damping, self.timestep, history)
         super().__init__(
             model,
             control_freq=control_freq,
@@ -369,10 +406,11 @@ class AdmittanceContactEnv(RobotEnv):
             width=width,
             height=height,
         )
-        # the control period holds self._substeps physics steps; _simulate runs one at a time
-        # (the sensor and the position interface's motion controller run at the physics rate)
+        # the control period holds self._substeps = frame_skip physics steps: one _simulate
+        # call on the torque interface (the sensors' history holds every step's values), one
+        # call per physics step on the position interface (its motion controller runs at the
+        # physics rate)
         self._substeps = self.frame_skip
-        self.frame_skip = 1
         self.robot = Robot(model, JOINTS)  # the simulator's arm
         self.n = self.robot.n
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
@@ -388,6 +426,13 @@ class AdmittanceContactEnv(RobotEnv):
         self._slide_qpos = int(model.jnt_qposadr[slide.id])
         adr = [int(model.sensor_adr[model.sensor(s).id]) for s in ("ft_force", "ft_torque")]
         self._sensor_adr = np.r_[adr[0] : adr[0] + 3, adr[1] : adr[1] + 3]
+        self._contact_adr = int(model.sensor_adr[model.sensor("plate_contact").id])
+        # MuJoCo's sensor history of one sensor: [·, newest slot, n times, n × dim values]
+        self._history_adr = [
+            int(model.sensor_historyadr[model.sensor(s).id])
+            for s in ("ft_force", "ft_torque", "plate_contact")
+        ]
+        self._wrenches = np.zeros((self._substeps, 6))
         try:
             self.sensor = WrenchSensor(self.sensor_spec, model.opt.timestep)
         except InvalidArgument as exc:  # the only physics-dependent limit: the sample rate
@@ -418,6 +463,13 @@ class AdmittanceContactEnv(RobotEnv):
                 for k, (n, b) in self._bounds.items()
             }
         )
+        # _obs fills one array (the keys in the order of _bounds) and clips it once
+        sizes = [n for n, _ in self._bounds.values()]
+        ends = np.cumsum(sizes)
+        self._obs_slices = [slice(int(e - n), int(e)) for n, e in zip(sizes, ends, strict=True)]
+        self._obs_size = int(ends[-1])
+        self._obs_low = np.concatenate([self.observation_space[k].low for k in self._bounds])
+        self._obs_high = np.concatenate([self.observation_space[k].high for k in self._bounds])
         steps = self.max_steps
         self._pos_ref = np.zeros((steps + 1, 3))
         self._vel_ref = np.zeros((steps + 1, 3))
@@ -453,9 +505,7 @@ class AdmittanceContactEnv(RobotEnv):
         tilt = float(rng.uniform(-self.tilt_error, self.tilt_error))
         phi = float(rng.uniform(0.0, 2 * np.pi))
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
-        f_ref = (
-            float(rng.uniform(*FORCE_REF_RANGE)) if self.force_ref is None else self.force_ref
-        )
+        f_ref = float(rng.uniform(*FORCE_REF_RANGE)) if self.force_ref is None else self.force_ref
         psi = float(rng.uniform(0.0, 2 * np.pi))
         direction = np.array([np.cos(psi), np.sin(psi), 0.0])
         return {
@@ -493,9 +543,7 @@ class AdmittanceContactEnv(RobotEnv):
         s_wipe = np.where(active, WIPE_AMPLITUDE * np.sin(w * (t - WIPE_START)), 0.0)
         v_wipe = np.where(active, WIPE_AMPLITUDE * w * np.cos(w * (t - WIPE_START)), 0.0)
         d = s["wipe_direction"]
-        self._pos_ref = (
-            start + np.outer(blend, SURFACE_POINT - start) + np.outer(s_wipe, d)
-        )
+        self._pos_ref = start + np.outer(blend, SURFACE_POINT - start) + np.outer(s_wipe, d)
         self._vel_ref = np.outer(dblend, SURFACE_POINT - start) + np.outer(v_wipe, d)
 
     # ------------------------------------------------------------------ gym API
@@ -519,7 +567,9 @@ class AdmittanceContactEnv(RobotEnv):
         self._first_contact = None
         self._stopped_at = None
         self._a_prev[:] = 0.0
-        info = {"surface": {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in s.items()}}
+        info = {
+            "surface": {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in s.items()}
+        }
         return self._obs(), info
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
@@ -529,23 +579,11 @@ class AdmittanceContactEnv(RobotEnv):
         if self.interface is not None:
             self.interface.command(a * self.increment_scale, self.dt)
         d = self.data
-        diverged = False
-        contact = 0.0  # Σ over the period's physics steps of the tool-plate normal force
-        for i in range(self._substeps):
-            if self.interface is not None:
-                tau = self.interface.torque(
-                    d.qpos[self._qa].copy(), d.qvel[self._da].copy(), (i + 1) / self._substeps
-                )
-                tau = np.clip(tau, -self.torque_limit, self.torque_limit)
-            else:
-                tau = a * self.torque_limit
-            diverged = self._simulate(tau)
-            if diverged:
-                break
-            # mj_step's forward pass computed the contacts, constraint forces and sensors that
-            # acted during this physics step (before it integrated)
-            contact += self.contact_normal_force()
-            self.sensor.update(d.sensordata[self._sensor_adr])
+        if self.interface is None:  # one call: the torque is held over the period
+            diverged = self._simulate(a * self.torque_limit)
+            contact = 0.0 if diverged else self._read_history()
+        else:
+            diverged, contact = self._motion_period()
         mujoco.mj_forward(self.model, d)  # fresh site poses for the observation
         k = self._k
         self._k += 1
@@ -561,7 +599,7 @@ class AdmittanceContactEnv(RobotEnv):
 
         err = force - self._f_ref
         s = self.force_scale
-        r_force = -(1.0 - 0.5 * (math.exp(-(err / s) ** 2) + math.exp(-(5 * err / s) ** 2)))
+        r_force = -(1.0 - 0.5 * (math.exp(-((err / s) ** 2)) + math.exp(-((5 * err / s) ** 2))))
         r_path = -self.path_weight * (1.0 - math.exp(-float(e_t @ e_t) / self.path_scale**2))
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / a.size
@@ -596,20 +634,63 @@ class AdmittanceContactEnv(RobotEnv):
             )
         return self._obs(), reward, terminated, truncated, info
 
+    def _read_history(self) -> float:
+        """Feed the period's wrenches to the sensor model (oldest first) from MuJoCo's sensor
+        history; return Σ over the period's physics steps of the tool-plate normal force (N)."""
+        hist, n = self.data.history, self._substeps
+        out = self._wrenches
+        for column, h in zip((0, 3), self._history_adr[:2], strict=False):
+            newest = int(hist[h + 1])
+            block = hist[h + 2 + n : h + 2 + 4 * n].reshape(n, 3)
+            out[: n - newest - 1, column : column + 3] = block[newest + 1 :]
+            out[n - newest - 1 :, column : column + 3] = block[: newest + 1]
+        self.sensor.update_many(out)
+        h = self._history_adr[2]
+        # the sensor's net force is the one the plate exerts (−surface_force): n̂ · it = the
+        # push along the inward normal
+        total = hist[h + 2 + n : h + 2 + 4 * n].reshape(n, 3).sum(axis=0)
+        return float(self._normal @ total)
+
+    def _motion_period(self) -> tuple[bool, float]:
+        """The position interface: one _simulate call per physics step, the motion controller's
+        torque recomputed at each; return (diverged, Σ of the tool-plate normal force)."""
+        d, n = self.data, self._substeps
+        sd = d.sensordata
+        f0, t0, c0 = self._sensor_adr[0], self._sensor_adr[3], self._contact_adr
+        wrench = np.empty(6)
+        contact = 0.0
+        skip, self.frame_skip = self.frame_skip, 1
+        try:
+            for i in range(n):
+                tau = self.interface.torque(
+                    d.qpos[self._qa].copy(), d.qvel[self._da].copy(), (i + 1) / n
+                )
+                if self._simulate(np.clip(tau, -self.torque_limit, self.torque_limit)):
+                    return True, contact
+                wrench[:3] = sd[f0 : f0 + 3]
+                wrench[3:] = sd[t0 : t0 + 3]
+                self.sensor.update_many(wrench[None])
+                contact += float(self._normal @ sd[c0 : c0 + 3])
+        finally:
+            self.frame_skip = skip
+        return False, contact
+
     # ------------------------------------------------------------------ measurements
     def normal_force(self) -> float:
         """True normal force (N): the load in the surface's spring and damper, k x + c ẋ.
 
         What a load cell under the plate reads; it equals the tool's contact force at rest and
         differs from it by the plate's inertial force (0.2 kg). MuJoCo's per-step contact force
-        itself is not smooth: with a contact as stiff as this one at a 1-ms step, the tip and the
-        light plate exchange the load in 1-ms bounces (one step at 0, the next at twice the load)
-        when the arm's torque changes at a control period's start.
+        itself is not smooth: with a contact as stiff as this one the tip and the light plate
+        exchange the load in bounces of one physics step (worst at a 1-ms step, see
+        :data:`TIMESTEP`).
         """
         m, d = self.model, self.data
         x = -d.qpos[self._slide_qpos]  # compression (m)
-        return float(m.jnt_stiffness[self._slide_jnt] * x - m.dof_damping[self._slide_dof]
-                     * d.qvel[self._slide_dof])
+        return float(
+            m.jnt_stiffness[self._slide_jnt] * x
+            - m.dof_damping[self._slide_dof] * d.qvel[self._slide_dof]
+        )
 
     def contact_normal_force(self) -> float:
         """The tool-plate contact force along the true inward normal (N), this physics step."""
@@ -660,33 +741,32 @@ class AdmittanceContactEnv(RobotEnv):
         k = min(self._k, self.max_steps)
         vel = np.zeros(6)
         mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
-        pos = d.site_xpos[self._site].copy()
+        pos = d.site_xpos[self._site]
         quat = _quat(d.site_xmat[self._site])
         if self.interface is not None:
             sp, sR = self.interface.setpoint_pose()
             squat = _quat(sR)
         else:
             sp, squat = pos, quat
-        raw = {
-            "q": d.qpos[self._qa],
-            "qd": d.qvel[self._da],
-            "tool_pos": pos,
-            "tool_quat": quat,
-            "tool_vel": vel[3:],
-            "tool_angvel": vel[:3],
-            "wrench": self.sensor.reading,
-            "f_ref": np.array([self._f_ref]),
-            "tool_pos_ref": self._pos_ref[k],
-            "tool_vel_ref": self._vel_ref[k],
-            "setpoint_pos": sp,
-            "setpoint_quat": squat,
-        }
-        out = {}
-        for key, value in raw.items():
-            low = self.observation_space[key].low
-            high = self.observation_space[key].high
-            out[key] = np.clip(np.asarray(value, dtype=np.float64), low, high)
-        return out
+        values = (
+            d.qpos[self._qa],
+            d.qvel[self._da],
+            pos,
+            quat,
+            vel[3:],
+            vel[:3],
+            self.sensor.reading,
+            self._f_ref,
+            self._pos_ref[k],
+            self._vel_ref[k],
+            sp,
+            squat,
+        )
+        buf = np.empty(self._obs_size)
+        for sl, value in zip(self._obs_slices, values, strict=True):
+            buf[sl] = value
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        return {key: buf[sl] for key, sl in zip(self._bounds, self._obs_slices, strict=True)}
 
     def measured_contact_wrench(self) -> np.ndarray:
         """The sensor's reading compensated with the true bias and tool weight (world, (6,))."""
@@ -703,7 +783,9 @@ class AdmittanceContactEnv(RobotEnv):
             dt=self.dt,
             action_kind="joint_torque" if self.control == "torque" else "cartesian_increment",
             action_scale=(
-                self.torque_limit.copy() if self.control == "torque" else self.increment_scale.copy()
+                self.torque_limit.copy()
+                if self.control == "torque"
+                else self.increment_scale.copy()
             ),
             site=SITE,
             extras={
@@ -727,8 +809,9 @@ class AdmittanceContactEnv(RobotEnv):
     def draw_task(self, scene: mujoco.MjvScene) -> None:
         """The wiping path, the reference force (blue) and the measured force (red) at the tip."""
         k = min(self._k, self.max_steps)
-        rendering.add_polyline(scene, self._pos_ref[:: max(1, len(self._pos_ref) // 120)],
-                               0.003, rendering.REFERENCE)
+        rendering.add_polyline(
+            scene, self._pos_ref[:: max(1, len(self._pos_ref) // 120)], 0.003, rendering.REFERENCE
+        )
         tip = self.data.site_xpos[self._site]
         scale = 0.005  # m per N; arrows end at the tip, pushing on the surface
         rendering.add_sphere(scene, self._pos_ref[k], 0.008, rendering.TARGET)
