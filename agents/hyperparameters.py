@@ -76,7 +76,8 @@ TRAINING_KEYS = {
     "policy": "SB3 policy name; observations are flattened, so MlpPolicy",
     "n_timesteps": "total environment steps",
     "n_envs": "parallel environments (DummyVecEnv, or SubprocVecEnv with vec_env: subproc)",
-    "vec_env": "'dummy' (one process) or 'subproc' (one process per env)",
+    "vec_env": "'dummy' (one process), 'subproc' (one process per env) or 'batched' (one "
+               "mujoco.batch for all envs: JointTracking-v1, agents/batched.py)",
     "normalize": "VecNormalize: true/false or {norm_obs, norm_reward, clip_obs, gamma}",
     "policy_kwargs": "SB3 policy keywords (activation_fn by name)",
     "eval_freq": "environment steps between evaluations",
@@ -86,6 +87,8 @@ TRAINING_KEYS = {
     "zero_init_action": "zero the last layer of the actor (the action mean starts at 0)",
     "early_termination": "training only: {max_error, penalty} (agents/shaping.py)",
     "reward_offset": "training only: added to every step's reward (agents/shaping.py)",
+    "log_error_bonus": "training only: {weight, max_error, floor}: + weight * ln(max_error / "
+                       "max(|error|, floor)) per step (agents/shaping.py)",
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",
@@ -100,6 +103,7 @@ SECTIONS = ("training", "residual")
 RESIDUAL_KEYS = {"scale"}  # besides any top-level key
 NORMALIZE_KEYS = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
 POLICIES = ("MlpPolicy",)
+VEC_ENVS = ("dummy", "subproc", "batched")
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 
 
@@ -317,6 +321,13 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
                               or set(early) - {"max_error", "penalty"}):
         raise HyperparameterError(f"{where}: early_termination must be "
                                   f"{{max_error: <float>, penalty: <float, optional>}}")
+    if entry.get("log_error_bonus") is not None:
+        from agents.shaping import check_log_error_bonus
+
+        try:
+            check_log_error_bonus(entry["log_error_bonus"])
+        except ValueError as exc:
+            raise HyperparameterError(f"{where}: {exc}") from exc
     from agents.observation import FEATURES
 
     features = observation_options(entry, where)["features"]
@@ -324,8 +335,9 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
         raise HyperparameterError(f"{where}: unknown observation feature(s) "
                                   f"{sorted(set(features) - set(FEATURES))}; allowed: "
                                   f"{sorted(FEATURES)}")
-    if entry.get("vec_env", "dummy") not in ("dummy", "subproc"):
-        raise HyperparameterError(f"{where}: vec_env must be 'dummy' or 'subproc'")
+    if entry.get("vec_env", "dummy") not in VEC_ENVS:
+        raise HyperparameterError(f"{where}: vec_env must be one of {VEC_ENVS}, got "
+                                  f"{entry['vec_env']!r}")
     resolve_policy_kwargs(entry.get("policy_kwargs") or {}, where=where)
     for k in SCHEDULE_KEYS:
         if k in entry:

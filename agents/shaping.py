@@ -17,7 +17,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["EarlyTermination", "RewardOffset"]
+__all__ = ["EarlyTermination", "LogErrorBonus", "RewardOffset", "check_log_error_bonus",
+           "log_error_bonus"]
 
 ERROR_KEYS = ("joint_error", "task_error")
 
@@ -73,3 +74,57 @@ class RewardOffset(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         return obs, float(reward) + self.offset, terminated, truncated, info
+
+
+#: ``log_error_bonus`` keys → defaults (JointTracking's following-error limit, 1 mm/1 mrad)
+LOG_ERROR_DEFAULTS = {"weight": 1.0, "max_error": 0.5, "floor": 1e-3}
+
+
+def check_log_error_bonus(spec: Any) -> dict[str, float]:
+    """``{weight, max_error, floor}`` with defaults filled in, or ValueError saying what is
+    allowed (weight ≥ 0, 0 < floor < max_error, all finite)."""
+    if not isinstance(spec, dict) or set(spec) - set(LOG_ERROR_DEFAULTS):
+        raise ValueError(f"log_error_bonus must be a mapping with keys from "
+                         f"{sorted(LOG_ERROR_DEFAULTS)}, got {spec!r}")
+    out = {k: float(spec.get(k, v)) for k, v in LOG_ERROR_DEFAULTS.items()}
+    if not all(np.isfinite(v) for v in out.values()) or out["weight"] < 0 \
+            or not 0 < out["floor"] < out["max_error"]:
+        raise ValueError(f"log_error_bonus needs finite weight >= 0 and 0 < floor < max_error, "
+                         f"got {out}")
+    return out
+
+
+def log_error_bonus(error_norm: Any, weight: float, max_error: float,
+                    floor: float) -> np.ndarray:
+    """w · ln(max_error / max(‖e‖, floor)): ≥ 0 while ‖e‖ ≤ max_error, the same reward for
+    halving the error at any scale (0.4 → 0.2 rad as 0.02 → 0.01), at most w · ln(max_error /
+    floor)."""
+    return weight * np.log(max_error / np.maximum(np.asarray(error_norm, dtype=np.float64),
+                                                  floor))
+
+
+class LogErrorBonus(gym.Wrapper):
+    """Training only: r + w · ln(max_error / max(‖task error‖, floor)) on every step.
+
+    JointTracking's reward kernels (1, 0.1, 0.01 rad) pay almost nothing for improving an
+    error of 0.4 rad and saturate below ~3 mrad; the log bonus pays the same for every halving
+    of the error, and, being ≥ 0 up to the following-error limit (``max_error`` = 0.5 rad),
+    it is also an alive bonus: a stopped episode loses every bonus it does not play (issue
+    20's reward review). The error norm is read from ``info["joint_error"]`` or
+    ``info["task_error"]``; evaluation, learning curves and shipped scores use the env's reward.
+    """
+
+    def __init__(self, env: gym.Env, weight: float = 1.0, max_error: float = 0.5,
+                 floor: float = 1e-3) -> None:
+        super().__init__(env)
+        self.spec_ = check_log_error_bonus({"weight": weight, "max_error": max_error,
+                                            "floor": floor})
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        key = next((k for k in ERROR_KEYS if k in info), None)
+        if key is None:
+            raise KeyError(f"the log-error bonus needs info[{ERROR_KEYS[0]!r}] or "
+                           f"info[{ERROR_KEYS[1]!r}]; got {sorted(info)}")
+        bonus = log_error_bonus(np.linalg.norm(info[key]), **self.spec_)
+        return obs, float(reward) + float(bonus), terminated, truncated, info

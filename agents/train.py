@@ -50,6 +50,7 @@ from stable_baselines3.common.vec_env import (
 
 import cir_gym
 from agents import TRAINED_DIR, env_dir_name
+from agents.batched import make_batched_vec_env
 from agents.hyperparameters import (
     TRAINING_KEYS,
     HyperparameterError,
@@ -61,7 +62,7 @@ from agents.hyperparameters import (
 )
 from agents.observation import ObservationLayout, TaskObservation
 from agents.residual import ResidualAction, check_scale
-from agents.shaping import EarlyTermination, RewardOffset
+from agents.shaping import EarlyTermination, LogErrorBonus, RewardOffset, check_log_error_bonus
 
 __all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
 
@@ -77,7 +78,8 @@ class EnvFactory:
                  residual: str | None = None, scale: Any = None,
                  controller_kwargs: dict[str, Any] | None = None,
                  early_termination: dict[str, float] | None = None,
-                 reward_offset: float = 0.0) -> None:
+                 reward_offset: float = 0.0,
+                 log_error: dict[str, float] | None = None) -> None:
         self.env_id = env_id if ":" in env_id else f"cir_gym:{env_id}"  # workers must import
         self.env_kwargs = env_kwargs
         self.layout = layout
@@ -86,6 +88,7 @@ class EnvFactory:
         self.controller_kwargs = controller_kwargs or {}
         self.early_termination = early_termination  # training envs only
         self.reward_offset = reward_offset  # training envs only
+        self.log_error = log_error  # training envs only
 
     def __call__(self) -> gym.Env:
         env = gym.make(self.env_id, **self.env_kwargs)
@@ -93,6 +96,8 @@ class EnvFactory:
             env = EarlyTermination(env, **self.early_termination)
         if self.reward_offset:
             env = RewardOffset(env, self.reward_offset)
+        if self.log_error:
+            env = LogErrorBonus(env, **self.log_error)
         if self.residual:
             env = ResidualAction(env, self.residual, self.scale, **self.controller_kwargs)
         env = TaskObservation(env, self.layout)
@@ -376,11 +381,13 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     if early:  # default penalty: staying lost forever at r = -1 per step
         early = {"max_error": float(early["max_error"]),
                  "penalty": float(early.get("penalty", -1.0 / (1.0 - gamma)))}
+    log_error = (check_log_error_bonus(hp["log_error_bonus"])
+                 if hp.get("log_error_bonus") is not None else None)
     factory = EnvFactory(config["env_id"], config.get("env_kwargs") or {}, layout,
                          res.get("controller"), res.get("scale"), res.get("controller_kwargs"))
     train_factory = EnvFactory(factory.env_id, factory.env_kwargs, layout, factory.residual,
                                factory.scale, factory.controller_kwargs, early or None,
-                               float(hp.get("reward_offset", 0.0)))
+                               float(hp.get("reward_offset", 0.0)), log_error)
     n_envs = int(hp.get("n_envs", 1))
     seed = int(config["seed"])
     total = int(config["n_timesteps"])
@@ -392,7 +399,16 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
             algo_kwargs[k] = resolve_schedule(algo_kwargs[k], where=k)
     noise_type, noise_std = algo_kwargs.pop("noise_type", None), algo_kwargs.pop("noise_std", 0.1)
 
-    venv = _make_vec_env(train_factory, n_envs, hp.get("vec_env", "dummy"), seed)
+    kind = hp.get("vec_env", "dummy")
+    if kind == "batched":  # one mujoco.batch for all training copies (agents/batched.py)
+        if early or res:
+            raise HyperparameterError("vec_env 'batched' trains from-scratch agents without "
+                                      "early_termination; use vec_env 'dummy'")
+        venv = make_batched_vec_env(config["env_id"], config.get("env_kwargs") or {}, layout,
+                                    n_envs, seed, float(hp.get("reward_offset", 0.0)),
+                                    log_error)
+    else:
+        venv = _make_vec_env(train_factory, n_envs, kind, seed)
     n_eval = int(hp.get("n_eval_episodes", 5))
     eval_env: VecEnv = DummyVecEnv([factory] * n_eval)  # one episode each: seeds EVAL_SEED + i
     norm_kwargs = _normalize_kwargs(hp, gamma)

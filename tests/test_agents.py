@@ -228,6 +228,73 @@ def test_reward_offset_shifts_training_rewards_only(tmp_path):
     assert load_hyperparams("ppo", ENV, path=path)["reward_offset"] == 0.5
 
 
+def test_log_error_bonus_pays_each_halving_of_the_error_alike(tmp_path):
+    from agents.shaping import LogErrorBonus, log_error_bonus
+    from agents.train import EnvFactory
+
+    b = lambda e: float(log_error_bonus(e, weight=2.0, max_error=0.5, floor=1e-3))  # noqa: E731
+    assert b(0.5) == pytest.approx(0.0) and b(0.6) < 0.0
+    assert b(0.2) - b(0.4) == pytest.approx(b(0.01) - b(0.02)) == pytest.approx(2 * np.log(2))
+    assert b(1e-6) == b(1e-3) == pytest.approx(2 * np.log(500))  # the floor caps it
+    env = gym.make(ENV, **SHORT)
+    layout = ObservationLayout.from_space(env.observation_space)
+    spec = {"weight": 2.0, "max_error": 0.5, "floor": 1e-3}
+    plain, shaped = EnvFactory(ENV, SHORT, layout)(), EnvFactory(ENV, SHORT, layout,
+                                                                 log_error=spec)()
+    for e in (plain, shaped):
+        e.reset(seed=4)
+    a = np.full(7, 0.05)
+    for _ in range(5):
+        _, r0, _, _, info = plain.step(a)
+        r1 = shaped.step(a)[1]
+        assert r1 == pytest.approx(r0 + b(info["joint_error"]))
+    with pytest.raises(ValueError, match="floor < max_error"):
+        LogErrorBonus(env, floor=1.0, max_error=0.5)
+    with pytest.raises(HyperparameterError, match="log_error_bonus"):
+        load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, log_error_bonus={"w": 1}))
+    path = tiny_hyperparams(tmp_path, log_error_bonus={"weight": 0.5})
+    assert load_hyperparams("ppo", ENV, path=path)["log_error_bonus"] == {"weight": 0.5}
+
+
+def test_batched_training_env_matches_the_single_env_stack(tmp_path):
+    """vec_env 'batched': copy i is EnvFactory's env (flat obs + gravity, r + offset) with
+    seed + i, step for step, and a finished episode reports Monitor-style statistics."""
+    from agents.batched import make_batched_vec_env
+    from agents.train import EnvFactory
+
+    probe = gym.make(ENV, **SHORT)
+    layout = ObservationLayout.from_space(probe.observation_space, features=["gravity"])
+    spec = {"weight": 0.5, "max_error": 0.5, "floor": 1e-3}
+    venv = make_batched_vec_env(ENV, SHORT, layout, 3, seed=7, reward_offset=1.0, log_error=spec)
+    singles = [EnvFactory(ENV, SHORT, layout, reward_offset=1.0, log_error=spec)()
+               for _ in range(3)]
+    obs = venv.reset()
+    assert obs.shape == (3, layout.size) and venv.observation_space == layout.space()
+    for i, e in enumerate(singles):
+        np.testing.assert_allclose(obs[i], e.reset(seed=7 + i)[0], atol=1e-6)
+    rng = np.random.default_rng(0)
+    ret = np.zeros(3)
+    for k in range(50):  # 50 steps: every copy ends (truncated) on the last one
+        a = rng.uniform(-0.05, 0.05, (3, 7)).astype(np.float32)
+        obs, rew, dones, infos = venv.step(a)
+        for i, e in enumerate(singles):
+            o, r, term, trunc, _ = e.step(a[i])
+            ret[i] += r
+            assert rew[i] == pytest.approx(r, abs=1e-5)
+            assert dones[i] == (term or trunc)
+            if dones[i]:
+                np.testing.assert_allclose(infos[i]["terminal_observation"], o, atol=1e-5)
+                assert infos[i]["episode"]["r"] == pytest.approx(ret[i], rel=1e-5)
+                assert infos[i]["episode"]["l"] == k + 1
+            else:
+                np.testing.assert_allclose(obs[i], o, atol=1e-5)
+    assert dones.all()
+    with pytest.raises(ValueError, match="batched"):
+        make_batched_vec_env("cir_gym/RedundantIK-v3", {}, layout, 2, seed=0)
+    with pytest.raises(HyperparameterError, match="vec_env"):
+        load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, vec_env="batch"))
+
+
 # ---------------------------------------------------------------------- observation
 def test_task_errors_are_added_for_every_key_with_a_ref():
     env = TaskObservation(gym.make(ENV, **SHORT))

@@ -1,0 +1,149 @@
+"""Training on ``cir_gym.vector.JointTrackingVectorEnv``: the batched env as an agent's VecEnv.
+
+``vec_env: batched`` in a hyperparameter entry (``training`` section) makes :mod:`agents.train`
+step all ``n_envs`` training copies of JointTracking-v1 with one ``mujoco.batch.Batch`` call
+(~64 k env-steps/s for 64 copies, measured in results/benchmarks.md) instead of a
+``DummyVecEnv`` of single envs (~3 k). Each copy is the single env step for step (the vector
+env's own test), so an agent trained here is evaluated, shipped and loaded exactly as one
+trained on ``DummyVecEnv``; evaluations during training still run the single env.
+
+:class:`BatchedTaskObservation` is the batched counterpart of the single-env wrapper stack of
+``agents.train.EnvFactory``: the observation layout (:class:`agents.observation.
+ObservationLayout`, with its features), the training-only shaping of :mod:`agents.shaping`
+(``reward_offset``, ``log_error_bonus``: the error norm ‖q̄ − q‖ is read from the observation,
+the value ``info["joint_error"]`` holds in the single env), and the episode statistics SB3's
+``Monitor`` would report (``info["episode"]``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from agents.observation import ObservationLayout
+from agents.shaping import check_log_error_bonus, log_error_bonus
+
+__all__ = ["BATCHED_ENVS", "BatchedTaskObservation", "make_batched_vec_env"]
+
+#: env ids with a native batched implementation → what it needs
+BATCHED_ENVS = {"cir_gym/JointTracking-v1": "cir_gym.vector.JointTrackingVectorEnv"}
+
+
+class BatchedTaskObservation(VecEnv):
+    """Flatten a batched Dict observation by ``layout``; add ``reward_offset``; Monitor stats.
+
+    A plain ``VecEnv`` holding ``venv`` rather than a ``VecEnvWrapper``: SB3's
+    ``sync_envs_normalization`` walks the training and evaluation wrapper chains in step, and
+    the evaluation env (a ``DummyVecEnv`` under ``VecNormalize``) has no such layer.
+
+    Args:
+        venv: an SB3 VecEnv with Dict observations (``cir_gym.vector.sb3_vec_env``).
+        layout: the agent's observation layout.
+        flatten: ``obs ↦ (n_envs, size)``, ``layout.bind(template_env)``.
+        reward_offset: added to every step's reward (training only, as
+            :class:`agents.shaping.RewardOffset`).
+        log_error: ``{weight, max_error, floor}`` of :class:`agents.shaping.LogErrorBonus`
+            (training only), or None.
+    """
+
+    def __init__(
+        self,
+        venv: VecEnv,
+        layout: ObservationLayout,
+        flatten: Any,
+        reward_offset: float = 0.0,
+        log_error: dict[str, float] | None = None,
+    ) -> None:
+        self.render_mode = None
+        super().__init__(venv.num_envs, layout.space(), venv.action_space)
+        self.venv = venv
+        if not np.isfinite(reward_offset):
+            raise ValueError(f"reward offset must be finite, got {reward_offset!r}")
+        self.layout = layout
+        self._flatten = flatten
+        self.reward_offset = float(reward_offset)
+        self.log_error = check_log_error_bonus(log_error) if log_error else None
+        self._ret = np.zeros(self.num_envs)
+        self._len = np.zeros(self.num_envs, dtype=np.int64)
+
+    def reset(self) -> np.ndarray:
+        self._ret[:] = 0.0
+        self._len[:] = 0
+        return self._flatten(self.venv.reset())
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self.venv.step_async(actions)
+
+    def seed(self, seed: int | None = None) -> list[None]:
+        return self.venv.seed(seed)
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return self.venv.get_attr(attr_name, indices)
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        self.venv.set_attr(attr_name, value, indices)
+
+    def env_method(
+        self, method_name: str, *args: Any, indices: Any = None, **kwargs: Any
+    ) -> list[Any]:
+        return self.venv.env_method(method_name, *args, indices=indices, **kwargs)
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return self.venv.env_is_wrapped(wrapper_class, indices)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        obs, rew, dones, infos = self.venv.step_wait()
+        rew = rew.astype(np.float64) + self.reward_offset
+        if self.log_error:
+            err = obs["q_ref"] - obs["q"]  # ‖q̄(k+1) − q(k+1)‖ = info["joint_error"]
+            for i in np.flatnonzero(dones):  # obs holds the next episode's first observation
+                last = infos[i]["terminal_observation"]
+                err[i] = last["q_ref"] - last["q"]
+            rew += log_error_bonus(np.linalg.norm(err, axis=1), **self.log_error)
+        self._ret += rew
+        self._len += 1
+        for i in np.flatnonzero(dones):
+            info = infos[i]
+            term = info.get("terminal_observation")
+            if term is not None:
+                info["terminal_observation"] = self._flatten(term)
+            # as Monitor records it: the reward the agent was trained on
+            info["episode"] = {"r": float(self._ret[i]), "l": int(self._len[i]), "t": 0.0}
+            self._ret[i] = 0.0
+            self._len[i] = 0
+        return self._flatten(obs), rew.astype(np.float32), dones, infos
+
+
+def make_batched_vec_env(
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    layout: ObservationLayout,
+    n_envs: int,
+    seed: int,
+    reward_offset: float = 0.0,
+    log_error: dict[str, float] | None = None,
+) -> VecEnv:
+    """``n_envs`` batched training copies of ``env_id`` as an SB3 VecEnv (copy i: seed + i).
+
+    Raises:
+        ValueError: ``env_id`` has no batched implementation (:data:`BATCHED_ENVS`).
+    """
+    key = env_id.split(":")[-1]
+    if key not in BATCHED_ENVS:
+        raise ValueError(
+            f"vec_env 'batched' exists for {sorted(BATCHED_ENVS)} only, not "
+            f"{key!r}; use vec_env 'dummy'"
+        )
+    from cir_gym.vector import JointTrackingVectorEnv, sb3_vec_env
+
+    venv = JointTrackingVectorEnv(num_envs=n_envs, nthread=1, **env_kwargs)
+    layout.check_space(venv.single_observation_space)
+    flatten = layout.bind(venv.template)
+    sb3 = sb3_vec_env(venv)
+    sb3.seed(seed)
+    return BatchedTaskObservation(sb3, layout, flatten, reward_offset, log_error)
