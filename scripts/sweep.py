@@ -507,24 +507,26 @@ def _evaluate_task(task: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _hyperparams_file(task: dict[str, Any], directory: Path) -> Path | None:
-    """A copy of the algorithm's hyperparameter file with the task's set merged into its entry
-    for the environment (and, for a residual run, into its residual entry, which is applied
-    last), or None when the set is empty."""
+    """A copy of the algorithm's hyperparameter file (the shipped one or the grid's
+    ``hyperparams_path``) with the task's set written into every section that
+    :func:`agents.hyperparameters.load_hyperparams` merges for the environment (its entry,
+    ``training`` and, for a residual run, ``residual``), so the set wins whatever the file
+    says; the file itself when the set is empty (None: the shipped file)."""
     import yaml
 
-    from agents.hyperparameters import HYPERPARAMS_DIR
+    from agents.hyperparameters import HYPERPARAMS_DIR, _read_yaml
 
     hp = task["hyperparams"]
     if not hp:
         return task["hyperparams_path"]
     source = Path(task["hyperparams_path"] or HYPERPARAMS_DIR / f"{task['algo']}.yml")
-    data = yaml.safe_load(source.read_text()) or {}
+    data = _read_yaml(source)  # the project's loader (1e6 is a float), merge keys resolved
     key = task["env_id"]
     data[key] = {**(data.get(key) or {}), **hp}
-    if task["residual"]:
-        section = data.setdefault("residual", {}) or {}
+    for name in ("training", "residual") if task["residual"] else ("training",):
+        section = data.get(name) or {}
         section[key] = {**(section.get(key) or {}), **hp}
-        data["residual"] = section
+        data[name] = section
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{task['task_id']}_{task['algo']}.yml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -696,6 +698,8 @@ def _run_ray(
     started = False
     if not ray.is_initialized():
         if address == "local":
+            # a loaded machine may need longer than Ray's default to register the raylet
+            os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         else:
             ray.init(address=address, log_to_driver=False)

@@ -113,3 +113,45 @@ def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
         assert f"| {controller} |" in md
     variants = cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants
     assert len(list(tmp_path.glob("*.png"))) == len(variants)
+
+
+def test_sweep_command_passes_its_options_on(tmp_path, monkeypatch, capsys):
+    """The command's wiring (the sweep itself is tested in tests/test_sweep.py)."""
+    from scripts.sweep import SweepSummary
+
+    calls = []
+
+    def fake(grid, out, **kwargs):
+        calls.append((grid, out, kwargs))
+        return SweepSummary(4, 1, 3, 0, 2.0, tmp_path / "results.parquet")
+
+    monkeypatch.setattr("scripts.sweep.run_sweep", fake)
+    argv = ["sweep", "g.yaml", "--out", str(tmp_path), "--workers", "2", "--ray", "auto"]
+    assert main(argv) == 0
+    assert calls == [("g.yaml", str(tmp_path), {"workers": 2, "ray": "auto", "retries": 2})]
+    assert "4 tasks: 1 already finished, 3 run (0 failed)" in capsys.readouterr().out
+    assert main(["sweep", "g.yaml", "--out", str(tmp_path), "--workers", "0"]) == 2
+    assert main(["sweep", "g.yaml", "--out", str(tmp_path), "--retries", "-1"]) == 2
+
+
+@pytest.mark.parametrize(
+    "grid, needle",
+    [
+        ("evaluate: {envs: [cir_gym/Nope-v1]}", "unknown environment 'cir_gym/Nope-v1'"),
+        ("evaluate: [1, 2]", "'evaluate' must be a mapping"),
+        ("evaluate: {envs: [cir_gym/JointTracking-v1", "not valid YAML"),
+    ],
+)
+def test_a_bad_grid_exits_2_with_a_message(grid, needle, tmp_path, capsys):
+    path = tmp_path / "grid.yaml"
+    path.write_text(grid)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cir-gym: error:") and needle in err and "Traceback" not in err
+    assert main(["sweep", str(tmp_path / "none.yaml"), "--out", str(tmp_path)]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_leaderboard_from_a_directory_without_a_sweep_exits_2(tmp_path, capsys):
+    assert main(["leaderboard", "--from", str(tmp_path)]) == 2
+    assert "no sweep table" in capsys.readouterr().err

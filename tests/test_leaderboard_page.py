@@ -20,13 +20,23 @@ from scripts.leaderboard_page import labelled, markdown_to_html, save_gif, side_
 
 CHROMIUM = "/usr/bin/chromium"
 #: flags from the machine notes: no sandbox as root, no GPU, no background network traffic
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 def test_markdown_tables_and_inline_marks_become_html() -> None:
-    md = ("Intro with `code` and **bold** & <tag>.\n\n| rank | policy |\n|---|---|\n"
-          "| 1 | *pid* |\n| 2 | pd |\n")
+    md = (
+        "Intro with `code` and **bold** & <tag>.\n\n| rank | policy |\n|---|---|\n"
+        "| 1 | *pid* |\n| 2 | pd |\n"
+    )
     out = markdown_to_html(md, "summary")
     assert "<code>code</code>" in out and "<strong>bold</strong>" in out
     assert "&amp; &lt;tag&gt;" in out
@@ -44,7 +54,7 @@ def test_gif_round_trip_keeps_the_frames_and_stays_small(tmp_path: Path) -> None
     frames = []
     for k in range(20):  # a red square moving over a fixed background, a changing "caption"
         f = background.copy()
-        f[40:56, 4 * k: 4 * k + 16] = (230, 20, 20)
+        f[40:56, 4 * k : 4 * k + 16] = (230, 20, 20)
         f[0:4, 0:8] = colours[k]
         frames.append(f)
     path = save_gif(frames, tmp_path / "clip.gif", fps=10)
@@ -70,8 +80,13 @@ def test_labelled_side_by_side_frames() -> None:
 
 
 def _chromium(*args: str, user_dir: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={user_dir}", *args],
-                          capture_output=True, text=True, timeout=120, check=False)
+    return subprocess.run(
+        [CHROMIUM, *FLAGS, f"--user-data-dir={user_dir}", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
 
 
 @pytest.mark.slow
@@ -83,16 +98,23 @@ def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) 
     env_id = "cir_gym/JointTracking-v1"
     variants = len(cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants)
     out = tmp_path / "results"
-    run_leaderboard(out, episodes=1, envs=[env_id], workers=2,
-                    env_overrides={"episode_duration": 0.6})
+    run_leaderboard(
+        out, episodes=1, envs=[env_id], workers=2, env_overrides={"episode_duration": 0.6}
+    )
     index = out / "index.html"
     text = index.read_text()
     gifs = sorted((out / "videos").glob("*.gif"))
     assert len(gifs) == variants and all(g.stat().st_size < 1_000_000 for g in gifs)
     assert "http://" not in text and "https://" not in text  # nothing fetched at view time
 
-    dom = _chromium("--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000",
-                    "--dump-dom", index.as_uri(), user_dir=tmp_path / "profile")
+    dom = _chromium(
+        "--enable-logging=stderr",
+        "--v=0",
+        "--virtual-time-budget=10000",
+        "--dump-dom",
+        index.as_uri(),
+        user_dir=tmp_path / "profile",
+    )
     assert dom.returncode == 0, dom.stderr[-2000:]
     console = [line for line in dom.stderr.splitlines() if ":CONSOLE" in line]
     assert not console, console
@@ -102,8 +124,12 @@ def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) 
     assert 'data-broken="0"' in html_tag, html_tag
 
     shot = tmp_path / "shot.png"
-    _chromium("--window-size=1280,2400", f"--screenshot={shot}", index.as_uri(),
-              user_dir=tmp_path / "profile")
+    _chromium(
+        "--window-size=1280,2400",
+        f"--screenshot={shot}",
+        index.as_uri(),
+        user_dir=tmp_path / "profile",
+    )
     from PIL import Image
 
     pixels = np.asarray(Image.open(shot).convert("RGB")).astype(int)
@@ -112,3 +138,82 @@ def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) 
     assert border.sum() > 2000 and header.sum() > 2000
     assert border.any(axis=1).sum() > 20  # many horizontal rules: table rows on screen
     shutil.rmtree(tmp_path / "profile", ignore_errors=True)
+
+
+def test_markdown_images_and_headings_become_html() -> None:
+    out = markdown_to_html("# Title\n\ntext\n![a plot](x_y.png)\n## Env\n![not an image")
+    assert "<h1>Title</h1>" in out and "<h2>Env</h2>" in out and "<p>text</p>" in out
+    assert '<img class="figure" src="x_y.png" alt="a plot">' in out
+    assert "<p>![not an image</p>" in out
+
+
+def test_leaderboard_from_a_sweep_ranks_its_episodes_as_the_evaluator_scores_them(
+    tmp_path: Path,
+) -> None:
+    """Tasks run in this process (no pool) into a sweep table, one failed task beside them;
+    ``leaderboard_from`` ranks the episodes into the evaluator's own summaries (nothing is
+    re-run), draws a figure per variant and one against the swept payload, lists the failure."""
+    import cir_gym
+    from cir_gym.evaluation import evaluate
+    from scripts.cli import make_policy
+    from scripts.leaderboard import leaderboard_from, sweep_results
+    from scripts.sweep import expand, read_table, run_task, write_table
+
+    env_id = "cir_gym/JointTracking-v1"
+    short = {"episode_duration": 0.1}
+    grid = {
+        "evaluate": {
+            "envs": [env_id],
+            "policies": ["computed_torque", "pd_gravity"],
+            "episodes": 2,
+            "episodes_per_task": 2,
+            "seed": 7,
+            "env_kwargs": {"payload_mass": [0.0, 3.0]},
+            "env_overrides": short,
+        }
+    }
+    tasks = expand(grid)
+    rows = [{**r, "status": "ok"} for t in tasks for r in run_task(t, str(tmp_path))["rows"]]
+    rows.append(
+        {
+            **{k: tasks[0][k] for k in ("env_id", "variant", "policy", "kind")},
+            "task_id": "f" * 16,
+            "status": "failed",
+            "error": "RuntimeError: boom",
+        }
+    )
+    write_table(rows, tmp_path, "csv")
+
+    results = sweep_results(read_table(tmp_path))
+    assert set(results) == {(env_id, "payload_mass=0.0"), (env_id, "payload_mass=3.0")}
+    direct = evaluate(
+        make_policy(env_id, "pd_gravity", {**short, "payload_mass": 3.0}, {}),
+        env_id,
+        2,
+        7,
+        payload_mass=3.0,
+        **short,
+    )
+    mine = results[(env_id, "payload_mass=3.0")]["pd_gravity"]
+    assert [e.seed for e in mine.episodes] == [7, 8]
+    assert mine.summary["rms_error"] == pytest.approx(direct.summary["rms_error"], rel=1e-12)
+    assert mine.summary["return"] == pytest.approx(direct.summary["return"], rel=1e-12)
+
+    md = leaderboard_from(tmp_path, tmp_path / "page").read_text()
+    assert f"## {env_id}" in md and "### payload_mass=3.0 (episode_duration=0.1, " in md
+    for variant in ("payload_mass=0.0", "payload_mass=3.0"):
+        best = min(
+            results[(env_id, variant)].values(), key=lambda r: r.summary["rms_error"]["mean"]
+        )
+        section = md.split(f"### {variant}")[1]
+        assert section.split("| 1 | ", 1)[1].startswith(best.policy_name)
+    assert "## Failed tasks" in md and "RuntimeError: boom" in md
+    figures = sorted(p.name for p in (tmp_path / "page").glob("*.png"))
+    assert figures == [
+        "JointTracking-v1_payload_mass_0_0.png",
+        "JointTracking-v1_payload_mass_3_0.png",
+        "JointTracking-v1_vs_payload_mass.png",
+    ]
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert all(f'src="{f}"' in page for f in figures) and page.count("<table") == 3
+    assert cir_gym.ENVIRONMENTS[env_id][0].primary_metric == "rms_error"
