@@ -55,6 +55,7 @@ hole off by more than the clearance it lands on the block and presses until the 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -62,6 +63,7 @@ import mujoco
 import numpy as np
 
 from baselines.base import Controller, InvalidGain
+from baselines.interaction import Admittance, AdmittanceGains
 from cir_gym.envs.base import TaskContext
 from cir_gym.ft_sensor import contact_wrench
 from cir_gym.operational_space import (
@@ -73,10 +75,13 @@ from cir_gym.robot import ModelError, Robot, apply_model_error
 
 __all__ = [
     "HYBRID_CONTROLLERS",
+    "TASK_ADAPTERS",
+    "AdmittanceGainsPeg",
     "HybridForcePosition",
     "HybridForcePositionGains",
     "HybridSpiral",
     "HybridSpiralGains",
+    "PegAdmittance",
     "PositionOnly",
     "PositionOnlyGains",
     "selection_matrix",
@@ -93,6 +98,22 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
     mujoco.mju_quat2Vel(phi, quat, 1.0)
     return phi
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for a (3,) and b (3,) or (3, n) (columns): numpy's formula term by term (the same
+    floating-point result as ``np.cross``, without its axis handling, ~10× cheaper here)."""
+    return np.array(
+        (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+    )
+
+
+def _block_diag2(R: np.ndarray) -> np.ndarray:
+    """diag(R, R) (6, 6) of a (3, 3) rotation (the twist/wrench rotation)."""
+    R6 = np.zeros((6, 6))
+    R6[:3, :3] = R
+    R6[3:, 3:] = R
+    return R6
 
 
 def _matrix(quat: np.ndarray) -> np.ndarray:
@@ -118,6 +139,14 @@ def selection_matrix(search: bool = False, face: bool = False) -> np.ndarray:
     return np.diag([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
 
 
+def _require_torque(name: str, context: TaskContext) -> None:
+    if context.action_kind != "joint_torque":
+        raise ValueError(
+            f"controller {name!r} commands joint torques: make the env with "
+            f"control='torque', not {context.action_kind!r}"
+        )
+
+
 def _check_positive(owner: str, **values: float) -> None:
     for name, value in values.items():
         if not np.isfinite(value) or value < 0:
@@ -135,13 +164,15 @@ class _TipController(Controller):
 
     tasks: ClassVar[tuple[str, ...]] = ("PegInHole",)
 
-    def __init__(self, context: TaskContext, gains: Any = None, *, robot: Robot | None = None,
-                 **overrides: Any) -> None:
-        if context.action_kind != "joint_torque":
-            raise ValueError(
-                f"controller {self.name!r} commands joint torques: make the env with "
-                f"control='torque', not {context.action_kind!r}"
-            )
+    def __init__(
+        self,
+        context: TaskContext,
+        gains: Any = None,
+        *,
+        robot: Robot | None = None,
+        **overrides: Any,
+    ) -> None:
+        _require_torque(self.name, context)
         super().__init__(context, gains, **overrides)
         extras = context.extras
         self.robot = robot if robot is not None else context.nominal_robot()
@@ -156,15 +187,25 @@ class _TipController(Controller):
 
     def tip(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Tip position (3,), rotation (3, 3) and geometric Jacobian (6, n), world frame."""
+        return self.tip_and_flange(q)[1:]
+
+    def tip_and_flange(self, q: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Flange position (3,), then :meth:`tip`'s tip position, rotation and Jacobian."""
         p, R = self.robot.site_pose(self.site, q)
         J = self.robot.jacobian(self.site, q)
         r = R[:, 2] * self.tip_offset
         J_tip = J.copy()
-        J_tip[:3] -= np.cross(r, J[3:].T).T  # v_tip = v_f + ω × r = v_f − r × ω
-        return p + r, R, J_tip
+        J_tip[:3] -= _cross(r, J[3:])  # v_tip = v_f + ω × r = v_f − r × ω
+        return p, p + r, R, J_tip
 
-    def task_wrench_torque(self, q: np.ndarray, qd: np.ndarray, h_world: np.ndarray,
-                           J: np.ndarray, Lambda: np.ndarray | None = None) -> np.ndarray:
+    def task_wrench_torque(
+        self,
+        q: np.ndarray,
+        qd: np.ndarray,
+        h_world: np.ndarray,
+        J: np.ndarray,
+        Lambda: np.ndarray | None = None,
+    ) -> np.ndarray:
         """τ = g(q) + Jᵀ h + N_dynᵀ (posture PD toward the start posture)."""
         B = self.robot.inertia(q)
         J_bar = dynamically_consistent_inverse(J, B, Lambda)
@@ -177,13 +218,19 @@ class _TipController(Controller):
     def hole_frame(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         return obs["hole_pos"], _matrix(obs["hole_quat"])
 
-    def measured_wrench_at_tip(self, obs: dict[str, np.ndarray], q: np.ndarray,
-                               p_tip: np.ndarray) -> np.ndarray:
-        """γ̂ (6,), world frame, moments about the tip: the peg's push on the environment."""
-        p_f, R_f = self.robot.site_pose(self.site, q)
+    def measured_wrench_at_tip(
+        self,
+        obs: dict[str, np.ndarray],
+        q: np.ndarray,
+        p_tip: np.ndarray,
+        flange: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """γ̂ (6,), world frame, moments about the tip: the peg's push on the environment.
+        ``flange``: its pose (p, R) at ``q`` if already computed."""
+        p_f, R_f = flange if flange is not None else self.robot.site_pose(self.site, q)
         h = contact_wrench(obs["wrench"], R_f, tool_mass=self.tool_mass, tool_com=self.tool_com)
         f, mu_sensor = h[:3], h[3:]
-        return np.concatenate((f, mu_sensor + np.cross(p_f - p_tip, f)))
+        return np.concatenate((f, mu_sensor + _cross(p_f - p_tip, f)))
 
 
 @dataclass(frozen=True)
@@ -253,25 +300,37 @@ class HybridForcePosition(_TipController):
     def _frames(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
         q, qd = obs["q"], obs["qd"]
         p_h, R_h = self.hole_frame(obs)
-        p_tip, R_tip, J = self.tip(q)
+        p_f, p_tip, R_tip, J = self.tip_and_flange(q)
         twist = J @ qd
-        gamma = self.measured_wrench_at_tip(obs, q, p_tip)
-        R6 = np.kron(np.eye(2), R_h)
+        gamma = self.measured_wrench_at_tip(obs, q, p_tip, (p_f, R_tip))
+        R6 = _block_diag2(R_h)
         Lambda_world = task_inertia(J, self.robot.inertia(q))
         Lambda = R6.T @ Lambda_world @ R6
         x = R_h.T @ (p_tip - p_h)
         R_rel = R_h.T @ R_tip
         phi = _rotvec(ALIGNED @ R_rel.T)  # log(R̄ Rᵀ) in the hole frame, R̄ = ALIGNED
         return {
-            "q": q, "qd": qd, "R_h": R_h, "J": J, "x": x, "phi": phi, "Lambda": Lambda,
+            "q": q,
+            "qd": qd,
+            "R_h": R_h,
+            "J": J,
+            "x": x,
+            "phi": phi,
+            "Lambda": Lambda,
             "Lambda_world": Lambda_world,
             "v": np.concatenate((R_h.T @ twist[:3], R_h.T @ twist[3:])),
             "gamma": np.concatenate((R_h.T @ gamma[:3], R_h.T @ gamma[3:])),
         }
 
-    def hybrid_wrench(self, f: dict[str, Any], x_ref: np.ndarray, sigma: np.ndarray,
-                      gamma_ref: np.ndarray, omega_n: float | None = None,
-                      decouple: bool = True) -> np.ndarray:
+    def hybrid_wrench(
+        self,
+        f: dict[str, Any],
+        x_ref: np.ndarray,
+        sigma: np.ndarray,
+        gamma_ref: np.ndarray,
+        omega_n: float | None = None,
+        decouple: bool = True,
+    ) -> np.ndarray:
         """h_c (6,) in the hole frame: Σ force law + (I − Σ) motion law (at ``omega_n``).
 
         ``decouple``: the motion wrench is Λ (I − Σ) a, whose components on the force-controlled
@@ -314,8 +373,9 @@ class HybridForcePosition(_TipController):
         self.advance_reference(state, float(f["x"][2]))
         x_ref = np.array([f["x"][0], f["x"][1], state[1]])
         in_bore = f["x"][2] < -self.gains.guard_height
-        h = self.hybrid_wrench(f, x_ref, selection_matrix(face=not in_bore), np.zeros(6),
-                               decouple=not in_bore)
+        h = self.hybrid_wrench(
+            f, x_ref, selection_matrix(face=not in_bore), np.zeros(6), decouple=not in_bore
+        )
         return self.torque(f, h)
 
 
@@ -377,9 +437,13 @@ class HybridSpiral(HybridForcePosition):
             r = g.pitch * state[3] / (2 * np.pi)
             target = state[4:6] + r * np.array([np.cos(state[3]), np.sin(state[3])])
             x_ref = np.array([target[0], target[1], x[2]])
-            h = self.hybrid_wrench(f, x_ref, selection_matrix(True),
-                                   np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0]),
-                                   g.omega_search)
+            h = self.hybrid_wrench(
+                f,
+                x_ref,
+                selection_matrix(True),
+                np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0]),
+                g.omega_search,
+            )
             # the axial push is feed-forward plus damping: force feedback against the stiff
             # face (11 kg of task inertia on a 1 ms contact, a delayed sensor) makes it bounce
             h[2] = -g.search_force - g.d_f * f["v"][2]
@@ -387,8 +451,12 @@ class HybridSpiral(HybridForcePosition):
         self.advance_reference(state, float(x[2]))
         x_ref = np.array([x[0], x[1], state[1]])
         in_bore = x[2] < -g.guard_height
-        return self.torque(f, self.hybrid_wrench(f, x_ref, selection_matrix(face=not in_bore),
-                                                 np.zeros(6), decouple=not in_bore))
+        return self.torque(
+            f,
+            self.hybrid_wrench(
+                f, x_ref, selection_matrix(face=not in_bore), np.zeros(6), decouple=not in_bore
+            ),
+        )
 
 
 @dataclass(frozen=True)
@@ -442,9 +510,132 @@ class PositionOnly(_TipController):
         R_ref = R_h @ ALIGNED
         phi = _rotvec(R_ref @ R_tip.T)
         twist = J @ qd
-        h = np.concatenate((g.k_p * (x_ref - p_tip) - g.k_d * twist[:3],
-                            g.k_p_rot * phi - g.k_d_rot * twist[3:]))
+        h = np.concatenate(
+            (g.k_p * (x_ref - p_tip) - g.k_d * twist[:3], g.k_p_rot * phi - g.k_d_rot * twist[3:])
+        )
         return self.task_wrench_torque(q, qd, h, J)
 
+
+@dataclass(frozen=True)
+class AdmittanceGainsPeg(AdmittanceGains):
+    """Gains of :class:`PegAdmittance`: interaction.py's admittance gains, plus
+
+    Attributes:
+        insertion_force: the reference force f̄ along the nominal bore axis (N), pushing in.
+        stiffness: the block as the law designs for it (N/m): steel on steel behind MuJoCo's
+            1 ms contact, far stiffer than the arm's servo (Λ ω_i² ≈ 2.5·10⁵ N/m), so the
+            effective stiffness k̂_e is the servo's.
+    """
+
+    insertion_force: float = 10.0
+    stiffness: float | None = 1e7
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_positive("admittance", insertion_force=self.insertion_force)
+
+
+class PegAdmittance(Admittance):
+    """AdmittanceContact's ``admittance`` law (:class:`baselines.interaction.Admittance`,
+    imported, not copied) applied to PegInHole through an adapter.
+
+    The adapter translates the task: the "surface" is the block's *nominal* top face (point =
+    nominal hole position, normal n̂ = nominal bore axis, out of the hole), the path reference is
+    the nominal hole axis (fixed: zero velocity), the reference force is ``insertion_force``
+    along −n̂ and the task's tool orientation is the peg aligned with the nominal bore. The law
+    itself is unchanged: a guarded approach along −n̂, then M_d Δ̈ + D_d Δ̇ = f̂ − f̄ on the depth
+    (integral force control along the axis) through the stiff inner motion loop, which holds
+    the tip on the nominal axis laterally and the peg square to the nominal face. So it
+    regulates the pushing force along the axis and nothing else: a hole off by more than the
+    radial clearance is never found (the peg presses f̄ on the face until the time limit),
+    which is what the selection matrix of hybrid control adds (lateral force control).
+
+    The observation is translated per step (:meth:`translate`): tool pose and twist of the
+    peg tip in the world from the nominal hole frame; the nominal arm's ``tcp`` site is moved to
+    the peg tip (``tip_offset`` beyond the flange) so the law's Jacobians are the tip's.
+    Torque interface only (PegInHole's observation has no motion-controller setpoint).
+    """
+
+    name = "admittance"
+    tasks: ClassVar[tuple[str, ...]] = ("PegInHole",)
+    Gains = AdmittanceGainsPeg
+
+    def __init__(
+        self,
+        context: TaskContext,
+        gains: Any = None,
+        *,
+        robot: Robot | None = None,
+        **overrides: Any,
+    ) -> None:
+        _require_torque(self.name, context)
+        ex = context.extras
+        if "tip_offset" not in ex:
+            raise InvalidGain(f"{self.name} (PegInHole adapter) needs a PegInHole context")
+        from cir_gym.envs.peg_in_hole import TOOL_COM
+        from cir_gym.peg_hole_geometry import HOLE_POSITION
+
+        hole_pos = np.asarray(HOLE_POSITION, dtype=float)
+        R_h = np.eye(3)  # the nominal hole frame is aligned with the world (env: hole_quat)
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, (R_h @ ALIGNED).ravel())
+        extras = {
+            **ex,
+            "tool_com": TOOL_COM.copy(),
+            "surface_point": hole_pos,
+            "surface_normal": R_h[:, 2].copy(),
+            "tool_quat": quat,
+            "stiffness_range": (1e3, 1e7),
+        }
+        translated = dataclasses.replace(context, site="tcp", extras=extras)
+        if robot is None:
+            robot = translated.nominal_robot()
+            tool_mass = float(ex.get("tool_mass", 0.0))
+            if tool_mass > 0:
+                apply_model_error(robot.model, ModelError(payload_mass=tool_mass))
+            m = robot.model
+            tcp, flange = m.site("tcp").id, m.site("flange").id
+            if m.site_bodyid[tcp] != m.site_bodyid[flange]:
+                raise ValueError("the nominal arm's tcp and flange sites are on different bodies")
+            R_f = _matrix(m.site_quat[flange])
+            m.site_pos[tcp] = m.site_pos[flange] + R_f @ np.array([0.0, 0.0, ex["tip_offset"]])
+            m.site_quat[tcp] = m.site_quat[flange]
+            robot.invalidate()
+        super().__init__(translated, gains, robot=robot, **overrides)
+        self.hole_pos, self.R_h = hole_pos, R_h
+
+    def translate(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """AdmittanceContact's observation keys from PegInHole's (world frame, SI)."""
+        p_h, R_h = obs["hole_pos"], _matrix(obs["hole_quat"])
+        R_tip = R_h @ _matrix(obs["peg_quat"]) @ ALIGNED
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R_tip).ravel())
+        twist = obs["peg_twist"]
+        return {
+            "q": obs["q"],
+            "qd": obs["qd"],
+            "wrench": obs["wrench"],
+            "tool_pos": p_h + R_h @ obs["peg_pos"],
+            "tool_quat": quat,
+            "tool_vel": R_h @ twist[:3],
+            "tool_angvel": R_h @ twist[3:],
+            "tool_pos_ref": p_h.copy(),
+            "tool_vel_ref": np.zeros(3),
+            "f_ref": np.array([self.gains.insertion_force]),
+        }
+
+    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return super().initial_state(self.translate(obs))
+
+    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+        return super().control(self.translate(obs), state)
+
+
+#: Controllers whose law is registered for another task and applies to PegInHole through an
+#: adapter here: (name, task) → class. ``baselines.make`` must pick these before
+#: ``CONTROLLERS[name]`` (the name ``admittance`` is AdmittanceContact's).
+TASK_ADAPTERS: dict[tuple[str, str], type[Controller]] = {
+    ("admittance", "PegInHole"): PegAdmittance
+}
 
 HYBRID_CONTROLLERS: tuple[type[Controller], ...] = (HybridForcePosition, HybridSpiral, PositionOnly)

@@ -1,15 +1,19 @@
 """Peg-in-hole under hole-pose uncertainty: hybrid force/position control against position only.
 
-    python scripts/eval_peg_in_hole.py --episodes 100 --sweep-episodes 20 --out results/peg_in_hole/
+    python scripts/eval_peg_in_hole.py --stage main --episodes 100 --out results/peg_in_hole/
+    python scripts/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
+    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v0/ppo --episodes 20
 
 On the same seeds for every controller (seed i draws the same true hole pose for all) it reports
-success rate, insertion time, peak and mean contact force and ∫|F| dt at the default task
-(0.5 mm clearance, ±2 mm, ±2°, sharp edge: hybrid_spiral, position_only, and
-hybrid_force_position on ``--sweep-episodes`` seeds) and with a 3 mm chamfer
-(hybrid_force_position, position_only); then success rate and peak force of hybrid_spiral and
-position_only against the clearance and against the pose uncertainty (figures
-``vs_clearance.png``, ``vs_uncertainty.png``), and the wall time of every run and the cost of
-one control step. Everything goes to ``<out>/peg_in_hole.md`` and ``<out>/results.json``.
+success rate, insertion time, peak and mean contact force and ∫|F| dt. ``main``: the default task
+(0.5 mm clearance, ±2 mm, ±2°, sharp edge) with hybrid_spiral and position_only on
+``--episodes`` seeds, hybrid_force_position and admittance (AdmittanceContact's law through
+baselines.hybrid.PegAdmittance) on ``--sweep-episodes`` seeds; then a 3 mm chamfer
+(hybrid_force_position, position_only on ``--sweep-episodes``). ``sweeps``: success rate
+and peak force of hybrid_spiral and position_only against the clearance and against the pose
+uncertainty on ``--sweep-episodes`` seeds (figures ``vs_clearance.png``, ``vs_uncertainty.png``).
+Each stage replaces its own part of ``<out>/results.json``; ``<out>/peg_in_hole.md`` is rebuilt
+from all of it, with the wall time of every run and the CPU cost of one control step.
 """
 
 from __future__ import annotations
@@ -23,64 +27,105 @@ from typing import Any
 import numpy as np
 
 import baselines
+from baselines.hybrid import TASK_ADAPTERS
 from cir_gym.evaluation import evaluate
 
 ENV_ID = "cir_gym/PegInHole-v0"
+SEED = 1000
 SWEPT = ("hybrid_spiral", "position_only")
 CLEARANCES = (1e-4, 5e-4, 2e-3)
 UNCERTAINTIES = ((0.0, 0.0), (1e-3, 1.0), (2e-3, 2.0), (3e-3, 3.0))
 
 
+def make_policy(name: str, **env_kwargs: Any) -> Any:
+    """A controller by name; ``admittance`` is AdmittanceContact's law through the PegInHole
+    adapter (baselines.hybrid.TASK_ADAPTERS) until baselines.make knows adapters."""
+    task = baselines.task_name(ENV_ID)
+    if name in baselines.available(ENV_ID):
+        return baselines.make(name, ENV_ID, env_kwargs=env_kwargs)
+    if (name, task) in TASK_ADAPTERS:
+        import gymnasium as gym
+
+        env = gym.make(ENV_ID, **env_kwargs)
+        context = env.unwrapped.controller_context()
+        env.close()
+        return TASK_ADAPTERS[name, task](context)
+    raise ValueError(f"no controller {name!r} on {ENV_ID}")
+
+
 def run(name: str, episodes: int, **env_kwargs: Any) -> dict[str, Any]:
-    policy = baselines.make(name, ENV_ID, env_kwargs=env_kwargs)
+    policy = make_policy(name, **env_kwargs)
     t0 = time.perf_counter()
-    result = evaluate(policy, ENV_ID, episodes, seed=1000, **env_kwargs)
+    cpu0 = time.process_time()
+    result = evaluate(policy, ENV_ID, episodes, seed=SEED, **env_kwargs)
     wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
     steps = sum(ep.length for ep in result.episodes)
-    peaks = np.array([ep.metrics["peak_force"] for ep in result.episodes])
+    r = summarise(name, env_kwargs, result)
+    r.update(wall_time_s=wall, cpu_ms_per_step=1e3 * cpu / max(steps, 1))
+    print(row(r), flush=True)
+    return r
+
+
+def summarise(name: str, env_kwargs: dict[str, Any], result: Any) -> dict[str, Any]:
+    """The table's numbers and the per-episode ones (seed order) of one evaluation."""
+    eps = result.episodes
+    peaks = np.array([ep.metrics["peak_force"] for ep in eps])
+    success = np.array([bool(ep.success) for ep in eps])
     return {
         "controller": name,
         "env_kwargs": env_kwargs,
-        "episodes": episodes,
-        "success_rate": result.success_rate,
-        "success_and_peak_le_50N": float(np.mean(
-            [ep.success and ep.metrics["peak_force"] <= 50.0 for ep in result.episodes])),
-        "force_limit_failures": float(np.mean(peaks > 100.0)),
+        "episodes": len(eps),
+        "success_rate": float(np.mean(success)),
+        "success_and_peak_le_50N": float(np.mean(success & (peaks <= 50.0))),
+        # the episode ends at the first step whose force exceeds the limit
+        "force_limit_failures": float(np.mean(peaks > env_kwargs.get("force_limit", 100.0))),
         "summary": result.summary,
         "peak_forces": peaks.tolist(),
-        "wall_time_s": wall,
-        "ms_per_step": 1e3 * wall / max(steps, 1),
+        "successes": success.tolist(),
+        "insertion_times": [ep.metrics["insertion_time"] for ep in eps],
     }
 
 
 def row(r: dict[str, Any]) -> str:
     s = r["summary"]
-    return (f"| {r['controller']} | {r['env_kwargs']} | {r['episodes']} | "
-            f"{100 * r['success_rate']:.0f} % | {100 * r['success_and_peak_le_50N']:.0f} % | "
-            f"{100 * r['force_limit_failures']:.0f} % | {s['insertion_time']['median']:.2f} | "
-            f"{s['peak_force']['median']:.1f} / {s['peak_force']['worst']:.1f} | "
-            f"{s['mean_force']['mean']:.2f} | {s['force_impulse']['mean']:.2f} | "
-            f"{r['wall_time_s']:.0f} s |")
+    wall = f"{r['wall_time_s']:.0f} s" if "wall_time_s" in r else ""
+    return (
+        f"| {r['controller']} | {r['env_kwargs']} | {r['episodes']} | "
+        f"{100 * r['success_rate']:.0f} % | {100 * r['success_and_peak_le_50N']:.0f} % | "
+        f"{100 * r['force_limit_failures']:.0f} % | {s['insertion_time']['median']:.2f} | "
+        f"{s['peak_force']['median']:.1f} / {s['peak_force']['worst']:.1f} | "
+        f"{s['mean_force']['mean']:.2f} | {s['force_impulse']['mean']:.2f} | {wall} |"
+    )
 
 
-HEADER = ("| controller | env arguments | episodes | success | success with peak ≤ 50 N | "
-          "force > 100 N | insertion time median (s) | peak force median / worst (N) | "
-          "mean force (N) | ∫|F| dt (N s) | wall time |\n"
-          + "|---" * 11 + "|")
+HEADER = (
+    "| controller | env arguments | episodes | success | success with peak ≤ 50 N | "
+    "force > 100 N | insertion time median (s) | peak force median / worst (N) | "
+    "mean force (N) | ∫|F| dt (N s) | wall time |\n" + "|---" * 11 + "|"
+)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--stage", choices=("main", "sweeps", "all"), default="all")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("results/peg_in_hole"))
-    parser.add_argument("--skip-sweeps", action="store_true")
-    parser.add_argument("--agent", type=Path, action="append", default=[],
-                        help="only evaluate this trained agent directory (repeatable) on the "
-                        "same seeds, with the env arguments it was trained with; "
-                        "writes agents.md")
-    parser.add_argument("--picture-only", action="store_true",
-                        help="only render insertion.png (hybrid_spiral, seed 1000, mid-search)")
+    parser.add_argument(
+        "--agent",
+        type=Path,
+        action="append",
+        default=[],
+        help="only evaluate this trained agent directory (repeatable) on the "
+        "same seeds, with the env arguments it was trained with; "
+        "writes agents.md",
+    )
+    parser.add_argument(
+        "--picture-only",
+        action="store_true",
+        help="only render insertion.png (hybrid_spiral, seed 1000, mid-search)",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.picture_only:
@@ -89,39 +134,72 @@ def main() -> None:
     if args.agent:
         evaluate_agents(args.agent, args.episodes, args.out)
         return
-    t_start = time.perf_counter()
-    main_runs = [run(name, args.episodes) for name in ("hybrid_spiral", "position_only")]
-    main_runs.append(run("hybrid_force_position", args.episodes, chamfer=0.003))
-    main_runs.append(run("position_only", args.episodes, chamfer=0.003))
-    main_runs.append(run("hybrid_force_position", args.sweep_episodes))
-    lines = ["# PegInHole-v0: hybrid force/position control against position only", "",
-             f"Seeds 1000–{1000 + args.episodes - 1} (the same true hole poses for every "
-             "controller); produced by scripts/eval_peg_in_hole.py.", "", HEADER,
-             *map(row, main_runs)]
-    sweeps: dict[str, list[dict[str, Any]]] = {"clearance": [], "uncertainty": []}
-    _write(args.out, lines, main_runs, sweeps, t_start)
-    if not args.skip_sweeps:
+    path = args.out / "results.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    if args.stage in ("main", "all"):
+        results["main"] = []
+        for name, n, kwargs in (
+            ("hybrid_spiral", args.episodes, {}),
+            ("position_only", args.episodes, {}),
+            ("hybrid_force_position", args.sweep_episodes, {}),
+            ("admittance", args.sweep_episodes, {}),
+            ("hybrid_force_position", args.sweep_episodes, {"chamfer": 0.003}),
+            ("position_only", args.sweep_episodes, {"chamfer": 0.003}),
+        ):
+            results["main"].append(run(name, n, **kwargs))
+            _write(args.out, results)
+    if args.stage in ("sweeps", "all"):
+        results["clearance"], results["uncertainty"] = [], []
         for name in SWEPT:
             for c in CLEARANCES:
-                sweeps["clearance"].append(run(name, args.sweep_episodes, clearance=c))
+                results["clearance"].append(run(name, args.sweep_episodes, clearance=c))
+                _write(args.out, results)
             for p, t in UNCERTAINTIES:
-                sweeps["uncertainty"].append(run(name, args.sweep_episodes,
-                                                 position_uncertainty=p, tilt_uncertainty=t))
-        lines += ["", "## Against clearance and pose uncertainty", "", HEADER,
-                  *map(row, sweeps["clearance"] + sweeps["uncertainty"])]
-        _figures(sweeps, args.out)
-    print(_write(args.out, lines, main_runs, sweeps, t_start))
+                results["uncertainty"].append(
+                    run(name, args.sweep_episodes, position_uncertainty=p, tilt_uncertainty=t)
+                )
+                _write(args.out, results)
+        _figures(results, args.out)
+    print(_write(args.out, results))
 
 
-def _write(out: Path, lines: list[str], main_runs: list[dict[str, Any]],
-           sweeps: dict[str, list[dict[str, Any]]], t_start: float) -> str:
-    """Write the table so far (and the raw results); return its text."""
-    text = "\n".join([*lines, "", f"Wall time so far {time.perf_counter() - t_start:.0f} s; one "
-                      "control step (2 ms of physics, controller included) costs "
-                      f"{np.median([r['ms_per_step'] for r in main_runs]):.1f} ms (median over "
-                      "the main runs) on this shared 2-core machine."]) + "\n"
+def _write(out: Path, results: dict[str, Any]) -> str:
+    """Write the raw results and the markdown built from all of them; return its text."""
+    main_runs = results.get("main", [])
+    seeds = max([r["episodes"] for r in main_runs], default=0)
+    lines = [
+        "# PegInHole-v0: hybrid force/position control against position only",
+        "",
+        f"Seeds {SEED}, {SEED + 1}, … (seed i draws the same true hole pose for every "
+        f"controller; up to {SEED + seeds - 1}); produced by "
+        "scripts/eval_peg_in_hole.py (``--stage main``). admittance is AdmittanceContact's "
+        "law through baselines.hybrid.PegAdmittance.",
+        "",
+        HEADER,
+        *map(row, main_runs),
+    ]
+    sweeps = results.get("clearance", []) + results.get("uncertainty", [])
+    if sweeps:
+        n = max(r["episodes"] for r in sweeps)
+        lines += [
+            "",
+            f"## Against clearance and pose uncertainty ({n} seeds per point, ``--stage sweeps``)",
+            "",
+            HEADER,
+            *map(row, sweeps),
+        ]
+    runs = main_runs + sweeps
+    cost = [r["cpu_ms_per_step"] for r in runs if "cpu_ms_per_step" in r]
+    if cost:
+        lines += [
+            "",
+            f"One control step (2 ms of physics, controller included) costs "
+            f"{np.median(cost):.2f} ms of CPU time (median over the runs) on this "
+            "shared 2-core machine; wall times depend on the machine's load.",
+        ]
+    text = "\n".join(lines) + "\n"
     (out / "peg_in_hole.md").write_text(text)
-    (out / "results.json").write_text(json.dumps({"main": main_runs, **sweeps}, indent=1))
+    (out / "results.json").write_text(json.dumps(results, indent=1))
     return text
 
 
@@ -140,16 +218,32 @@ def evaluate_agents(paths: list[Path], episodes: int, out: Path) -> None:
         wall = time.perf_counter() - t0
         peaks = np.array([ep.metrics["peak_force"] for ep in result.episodes])
         meta = json.loads((path / "meta.json").read_text())
-        r = {"controller": f"{path.name} ({meta['timesteps']} steps)", "env_kwargs": kwargs,
-             "episodes": episodes, "success_rate": result.success_rate,
-             "success_and_peak_le_50N": float(np.mean(
-                 [ep.success and ep.metrics["peak_force"] <= 50.0 for ep in result.episodes])),
-             "force_limit_failures": float(np.mean(peaks > 100.0)),
-             "summary": result.summary, "wall_time_s": wall}
+        r = {
+            "controller": f"{path.name} ({meta['timesteps']} steps)",
+            "env_kwargs": kwargs,
+            "episodes": episodes,
+            "success_rate": result.success_rate,
+            "success_and_peak_le_50N": float(
+                np.mean([ep.success and ep.metrics["peak_force"] <= 50.0 for ep in result.episodes])
+            ),
+            "force_limit_failures": float(np.mean(peaks > 100.0)),
+            "summary": result.summary,
+            "wall_time_s": wall,
+        }
         rows.append(row(r))
-    text = "\n".join(["# PegInHole-v0: trained agents on the controllers' seeds", "",
-                      f"Seeds 1000–{1000 + episodes - 1}; scripts/eval_peg_in_hole.py --agent.",
-                      "", HEADER, *rows]) + "\n"
+    text = (
+        "\n".join(
+            [
+                "# PegInHole-v0: trained agents on the controllers' seeds",
+                "",
+                f"Seeds 1000–{1000 + episodes - 1}; scripts/eval_peg_in_hole.py --agent.",
+                "",
+                HEADER,
+                *rows,
+            ]
+        )
+        + "\n"
+    )
     (out / "agents.md").write_text(text)
     print(text)
 
@@ -174,17 +268,25 @@ def picture(out: Path, seed: int = 1000, steps: int = 2600) -> None:
     env.close()
 
 
-def _figures(sweeps: dict[str, list[dict[str, Any]]], out: Path) -> None:
+def _figures(sweeps: dict[str, Any], out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     for key, xs, label, fname in (
-        ("clearance", [c * 1e3 for c in CLEARANCES], "diametral clearance (mm)",
-         "vs_clearance.png"),
-        ("uncertainty", [p * 1e3 for p, _ in UNCERTAINTIES],
-         "hole position uncertainty (mm; tilt the same number in degrees)", "vs_uncertainty.png"),
+        (
+            "clearance",
+            [c * 1e3 for c in CLEARANCES],
+            "diametral clearance (mm)",
+            "vs_clearance.png",
+        ),
+        (
+            "uncertainty",
+            [p * 1e3 for p, _ in UNCERTAINTIES],
+            "hole position uncertainty (mm; tilt the same number in degrees)",
+            "vs_uncertainty.png",
+        ),
     ):
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
         for name in SWEPT:

@@ -21,8 +21,13 @@ def _exact_env(**kwargs: float) -> PegInHoleEnv:
     return env
 
 
-def _push(env: PegInHoleEnv, force: np.ndarray, steps: int, tip_xy: np.ndarray | None = None,
-          k_lat: float = 3000.0) -> list[float]:
+def _push(
+    env: PegInHoleEnv,
+    force: np.ndarray,
+    steps: int,
+    tip_xy: np.ndarray | None = None,
+    k_lat: float = 3000.0,
+) -> list[float]:
     """Gravity compensation + Jᵀ[f; 0] at the tip (plus a lateral spring to ``tip_xy``), physics
     step by physics step; returns the deepest penetration of a peg contact at each step."""
     m, d = env.model, env.data
@@ -39,8 +44,11 @@ def _push(env: PegInHoleEnv, force: np.ndarray, steps: int, tip_xy: np.ndarray |
         mu = -5.0 * (jr @ d.qvel)
         d.ctrl[:] = d.qfrc_bias + jp.T @ f + jr.T @ mu - 2.0 * d.qvel
         mujoco.mj_step(m, d)
-        pen = [-d.contact.dist[i] for i in range(d.ncon)
-               if peg in (d.contact.geom1[i], d.contact.geom2[i])]
+        pen = [
+            -d.contact.dist[i]
+            for i in range(d.ncon)
+            if peg in (d.contact.geom1[i], d.contact.geom2[i])
+        ]
         depths.append(max(pen, default=0.0))
     return depths
 
@@ -102,8 +110,14 @@ def test_no_tunnelling_at_ten_times_the_largest_commanded_speed() -> None:
 def test_a_centred_peg_goes_to_the_bottom_without_touching_the_walls() -> None:
     """Exact hole pose, smallest clearance, position interface straight down: success and no
     contact on the bore's side on the way (margin 0: no artificial jamming)."""
-    env = PegInHoleEnv(control="position", clearance=1e-4, position_uncertainty=0.0,
-                       tilt_uncertainty=0.0, sensor="ideal", episode_duration=3.0)
+    env = PegInHoleEnv(
+        control="position",
+        clearance=1e-4,
+        position_uncertainty=0.0,
+        tilt_uncertainty=0.0,
+        sensor="ideal",
+        episode_duration=3.0,
+    )
     env.reset(seed=0)
     down = np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0])
     side_contacts = 0
@@ -112,8 +126,7 @@ def test_a_centred_peg_goes_to_the_bottom_without_touching_the_walls() -> None:
         side_contacts += info["two_point_contact"]
         d = env.data
         for i in range(d.ncon):
-            names = {env.model.geom(int(g)).name
-                     for g in (d.contact.geom1[i], d.contact.geom2[i])}
+            names = {env.model.geom(int(g)).name for g in (d.contact.geom1[i], d.contact.geom2[i])}
             side_contacts += any(n.startswith("wall") for n in names)
         if terminated or truncated:
             break
@@ -164,8 +177,9 @@ def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
     import baselines
     from cir_gym.evaluation import evaluate
 
-    hybrid = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v0",
-                            env_kwargs={"chamfer": 0.003})
+    hybrid = baselines.make(
+        "hybrid_force_position", "cir_gym/PegInHole-v0", env_kwargs={"chamfer": 0.003}
+    )
     ep = evaluate(hybrid, "cir_gym/PegInHole-v0", 1, seed=1000, chamfer=0.003).episodes[0]
     assert ep.success and ep.metrics["peak_force"] < 50.0
     stiff = baselines.make("position_only", "cir_gym/PegInHole-v0")
@@ -186,8 +200,14 @@ def test_the_chamfer_is_a_45_degree_cone_from_the_bore_to_the_top_face() -> None
         if model.geom_bodyid[i] != model.body("block").id or name == "bottom":
             continue
         R = data.geom_xmat[i].reshape(3, 3)
-        corners = np.array([data.geom_xpos[i] + R @ (np.array([a, b, e]) * model.geom_size[i])
-                            for a in (-1, 1) for b in (-1, 1) for e in (-1, 1)])
+        corners = np.array(
+            [
+                data.geom_xpos[i] + R @ (np.array([a, b, e]) * model.geom_size[i])
+                for a in (-1, 1)
+                for b in (-1, 1)
+                for e in (-1, 1)
+            ]
+        )
         assert np.max(corners[:, 2] - centre[2]) < 1e-12, name
         if not name.startswith("chamfer"):
             continue
@@ -200,3 +220,92 @@ def test_the_chamfer_is_a_45_degree_cone_from_the_bore_to_the_top_face() -> None
             # the polygon's facet plane: exact along the facet's mid-line
             assert abs(float((q - point) @ normal)) < 1e-12, (name, r, z)
         assert normal[2] == pytest.approx(np.sqrt(0.5), abs=1e-12)
+
+
+def _two_point_pose(
+    env: PegInHoleEnv, depth: float, shift: float = 0.0, v_axis: float = 0.0, overlap: float = 5e-6
+) -> float:
+    """Put the arm (kinematically, then ``mj_forward``) in the classic two-point contact of a
+    peg tilted in the bore: tip ``depth`` below the top face, its leading bottom edge ``overlap``
+    into the +y wall and its side ``overlap`` into the −y rim (the tilt θ solves
+    2 (R + ε − r cos θ) = (ℓ + r sin θ) tan θ). ``shift`` moves the tip toward −y (m: > ε loses
+    the bottom contact, < −ε the rim's); ``v_axis`` (m/s) slides the peg along its axis, into the
+    hole. Returns θ (rad)."""
+    from scipy.optimize import brentq
+
+    from cir_gym.envs.peg_in_hole import ALIGNED
+    from cir_gym.robot import Robot
+
+    g = env.geometry
+    R, r = g.hole_radius + overlap, g.peg_radius
+    theta = brentq(
+        lambda t: 2 * (R - r * np.cos(t)) - (depth + r * np.sin(t)) * np.tan(t), 1e-6, 0.7
+    )
+    target = env.true_hole_pos + np.array([0.0, R - r * np.cos(theta) - shift, -depth])
+    c, s = np.cos(theta), np.sin(theta)
+    quat = traj.quat_from_matrix(np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) @ ALIGNED)
+    robot = Robot(env.model)
+    q = env.data.qpos[env._qa].copy()
+    for _ in range(50):
+        p, Rq = robot.site_pose("peg_tip", q)
+        e = np.concatenate((target - p, rotvec_error(quat, traj.quat_from_matrix(Rq))))
+        q = q + np.linalg.pinv(robot.jacobian("peg_tip", q)) @ e
+    assert np.linalg.norm(e) < 1e-10
+    d = env.data
+    d.qpos[env._qa] = q
+    v = np.concatenate((v_axis * Rq[:, 2], np.zeros(3)))
+    d.qvel[env._da] = np.linalg.pinv(robot.jacobian("peg_tip", q)) @ v
+    mujoco.mj_forward(env.model, d)
+    return theta
+
+
+@pytest.mark.parametrize(
+    ("depth", "shift", "v_axis", "two_point", "wedged", "jammed"),
+    [
+        (0.010, 0.0, 0.0, True, False, True),  # deeper than μD, at rest: jammed
+        (0.004, 0.0, 0.0, True, False, True),  # just deeper than μD = 3.15 mm
+        (0.003, 0.0, 0.0, True, True, False),  # just shallower: wedged
+        (0.002, 0.0, 0.0, True, True, False),
+        (0.010, 0.0, 0.005, True, False, False),  # two-point but sliding in at 5 mm/s
+        (0.010, 2e-5, 0.0, False, False, False),  # only the rim touches
+        (0.010, -2e-5, 0.0, False, False, False),  # only the leading edge touches
+        (0.002, 2e-5, 0.0, False, False, False),
+    ],
+)
+def test_jam_and_wedge_flags_follow_their_conditions(
+    depth: float, shift: float, v_axis: float, two_point: bool, wedged: bool, jammed: bool
+) -> None:
+    """The flags on constructed contact states: two-point contact (opposite side contacts)
+    shallower than μ D (0.3 × 10.5 mm) is wedging, deeper and not advancing is jamming, one
+    contact is neither."""
+    env = _exact_env()
+    _two_point_pose(env, depth, shift, v_axis)
+    state = env._contact_state()
+    assert state["depth"] == pytest.approx(depth, abs=1e-9)
+    assert (state["two_point"], state["wedged"], state["jammed"]) == (two_point, wedged, jammed)
+
+
+def test_the_admittance_adapter_sees_the_peg_tip_and_presses_the_reference_force() -> None:
+    """PegAdmittance (interaction.py's admittance law on PegInHole): its translated tool pose is
+    the peg tip of the nominal arm; with the hole off by 2 mm it lands on the face and then
+    regulates the reference force (±20 %), never inserting (no lateral compliance)."""
+    import gymnasium as gym
+
+    from baselines.hybrid import PegAdmittance
+
+    env = gym.make("cir_gym/PegInHole-v0", episode_duration=2.0)
+    policy = PegAdmittance(env.unwrapped.controller_context(), insertion_force=10.0)
+    obs, _ = env.reset(seed=1000)
+    t = policy.translate(obs)
+    p, _ = policy.robot.site_pose(policy.site, obs["q"])
+    np.testing.assert_allclose(p, t["tool_pos"], atol=1e-9)
+    state, start, forces = None, np.array([True]), []
+    for _ in range(env.unwrapped.max_steps):
+        action, state = policy.predict(obs, state, start)
+        start = np.array([False])
+        obs, _, terminated, truncated, info = env.step(action)
+        forces.append(info["contact_force"])
+        if terminated or truncated:
+            break
+    assert not info["is_success"] and not terminated
+    assert np.mean(forces[-250:]) == pytest.approx(10.0, rel=0.2)
