@@ -12,6 +12,7 @@ interaction matrix, pose from four points) is in :mod:`cir_gym.vision`.
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -32,10 +33,14 @@ from cir_gym.envs.base import (
 from cir_gym.metrics import MetricSpec
 from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
-from cir_gym.vision import Camera, optical_pose, project
+from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
-__all__ = ["VISUAL_SERVO_ENVIRONMENTS", "VisualServoEnv", "VisualServoEyeToHandEnv",
-           "detect_markers"]
+__all__ = [
+    "VISUAL_SERVO_ENVIRONMENTS",
+    "VisualServoEnv",
+    "VisualServoEyeToHandEnv",
+    "detect_markers",
+]
 
 ACTIONS = ("twist", "joint_velocity")
 FEATURES = ("projected", "detected")
@@ -59,10 +64,14 @@ CONVERGED = 1.0  # px: success threshold of the final feature error
 START_TRIES = 200
 ERROR_LIMITS = (0.5, 100.0, 0.1, 0.3)  # camera_error maxima: focal, principal, hand-eye t, R
 MIN_MARKER_PIXELS = 4
+REWARD_SCALES_SQ = np.array([100.0, 10.0, 1.0]) ** 2  # px², the feature reward's kernels
 
 
-def detect_markers(image: np.ndarray, colours: tuple[tuple[float, ...], ...] = MARKER_COLOURS,
-                   min_pixels: int = MIN_MARKER_PIXELS) -> tuple[np.ndarray, np.ndarray]:
+def detect_markers(
+    image: np.ndarray,
+    colours: tuple[tuple[float, ...], ...] = MARKER_COLOURS,
+    min_pixels: int = MIN_MARKER_PIXELS,
+) -> tuple[np.ndarray, np.ndarray]:
     """Centroids (k, 2) (u, v) px of saturated colour blobs in an RGB image, and found (k,).
 
     A pixel belongs to colour c (components 0 or 1) when its channels where c = 1 are ≥ 90,
@@ -77,8 +86,7 @@ def detect_markers(image: np.ndarray, colours: tuple[tuple[float, ...], ...] = M
         on = np.array(c) > 0.5
         lit = np.min(img[..., on], axis=-1)
         dark = np.max(img[..., ~on], axis=-1) if np.any(~on) else np.zeros(img.shape[:2])
-        mask = (lit >= 90) & (lit >= 0.8 * np.max(img[..., on], axis=-1)) \
-            & (lit >= 2.5 * dark + 20)
+        mask = (lit >= 90) & (lit >= 0.8 * np.max(img[..., on], axis=-1)) & (lit >= 2.5 * dark + 20)
         rows, cols = np.nonzero(mask)
         if rows.size >= min_pixels:
             out[i] = cols.mean(), rows.mean()
@@ -111,13 +119,25 @@ class _VisualServoBase(RobotEnv):
     primary_metric: ClassVar[str] = "final_feature_error"
     success_threshold: ClassVar[float] = CONVERGED
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
-        MetricSpec("final_feature_error", "px", "lower",
-                   "RMS point distance ‖s − s*‖/2 at the end (true features)"),
-        MetricSpec("convergence_time", "s", "lower",
-                   "first time after which the feature error stays < 1 px (duration if never)"),
+        MetricSpec(
+            "final_feature_error",
+            "px",
+            "lower",
+            "RMS point distance ‖s − s*‖/2 at the end (true features)",
+        ),
+        MetricSpec(
+            "convergence_time",
+            "s",
+            "lower",
+            "first time after which the feature error stays < 1 px (duration if never)",
+        ),
         MetricSpec("path_length", "m", "lower", "length of the moving frame's path"),
-        MetricSpec("retreat", "m", "lower",
-                   "max distance behind both the start and the goal along the goal's axis"),
+        MetricSpec(
+            "retreat",
+            "m",
+            "lower",
+            "max distance behind both the start and the goal along the goal's axis",
+        ),
         MetricSpec("detection_failures", "", "lower", "markers not found in the image"),
     )
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
@@ -142,17 +162,39 @@ class _VisualServoBase(RobotEnv):
         height: int = 360,
     ) -> None:
         """See the environment docstrings (## Arguments)."""
-        self._setup(action=action, features=features, obs_image=obs_image,
-                    pixel_noise=pixel_noise, camera_error=camera_error,
-                    start_offset=start_offset, control_freq=control_freq,
-                    episode_duration=episode_duration, action_weight=action_weight,
-                    termination_penalty=termination_penalty, render_mode=render_mode,
-                    width=width, height=height)
+        self._setup(
+            action=action,
+            features=features,
+            obs_image=obs_image,
+            pixel_noise=pixel_noise,
+            camera_error=camera_error,
+            start_offset=start_offset,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            action_weight=action_weight,
+            termination_penalty=termination_penalty,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
 
-    def _setup(self, *, action: str, features: str, obs_image: bool, pixel_noise: float,
-               camera_error: Any, start_offset: Any, control_freq: float,
-               episode_duration: float, action_weight: float, termination_penalty: float,
-               render_mode: str | None, width: int, height: int) -> None:
+    def _setup(
+        self,
+        *,
+        action: str,
+        features: str,
+        obs_image: bool,
+        pixel_noise: float,
+        camera_error: Any,
+        start_offset: Any,
+        control_freq: float,
+        episode_duration: float,
+        action_weight: float,
+        termination_penalty: float,
+        render_mode: str | None,
+        width: int,
+        height: int,
+    ) -> None:
         if action not in ACTIONS:
             raise InvalidArgument(f"action must be one of {ACTIONS}, got {action!r}")
         if features not in FEATURES:
@@ -163,13 +205,21 @@ class _VisualServoBase(RobotEnv):
         self.pixel_noise = check_number("pixel_noise", pixel_noise, 0.0, 10.0)
         self.camera_error = self._check_camera_error(camera_error)
         self.action_weight = check_number("action_weight", action_weight, 0.0, 10.0)
-        self.termination_penalty = check_number("termination_penalty", termination_penalty,
-                                                0.0, 1e6)
+        self.termination_penalty = check_number(
+            "termination_penalty", termination_penalty, 0.0, 1e6
+        )
         self.start_offset = self._check_start_offset(start_offset)
 
         model = self._build_model()
-        super().__init__(model, control_freq=control_freq, episode_duration=episode_duration,
-                         render_mode=render_mode, width=width, height=height, camera="side")
+        super().__init__(
+            model,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+            camera="side",
+        )
         self.robot = Robot(model, [f"joint{i}" for i in range(1, 8)])  # kinematics queries
         self.n = 7
         self.qpos_adr = self.robot.qpos_adr
@@ -184,17 +234,21 @@ class _VisualServoBase(RobotEnv):
         self.nominal_camera = Camera.from_fovy(FOVY, IMAGE_WIDTH, IMAGE_HEIGHT)
         self.true_camera = self.nominal_camera
         self._setup_servos()
-        self._nominal_cam_pose = (model.cam_pos[self._cam_id].copy(),
-                                  model.cam_quat[self._cam_id].copy())
+        self._nominal_cam_pose = (
+            model.cam_pos[self._cam_id].copy(),
+            model.cam_quat[self._cam_id].copy(),
+        )
         self._nominal_intrinsic = model.cam_intrinsic[self._cam_id].copy()
         self._eye: mujoco.Renderer | None = None
 
         n_act = 6 if action == "twist" else 7
         self.action_space = spaces.Box(-1.0, 1.0, (n_act,), dtype=np.float32)
         bound = 2.0 * IMAGE_WIDTH
-        obs = {"features": spaces.Box(-bound, bound, (8,), dtype=np.float64),
-               "features_ref": spaces.Box(-bound, bound, (8,), dtype=np.float64),
-               "q": spaces.Box(-2 * np.pi, 2 * np.pi, (7,), dtype=np.float64)}
+        obs = {
+            "features": spaces.Box(-bound, bound, (8,), dtype=np.float64),
+            "features_ref": spaces.Box(-bound, bound, (8,), dtype=np.float64),
+            "q": spaces.Box(-2 * np.pi, 2 * np.pi, (7,), dtype=np.float64),
+        }
         if obs_image:
             obs["image"] = spaces.Box(0, 255, (IMAGE_HEIGHT, IMAGE_WIDTH, 3), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)
@@ -224,7 +278,8 @@ class _VisualServoBase(RobotEnv):
             raise InvalidArgument(
                 "camera_error must be 4 numbers (relative focal-length error ≤ 0.5, "
                 "principal-point offset ≤ 100 px, hand-eye translation ≤ 0.1 m, hand-eye "
-                f"rotation ≤ 0.3 rad), each ≥ 0, got {value!r}")
+                f"rotation ≤ 0.3 rad), each ≥ 0, got {value!r}"
+            )
         return arr
 
     @staticmethod
@@ -236,7 +291,8 @@ class _VisualServoBase(RobotEnv):
             raise InvalidArgument(
                 "start_offset must be None or 6 numbers (tx, ty, tz, rx, ry, rz): the start "
                 "pose of the moving frame in its goal frame, translation (m, norm ≤ 1) and "
-                f"rotation vector (rad, norm ≤ π), got {value!r}")
+                f"rotation vector (rad, norm ≤ π), got {value!r}"
+            )
         return arr
 
     # ------------------------------------------------------------------ model
@@ -304,17 +360,43 @@ class _VisualServoBase(RobotEnv):
         """Geometric Jacobian (6, 7) of the moving frame's origin (world frame)."""
         J = self.robot.jacobian(self._flange, q)
         if self.moving_offset:
-            r = self.moving_offset * self.robot.site_pose(self._flange, q)[1][:, 2]
-            J[:3] -= np.cross(r, J[3:].T).T  # v_o = v_f + ω × r
+            r0, r1, r2 = (
+                self.moving_offset * self.robot.site_pose(self._flange, q)[1][:, 2]
+            ).tolist()
+            w0, w1, w2 = J[3:]  # v_o = v_f + ω × r = v_f − r × ω (np.cross's operations)
+            J[0] -= r1 * w2 - r2 * w1
+            J[1] -= r2 * w0 - r0 * w2
+            J[2] -= r0 * w1 - r1 * w0
         return J
 
     def _true_features(self) -> np.ndarray | None:
-        """Pixel features (4, 2) of the true camera, or None if a point is behind it."""
-        p_c, R_c = optical_pose(self.data.cam_xpos[self._cam_id], self.data.cam_xmat[self._cam_id])
-        points = (self.data.geom_xpos[self._marker_ids] - p_c) @ R_c
-        if np.any(points[:, 2] <= 1e-6):
+        """Pixel features (4, 2) of the true camera, or None if a point is behind it.
+
+        :func:`~cir_gym.vision.optical_pose` and :func:`~cir_gym.vision.project` inlined
+        (the same operations: the step's hot path)."""
+        d, cid = self.data, self._cam_id
+        R_c = d.cam_xmat[cid].reshape(3, 3) @ MUJOCO_TO_OPTICAL
+        points = (d.geom_xpos[self._marker_ids] - d.cam_xpos[cid]) @ R_c
+        Z = points[:, 2]
+        if (Z <= 1e-6).any():
             return None
-        return project(points, self.true_camera)
+        cam = self.true_camera
+        s = np.empty((len(Z), 2))
+        s[:, 0] = cam.cu + cam.fu * points[:, 0] / Z
+        s[:, 1] = cam.cv + cam.fv * points[:, 1] / Z
+        return s
+
+    def _in_image(self, s: np.ndarray) -> bool:
+        """Every feature (k, 2) inside the true image (``Camera.inside`` of all, one pass;
+        NaN is outside)."""
+        lo, hi = s.min(axis=0), s.max(axis=0)
+        cam = self.true_camera
+        return bool(
+            lo[0] >= -0.5
+            and lo[1] >= -0.5
+            and hi[0] <= cam.width - 0.5
+            and hi[1] <= cam.height - 0.5
+        )
 
     def _kinematics(self) -> None:
         mujoco.mj_kinematics(self.model, self.data)
@@ -330,8 +412,9 @@ class _VisualServoBase(RobotEnv):
         offset = e_c * _random_unit(rng, 2)
         dt = e_t * _random_unit(rng, 3)
         dR = _rotation(e_r * _random_unit(rng, 3))
-        self.true_camera = self.nominal_camera.with_error(scale, (float(offset[0]),
-                                                                  float(offset[1])))
+        self.true_camera = self.nominal_camera.with_error(
+            scale, (float(offset[0]), float(offset[1]))
+        )
         m, cid = self.model, self._cam_id
         pos, quat = self._nominal_cam_pose
         R_nom = np.empty(9)
@@ -355,9 +438,16 @@ class _VisualServoBase(RobotEnv):
             if self.start_offset is not None:
                 offset = self.start_offset
             else:
-                offset = np.array([rng.uniform(-lx, lx), rng.uniform(-ly, ly),
-                                   rng.uniform(z0, z1), rng.uniform(-tilt, tilt),
-                                   rng.uniform(-tilt, tilt), rng.uniform(-spin, spin)])
+                offset = np.array(
+                    [
+                        rng.uniform(-lx, lx),
+                        rng.uniform(-ly, ly),
+                        rng.uniform(z0, z1),
+                        rng.uniform(-tilt, tilt),
+                        rng.uniform(-tilt, tilt),
+                        rng.uniform(-spin, spin),
+                    ]
+                )
             q = self._start_configuration(offset)
             if q is not None or self.start_offset is not None:
                 return offset, q
@@ -386,8 +476,7 @@ class _VisualServoBase(RobotEnv):
         """Subclass hook: move the target (eye-in-hand) for this episode."""
 
     # ------------------------------------------------------------------ gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None
-              ) -> tuple[dict, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
         mujoco.mj_resetData(self.model, self.data)
         self._goal_pose = self._moving_pose(self.q_goal)
@@ -402,7 +491,8 @@ class _VisualServoBase(RobotEnv):
         if q0 is None:
             raise InvalidArgument(
                 f"start_offset {tuple(self.start_offset)} is not reachable inside the joint "
-                "limits with every feature in the image")
+                "limits with every feature in the image"
+            )
         self._start = offset
         qpos = self.data.qpos.copy()
         qpos[self.qpos_adr] = q0
@@ -422,7 +512,7 @@ class _VisualServoBase(RobotEnv):
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a, _ = self._check_action(action)
-        q = self.data.qpos[self.qpos_adr].copy()
+        q = self.data.qpos[self.qpos_adr]  # a copy (index array)
         qd = self._joint_command(a, q)
         diverged = self._simulate(self._ctrl(qd))
         self._kinematics()
@@ -430,50 +520,58 @@ class _VisualServoBase(RobotEnv):
         self._k = k + 1
         q = self.data.qpos[self.qpos_adr]
         s = None if diverged else self._true_features()
-        lost = s is None or not np.all(self.true_camera.inside(s))
-        at_limit = bool(np.any(q < self.lower + JOINT_MARGIN) or np.any(q > self.upper - JOINT_MARGIN))
+        lost = s is None or not self._in_image(s)
+        at_limit = bool(
+            (q < self.lower + JOINT_MARGIN).any() or (q > self.upper - JOINT_MARGIN).any()
+        )
         if s is not None:
             self._s_true = s
         detection_failure = self._observe()
-        self._record(self._k)
+        self._record(self._k, q)
         terminated = diverged or lost or at_limit
         e = float(self._err[self._k])
-        r_features = -(1.0 - float(np.mean(np.exp(-(e**2) / np.array([100.0, 10.0, 1.0])**2))))
+        kernel = np.exp(-(e**2) / REWARD_SCALES_SQ)
+        r_features = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
         r_action = -self.action_weight * float(a @ a) / a.size
         # a failure is charged the rest of the episode at the worst feature reward (−1 per
         # step) on top of the penalty, so that ending an episode early never pays
-        r_term = (-self.termination_penalty - float(self.max_steps - self._k)) if terminated \
-            else 0.0
+        r_term = (
+            (-self.termination_penalty - float(self.max_steps - self._k)) if terminated else 0.0
+        )
         reward = r_features + r_action + r_term
         truncated = self._k >= self.max_steps and not terminated
         if not self._done:
             self._k_end = self._k
         self._done = self._done or terminated or truncated
         info: dict[str, Any] = {
-            "reward_features": r_features, "reward_action": r_action,
-            "reward_termination": r_term, "feature_error": e, "feature_lost": bool(lost),
-            "joint_limit": at_limit, "detection_failure": detection_failure,
+            "reward_features": r_features,
+            "reward_action": r_action,
+            "reward_termination": r_term,
+            "feature_error": e,
+            "feature_lost": bool(lost),
+            "joint_limit": at_limit,
+            "detection_failure": detection_failure,
             "diverged": bool(diverged),
         }
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
-            info["is_success"] = bool(not terminated and
-                                      metrics["final_feature_error"] < CONVERGED)
+            info["is_success"] = bool(not terminated and metrics["final_feature_error"] < CONVERGED)
         return self._obs(), reward, terminated, truncated, info
 
     def _joint_command(self, a: np.ndarray, q: np.ndarray) -> np.ndarray:
         """q̇ (7,) from the action: a ⊙ q̇_max, or J⁺ V for a twist V = a ⊙ twist limits."""
         if self.action_kind == "joint_velocity":
             return a * self.velocity_limit
-        if not np.all(np.isfinite(q)):  # a corrupted state: the physics step reports it
-            return np.zeros(self.n)
+        if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):  # a corrupted state:
+            return np.zeros(self.n)  # the physics step reports it
         V = a * self.twist_limit
         J = self._moving_jacobian(q)
+        V_world = self._world_twist(V, q)
         try:
-            return J.T @ np.linalg.solve(J @ J.T, self._world_twist(V, q))  # J⁺ V
+            return J.T @ np.linalg.solve(J @ J.T, V_world)  # J⁺ V
         except np.linalg.LinAlgError:  # exactly singular: the least-squares solution
-            return np.linalg.lstsq(J, self._world_twist(V, q), rcond=None)[0]
+            return np.linalg.lstsq(J, V_world, rcond=None)[0]
 
     def _world_twist(self, V: np.ndarray, q: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -522,30 +620,40 @@ class _VisualServoBase(RobotEnv):
         backend = os.environ.get("MUJOCO_GL", "").strip().lower()
         what = f'features="{self.features}", obs_image={self.obs_image}'
         if backend in GL_DISABLED:
-            raise RuntimeError(f"{what} renders the camera image: {GL_HELP} (MUJOCO_GL="
-                               f"{backend!r})")
+            raise RuntimeError(
+                f"{what} renders the camera image: {GL_HELP} (MUJOCO_GL={backend!r})"
+            )
         try:
             renderer = mujoco.Renderer(self.model, IMAGE_HEIGHT, IMAGE_WIDTH)
         except Exception as exc:
-            raise RuntimeError(f"{what} renders the camera image: {GL_HELP} "
-                               f"({type(exc).__name__}: {exc})") from exc
-        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
-                     mujoco.mjtRndFlag.mjRND_SKYBOX):
+            raise RuntimeError(
+                f"{what} renders the camera image: {GL_HELP} ({type(exc).__name__}: {exc})"
+            ) from exc
+        for flag in (
+            mujoco.mjtRndFlag.mjRND_SHADOW,
+            mujoco.mjtRndFlag.mjRND_REFLECTION,
+            mujoco.mjtRndFlag.mjRND_SKYBOX,
+        ):
             renderer.scene.flags[flag] = False
         return renderer
 
     def _obs(self) -> dict[str, np.ndarray]:
         b = self._bound
-        out = {"features": np.clip(self._s_obs.ravel(), -b, b),
-               "features_ref": np.clip(self._s_ref.ravel(), -b, b),
-               "q": np.clip(self.data.qpos[self.qpos_adr], -2 * np.pi, 2 * np.pi)}
+        buf = np.empty(23)  # one new buffer, views handed out
+        out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
+        np.clip(self._s_obs.ravel(), -b, b, out=out["features"])
+        np.clip(self._s_ref.ravel(), -b, b, out=out["features_ref"])
+        np.clip(self.data.qpos[self.qpos_adr], -2 * np.pi, 2 * np.pi, out=out["q"])
         if self.obs_image:
             out["image"] = self._image.copy()
         return out
 
-    def _record(self, k: int) -> None:
-        self._err[k] = float(np.sqrt(np.mean(np.sum((self._s_true - self._s_ref) ** 2, axis=1))))
-        p = self._moving_pose(self.data.qpos[self.qpos_adr])[0]
+    def _record(self, k: int, q: np.ndarray | None = None) -> None:
+        """The true feature error (px) and the moving frame's position (goal frame) at step k;
+        ``q``: the joint positions now, if the caller has them."""
+        d = ((self._s_true - self._s_ref) ** 2).tolist()  # summed in numpy's order
+        self._err[k] = math.sqrt((0.0 + sum(0.0 + u + v for u, v in d)) / len(d))
+        p = self._moving_pose(self.data.qpos[self.qpos_adr] if q is None else q)[0]
         p_g, R_g = self._goal_pose
         self._pos[k] = R_g.T @ (p - p_g)
 
@@ -598,16 +706,17 @@ class _VisualServoBase(RobotEnv):
         inset = np.full((ih, iw, 3), 30, dtype=np.uint8)
         try:
             self._render_camera()
-            inset = self._image[(np.arange(ih) * sy).astype(int)][:, (np.arange(iw) * sx)
-                                                                   .astype(int)].copy()
+            inset = self._image[(np.arange(ih) * sy).astype(int)][
+                :, (np.arange(iw) * sx).astype(int)
+            ].copy()
         except RuntimeError:
             pass
         for s, colour, r in ((self._s_ref, (255, 255, 255), 2), (self._s_true, (0, 255, 255), 1)):
             for u, v in s:
                 c, rr = int(u / sx), int(v / sy)
                 if 0 <= rr < ih and 0 <= c < iw:
-                    inset[max(rr - r, 0): rr + r + 1, max(c - r, 0): c + r + 1] = colour
-        frame[h - ih:, w - iw:] = inset
+                    inset[max(rr - r, 0) : rr + r + 1, max(c - r, 0) : c + r + 1] = colour
+        frame[h - ih :, w - iw :] = inset
         return frame
 
     def close(self) -> None:
@@ -633,8 +742,14 @@ class _VisualServoBase(RobotEnv):
         if not self.eye_in_hand:
             extras["camera_pose"] = self._nominal_world_camera()
         scale = self.twist_limit if self.action_kind == "twist" else self.velocity_limit
-        return TaskContext(robot="iiwa14", dt=self.dt, action_kind=self.action_kind,
-                           action_scale=scale.copy(), site="flange", extras=extras)
+        return TaskContext(
+            robot="iiwa14",
+            dt=self.dt,
+            action_kind=self.action_kind,
+            action_scale=scale.copy(),
+            site="flange",
+            extras=extras,
+        )
 
     def _nominal_world_camera(self) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
@@ -750,13 +865,13 @@ class VisualServoEnv(_VisualServoBase):
     start_translation: ClassVar[tuple[float, float, float, float]] = (0.12, 0.12, -0.25, 0.05)
     target_tilt: ClassVar[float] = 0.2  # rad
 
-
     def _add_markers_and_camera(self, spec: mujoco.MjSpec) -> None:
         # flange_cam's pose (xyaxes "1 0 0 0 -1 0": a rotation by π about x), moved per
         # episode by the hand-eye error
         nominal = spec.camera("flange_cam")
-        cam = spec.body("link7").add_camera(name="servo_cam", pos=list(nominal.pos),
-                                            quat=[0.0, 1.0, 0.0, 0.0])
+        cam = spec.body("link7").add_camera(
+            name="servo_cam", pos=list(nominal.pos), quat=[0.0, 1.0, 0.0, 0.0]
+        )
         self._camera_spec(cam)
 
     def _place_target(self) -> None:
@@ -766,8 +881,11 @@ class VisualServoEnv(_VisualServoBase):
             rng = self.np_random
             tilt = self.target_tilt * float(rng.uniform(0, 1)) * _random_unit(rng, 2)
             spin = float(rng.uniform(-np.pi, np.pi))
-            R_t = R_g @ _rotation(np.array([tilt[0], tilt[1], 0.0])) \
+            R_t = (
+                R_g
+                @ _rotation(np.array([tilt[0], tilt[1], 0.0]))
                 @ _rotation(np.array([0.0, 0.0, spin]))
+            )
         else:
             R_t = R_g
         p_t = p_g + GOAL_DEPTH * R_g[:, 2]
@@ -863,28 +981,46 @@ class VisualServoEyeToHandEnv(_VisualServoBase):
     def _add_markers_and_camera(self, spec: mujoco.MjSpec) -> None:
         link7 = spec.body("link7")
         plate = link7.add_body(name="marker_plate", pos=[0.0, 0.0, 0.045 + self.moving_offset])
-        plate.add_geom(name="marker_plate_geom", type=mujoco.mjtGeom.mjGEOM_BOX,
-                       size=[0.1, 0.1, 0.004], pos=[0.0, 0.0, -0.005],
-                       rgba=[0.15, 0.15, 0.17, 1.0], contype=0, conaffinity=0)
+        plate.add_geom(
+            name="marker_plate_geom",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[0.1, 0.1, 0.004],
+            pos=[0.0, 0.0, -0.005],
+            rgba=[0.15, 0.15, 0.17, 1.0],
+            contype=0,
+            conaffinity=0,
+        )
         for i, (x, y, _) in enumerate(self._model_points()):
-            plate.add_geom(name=f"marker{i}", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-                           size=[self.marker_radius, 0.001, 0.0], pos=[x, y, 0.0],
-                           rgba=[*MARKER_COLOURS[i], 1.0], contype=0, conaffinity=0)
+            plate.add_geom(
+                name=f"marker{i}",
+                type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                size=[self.marker_radius, 0.001, 0.0],
+                pos=[x, y, 0.0],
+                rgba=[*MARKER_COLOURS[i], 1.0],
+                contype=0,
+                conaffinity=0,
+            )
         # optical axes (x, y, z) = (y_w, −z_w, −x_w); MuJoCo's camera axes: (x, −y, −z)
         quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, np.column_stack(([0.0, 1.0, 0.0], [0.0, 0.0, 1.0],
-                                                   [1.0, 0.0, 0.0])).ravel())
-        cam = spec.worldbody.add_camera(name="servo_cam", pos=list(self.camera_position),
-                                        quat=list(quat))
+        mujoco.mju_mat2Quat(
+            quat, np.column_stack(([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])).ravel()
+        )
+        cam = spec.worldbody.add_camera(
+            name="servo_cam", pos=list(self.camera_position), quat=list(quat)
+        )
         self._camera_spec(cam)
 
+    #: the fixed camera's optical frame → world (nominal)
+    _CAMERA_R: ClassVar[np.ndarray] = np.column_stack(
+        ([0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0])
+    )
+
     def _nominal_world_camera(self) -> tuple[np.ndarray, np.ndarray]:
-        R = np.column_stack(([0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]))
-        return np.array(self.camera_position), R
+        return np.array(self.camera_position), self._CAMERA_R.copy()
 
     def _world_twist(self, V: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Plate twist in the nominal camera frame → world (6,)."""
-        R = self._nominal_world_camera()[1]
+        R = self._CAMERA_R
         return np.concatenate((R @ V[:3], R @ V[3:]))
 
 
