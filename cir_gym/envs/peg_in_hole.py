@@ -157,6 +157,13 @@ class PegInHoleEnv(RobotEnv):
       contact) rather than the force-ratio diagram, which needs the applied wrench at the
       tip that the env does not see.
 
+    Not detected: whether the two contact forces of a shallow two-point contact actually lie in
+    their friction cones (a wedged peg may still come free when pulled back) and the jamming
+    diagram's force/moment ratios. tests/test_peg_in_hole.py puts the arm in constructed
+    two-point contacts (a peg tilted so that its leading edge touches one wall and its side
+    the opposite rim): at rest 2 and 3 mm deep it is wedged, 4 and 10 mm deep jammed, sliding
+    in at 5 mm/s neither, and with one of the two contacts lifted by 20 µm none of the flags.
+
     ## Arguments
     | argument | default | meaning |
     |---|---|---|
@@ -187,7 +194,8 @@ class PegInHoleEnv(RobotEnv):
 
     ## Reference controllers
     ``baselines.available("cir_gym/PegInHole-v0")``: hybrid_force_position, hybrid_spiral,
-    position_only (baselines/hybrid.py).
+    position_only (baselines/hybrid.py); AdmittanceContact's ``admittance`` law applies through
+    the adapter ``baselines.hybrid.PegAdmittance`` (axial force regulation only).
 
     ## Version History
     - v0: initial version.
