@@ -113,6 +113,12 @@ def main() -> None:
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("results/peg_in_hole"))
     parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the runs of <out>/results.json with the same controller, env arguments "
+        "and number of episodes instead of running them again",
+    )
+    parser.add_argument(
         "--agent",
         type=Path,
         action="append",
@@ -136,6 +142,14 @@ def main() -> None:
         return
     path = args.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {}
+    done = {_key(r): r for part in results.values() for r in part} if args.resume else {}
+
+    def run_once(name: str, n: int, **kwargs: Any) -> dict[str, Any]:
+        """``run``, or with ``--resume`` the stored result of the same run."""
+        return done.get(_key({"controller": name, "episodes": n, "env_kwargs": kwargs})) or run(
+            name, n, **kwargs
+        )
+
     if args.stage in ("main", "all"):
         results["main"] = []
         for name, n, kwargs in (
@@ -146,21 +160,25 @@ def main() -> None:
             ("hybrid_force_position", args.sweep_episodes, {"chamfer": 0.003}),
             ("position_only", args.sweep_episodes, {"chamfer": 0.003}),
         ):
-            results["main"].append(run(name, n, **kwargs))
+            results["main"].append(run_once(name, n, **kwargs))
             _write(args.out, results)
     if args.stage in ("sweeps", "all"):
         results["clearance"], results["uncertainty"] = [], []
         for name in SWEPT:
             for c in CLEARANCES:
-                results["clearance"].append(run(name, args.sweep_episodes, clearance=c))
+                results["clearance"].append(run_once(name, args.sweep_episodes, clearance=c))
                 _write(args.out, results)
             for p, t in UNCERTAINTIES:
                 results["uncertainty"].append(
-                    run(name, args.sweep_episodes, position_uncertainty=p, tilt_uncertainty=t)
+                    run_once(name, args.sweep_episodes, position_uncertainty=p, tilt_uncertainty=t)
                 )
                 _write(args.out, results)
         _figures(results, args.out)
     print(_write(args.out, results))
+
+
+def _key(r: dict[str, Any]) -> str:
+    return json.dumps([r["controller"], r["episodes"], r["env_kwargs"]], sort_keys=True)
 
 
 def _write(out: Path, results: dict[str, Any]) -> str:
