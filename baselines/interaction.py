@@ -157,8 +157,17 @@ class _CommonGains:
     posture_omega: float = 10.0
 
     def __post_init__(self) -> None:
-        _positive(self, "stiffness", "approach_speed", "slow_height", "slow_speed",
-                  "contact_force", "motion_omega", "inner_omega", "posture_omega")
+        _positive(
+            self,
+            "stiffness",
+            "approach_speed",
+            "slow_height",
+            "slow_speed",
+            "contact_force",
+            "motion_omega",
+            "inner_omega",
+            "posture_omega",
+        )
         _positive(self, "bias_time", allow_zero=("bias_time",))
 
 
@@ -171,8 +180,14 @@ class _Interaction(Controller):
     worst_case: ClassVar[int] = 1
     needs_torque: ClassVar[bool] = False
 
-    def __init__(self, context: TaskContext, gains: Any = None, *, robot: Robot | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self,
+        context: TaskContext,
+        gains: Any = None,
+        *,
+        robot: Robot | None = None,
+        **overrides: Any,
+    ) -> None:
         super().__init__(context, gains, **overrides)
         ex = context.extras
         if "surface_normal" not in ex:
@@ -246,8 +261,9 @@ class _Interaction(Controller):
             n = state[_BIAS_N]
             state[_BIAS] = (n * state[_BIAS] + sample) / (n + 1)
             state[_BIAS_N] = n + 1
-        h = contact_wrench(obs["wrench"], R_s, tool_mass=self.tool_mass, tool_com=self.tool_com,
-                           bias=state[_BIAS])
+        h = contact_wrench(
+            obs["wrench"], R_s, tool_mass=self.tool_mass, tool_com=self.tool_com, bias=state[_BIAS]
+        )
         return h, float(-self.normal @ h[:3])
 
     # ------------------------------------------------------------------ motion
@@ -264,9 +280,15 @@ class _Interaction(Controller):
         Lam = osp.task_inertia(J, B)
         return J, B, Lam, self.robot.jacobian_dot_qdot(self.site, q, qd)
 
-    def osc_torque(self, obs: Observation, state: np.ndarray, a_p: np.ndarray,
-                   force: np.ndarray | None = None, normal_free: bool = False,
-                   omega_o: float | None = None) -> np.ndarray:
+    def osc_torque(
+        self,
+        obs: Observation,
+        state: np.ndarray,
+        a_p: np.ndarray,
+        force: np.ndarray | None = None,
+        normal_free: bool = False,
+        omega_o: float | None = None,
+    ) -> np.ndarray:
         """τ = Jᵀ F + n̂(q, q̇) + N_dynᵀ τ₀, F = Λ ([a_p; a_o] − J̇q̇) (+ ``force`` (3,)).
 
         a_o = K_o φ − D_o ω toward the task's orientation (ω_o = ``motion_omega``);
@@ -289,8 +311,9 @@ class _Interaction(Controller):
         tau0 = B @ (wp * wp * (state[_Q0] - q) - 2.0 * wp * qd)
         return J.T @ F + self.robot.bias(q, qd) + N.T @ tau0
 
-    def track(self, obs: Observation, state: np.ndarray, x_c: np.ndarray,
-              v_c: np.ndarray) -> np.ndarray:
+    def track(
+        self, obs: Observation, state: np.ndarray, x_c: np.ndarray, v_c: np.ndarray
+    ) -> np.ndarray:
         """The command that moves the tool to the frame x_c (velocity v_c), task orientation."""
         if not self.torque:  # the env's motion controller: an increment from its setpoint
             d_p = x_c - obs["setpoint_pos"]
@@ -326,8 +349,9 @@ class _Interaction(Controller):
     def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
         """Initialise the law's filter states at the first contact."""
 
-    def law(self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float,
-            holding: bool) -> np.ndarray:
+    def law(
+        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+    ) -> np.ndarray:
         raise NotImplementedError
 
 
@@ -337,8 +361,9 @@ class _PositionBased(_Interaction):
     def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
         raise NotImplementedError
 
-    def law(self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float,
-            holding: bool) -> np.ndarray:
+    def law(
+        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+    ) -> np.ndarray:
         p, v = self.path_in_plane(obs)
         if state[_CONTACT] == 0.0:  # holding still (re-bias), then the guarded approach
             z, z_dot = self.approach(state, holding)
@@ -382,8 +407,14 @@ class Impedance(_Interaction):
         n = self.normal
         P = np.outer(n, n)
         self.K = g.normal_stiffness * P + g.tangential_stiffness * (np.eye(3) - P)
-        self.D = 2 * g.zeta * np.sqrt(g.mass) * (
-            math.sqrt(g.normal_stiffness) * P + math.sqrt(g.tangential_stiffness) * (np.eye(3) - P)
+        self.D = (
+            2
+            * g.zeta
+            * np.sqrt(g.mass)
+            * (
+                math.sqrt(g.normal_stiffness) * P
+                + math.sqrt(g.tangential_stiffness) * (np.eye(3) - P)
+            )
         )
 
     def setpoint(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
@@ -393,14 +424,15 @@ class Impedance(_Interaction):
             x_d -= self.normal * obs["f_ref"][0] / self.gains.normal_stiffness
         return x_d, obs["tool_vel_ref"]
 
-    def law(self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float,
-            holding: bool) -> np.ndarray:
+    def law(
+        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+    ) -> np.ndarray:
         x_d, v_d = self.setpoint(obs)
         if holding:
             x_d, v_d = obs["tool_pos_ref"], np.zeros(3)
         h_f = np.zeros(3) if holding else h[:3]
         # M_d x̃̈ + D_d x̃̇ + K_d x̃ = h_e  ⇒  ẍ = ẍ_d + M_d⁻¹ (D_d x̃̇ + K_d x̃ − h_e)
-        a_p = (self.D @ (v_d - obs["tool_vel"]) + self.K @ (x_d - obs["tool_pos"]) - h_f)
+        a_p = self.D @ (v_d - obs["tool_vel"]) + self.K @ (x_d - obs["tool_pos"]) - h_f
         a_p = a_p / self.gains.mass
         return self.osc_torque(obs, state, a_p, force=h_f)
 
@@ -449,7 +481,7 @@ class Admittance(_PositionBased):
     def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
         z, z_dot = state[_COMMON], state[_COMMON + 1]
         # M_d z̈ + D_d ż + K_d z = f̂ − f̄ (z up along n̂: pressing too hard moves up)
-        z_ddot = (f - obs["f_ref"][0] - self.D_d * z_dot - self.gains.stiffness_normal * z)
+        z_ddot = f - obs["f_ref"][0] - self.D_d * z_dot - self.gains.stiffness_normal * z
         z_ddot /= self.M_d
         # semi-implicit Euler, exact for the damping term
         z_dot = (z_dot + self.dt * (z_ddot + self.D_d / self.M_d * z_dot)) / (
@@ -531,8 +563,9 @@ class ExplicitForce(_Interaction):
         dds = 60 * tau * (1 - tau) * (1 - 2 * tau) / T**2
         return state[_COMMON + 2] + df * s, df * ds, df * dds
 
-    def law(self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float,
-            holding: bool) -> np.ndarray:
+    def law(
+        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+    ) -> np.ndarray:
         p, v = self.path_in_plane(obs)
         w = self.gains.motion_omega
         a_p = w * w * (p - obs["tool_pos"]) + 2 * w * (v - obs["tool_vel"])
