@@ -70,6 +70,11 @@ __all__ = [
 ]
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+_WARNINGS: slice | list[int] = (
+    slice(_UNSTABLE[0], _UNSTABLE[-1] + 1)
+    if _UNSTABLE[-1] - _UNSTABLE[0] + 1 == len(_UNSTABLE)
+    else list(_UNSTABLE)
+)
 _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
 
 
@@ -133,6 +138,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self._qpos = self.batch.bind("qpos")
         self._qvel = self.batch.bind("qvel")
         self._ctrl = self.batch.bind("ctrl")
+        self._no_divergence = np.zeros(num_envs, dtype=bool)
         self._state_row = np.zeros(mujoco.mj_stateSize(t.model, _INTEGRATION))
 
         N, n, steps = num_envs, t.n, t.max_steps
@@ -195,6 +201,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------ step
     def _check_actions(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(actions clipped to [-1, 1] as float64 (N, m), max |action| of each row (N,))."""
         shape = self.action_space.shape
         try:
             raw = np.asarray(actions)
@@ -206,36 +213,60 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
                 f"got shape {raw.shape} dtype {raw.dtype}"
             )
         a = raw.astype(np.float64)
-        mag = np.abs(a)
+        mag = np.max(np.abs(a), axis=1)  # NaN propagates, inf stays: one reduction checks both
         if not np.all(np.isfinite(mag)):
-            bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+            bad = np.flatnonzero(~np.isfinite(mag))
             raise ValueError(f"actions of envs {bad.tolist()} contain NaN or inf")
-        clipped = np.any(mag > 1.0, axis=1)
-        np.clip(a, -1.0, 1.0, out=a)
-        return a, clipped
+        if np.any(mag > 1.0):
+            np.clip(a, -1.0, 1.0, out=a)
+        return a, mag
+
+    def _warning_counts(self) -> np.ndarray:
+        """MuJoCo's instability-warning counters of every copy (N, 4): a view of the batch's
+        while the four are neighbours in mjtWarning (as in MuJoCo 4), else a copy."""
+        return self.batch.warning[:, _WARNINGS, 1]
+
+    def _diverged(self, warnings_before: np.ndarray) -> np.ndarray:
+        """(N,) bool: a new MuJoCo instability warning, a non-finite q or q̇, or |q̇| above
+        MAX_JOINT_SPEED, per copy, as RobotEnv._simulate judges one env. Two whole-batch
+        reductions decide; the per-row checks run only when they flag something."""
+        q, qd = self._qpos, self._qvel
+        new_warning = self._warning_counts() != warnings_before  # the counters only grow
+        if (
+            not new_warning.any()
+            and np.max(np.abs(qd)) <= MAX_JOINT_SPEED
+            and np.isfinite(np.sum(q))
+        ):  # NaN fails the comparison and the finite sum
+            return self._no_divergence
+        with np.errstate(all="ignore"):
+            return (
+                np.any(new_warning, axis=1)
+                | ~np.all(np.isfinite(q), axis=1)
+                | ~np.all(np.isfinite(qd), axis=1)
+                | (np.max(np.abs(qd), axis=1) > MAX_JOINT_SPEED)
+            )
 
     def step(
         self, actions: Any
     ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         t = self.template
-        a, clipped = self._check_actions(actions)
+        a, mag = self._check_actions(actions)
         if np.any(self._k >= t.max_steps):
             raise RuntimeError("step() on a finished copy; the vector env resets them itself")
         q, qd = self._qpos, self._qvel
-        finite = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(qd), axis=1)
-        self._safe_q[finite] = q[finite]  # the last finite state, restored on divergence
-        self._safe_qd[finite] = qd[finite]
-        warnings_before = self.batch.warning[:, _UNSTABLE, 1].sum(axis=1)
+        # the last finite state, restored on divergence (a finite sum: every row is finite)
+        if np.isfinite(np.sum(q)) and np.isfinite(np.sum(qd)):
+            self._safe_q[:] = q
+            self._safe_qd[:] = qd
+        else:
+            finite = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(qd), axis=1)
+            self._safe_q[finite] = q[finite]
+            self._safe_qd[finite] = qd[finite]
+        warnings_before = self._warning_counts().copy()
         tau = a * t.torque_limit
         self._ctrl[:] = tau
         self.batch.step(nstep=t.frame_skip)
-        with np.errstate(all="ignore"):
-            diverged = (
-                (self.batch.warning[:, _UNSTABLE, 1].sum(axis=1) > warnings_before)
-                | ~np.all(np.isfinite(q), axis=1)
-                | ~np.all(np.isfinite(qd), axis=1)
-                | (np.max(np.abs(qd), axis=1) > MAX_JOINT_SPEED)
-            )
+        diverged = self._diverged(warnings_before)
         if np.any(diverged):  # the last finite state, as RobotEnv._simulate restores it
             q[diverged] = self._safe_q[diverged]
             qd[diverged] = self._safe_qd[diverged]
@@ -247,7 +278,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         q_err = self._ref[rows, 0, k1] - qj
         self._err[rows, k] = q_err
         self._tau[rows, k] = tau
-        self._sat[rows, k] = clipped | np.any(np.abs(a) >= 1.0, axis=1)
+        self._sat[rows, k] = mag >= 1.0  # clipped or at the limit, as the single env
 
         n = t.n
         err_sq = _row_dot(q_err)
