@@ -209,14 +209,17 @@ class WrenchSensor:
         """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
         ((N, 6), oldest first): the same as N calls of :meth:`update`, bit for bit; return the
         reading after the last."""
+        advance = self._advance
         for w in np.asarray(wrenches, dtype=float):
-            self._advance(w)
+            advance(w)
         return self.reading.copy()
 
     def _advance(self, w: np.ndarray) -> None:
         filtered = self._filtered
         if self._filter:
-            filtered += self.alpha * (w - filtered)
+            d = w - filtered
+            d *= self.alpha
+            filtered += d
         else:  # no filter: exactly the input
             filtered[:] = w
         head = self._head + 1

@@ -79,8 +79,9 @@ def test_an_episode_without_contact_scores_f_ref_and_full_contact_loss() -> None
 def test_no_contact_explosion_at_any_stiffness(stiffness: float) -> None:
     """Driving the tool into an undamped surface at full speed (0.25 m/s) ends at the force
     limit as a failure, never a divergence; the force never jumps far past the limit."""
-    env = AdmittanceContactEnv(control="position", stiffness=stiffness, damping=0.0,
-                               episode_duration=1.0, sensor="ideal")
+    env = AdmittanceContactEnv(
+        control="position", stiffness=stiffness, damping=0.0, episode_duration=1.0, sensor="ideal"
+    )
     env.reset(seed=0)
     forces = []
     while True:
@@ -98,15 +99,21 @@ def test_no_contact_explosion_at_any_stiffness(stiffness: float) -> None:
 def test_impedance_presses_with_kd_times_the_setpoint_penetration(stiffness: float) -> None:
     """No force loop: in steady state f = K_d,n (x − x_d)·n̂ (within 5 %), and on the soft
     surface the force is the series springs' K_d k/(K_d + k) × the setpoint's sink, not f̄."""
-    env_kwargs = {"stiffness": stiffness, "force_ref": 10.0, "episode_duration": 1.9,
-                  "height_error": 0.0, "tilt_error": 0.0}
+    env_kwargs = {
+        "stiffness": stiffness,
+        "force_ref": 10.0,
+        "episode_duration": 1.9,
+        "height_error": 0.0,
+        "tilt_error": 0.0,
+    }
     infos, _, policy = _run("impedance", env_kwargs)
     kd = policy.gains.normal_stiffness
     n = policy.normal
     window = infos[-150:]  # 1.6-1.9 s: pressed, before the wipe
     force = np.mean([i["contact_force"] for i in window])
-    penetration = np.mean([n @ (i["obs"]["tool_pos"] - policy.setpoint(i["obs"])[0])
-                           for i in window])
+    penetration = np.mean(
+        [n @ (i["obs"]["tool_pos"] - policy.setpoint(i["obs"])[0]) for i in window]
+    )
     assert force == pytest.approx(kd * penetration, rel=0.05)
     sink = 10.0 / kd  # the setpoint is f̄/K_d below the (here exact) nominal surface
     assert force == pytest.approx(kd * stiffness / (kd + stiffness) * sink, rel=0.05)
@@ -121,13 +128,17 @@ def test_explicit_force_above_its_crossover_rule_fails_on_the_stiff_surface() ->
     pressed = [i["contact_force"] for i in ok[-150:]]  # 2.5-2.8 s, wiping
     assert min(pressed) > 0.5 and abs(np.mean(pressed) - 20.0) < 2.0
     bad, _, _ = _run("explicit_force", env_kwargs, crossover_ratio=3.0, cap_at_sensor=False)
-    lost = np.mean([not i["in_contact"] for i in bad[len(bad) // 2:]])
+    lost = np.mean([not i["in_contact"] for i in bad[len(bad) // 2 :]])
     assert bad[-1]["force_limit_exceeded"] or lost > 0.05
 
 
 def test_admittance_on_the_position_interface_regulates_the_force() -> None:
-    env_kwargs = {"control": "position", "stiffness": 1.0e4, "force_ref": 15.0,
-                  "episode_duration": 2.8}
+    env_kwargs = {
+        "control": "position",
+        "stiffness": 1.0e4,
+        "force_ref": 15.0,
+        "episode_duration": 2.8,
+    }
     infos, _, _ = _run("admittance", env_kwargs)
     pressed = [i["contact_force"] for i in infos[-150:]]
     assert abs(np.mean(pressed) - 15.0) < 2.0 and min(pressed) > 8.0  # wiping since 2 s
@@ -141,7 +152,57 @@ def test_torque_laws_refuse_the_position_interface(name: str) -> None:
 
 def test_every_interaction_controller_applies_and_gains_are_checked() -> None:
     names = baselines.available(ENV_ID)
-    assert {"impedance", "admittance", "explicit_force", "implicit_force",
-            "parallel_force_position"} <= set(names)
+    assert {
+        "impedance",
+        "admittance",
+        "explicit_force",
+        "implicit_force",
+        "parallel_force_position",
+    } <= set(names)
     with pytest.raises(InvalidGain, match="crossover"):
         baselines.make("admittance", ENV_ID, crossover=-1.0)
+
+
+def test_torque_interface_reads_every_physics_step_from_the_sensor_history() -> None:
+    """One mj_step call per control period: the wrist sensor model gets each physics step's
+    wrench in time order and the contact flag each step's plate force, exactly as when the
+    period is stepped one physics step at a time."""
+    import copy
+
+    import mujoco
+
+    from cir_gym.envs.admittance_contact import surface_force
+
+    env = gym.make(ENV_ID, stiffness=1e4, force_ref=20.0, sensor_noise=0.0, sensor_resolution=0.0)
+    u = env.unwrapped
+    policy = baselines.make("explicit_force", ENV_ID, env=env)
+    obs, _ = env.reset(seed=2)
+    state, start, info = None, True, {"in_contact": False}
+    for _ in range(1500):  # until the tool presses on the plate
+        action, state = policy.predict(obs, state, np.array([start]))
+        start = False
+        obs, _, _, _, info = env.step(action)
+        if info["in_contact"] and info["contact_force"] > 5.0:
+            break
+    assert info["in_contact"]
+    action, state = policy.predict(obs, state, np.array([False]))
+    # the reference: the same period one physics step at a time on a copy of the state
+    m = u.model
+    d = mujoco.MjData(m)
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    buf = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, u.data, buf, spec)
+    mujoco.mj_setState(m, d, buf, spec)
+    d.ctrl[:] = np.clip(action, -1, 1) * u.torque_limit
+    sensor = copy.deepcopy(u.sensor)
+    contact = []
+    for _ in range(u._substeps):
+        mujoco.mj_step(m, d)
+        sensor.update(d.sensordata[u._sensor_adr])
+        contact.append(-u._normal @ surface_force(m, d, u._plate_geom))
+    _, _, _, _, info = env.step(action)
+    np.testing.assert_array_equal(u.sensor.reading, sensor.reading)
+    np.testing.assert_array_equal(u.sensor._filtered, sensor._filtered)
+    hist = u.sensor_history(2) @ u._normal
+    np.testing.assert_allclose(hist, contact, rtol=1e-9, atol=1e-9)
+    assert np.ptp(contact) > 0.1 and info["in_contact"]  # values differ: the order is tested

@@ -175,8 +175,9 @@ def _interface_gain(freq: float, amplitude: float = 1e-3, period: float = 0.002)
         interface.command(np.array([0, 0, ref[k] - prev, 0, 0, 0]), period)
         prev = ref[k]
         for i in range(substeps):
-            data.ctrl[:] = interface.torque(data.qpos[:7].copy(), data.qvel[:7].copy(),
-                                            (i + 1) / substeps)
+            data.ctrl[:] = interface.torque(
+                data.qpos[:7].copy(), data.qvel[:7].copy(), (i + 1) / substeps
+            )
             mujoco.mj_step(model, data)
         z[k] = data.site_xpos[site][2] - z0
     keep = slice(n // 3, n)
@@ -199,3 +200,18 @@ def test_motion_interface_rejects_bad_gains_and_increments() -> None:
     interface.reset(START_Q)
     with pytest.raises(InvalidArgument, match="increment"):
         interface.command(np.zeros(3), 0.002)
+
+
+@pytest.mark.parametrize("preset", ["robotiq_ft300", "ati_gamma", "ideal"])
+def test_update_many_is_update_step_by_step_bit_for_bit(preset: str) -> None:
+    """The env feeds a control period's wrenches at once: the same readings as one by one
+    (filter, delay line, sampling and the noise draws in the same order)."""
+    spec = sensor_spec(preset, bias=(0.1, -0.2, 0.3, 0.01, 0.0, -0.01))
+    one, many = WrenchSensor(spec, 2.5e-4), WrenchSensor(spec, 2.5e-4)
+    signal = np.random.default_rng(5).normal(0.0, 10.0, (161, 6))
+    one.reset(np.random.default_rng(1), signal[0])
+    many.reset(np.random.default_rng(1), signal[0])
+    for chunk in signal[1:].reshape(20, 8, 6):
+        for w in chunk:
+            one.update(w)
+        np.testing.assert_array_equal(many.update_many(chunk), one.reading)

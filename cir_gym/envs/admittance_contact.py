@@ -433,6 +433,7 @@ class AdmittanceContactEnv(RobotEnv):
             for s in ("ft_force", "ft_torque", "plate_contact")
         ]
         self._wrenches = np.zeros((self._substeps, 6))
+        self._history_index: dict[int, np.ndarray] = {}  # newest ring slot -> value indices
         try:
             self.sensor = WrenchSensor(self.sensor_spec, model.opt.timestep)
         except InvalidArgument as exc:  # the only physics-dependent limit: the sample rate
@@ -584,14 +585,21 @@ class AdmittanceContactEnv(RobotEnv):
             contact = 0.0 if diverged else self._read_history()
         else:
             diverged, contact = self._motion_period()
-        mujoco.mj_forward(self.model, d)  # fresh site poses for the observation
+        # fresh poses and velocities for the observation (the stages of mj_forward it needs:
+        # contacts and constraint forces stay those of the period's last physics step)
+        m = self.model
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_camlight(m, d)
+        mujoco.mj_comVel(m, d)
         k = self._k
         self._k += 1
         touching = contact / self._substeps > CONTACT_THRESHOLD
         force = self.normal_force()
         self._force[k] = force
         e_t = self._path_error_vector()
-        self._path[k] = float(np.linalg.norm(e_t))
+        path_sq = float(e_t @ e_t)
+        self._path[k] = math.sqrt(path_sq)  # = np.linalg.norm(e_t)
         self._touch[k] = touching
         if self._first_contact is None and touching:
             self._first_contact = k
@@ -600,7 +608,7 @@ class AdmittanceContactEnv(RobotEnv):
         err = force - self._f_ref
         s = self.force_scale
         r_force = -(1.0 - 0.5 * (math.exp(-((err / s) ** 2)) + math.exp(-((5 * err / s) ** 2))))
-        r_path = -self.path_weight * (1.0 - math.exp(-float(e_t @ e_t) / self.path_scale**2))
+        r_path = -self.path_weight * (1.0 - math.exp(-path_sq / self.path_scale**2))
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / a.size
         r_limit = -self.force_limit_penalty if over else 0.0
@@ -634,22 +642,37 @@ class AdmittanceContactEnv(RobotEnv):
             )
         return self._obs(), reward, terminated, truncated, info
 
+    def sensor_history(self, which: int) -> np.ndarray:
+        """The last control period's values of sensor ``which`` (0 ``ft_force``, 1 ``ft_torque``,
+        2 ``plate_contact``), one row per physics step, oldest first: (substeps, 3)."""
+        return self._history()[which]
+
+    def _history(self) -> np.ndarray:
+        """(3, substeps, 3): the three sensors' last control period, oldest step first."""
+        hist = self.data.history
+        # every sensor records every physics step, so their ring buffers turn together
+        newest = int(hist[self._history_adr[0] + 1])
+        index = self._history_index.get(newest)
+        if index is None:
+            n = self._substeps
+            order = (np.arange(1, n + 1) + newest) % n  # ring slots, oldest first
+            index = np.array(
+                [h + 2 + n + 3 * order[:, None] + np.arange(3) for h in self._history_adr]
+            )
+            self._history_index[newest] = index
+        return hist[index]
+
     def _read_history(self) -> float:
         """Feed the period's wrenches to the sensor model (oldest first) from MuJoCo's sensor
         history; return Σ over the period's physics steps of the tool-plate normal force (N)."""
-        hist, n = self.data.history, self._substeps
+        values = self._history()
         out = self._wrenches
-        for column, h in zip((0, 3), self._history_adr[:2], strict=False):
-            newest = int(hist[h + 1])
-            block = hist[h + 2 + n : h + 2 + 4 * n].reshape(n, 3)
-            out[: n - newest - 1, column : column + 3] = block[newest + 1 :]
-            out[n - newest - 1 :, column : column + 3] = block[: newest + 1]
+        out[:, :3] = values[0]
+        out[:, 3:] = values[1]
         self.sensor.update_many(out)
-        h = self._history_adr[2]
         # the sensor's net force is the one the plate exerts (−surface_force): n̂ · it = the
         # push along the inward normal
-        total = hist[h + 2 + n : h + 2 + 4 * n].reshape(n, 3).sum(axis=0)
-        return float(self._normal @ total)
+        return float(self._normal @ values[2].sum(axis=0))
 
     def _motion_period(self) -> tuple[bool, float]:
         """The position interface: one _simulate call per physics step, the motion controller's
