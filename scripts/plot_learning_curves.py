@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 import agents
@@ -115,6 +116,30 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     return path
 
 
+def export_training_curve(run_dir: Path, dest: Path) -> Path:
+    """Write a run's training episode length and return (TensorBoard ``rollout/ep_len_mean``,
+    ``rollout/ep_rew_mean``: the training envs' reward, shaping included) to ``dest`` (CSV)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    rows: dict[int, dict[str, float]] = {}
+    for events in sorted((run_dir / "tb").glob("*")):
+        acc = EventAccumulator(str(events))
+        acc.Reload()
+        for tag, col in (("rollout/ep_len_mean", "ep_len_mean"),
+                         ("rollout/ep_rew_mean", "ep_rew_mean")):
+            if tag in acc.Tags()["scalars"]:
+                for e in acc.Scalars(tag):
+                    rows.setdefault(int(e.step), {})[col] = float(e.value)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with dest.open("w") as f:
+        f.write("timesteps,ep_len_mean,ep_rew_mean\n")
+        for step in sorted(rows):
+            r = rows[step]
+            f.write(f"{step},{r.get('ep_len_mean', float('nan')):.2f},"
+                    f"{r.get('ep_rew_mean', float('nan')):.3f}\n")
+    return dest
+
+
 def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     """The issue-20 lever runs (``<curves>/*.csv``, copies of their ``learning_curve.csv``)
     against the shipped JointTracking-v1 ``ppo`` curve, on the same evaluation episodes."""
@@ -124,7 +149,8 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     import matplotlib.pyplot as plt
 
     env_id = "cir_gym/JointTracking-v1"
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    training = sorted((curves / "train").glob("*.csv"))
+    fig, axes = plt.subplots(1, 3 if training else 2, figsize=(16 if training else 11, 4.2))
     runs = [("shipped ppo (baseline)", agents.agent_dir(env_id, "ppo"))]
     runs += [(f.stem, f) for f in sorted(curves.glob("*.csv"))]
     for label, src in runs:
@@ -134,6 +160,12 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
         steps, returns = read_curve(src, "return")
         axes[1].plot(steps[steps <= 2_500_000], returns[steps <= 2_500_000], "o-", ms=3,
                      label=label)
+    for f in training:  # batched-env levers: training episode length (the survival they learn)
+        data = np.genfromtxt(f, delimiter=",", names=True)
+        axes[2].plot(data["timesteps"], data["ep_len_mean"], "-", label=f.stem)
+    if training:
+        axes[2].set_ylabel("training episode length (steps of 2000)")
+        axes[2].legend(fontsize=8)
     axes[0].set_ylabel(f"{primary} (rad), evaluation")
     axes[1].set_ylabel("mean return (env reward), evaluation")
     for ax in axes:
@@ -156,7 +188,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--env", action="append", help="environment id (repeatable; default: all)")
     p.add_argument("--levers", metavar="DIR", help="also plot the lever curves in DIR/*.csv "
                    "(results/learning_curves/levers) against the shipped JointTracking ppo")
+    p.add_argument("--export-training", nargs=2, metavar=("RUN_DIR", "CSV"),
+                   help="write RUN_DIR's training episode length/return (TensorBoard) to CSV")
     args = p.parse_args(argv)
+    if args.export_training:
+        run, dest = args.export_training
+        print(f"  {export_training_curve(Path(run), Path(dest))}", file=sys.stderr)
+        return 0
     if args.levers:
         print(f"  {plot_levers(Path(args.levers), Path(args.out))}", file=sys.stderr)
         return 0
