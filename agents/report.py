@@ -23,7 +23,8 @@ Learning curves are aggregated the same way per evaluation point (:func:`curve_b
 over seeds of each seed's mean evaluation metric, with the bootstrap band over seeds.
 
 For the leaderboard, :func:`seed_table` evaluates every seed of every shipped agent of an
-environment on one variant and returns a markdown table.
+environment on one variant and returns a markdown table; ``python -m agents.report --env ID``
+writes those tables for every leaderboard variant of the env to ``results/agents/<Env>_seeds.md``.
 """
 
 from __future__ import annotations
@@ -214,3 +215,43 @@ def curve_band(curves: list[tuple[np.ndarray, np.ndarray]], reps: int = REPS
     out["low"] = np.array([b[0] for b in bands])
     out["high"] = np.array([b[1] for b in bands])
     return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m agents.report --env ID [--agent NAME ...] [--episodes 10] [--seed 1000]``:
+    :func:`seed_table` for every leaderboard variant of ``ID``, to ``--out``."""
+    import argparse
+    import sys
+
+    import cir_gym
+
+    p = argparse.ArgumentParser(description="shipped agents over training seeds (IQM, CIs)")
+    p.add_argument("--env", required=True, help="environment id, e.g. cir_gym/JointTracking-v1")
+    p.add_argument("--agent", action="append", help="agent name (repeatable; default: all)")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=1000, help="first evaluation seed (leaderboard)")
+    p.add_argument("--out", help="markdown file (default results/agents/<Env>_seeds.md)")
+    args = p.parse_args(argv)
+    key = args.env.split(":")[-1]
+    if key not in cir_gym.ENVIRONMENTS:
+        p.error(f"unknown environment {args.env!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+    from agents import env_dir_name
+
+    out = Path(args.out or f"results/agents/{env_dir_name(key)}_seeds.md")
+    parts = [f"# {key}: shipped agents over training seeds (`python -m agents.report`)", "",
+             f"Evaluation seeds {args.seed}–{args.seed + args.episodes - 1} (the leaderboard's), "
+             f"deterministic actions; every training seed's agent on the same episodes.", ""]
+    variants = getattr(cir_gym.ENVIRONMENTS[key][0], "leaderboard_variants", None) or {"": {}}
+    for variant, kwargs in variants.items():
+        print(f"{key} {variant or 'defaults'}", file=sys.stderr)
+        parts += [f"## {variant or 'defaults'} `{kwargs}`", "",
+                  seed_table(key, kwargs, episodes=args.episodes, seed=args.seed,
+                             names=args.agent), ""]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(parts))
+    print(out, file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

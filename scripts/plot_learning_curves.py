@@ -30,6 +30,9 @@ from agents.report import curve_band, read_curve
 from agents.train import EVAL_SEED
 from cir_gym.evaluation import evaluate
 
+#: issue 20's bar for a from-scratch agent: this controller at its default gains
+TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
+
 
 def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int
                       ) -> dict[str, float]:
@@ -102,6 +105,11 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     for controller, label, color in bases:
         ax.axhline(scores[label][controller], ls=":", color=color,
                    label=f"residual's base: {controller} ({label})")
+    target = TARGETS.get(env_id)
+    for label, by_name in scores.items():  # issue 20's bar for a from-scratch agent
+        if target in by_name and (best_of(env_id, by_name) or ("",))[0] != target:
+            ax.axhline(by_name[target], ls="-.", color="k", lw=0.8,
+                       label=f"target: {target}, default gains ({label})")
     ax.set_yscale("log")
     ax.set_xlabel("training steps")
     ax.set_ylabel(f"{primary} ({unit})" if unit else primary)

@@ -579,6 +579,22 @@ def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkey
     assert band["seeds"].shape[0] == 2 and np.all(band["low"] <= band["high"])
 
 
+def test_report_main_writes_one_seed_table_per_leaderboard_variant(tmp_path, monkeypatch):
+    import agents.report as report
+
+    calls = []
+    monkeypatch.setattr(report, "seed_table", lambda key, kwargs, **kw: calls.append(
+        (key, kwargs, kw)) or f"TABLE {kwargs}")
+    out = tmp_path / "r.md"
+    assert report.main(["--env", ENV, "--agent", "ppo", "--episodes", "3", "--out",
+                        str(out)]) == 0
+    variants = cir_gym.ENVIRONMENTS[ENV][0].leaderboard_variants
+    assert [c[1] for c in calls] == list(variants.values())
+    assert all(c[2] == {"episodes": 3, "seed": 1000, "names": ["ppo"]} for c in calls)
+    text = out.read_text()
+    assert all(f"## {v}" in text for v in variants) and "TABLE {'payload_mass': 3.0}" in text
+
+
 def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
     from agents.train import ship, train
 
