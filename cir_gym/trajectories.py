@@ -1220,6 +1220,10 @@ def quat_from_matrix(R: ArrayLike) -> np.ndarray:
     M = np.asarray(R, dtype=float)
     if M.shape[-2:] != (3, 3):
         raise ValueError(f"R must have shape (..., 3, 3), got {M.shape}")
+    if M.ndim == 2 and math.isfinite(M.sum()):  # one matrix (the envs' hot path)
+        q1 = _quat_from_matrix_floats(M.ravel().tolist())
+        if q1 is not None:
+            return np.array(q1)
     if not np.all(np.isfinite(M)):
         raise ValueError("R must be finite (no NaN or inf)")
     m00, m11, m22 = M[..., 0, 0], M[..., 1, 1], M[..., 2, 2]
@@ -1273,6 +1277,29 @@ def quat_from_matrix(R: ArrayLike) -> np.ndarray:
     q = np.take_along_axis(cands, best[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0, -q, q)
+
+
+def _quat_from_matrix_floats(m: list[float]) -> list[float] | None:
+    """:func:`quat_from_matrix` of one matrix given row-major as 9 floats: the same operations
+    in the same order on Python floats (bit-identical, without ~30 array temporaries); None
+    for a zero pivot row (not a rotation: the array path gives its NaN)."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    trace = m00 + m11 + m22
+    pivots = (1 + trace, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22)
+    best = max(range(4), key=pivots.__getitem__)  # the first of equal maxima, as np.argmax
+    if best == 0:
+        q = (1 + trace, m21 - m12, m02 - m20, m10 - m01)
+    elif best == 1:
+        q = (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20)
+    elif best == 2:
+        q = (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21)
+    else:
+        q = (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22)
+    norm = math.sqrt(0.0 + q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if norm == 0.0:
+        return None
+    out = [v / norm for v in q]
+    return [-v for v in out] if out[0] < 0 else out
 
 
 def matrix_from_quat(q: ArrayLike) -> np.ndarray:

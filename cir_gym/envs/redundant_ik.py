@@ -12,6 +12,7 @@ clearance, the lap-witness search) is :mod:`cir_gym.redundancy`, shared with the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -60,8 +61,10 @@ LAP_TASK_TOLERANCE = 1e-3  # m, task error above which a transported configurati
 def _all_numbers(action: Any) -> bool:
     """True for a (nested) list of real numbers."""
     flat = np.asarray(action, dtype=object).ravel()
-    return all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-               for v in flat)
+    return all(
+        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+        for v in flat
+    )
 
 
 @dataclass(frozen=True)
@@ -134,31 +137,41 @@ class _RedundantIKBase(RobotEnv):
             raise InvalidArgument(f"objective must be one of {OBJECTIVES}, got {objective!r}")
         self.objective = objective
         self.initial_error = check_number("initial_error", initial_error, 0.0, 0.1)
-        self.joint_window = check_number("joint_window", joint_window, 0.0, 2 * np.pi,
-                                         low_open=True)
+        self.joint_window = check_number(
+            "joint_window", joint_window, 0.0, 2 * np.pi, low_open=True
+        )
         try:
             scales = np.atleast_1d(np.asarray(error_scales, dtype=float))
         except (TypeError, ValueError) as exc:
-            raise InvalidArgument(f"error_scales must be positive numbers (m), got "
-                                  f"{error_scales!r}") from exc
-        if (scales.ndim != 1 or scales.size == 0
-                or not np.all((scales >= 1e-9) & (scales <= 1e3))):
-            raise InvalidArgument(f"error_scales must be numbers in [1e-9, 1e3] m, got "
-                                  f"{error_scales!r}")
+            raise InvalidArgument(
+                f"error_scales must be positive numbers (m), got {error_scales!r}"
+            ) from exc
+        if scales.ndim != 1 or scales.size == 0 or not np.all((scales >= 1e-9) & (scales <= 1e3)):
+            raise InvalidArgument(
+                f"error_scales must be numbers in [1e-9, 1e3] m, got {error_scales!r}"
+            )
         self.error_scales = scales
         self.orientation_scales = scales * 10.0  # rad: 1 mm ↔ 0.01 rad
         self.secondary_weight = check_number("secondary_weight", secondary_weight, 0.0, 10.0)
         self.velocity_weight = check_number("velocity_weight", velocity_weight, 0.0, 10.0)
-        self.termination_penalty = check_number("termination_penalty", termination_penalty,
-                                                0.0, 1e6)
-        self.success_threshold = check_number("success_threshold", success_threshold, 0.0, 1.0,
-                                              low_open=True)
+        self.termination_penalty = check_number(
+            "termination_penalty", termination_penalty, 0.0, 1e6
+        )
+        self.success_threshold = check_number(
+            "success_threshold", success_threshold, 0.0, 1.0, low_open=True
+        )
 
         model = self._build_model()
         self.robot = Robot(model)
-        super().__init__(model, control_freq=control_freq, episode_duration=episode_duration,
-                         render_mode=render_mode, width=width, height=height,
-                         camera=self._camera_name())
+        super().__init__(
+            model,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+            camera=self._camera_name(),
+        )
         self.data = self.robot.data  # kinematics only: the robot's MjData is the scene's
         self.n = n = self.robot.n
         self.file_lower, self.file_upper = self.robot.lower.copy(), self.robot.upper.copy()
@@ -174,16 +187,30 @@ class _RedundantIKBase(RobotEnv):
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         p = self.pos_dim
         bounds: dict[str, tuple[float, int]] = {
-            "q": (2 * np.pi, n), "x": (3.0, p), "x_ref": (3.0, p), "xd_ref": (10.0, p),
+            "q": (2 * np.pi, n),
+            "x": (3.0, p),
+            "x_ref": (3.0, p),
+            "xd_ref": (10.0, p),
         }
         if self.task_dim == 6:
             bounds |= {"quat": (1.0, 4), "quat_ref": (1.0, 4), "omega_ref": (20.0, 3)}
-        bounds |= {"q_lower": (2 * np.pi, n), "q_upper": (2 * np.pi, n),
-                   "obstacle": (2 * DUMMY_OBSTACLE_CENTRE, p + 1)}
+        bounds |= {
+            "q_lower": (2 * np.pi, n),
+            "q_upper": (2 * np.pi, n),
+            "obstacle": (2 * DUMMY_OBSTACLE_CENTRE, p + 1),
+        }
         self._obs_bounds = {k: b for k, (b, _) in bounds.items()}
         self.observation_space = spaces.Dict(
             {k: spaces.Box(-b, b, (size,), dtype=np.float64) for k, (b, size) in bounds.items()}
         )
+        # the observation is built in one flat buffer per step (views handed out, one clip)
+        ends = np.cumsum([size for _, size in bounds.values()])
+        self._obs_slices = {
+            key: slice(int(end - size), int(end))
+            for (key, (_, size)), end in zip(bounds.items(), ends, strict=True)
+        }
+        self._obs_high = np.concatenate([np.full(size, b) for b, size in bounds.values()])
+        self._obs_low = -self._obs_high
 
         steps = self.max_steps
         self._x_ref = np.zeros((steps + 1, p))
@@ -206,10 +233,15 @@ class _RedundantIKBase(RobotEnv):
         spec = mujoco.MjSpec.from_file(str(robot_path(self.robot_name)))
         spec.option.timestep = CONTROL_TIMESTEP
         # compiled at the base (so the free camera frames the robot); moved at every reset
-        spec.worldbody.add_geom(name="obstacle", type=mujoco.mjtGeom(self.obstacle_type),
-                                size=[0.05, 0.05, 0.0], pos=[0.0, 0.0, 0.0], contype=0,
-                                conaffinity=0,
-                                rgba=[0.9, 0.1, 0.1, 0.8])
+        spec.worldbody.add_geom(
+            name="obstacle",
+            type=mujoco.mjtGeom(self.obstacle_type),
+            size=[0.05, 0.05, 0.0],
+            pos=[0.0, 0.0, 0.0],
+            contype=0,
+            conaffinity=0,
+            rgba=[0.9, 0.1, 0.1, 0.8],
+        )
         self._add_camera(spec)
         return spec.compile()
 
@@ -229,8 +261,9 @@ class _RedundantIKBase(RobotEnv):
         J = self.robot.jacobian(self._site_id, q)
         return J[:2] if self.task_dim == 2 else J
 
-    def _solve_ik(self, q: np.ndarray, x: np.ndarray, R: np.ndarray, iterations: int = 200
-                  ) -> np.ndarray:
+    def _solve_ik(
+        self, q: np.ndarray, x: np.ndarray, R: np.ndarray, iterations: int = 200
+    ) -> np.ndarray:
         """Newton steps q ← q + J†(x − k(q)) (capped at 0.2 rad) to the pose (x, R)."""
         for _ in range(iterations):
             p, Rq = self._forward(q)
@@ -244,9 +277,12 @@ class _RedundantIKBase(RobotEnv):
             q = q + (dq * (0.2 / step) if step > 0.2 else dq)
         return q
 
-    def _min_norm_motion(self, q0: np.ndarray, stride: int = 5,
-                         visit: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None
-                         ) -> tuple[np.ndarray, np.ndarray]:
+    def _min_norm_motion(
+        self,
+        q0: np.ndarray,
+        stride: int = 5,
+        visit: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Minimum-norm CLIK along the reference from each row of ``q0`` (N, n), every
         ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods. Returns
         the joint paths (k + 1, N, n) and the manipulability at each of their first k points
@@ -292,10 +328,13 @@ class _RedundantIKBase(RobotEnv):
         """
         bound = self.velocity_limit * self.dt * LAP_STRIDE
         points = walk_self_motion(
-            q0, self._task_jacobian,
+            q0,
+            self._task_jacobian,
             lambda x: self._solve_ik(x, self._x_ref[0], self._R_ref[0], iterations=20),
             lambda _, x: joint_limit_margin(x, self.file_lower, self.file_upper) <= 0.0,
-            np.pi, 0.9 * float(np.min(bound)))
+            np.pi,
+            0.9 * float(np.min(bound)),
+        )
         points.append((0.0, q0.copy()))
         points.sort(key=lambda point: point[0])
         start = next(i for i, (arc, _) in enumerate(points) if arc == 0.0)
@@ -309,16 +348,18 @@ class _RedundantIKBase(RobotEnv):
             a[sample, i], b[sample, i] = self.capsules.segments(self.data)
             ok = np.linalg.norm(self._x_ref[k] - p) < LAP_TASK_TOLERANCE
             if self.task_dim == 6:
-                ok = ok and (np.linalg.norm(orientation_error(self._R_ref[k], R))
-                             < 10.0 * LAP_TASK_TOLERANCE)
+                ok = ok and (
+                    np.linalg.norm(orientation_error(self._R_ref[k], R)) < 10.0 * LAP_TASK_TOLERANCE
+                )
             on_task[sample, i] = ok
 
         q, _ = self._min_norm_motion(np.array([x for _, x in points]), LAP_STRIDE, visit)
         inside = np.all((q > self.file_lower) & (q < self.file_upper), axis=2)
         return SelfMotionLap(q, a, b, inside & on_task, start, bound)
 
-    def _clearing_motion(self, lap: SelfMotionLap, centre: np.ndarray, radius: float
-                         ) -> np.ndarray | None:
+    def _clearing_motion(
+        self, lap: SelfMotionLap, centre: np.ndarray, radius: float
+    ) -> np.ndarray | None:
         """A joint path (K, n) through ``lap`` that clears the obstacle by ``LAP_CLEARANCE``
         at every sample, within the joint and velocity limits; None when the lap has none."""
         clear = self.capsules.segment_clearance(lap.a, lap.b, centre, radius)
@@ -344,10 +385,12 @@ class _RedundantIKBase(RobotEnv):
         rng = self.np_random
         lap = self._self_motion_lap(q0)
         motion = lap.q[:, lap.start]  # the minimum-norm motion from q(0)
-        bodies = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b)
-                  for b in self.obstacle_links]
-        pick = [i for i, g in enumerate(self.capsules.geom_ids)
-                if self.model.geom_bodyid[g] in bodies]
+        bodies = [
+            mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.obstacle_links
+        ]
+        pick = [
+            i for i, g in enumerate(self.capsules.geom_ids) if self.model.geom_bodyid[g] in bodies
+        ]
         path_pts = self._x_ref
         best = np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
         for _ in range(30):
@@ -362,8 +405,7 @@ class _RedundantIKBase(RobotEnv):
             centre = point + (self.capsules.radius[i] + radius - depth) * normal
             d_path = np.min(np.linalg.norm(path_pts - centre[: self.pos_dim], axis=1))
             self._forward(q0)
-            if (d_path > radius + 0.08
-                    and self.capsules.clearance(self.data, centre, radius) > 0.03):
+            if d_path > radius + 0.08 and self.capsules.clearance(self.data, centre, radius) > 0.03:
                 witness = self._clearing_motion(lap, centre, radius)
                 if witness is not None:
                     best = np.concatenate((centre, [radius]))
@@ -400,8 +442,9 @@ class _RedundantIKBase(RobotEnv):
         self.model.geom_rgba[self._obstacle_id, 3] = 0.8 if radius > 0 else 0.0
         self._obstacle = np.concatenate((centre[: self.pos_dim], [radius]))
 
-    def _self_motion(self, q: np.ndarray, arc: float = np.pi, step: float = 0.05,
-                     margin: float = 0.6, k: int = 0) -> list[np.ndarray]:
+    def _self_motion(
+        self, q: np.ndarray, arc: float = np.pi, step: float = 0.05, margin: float = 0.6, k: int = 0
+    ) -> list[np.ndarray]:
         """Configurations on the self-motion manifold through ``q`` at the reference pose of
         control step ``k`` (x̄(0) by default).
 
@@ -413,10 +456,13 @@ class _RedundantIKBase(RobotEnv):
         """
         margin = min(margin, joint_limit_margin(q, self.file_lower, self.file_upper) - 1e-9)
         points = walk_self_motion(
-            q, self._task_jacobian,
+            q,
+            self._task_jacobian,
             lambda x: self._solve_ik(x, self._x_ref[k], self._R_ref[k], iterations=20),
             lambda _, x: joint_limit_margin(x, self.file_lower, self.file_upper) < margin,
-            arc, step)
+            arc,
+            step,
+        )
         return [q.copy()] + [x for s, x in points if round(abs(s) / step) % 5 == 0]
 
     def _poorly_conditioned_start(self, q_home_ik: np.ndarray) -> np.ndarray:
@@ -439,7 +485,7 @@ class _RedundantIKBase(RobotEnv):
             motion, w = self._min_norm_motion(q[None], stride=10)
             if np.any(motion < self.file_lower) or np.any(motion > self.file_upper):
                 continue
-            w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * len(w)):]))
+            w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * len(w)) :]))
             if w_lap < best:
                 best, start = w_lap, q
         return start
@@ -466,8 +512,7 @@ class _RedundantIKBase(RobotEnv):
         self.upper[j] = min(self.lower[j] + self.joint_window, self.file_upper[j])
 
     # ------------------------------------------------------------------ gym API
-    def reset(self, *, seed: int | None = None, options: dict | None = None
-              ) -> tuple[dict, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
         rng = self.np_random
         self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
@@ -488,7 +533,8 @@ class _RedundantIKBase(RobotEnv):
                 f"30 draws each with episode_duration={self.max_steps * self.dt:g} s: the links "
                 f"must sweep 3 cm past an obstacle that a self-motion can also avoid, which a "
                 f"short lap does not allow (the default duration placed one on every seed "
-                f"tested, 0-99); use a longer episode_duration")
+                f"tested, 0-99); use a longer episode_duration"
+            )
         if self.objective == "manipulability":
             q0 = self._poorly_conditioned_start(q0)
         if self.initial_error > 0:
@@ -506,33 +552,44 @@ class _RedundantIKBase(RobotEnv):
         self._k_scored = 0
         self._done = False
         self._trace[:] = 0.0
-        info = {"obstacle": self._obstacle.copy(), "q_lower": self.lower.copy(),
-                "q_upper": self.upper.copy()}
+        info = {
+            "obstacle": self._obstacle.copy(),
+            "q_lower": self.lower.copy(),
+            "q_upper": self.upper.copy(),
+        }
         return self._obs(), info
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a, _ = self._check_action(action)
         qd = a * self.velocity_limit  # q̇ (rad/s), clipped to the velocity limits
         q = self._q + self.dt * qd  # exact integration of a constant q̇ over Δt
-        violation = bool(np.any(q < self.lower) or np.any(q > self.upper))
+        violation = bool((q < self.lower).any() or (q > self.upper).any())
         if violation:
             q = np.clip(q, self.lower, self.upper)  # stops at the limit
         self._q = q
         k = min(self._k, self.max_steps - 1)  # past the end: the last reference is held
         self._k = k + 1
         p, R = self._forward(q)
-        e_pos = float(np.linalg.norm(self._x_ref[self._k] - p))
-        e_rot = (float(np.linalg.norm(orientation_error(self._R_ref[self._k], R)))
-                 if self.task_dim == 6 else 0.0)
+        d = self._x_ref[self._k] - p
+        e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
+        if self.task_dim == 6:
+            phi = orientation_error(self._R_ref[self._k], R)
+            e_rot = math.sqrt(float(phi.dot(phi)))
+        else:
+            e_rot = 0.0
         w = manipulability(self._task_jacobian(q))
         margin = joint_limit_margin(q, self.lower, self.upper)
         clear = self.capsules.clearance(self.data, self._obstacle_centre, self._obstacle_radius)
         collision = clear < 0.0
         self._trace[:, k] = (e_pos, e_rot, w, margin, clear, 0.0)
 
-        r_track = -(1.0 - float(np.mean(np.exp(-(e_pos**2) / self.error_scales**2))))
-        r_orient = (-(1.0 - float(np.mean(np.exp(-(e_rot**2) / self.orientation_scales**2))))
-                    if self.task_dim == 6 else 0.0)
+        kernel = np.exp(-(e_pos**2) / self.error_scales**2)
+        r_track = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
+        if self.task_dim == 6:
+            kernel = np.exp(-(e_rot**2) / self.orientation_scales**2)
+            r_orient = -(1.0 - float(kernel.sum()) / kernel.size)
+        else:
+            r_orient = 0.0
         r_secondary = -self.secondary_weight * self._secondary_cost(q, w, clear)
         r_velocity = -self.velocity_weight * float(a @ a) / self.n
         terminated = violation or collision
@@ -578,16 +635,19 @@ class _RedundantIKBase(RobotEnv):
         self._trace[:, later] = self._trace[:, k : k + 1]
         self._trace[0, later] = np.linalg.norm(self._x_ref[later + 1] - p, axis=1)
         if self.task_dim == 6:
-            self._trace[1, later] = [np.linalg.norm(orientation_error(self._R_ref[j + 1], R))
-                                     for j in later]
+            self._trace[1, later] = [
+                np.linalg.norm(orientation_error(self._R_ref[j + 1], R)) for j in later
+            ]
         self._k_scored = self.max_steps
 
     def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
         """The base class's check, plus: strings or objects are not actions (even "0.1")."""
         kind = np.asarray(action, dtype=object if isinstance(action, list) else None).dtype.kind
         if kind in "USO" and not (kind == "O" and _all_numbers(action)):
-            raise ValueError(f"action must be numbers of shape {self.action_space.shape} in "
-                             f"[-1, 1], got {action!r}")
+            raise ValueError(
+                f"action must be numbers of shape {self.action_space.shape} in "
+                f"[-1, 1], got {action!r}"
+            )
         return super()._check_action(action)
 
     def _secondary_cost(self, q: np.ndarray, w: float, clear: float) -> float:
@@ -610,9 +670,13 @@ class _RedundantIKBase(RobotEnv):
             metrics["rms_orientation_error"] = float(np.sqrt(np.mean(r**2)))
             metrics["max_orientation_error"] = float(np.max(r))
         metrics |= {
-            "min_manipulability": float(np.min(w[int(MANIPULABILITY_WINDOW * self.max_steps):]
-                                               if k > MANIPULABILITY_WINDOW * self.max_steps
-                                               else w)),
+            "min_manipulability": float(
+                np.min(
+                    w[int(MANIPULABILITY_WINDOW * self.max_steps) :]
+                    if k > MANIPULABILITY_WINDOW * self.max_steps
+                    else w
+                )
+            ),
             "min_joint_limit_margin": float(np.min(margin)),
             "min_clearance": float(np.min(clear)),
             "joint_drift": float(np.linalg.norm(self._q - self._q0)),
@@ -636,16 +700,25 @@ class _RedundantIKBase(RobotEnv):
 
     # ------------------------------------------------------------------ observation
     def _obs(self) -> dict[str, np.ndarray]:
+        """The observation: one new flat buffer, filled, clipped to the bounds once, handed
+        out as views (each step's arrays are new; nothing is shared with the env's state)."""
         k = self._k
         p, R = self._forward(self._q)
-        raw = {"q": self._q, "x": p, "x_ref": self._x_ref[k], "xd_ref": self._xd_ref[k]}
+        buf = np.empty(self._obs_high.size)
+        v = {key: buf[sl] for key, sl in self._obs_slices.items()}
+        v["q"][:] = self._q
+        v["x"][:] = p
+        v["x_ref"][:] = self._x_ref[k]
+        v["xd_ref"][:] = self._xd_ref[k]
         if self.task_dim == 6:
-            raw |= {"quat": align_quat(traj.quat_from_matrix(R), self._quat_home),
-                    "quat_ref": self._quat_ref[k],
-                    "omega_ref": self._omega_ref[k]}
-        raw |= {"q_lower": self.lower, "q_upper": self.upper, "obstacle": self._obstacle}
-        return {key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key])
-                for key, v in raw.items()}
+            v["quat"][:] = align_quat(traj.quat_from_matrix(R), self._quat_home)
+            v["quat_ref"][:] = self._quat_ref[k]
+            v["omega_ref"][:] = self._omega_ref[k]
+        v["q_lower"][:] = self.lower
+        v["q_upper"][:] = self.upper
+        v["obstacle"][:] = self._obstacle
+        np.clip(buf, self._obs_low, self._obs_high, out=buf)
+        return v
 
     def controller_context(self) -> TaskContext:
         return TaskContext(
@@ -654,26 +727,36 @@ class _RedundantIKBase(RobotEnv):
             action_kind="joint_velocity",
             action_scale=self.velocity_limit.copy(),
             site=self.site,
-            extras={"objective": self.objective, "task_dim": self.task_dim,
-                    "pos_dim": self.pos_dim},
+            extras={
+                "objective": self.objective,
+                "task_dim": self.task_dim,
+                "pos_dim": self.pos_dim,
+            },
         )
 
     def _time_grid(self) -> np.ndarray:
         return np.arange(self.max_steps + 1) * self.dt
 
-    def _closed_path(self, shape: str, centre: np.ndarray, size: float, aspect: float,
-                     timing: traj.TimingLaw, start_angle: float, turns: float,
-                     **plane: Any) -> traj.Ellipse | traj.FigureEight:
+    def _closed_path(
+        self,
+        shape: str,
+        centre: np.ndarray,
+        size: float,
+        aspect: float,
+        timing: traj.TimingLaw,
+        start_angle: float,
+        turns: float,
+        **plane: Any,
+    ) -> traj.Ellipse | traj.FigureEight:
         if shape == "circle":
-            return traj.Circle(centre, size, timing, start_angle=start_angle, turns=turns,
-                               **plane)
+            return traj.Circle(centre, size, timing, start_angle=start_angle, turns=turns, **plane)
         if shape == "ellipse":
-            return traj.Ellipse(centre, size, aspect * size, timing, start_angle=start_angle,
-                                turns=turns, **plane)
-        return traj.FigureEight(centre, size, aspect * size, timing, start_angle=start_angle,
-                                turns=turns, **plane)
-
-
+            return traj.Ellipse(
+                centre, size, aspect * size, timing, start_angle=start_angle, turns=turns, **plane
+            )
+        return traj.FigureEight(
+            centre, size, aspect * size, timing, start_angle=start_angle, turns=turns, **plane
+        )
 
 
 # ---------------------------------------------------------------------- planar3r
@@ -845,13 +928,21 @@ class RedundantIKEnv(_RedundantIKBase):
         width: int = 480,
         height: int = 480,
     ) -> None:
-        self._setup(objective=objective, control_freq=control_freq,
-                    episode_duration=episode_duration, initial_error=initial_error,
-                    joint_window=joint_window, error_scales=error_scales,
-                    secondary_weight=secondary_weight, velocity_weight=velocity_weight,
-                    termination_penalty=termination_penalty,
-                    success_threshold=success_threshold, render_mode=render_mode, width=width,
-                    height=height)
+        self._setup(
+            objective=objective,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            initial_error=initial_error,
+            joint_window=joint_window,
+            error_scales=error_scales,
+            secondary_weight=secondary_weight,
+            velocity_weight=velocity_weight,
+            termination_penalty=termination_penalty,
+            success_threshold=success_threshold,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
 
     def _add_camera(self, spec: mujoco.MjSpec) -> None:
         spec.worldbody.add_camera(name="top", pos=[0.4, 0.3, 2.6], fovy=45.0)
@@ -871,9 +962,16 @@ class RedundantIKEnv(_RedundantIKBase):
         angle = float(rng.uniform(-np.pi, np.pi))  # orientation of the shape's axes
         axes = ((np.cos(angle), np.sin(angle)), (-np.sin(angle), np.cos(angle)))
         timing = traj.TimingLaw.quintic(self.max_steps * self.dt)
-        path = self._closed_path(shape, centre, size, aspect, timing,
-                                 float(rng.uniform(-np.pi, np.pi)),
-                                 float(rng.choice((-1.0, 1.0))), axes=axes)
+        path = self._closed_path(
+            shape,
+            centre,
+            size,
+            aspect,
+            timing,
+            float(rng.uniform(-np.pi, np.pi)),
+            float(rng.choice((-1.0, 1.0))),
+            axes=axes,
+        )
         self._x_ref[:], self._xd_ref[:], _ = path.evaluate(self._time_grid())
 
 
@@ -1007,13 +1105,21 @@ class RedundantIK7Env(_RedundantIKBase):
         width: int = 480,
         height: int = 480,
     ) -> None:
-        self._setup(objective=objective, control_freq=control_freq,
-                    episode_duration=episode_duration, initial_error=initial_error,
-                    joint_window=joint_window, error_scales=error_scales,
-                    secondary_weight=secondary_weight, velocity_weight=velocity_weight,
-                    termination_penalty=termination_penalty,
-                    success_threshold=success_threshold, render_mode=render_mode, width=width,
-                    height=height)
+        self._setup(
+            objective=objective,
+            control_freq=control_freq,
+            episode_duration=episode_duration,
+            initial_error=initial_error,
+            joint_window=joint_window,
+            error_scales=error_scales,
+            secondary_weight=secondary_weight,
+            velocity_weight=velocity_weight,
+            termination_penalty=termination_penalty,
+            success_threshold=success_threshold,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
 
     def _draw_path(self) -> None:
         rng = self.np_random
@@ -1025,9 +1131,16 @@ class RedundantIK7Env(_RedundantIKBase):
         aspect = float(rng.uniform(0.5, 1.0))
         T = self.max_steps * self.dt
         timing = traj.TimingLaw.quintic(T)
-        path = self._closed_path(shape, centre, size, aspect, timing,
-                                 float(rng.uniform(-np.pi, np.pi)),
-                                 float(rng.choice((-1.0, 1.0))), normal=normal)
+        path = self._closed_path(
+            shape,
+            centre,
+            size,
+            aspect,
+            timing,
+            float(rng.uniform(-np.pi, np.pi)),
+            float(rng.choice((-1.0, 1.0))),
+            normal=normal,
+        )
         t = self._time_grid()
         self._x_ref[:], self._xd_ref[:], _ = path.evaluate(t)
         # R̄(t) = Rot(r, α sin 2πσ) R_home, ω̄ = r α 2π cos(2πσ) σ̇ (world frame)
@@ -1036,8 +1149,9 @@ class RedundantIK7Env(_RedundantIKBase):
         alpha = float(rng.uniform(0.1, 0.3))
         s, sd, _ = timing.evaluate(t)
         sigma, sigma_d = s / timing.length, sd / timing.length
-        self._R_ref[:] = traj.matrix_from_axis_angle(axis, alpha * np.sin(2 * np.pi * sigma)) \
-            @ R_home
+        self._R_ref[:] = (
+            traj.matrix_from_axis_angle(axis, alpha * np.sin(2 * np.pi * sigma)) @ R_home
+        )
         # the hemisphere of the home orientation (continuous: R̄ stays within 0.3 rad of it)
         self._quat_ref[:] = align_quat(traj.quat_from_matrix(self._R_ref), self._quat_home)
         rate = alpha * 2 * np.pi * np.cos(2 * np.pi * sigma) * sigma_d
