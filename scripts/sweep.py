@@ -713,17 +713,12 @@ def _run_ray(
             ready, pending = ray.wait(pending, num_returns=1)
             task = refs[ready[0]]
             try:
-                done({**ray.get(ready[0]), "attempts": None})
+                record = {**ray.get(ready[0]), "attempts": None}
             except Exception as exc:  # RayTaskError (it raised), WorkerCrashedError, ...
                 cause = getattr(exc, "cause", None) or exc
-                done(
-                    _failed(
-                        task,
-                        f"{type(cause).__name__}: {cause}".split("\n")[0],
-                        str(exc),
-                        retries + 1,
-                    )
-                )
+                error = f"{type(cause).__name__}: {cause}".split("\n")[0]
+                record = _failed(task, error, str(exc), retries + 1)
+            done(record)
     finally:
         if started:
             ray.shutdown()

@@ -417,3 +417,15 @@ def test_every_shipped_grid_expands(path):
 
     tasks = expand(load_grid(path))
     assert tasks and len({t["task_id"] for t in tasks}) == len(tasks)
+
+
+def test_ray_stays_optional():
+    """Neither the package nor the command line imports Ray (or pyarrow) until a sweep asks."""
+    code = (
+        "import sys, cir_gym, baselines, agents, scripts.cli, scripts.sweep, scripts.leaderboard;"
+        "print(sorted(m for m in ('ray', 'pyarrow') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    ).stdout
+    assert out.strip() == "[]"
