@@ -64,8 +64,11 @@ class DriveModel:
     ripple_harmonic: int = 6
 
     def __post_init__(self) -> None:
-        for name, low, high in (("encoder_bits", 0, 40), ("delay_steps", 0, 100),
-                                ("ripple_harmonic", 1, 1000)):
+        for name, low, high in (
+            ("encoder_bits", 0, 40),
+            ("delay_steps", 0, 100),
+            ("ripple_harmonic", 1, 1000),
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not low <= v <= high:
                 raise ValueError(f"{name} must be an integer in [{low}, {high}], got {v!r}")
@@ -83,7 +86,8 @@ class DriveModel:
     def quantize(self, q: np.ndarray) -> np.ndarray:
         """q_meas = Δ round(q / Δ) (a copy of q when exact)."""
         res = self.resolution
-        return np.round(q / res) * res if res > 0 else np.array(q, dtype=float, copy=True)
+        # np.rint is np.round's decimals=0 (half to even) without its Python wrapper
+        return np.rint(q / res) * res if res > 0 else np.array(q, dtype=float, copy=True)
 
     def ripple(self, tau: np.ndarray, q: np.ndarray, gear_ratio: np.ndarray) -> np.ndarray:
         """τ (1 + r sin(h N q)): the torque a drive applies for the command τ at joint angle q."""

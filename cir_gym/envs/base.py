@@ -67,8 +67,13 @@ MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverge
 _ABS = np.absolute
 _MAX = np.maximum.reduce
 _SUM = np.add.reduce
+_SUB = np.subtract
+_MUL = np.multiply
+_EXP = np.exp
+_RINT = np.rint  # np.round(x) with decimals=0 is rint (half to even), without its wrapper
 _CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 _isfinite = math.isfinite
+_MAX_SPEED_SQ = MAX_JOINT_SPEED**2  # ‖q̇‖² bound of the pre-check in _simulate
 _STATE = int(
     mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL | mujoco.mjtState.mjSTATE_ACT
 )
@@ -85,6 +90,23 @@ _UNSTABLE_WARNINGS = sorted(
 # slice widens and _simulate counts them one by one instead (RobotEnv._instability_warnings)
 _UNSTABLE_FIRST, _UNSTABLE_LAST = _UNSTABLE_WARNINGS[0], _UNSTABLE_WARNINGS[-1]
 _UNSTABLE_CONTIGUOUS = _UNSTABLE_LAST - _UNSTABLE_FIRST + 1 == len(_UNSTABLE_WARNINGS)
+
+
+def index_view(index: np.ndarray) -> slice | np.ndarray:
+    """A slice that selects what the integer array ``index`` selects, when its entries are
+    evenly spaced (``qpos[s]`` is then a view: no copy, no fancy-indexing cost), else
+    ``index`` itself. Used on the hot path for the robot's joints in ``qpos``/``qvel``."""
+    idx = np.asarray(index, dtype=np.int64).ravel()
+    if idx.size == 0 or np.any(idx < 0):
+        return np.asarray(index)
+    step = int(idx[1] - idx[0]) if idx.size > 1 else 1
+    if step == 0:
+        return np.asarray(index)
+    stop = int(idx[-1]) + step
+    view = slice(int(idx[0]), None if stop < 0 else stop, step)
+    if not np.array_equal(np.arange(int(idx.max()) + 1)[view], idx):
+        return np.asarray(index)
+    return view
 
 
 def _has_display() -> bool:
@@ -357,15 +379,28 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self._safe_state = np.zeros(size)  # the last finite (qpos, qvel, act), see _simulate
         self._scratch_state = np.zeros(size)
         mujoco.mj_getState(model, self.data, self._safe_state, _STATE)
-        self._warn_data: mujoco.MjData | None = None  # self.data of the cached view below
+        self._warn_data: mujoco.MjData | None = None  # self.data of the cached views below
         self._warn_view = np.zeros(0, np.int32)
+        self._views: tuple[np.ndarray, ...] = ()  # (ctrl, qpos, qvel) of self._warn_data
 
     # ------------------------------------------------------------------ validation
     def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
         """Validate an action; return it as float64 clipped to [-1, 1] and whether it was clipped.
 
-        The result is a new array (never the caller's). One reduction, max |a|, decides both
-        finiteness (NaN propagates, inf exceeds 1) and clipping; the errors come only after.
+        The result is a new array (never the caller's); see :meth:`_check_action_peak`.
+
+        Raises:
+            ValueError: wrong shape, a non-numeric dtype, or NaN/inf entries.
+        """
+        a, clipped, _ = self._check_action_peak(action)
+        return a, clipped
+
+    def _check_action_peak(self, action: Any) -> tuple[np.ndarray, bool, float]:
+        """:meth:`_check_action`, plus max |a_i| of the returned action (1.0 if clipped).
+
+        The entries as Python floats (cheaper than numpy reductions on a few elements): their
+        sum decides finiteness (NaN and inf propagate), min and max the clipping; the errors
+        come only after.
 
         Raises:
             ValueError: wrong shape, a non-numeric dtype, or NaN/inf entries.
@@ -391,38 +426,47 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                     f"action has shape {a.shape}; this environment expects shape {shape} "
                     f"(values in [-1, 1])"
                 )
-        if a.size == 0 or _MAX(_ABS(a)) <= 1.0:  # the common case: finite and in range
-            return a, False
+        values = a.ravel().tolist()
+        # the common case, finite and in range: a finite sum means no NaN/inf (an overflow
+        # of finite values only takes the exact path below)
+        if values and _isfinite(sum(values)):
+            low, high = min(values), max(values)
+            if low >= -1.0 and high <= 1.0:
+                return a, False, max(high, -low)
+        elif not values:
+            return a, False, 0.0
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
-        return _CLIP(a, -1.0, 1.0, out=a), True
+        return _CLIP(a, -1.0, 1.0, out=a), True, 1.0
 
     # ------------------------------------------------------------------ physics
     def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:
         """Hold ``ctrl`` for ``frame_skip`` steps; return True (and restore) if it diverged.
 
-        Cost beyond ``mj_step``: one ``mj_getState`` and one sum for the finite check of the
-        state before (kept to restore it on divergence), a bytes compare of MuJoCo's
-        instability-warning counters and two reductions (max |q̇|, Σ q) after; the exact
-        element-wise checks run only when these flag something.
+        Cost beyond the one ``mj_step(m, d, frame_skip)`` call: one ``mj_getState`` and one
+        dot product for the finite check of the state before (kept to restore it on
+        divergence), a bytes compare of MuJoCo's instability-warning counters and two dot
+        products after: ‖q̇‖² ≤ MAX_JOINT_SPEED² implies every |q̇_i| ≤ MAX_JOINT_SPEED and a
+        finite q̇, a finite ‖q‖² a finite q (NaN fails every comparison; an overflow only
+        sends the step to the exact element-wise checks, which run only when these flag
+        something). The views of ``ctrl``, ``qpos``, ``qvel`` and the counters are built once
+        per MjData.
         """
         m, d = self.model, self.data
+        if self._warn_data is not d:  # views of MuJoCo's arrays, rebuilt if data changed
+            self._refresh_views(d)
+        d_ctrl, d_qpos, d_qvel = self._views
         scratch = self._scratch_state
         mujoco.mj_getState(m, d, scratch, _STATE)
-        if _isfinite(_SUM(scratch)):  # all finite (an overflowing sum only skips this save)
+        if _isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
             self._scratch_state, self._safe_state = self._safe_state, scratch
-        d.ctrl[:] = ctrl
+        d_ctrl[:] = ctrl
         if qfrc is not None:
             d.qfrc_applied[:] = qfrc
-        if self._warn_data is not d:  # a view of MuJoCo's counters, rebuilt if data changed
-            number = d.warning.number
-            self._warn_view = number[_UNSTABLE_FIRST : _UNSTABLE_LAST + 1]
-            self._warn_data = d
         warnings_before = (
             self._warn_view.tobytes() if _UNSTABLE_CONTIGUOUS else self._instability_warnings()
         )
-        for _ in range(self.frame_skip):
-            mujoco.mj_step(m, d)
+        mujoco.mj_step(m, d, self.frame_skip)
         # MuJoCo resets a bad state or zeroes a huge control and counts a warning (the
         # counters only grow, so changed bytes mean a new warning)
         diverged = (
@@ -431,7 +475,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             else self._instability_warnings() > warnings_before
         )
         if not diverged and not (
-            _MAX(_ABS(d.qvel), initial=0.0) <= MAX_JOINT_SPEED and _isfinite(_SUM(d.qpos))
+            d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ and _isfinite(d_qpos.dot(d_qpos))
         ):  # NaN fails every comparison: exact checks only here
             with np.errstate(all="ignore"):
                 diverged = bool(
@@ -444,6 +488,19 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             mujoco.mj_setState(m, d, self._safe_state, _STATE)
             mujoco.mj_forward(m, d)
         return diverged
+
+    def _data_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ctrl, qpos, qvel) of ``self.data``: views built once per MjData (a pybind
+        property builds a new array on every access)."""
+        if self._warn_data is not self.data:
+            self._refresh_views(self.data)
+        return self._views
+
+    def _refresh_views(self, d: mujoco.MjData) -> None:
+        """Build the cached views of ``d`` (a subclass may add its own, after this)."""
+        self._warn_view = d.warning.number[_UNSTABLE_FIRST : _UNSTABLE_LAST + 1]
+        self._views = (d.ctrl, d.qpos, d.qvel)
+        self._warn_data = d
 
     _UNSTABLE = (
         mujoco.mjtWarning.mjWARN_BADQACC,
@@ -543,6 +600,10 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         state = self.__dict__.copy()
         state["_renderer"] = None
         state["_viewer"] = None
+        # views into MuJoCo's arrays would come back as copies, detached from the new MjData
+        state["_warn_data"] = None
+        state["_warn_view"] = np.zeros(0, np.int32)
+        state["_views"] = ()
         return state
 
     # ------------------------------------------------------------------ controllers

@@ -6,10 +6,15 @@ from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
-from gymnasium import spaces
 
 from cir_gym.drives import DriveState
-from cir_gym.envs.base import InvalidArgument, TaskContext, as_float_array, check_number
+from cir_gym.envs.base import (
+    InvalidArgument,
+    TaskContext,
+    as_float_array,
+    check_number,
+    index_view,
+)
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 from cir_gym.robot import ModelError, Robot, apply_model_error, robot_path
 
@@ -158,15 +163,10 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         m = self.model
         self._ma = np.array([m.jnt_qposadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
         self._md = np.array([m.jnt_dofadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
-        bound = {"q_motor": 2 * np.pi, "qd_motor": 50.0}
-        self._obs_bounds.update(bound)
+        self._ma_at, self._md_at = index_view(self._ma), index_view(self._md)
         self._motor_drive = None if self.drive is None else DriveState(self.drive, 7)
-        self.observation_space = spaces.Dict(
-            {
-                **self.observation_space.spaces,
-                **{k_: spaces.Box(-b, b, (7,), dtype=np.float64) for k_, b in bound.items()},
-            }
-        )
+        self._set_observation_space({**self._obs_bounds, "q_motor": 2 * np.pi, "qd_motor": 50.0})
+        self._motor_row = self._obs_keys.index("q_motor")  # q_motor, then qd_motor
 
     # hooks of JointTrackingEnv
     def _build_robot(self) -> Robot:
@@ -215,7 +215,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         m.dof_frictionloss[link] = 0.0
 
     def _motor_angle(self) -> np.ndarray:
-        return self.data.qpos[self._ma]
+        return self.data.qpos[self._ma_at]
 
     def _reset_drive(self) -> None:
         super()._reset_drive()
@@ -231,16 +231,16 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         qvel[self._md] = qd0
         self._reset_physics(qpos, qvel)
 
-    def _obs(self) -> dict[str, np.ndarray]:
-        obs = super()._obs()
-        d = self.data
-        theta, theta_d = d.qpos[self._ma], d.qvel[self._md]
-        if getattr(self, "_motor_drive", None) is not None:  # once per control instant
+    def _measure(self, out: np.ndarray) -> None:
+        """The link rows as JointTracking, then the motor encoders θ, θ̇ (link units)."""
+        super()._measure(out)
+        _, qpos, qvel = self._data_views()
+        theta, theta_d = qpos[self._ma_at], qvel[self._md_at]
+        if self._motor_drive is not None:  # once per control instant
             theta, theta_d = self._motor_drive.measure(theta, theta_d, self.dt)
-        for key, val in (("q_motor", theta), ("qd_motor", theta_d)):
-            b = self._obs_bounds[key]
-            obs[key] = np.clip(val, -b, b)
-        return obs
+        row = self._motor_row
+        out[row] = theta
+        out[row + 1] = theta_d
 
     def controller_context(self) -> TaskContext:
         ctx = super().controller_context()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -10,6 +11,10 @@ from gymnasium import spaces
 from cir_gym import trajectories as traj
 from cir_gym.drives import DRIVES, DriveModel, DriveState
 from cir_gym.envs.base import (
+    _CLIP,
+    _EXP,
+    _RINT,
+    _SUM,
     InvalidArgument,
     RobotEnv,
     TaskContext,
@@ -17,6 +22,7 @@ from cir_gym.envs.base import (
     check_encoder_resolution,
     check_flag,
     check_number,
+    index_view,
     model_error_arguments,
 )
 from cir_gym.metrics import MetricSpec
@@ -35,6 +41,18 @@ MAX_GEAR_RATIO = 1.0e4
 
 #: Ranges drawn per episode when randomize=True (uniform): cir_gym.robot's.
 RANDOM_RANGES = MODEL_ERROR_RANGES
+
+
+def _mean(values: np.ndarray) -> float:
+    """``float(np.mean(values))`` of a 1-D float64 array, bit for bit, without np.mean's
+    Python layers: below 8 terms numpy's sum adds from left to right (pairwise beyond)."""
+    if values.size >= 8:
+        return float(_SUM(values)) / values.size
+    terms = values.tolist()
+    total = terms[0]
+    for v in terms[1:]:
+        total += v
+    return total / len(terms)
 
 
 class JointTrackingEnv(RobotEnv):
@@ -165,7 +183,12 @@ class JointTrackingEnv(RobotEnv):
     Without a version bump (metrics and new arguments whose defaults keep v1's episodes):
     success judged after the settling window of an off-reference start; ``settling_time``,
     ``drive``, ``charge_unplayed_steps``; a ``control_freq`` that is not 1 kHz / integer is
-    rejected (it was rounded: 300 Hz ran at 333 Hz).
+    rejected (it was rounded: 300 Hz ran at 333 Hz). Issue 21 made ``step`` cheaper without
+    changing a number (rollouts bit for bit the same; tests compare the step with a plain
+    computation from this docstring): the observation is one (keys, n) array per step,
+    clipped in one call, whose rows are the dict's entries (never written afterwards); the
+    reward's reductions are Python floats or dot products; one finite check of the state
+    (``RobotEnv._simulate``). Overhead over the physics: results/benchmarks.md.
 
     - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
       From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
@@ -232,15 +255,12 @@ class JointTrackingEnv(RobotEnv):
         self.randomize = check_flag("randomize", randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
         scales = np.atleast_1d(as_float_array("error_scales", error_scales))
-        if (
-            scales.ndim != 1
-            or scales.size == 0
-            or not np.all((scales >= 1e-9) & (scales <= 1e3))
-        ):
+        if scales.ndim != 1 or scales.size == 0 or not np.all((scales >= 1e-9) & (scales <= 1e3)):
             raise InvalidArgument(
                 f"error_scales must be numbers in [1e-9, 1e3] rad, got {error_scales!r}"
             )
         self.error_scales = scales
+        self._scales_sq = scales**2  # the reward's s² (step divides by it)
         self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
         self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
         self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
@@ -301,11 +321,11 @@ class JointTrackingEnv(RobotEnv):
         self.torque_limit = self.robot.torque_limit.copy()
         self.n = n
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr  # the link joints
+        # slices (views, no copies) where the joints' addresses are evenly spaced
+        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
-        bounds = {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
-        self._obs_bounds = bounds
-        self.observation_space = spaces.Dict(
-            {k: spaces.Box(-b, b, (n,), dtype=np.float64) for k, b in bounds.items()}
+        self._set_observation_space(
+            {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
         )
         steps = self.max_steps
         self._ref = np.zeros((3, steps + 1, n))
@@ -340,7 +360,21 @@ class JointTrackingEnv(RobotEnv):
 
     def _motor_angle(self) -> np.ndarray:
         """Motor positions in link units θ (n,) (the joints here; q_m = N θ)."""
-        return self.data.qpos[self._qa]
+        return self.data.qpos[self._q_at]
+
+    def _set_observation_space(self, bounds: dict[str, float]) -> None:
+        """The Dict observation space: key → bound (each a Box(−b, b, (n,)) of float64), in
+        the order :meth:`_obs` returns the keys: q, qd, the reference rows, then a subclass's.
+        Also the (keys, n) layout ``_obs`` fills: one array per step, clipped in one call."""
+        n = self.robot.n
+        self._obs_bounds = dict(bounds)
+        self.observation_space = spaces.Dict(
+            {k: spaces.Box(-b, b, (n,), dtype=np.float64) for k, b in bounds.items()}
+        )
+        self._obs_keys = tuple(bounds)
+        self._obs_hi = np.array([float(b) for b in bounds.values()])[:, None]
+        self._obs_lo = -self._obs_hi
+        self._obs_shape = (len(bounds), n)
 
     def _home(self) -> np.ndarray:
         m = self.robot.model
@@ -427,9 +461,9 @@ class JointTrackingEnv(RobotEnv):
         self._following_error_limit = float(
             np.linalg.norm(self._ref[0, 0] - q0) + (self.max_following_error or 0.0)
         )
-        self._a_prev[:] = 0.0
+        self._a_prev = np.zeros(self.n)
         self._diverged = False
-        self._q_meas_prev[:] = self._quantize(q0)
+        self._q_meas_prev = self._quantize(q0)
         off_reference = bool(np.any(q0 != self._ref[0, 0]))
         self._judged_from = self._settle_steps if off_reference else 0
         self._reset_drive()
@@ -441,39 +475,41 @@ class JointTrackingEnv(RobotEnv):
             self._drive_state.reset(d.qpos[self._qa], d.qvel[self._da], self.dt)
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        if self._k >= self.max_steps:
+        k = self._k
+        if k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        a, clipped = self._check_action(action)
-        tau = a * self.torque_limit
+        a, _, peak = self._check_action_peak(action)
+        tau = a * self.torque_limit  # commanded (the metrics' τ; drive and noise act on it)
+        self._tau[k] = tau
         if self._drive_state is not None:  # one period late, with the motor's ripple
             tau = self._drive_state.actuate(tau)
             tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
         if self.torque_noise > 0:
             tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-        self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
+        if self.encoder_resolution > 0 and self._drive_state is None:  # for q̇ by differences
+            self._q_meas_prev = self._quantize(self.data.qpos[self._q_at])
         diverged = self._simulate(tau)
-        k = self._k
-        self._k += 1
-        q_err = self._ref[0, self._k] - self.data.qpos[self._qa]
+        self._k = k1 = k + 1
+        q_err = self._ref[0, k1] - self._views[1][self._q_at]  # views: set by _simulate
         self._err[k] = q_err
-        self._tau[k] = a * self.torque_limit
-        self._sat[k] = clipped or bool(np.any(np.abs(a) >= 1.0))
+        self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
 
-        err_sq = float(q_err @ q_err)
-        r_track = -(1.0 - float(np.mean(np.exp(-err_sq / self.error_scales**2))))
-        r_torque = -self.torque_weight * float(a @ a) / self.n
+        err_sq = float(q_err.dot(q_err))
+        r_track = -(1.0 - _mean(_EXP(-err_sq / self._scales_sq)))
+        r_torque = -self.torque_weight * float(a.dot(a)) / self.n
         da = a - self._a_prev
-        r_rate = -self.action_rate_weight * float(da @ da) / self.n
-        stopped = bool(
+        r_rate = -self.action_rate_weight * float(da.dot(da)) / self.n
+        joint_error = math.sqrt(err_sq)
+        stopped = (
             not diverged
             and self.max_following_error is not None
-            and np.sqrt(err_sq) > self._following_error_limit
+            and joint_error > self._following_error_limit
         )
         # the worst reward of the steps a stopped episode does not play (section Rewards)
-        unplayed = (self.max_steps - self._k) * self._worst_step if self.charge_unplayed_steps else 0.0
+        unplayed = (self.max_steps - k1) * self._worst_step if self.charge_unplayed_steps else 0.0
         r_div = -(self.divergence_penalty + unplayed) if diverged else 0.0
         r_follow = -(self.following_error_penalty + unplayed) if stopped else 0.0
-        self._a_prev[:] = a
+        self._a_prev = a  # a new array of _check_action_peak's, never the caller's
         reward = r_track + r_torque + r_rate + r_follow + r_div
 
         terminated = diverged or stopped
@@ -484,12 +520,12 @@ class JointTrackingEnv(RobotEnv):
             "reward_action_rate": r_rate,
             "reward_following_error": r_follow,
             "reward_diverged": r_div,
-            "joint_error": float(np.sqrt(err_sq)),
+            "joint_error": joint_error,
             "following_error_exceeded": stopped,
             "diverged": diverged,
         }
         if stopped:  # scored over the whole horizon: the last error held (section Episode End)
-            self._err[self._k :] = q_err
+            self._err[k1:] = q_err
             self._k_scored = self.max_steps
         if terminated or truncated:
             metrics = self.episode_metrics()
@@ -529,27 +565,32 @@ class JointTrackingEnv(RobotEnv):
     # ------------------------------------------------------------------ observation
     def _quantize(self, q: np.ndarray) -> np.ndarray:
         res = self.encoder_resolution
-        return np.round(q / res) * res if res > 0 else q.copy()
+        return _RINT(q / res) * res if res > 0 else q.copy()
+
+    def _measure(self, out: np.ndarray) -> None:
+        """Write the measured rows of the observation (unclipped) into ``out`` (keys, n):
+        q and q̇ in rows 0 and 1 (a subclass adds its own rows). With a drive this advances
+        its velocity difference: once per control instant."""
+        _, qpos, qvel = self._data_views()
+        q, qd = qpos[self._q_at], qvel[self._qd_at]
+        if self._drive_state is not None:
+            q, qd = self._drive_state.measure(q, qd, self.dt)
+        elif self.encoder_resolution > 0:
+            q = self._quantize(q)
+            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else 0.0
+        out[0] = q
+        out[1] = qd
 
     def _obs(self) -> dict[str, np.ndarray]:
+        """The observation: one fresh (keys, n) array per call, measured rows and the
+        reference at step k, clipped to the bounds; the dict's entries are its rows (views of
+        an array that nothing writes to afterwards: an observation kept stays as it was)."""
         k = min(self._k, self.max_steps)
-        q = self._quantize(self.data.qpos[self._qa])
-        if self._drive_state is not None:  # called once per control instant
-            q, qd = self._drive_state.measure(self.data.qpos[self._qa], self.data.qvel[self._da], self.dt)
-        elif self.encoder_resolution > 0:
-            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
-        else:
-            qd = self.data.qvel[self._da]
-        raw = {
-            "q": q,
-            "qd": qd,
-            "q_ref": self._ref[0, k],
-            "qd_ref": self._ref[1, k],
-            "qdd_ref": self._ref[2, k],
-        }
-        return {
-            key: np.clip(v, -self._obs_bounds[key], self._obs_bounds[key]) for key, v in raw.items()
-        }
+        out = np.empty(self._obs_shape)
+        self._measure(out)
+        out[2:5] = self._ref[:, k]  # q̄, q̄̇, q̄̈
+        _CLIP(out, self._obs_lo, self._obs_hi, out=out)
+        return dict(zip(self._obs_keys, out, strict=False))  # (strict=True: 2 µs more)
 
     def controller_context(self) -> TaskContext:
         return TaskContext(
@@ -561,4 +602,3 @@ class JointTrackingEnv(RobotEnv):
             gear_ratio=self.gear_ratio.copy(),
             rotor_inertia=self.rotor_inertia.copy(),
         )
-
