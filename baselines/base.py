@@ -11,18 +11,58 @@ treats recurrent policies, so ``stable_baselines3.common.evaluation.evaluate_pol
 from __future__ import annotations
 
 import dataclasses
+import math
 import numbers
 import types
 import typing
 from typing import Any, ClassVar
 
+import mujoco
 import numpy as np
 
 from cir_gym.envs.base import TaskContext
+from cir_gym.robot import Robot
 
-__all__ = ["Controller", "InvalidGain", "Observation", "check_gain_type"]
+__all__ = ["Controller", "InvalidGain", "Observation", "RowDynamics", "check_gain_type"]
 
 Observation = dict[str, np.ndarray]
+
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
+_isfinite = math.isfinite
+
+
+def _check_observation(obs: Observation) -> None:
+    """ValueError naming the first key with a NaN or inf value. One dot product of all the
+    values decides the common case (finite unless NaN/inf, or an overflow of the squares,
+    which sends it to the exact per-key check). A cir_gym env's observation is the rows of
+    one array: then that array is checked as it is (a superset of the values), else the
+    values are concatenated."""
+    values = tuple(obs.values())
+    base = values[0].base
+    if base is not None and base.dtype == np.float64 and all(v.base is base for v in values):
+        flat = base.ravel()
+    else:
+        flat = np.concatenate(values, axis=None)
+    if _isfinite(flat.dot(flat)):
+        return
+    for key, value in obs.items():
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"observation[{key!r}] contains NaN or inf")
+
+
+def _check_command(name: str, commands: np.ndarray) -> None:
+    """FloatingPointError showing the first non-finite command (one row, or the only one)."""
+    rows = commands.reshape(-1, commands.shape[-1]) if commands.ndim else commands.reshape(1, 1)
+    bad = ~np.all(np.isfinite(rows), axis=1)
+    if np.any(bad):
+        raise FloatingPointError(
+            f"controller {name!r} produced a non-finite command {rows[int(np.argmax(bad))]}"
+        )
+
+
+def _row(obs: Observation, i: int) -> Observation:
+    """Row ``i`` of stacked observations (views)."""
+    return {k: v[i] for k, v in obs.items()}
 
 
 class InvalidGain(ValueError):
@@ -125,6 +165,95 @@ def check_gain_type(owner: type, field: dataclasses.Field, value: Any, controlle
     )
 
 
+class RowDynamics:
+    """ĝ(q) and B̂(q) y + n̂(q, q̇) of a robot model for rows of states, by MuJoCo's C calls.
+
+    The calls of :meth:`Robot.gravity`, :meth:`Robot.inertia` and :meth:`Robot.bias`, in their
+    order (so the numbers are theirs, bit for bit), on an own ``MjData``, one row after the
+    other, without the Robot's per-call validation (``Controller.predict`` has checked the
+    observation) and without its cache. Only for a robot whose joints are the model's whole
+    state, in order (:meth:`for_robot` returns None otherwise). Pickles as its model.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self._build()
+
+    def _build(self) -> None:
+        self.data = mujoco.MjData(self.model)
+        self._M = np.zeros((self.model.nv, self.model.nv))
+        # gravity's own data: q̇ = 0 for good, so the body velocities and ċdof that
+        # mj_comVel computes here stay zero at every q (kinematics does not touch them):
+        # one call now is Robot.gravity's call at every q
+        self._gravity_data = mujoco.MjData(self.model)
+        mujoco.mj_comVel(self.model, self._gravity_data)
+        self._gravity_qpos = self._gravity_data.qpos  # a view (the property builds a new one)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"model": self.model}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.model = state["model"]
+        self._build()
+
+    @classmethod
+    def for_robot(cls, robot: Robot) -> RowDynamics | None:
+        """Row dynamics of ``robot``'s model, or None when its joints are not the whole state."""
+        m = robot.model
+        whole = m.nq == m.nv == robot.n and np.array_equal(robot.qpos_adr, np.arange(robot.n))
+        return cls(m) if whole else None
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """ĝ(q) (N, n) for q (N, n) (or (n,) for (n,)), N m."""
+        out = np.empty(q.shape)
+        if q.ndim == 1:  # one row, without the row loop
+            self._gravity_row(q, out)
+            return out
+        n = q.shape[-1]
+        for q_i, g_i in zip(q.reshape(-1, n), out.reshape(-1, n), strict=False):
+            self._gravity_row(q_i, g_i)
+        return out
+
+    def _gravity_row(self, q: np.ndarray, out: np.ndarray) -> None:
+        m, d = self.model, self._gravity_data
+        self._gravity_qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_rne(m, d, 0, out)
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ = B̂(q) q̈ + n̂(q, q̇) (N, n) for rows (N, n) (or (n,)): B̂ q̈ one row at a time
+        (the matrix-vector product of ``Robot.inertia(q) @ qdd``), then + n̂ on all rows."""
+        bias = np.empty(q.shape)
+        if q.ndim == 1:  # one row, without the row loop
+            return self._inertia_row(q, qd, bias).dot(qdd) + bias
+        tau = np.empty(q.shape)
+        n = q.shape[-1]
+        for q_i, qd_i, qdd_i, b_i, t_i in zip(
+            q.reshape(-1, n),
+            qd.reshape(-1, n),
+            qdd.reshape(-1, n),
+            bias.reshape(-1, n),
+            tau.reshape(-1, n),
+            strict=False,  # (equal lengths; strict=True costs 2 µs)
+        ):
+            t_i[:] = self._inertia_row(q_i, qd_i, b_i).dot(qdd_i)
+        return tau + bias
+
+    def _inertia_row(self, q: np.ndarray, qd: np.ndarray, bias: np.ndarray) -> np.ndarray:
+        """B̂(q) (a buffer, overwritten by the next call); n̂(q, q̇) into ``bias``."""
+        m, d, M = self.model, self.data, self._M
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        mujoco.mj_fullM(m, d, M)
+        d.qvel[:] = qd
+        mujoco.mj_comVel(m, d)
+        mujoco.mj_rne(m, d, 0, bias)
+        return M
+
+
 class Controller:
     """Base class: subclasses define ``Gains`` (a frozen dataclass), ``control`` and state.
 
@@ -184,6 +313,39 @@ class Controller:
         """Physical command (e.g. joint torques (n,)) for one observation; updates ``state``."""
         raise NotImplementedError
 
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """Physical commands for stacked observations (each value (N, ...), float64; commands
+        (N, m), ``state`` (N, state_size) updated in place) or for one observation (1-D
+        values, command (m,), ``state`` (state_size,)). Used by :meth:`predict` when the
+        class sets ``vectorized = True``: a law whose arithmetic is element-wise over the rows
+        (and whose model calls run row by row, e.g. :class:`RowDynamics`) computes every row
+        bit for bit as :meth:`control` computes it alone, without a Python dict per row.
+        Default: :meth:`control` on each row."""
+        if obs["q"].ndim == 1:
+            return np.asarray(self.control(obs, state), dtype=float)
+        out = np.empty((len(obs["q"]), self.action_scale.size))
+        for i in range(len(out)):
+            out[i] = self.control(_row(obs, i), state[i])
+        return out
+
+    def row_dynamics(self) -> RowDynamics | None:
+        """:class:`RowDynamics` of the controller's nominal ``self.robot`` (built on first use
+        and again when ``self.robot`` changes), or None: no ``robot``, identified
+        ``parameters`` (evaluated by :mod:`cir_gym.dynamics` instead), or a robot whose joints
+        are not its model's whole state."""
+        robot = getattr(self, "robot", None)
+        if robot is None or getattr(self, "parameters", None) is not None:
+            return None
+        cached = self.__dict__.get("_row_dynamics")
+        if cached is None or cached[0] is not robot.model:
+            cached = self._row_dynamics = (robot.model, RowDynamics.for_robot(robot))
+        return cached[1]
+
+    #: True when :meth:`control_batch` is the law on all rows at once (and ``initial_state``
+    #: has no side effect, so every starting row is initialised before the batch is run);
+    #: False (default): ``initial_state`` and ``control`` row by row, as a row alone.
+    vectorized: ClassVar[bool] = False
+
     # ------------------------------------------------------------------ protocol
     def predict(
         self,
@@ -192,42 +354,59 @@ class Controller:
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """SB3's protocol: (action in [-1, 1], new state); single or batched observations."""
+        """SB3's protocol: (action in [-1, 1], new state); single or batched observations.
+
+        Plumbing cost: one float64 view per key, one finite check over the whole observation
+        (a dot product of all its values; the per-key check that names the culprit runs only
+        when that fails), one of the command, and the scaling/clipping on all rows at once.
+        A single observation is a batch of one row (the same code, so a row gives the same
+        action alone or in a batch).
+
+        Raises:
+            ValueError: an observation without ``q``, or with NaN/inf values (naming the key).
+            FloatingPointError: the law produced a non-finite command.
+        """
         if "q" not in observation:
             raise ValueError(
                 f"observation must be a dict with a 'q' entry, got keys {list(observation)}"
             )
-        for key, value in observation.items():
-            if not np.all(np.isfinite(value)):
-                raise ValueError(f"observation[{key!r}] contains NaN or inf")
-        batched = np.ndim(observation["q"]) == 2  # every cir_gym observation has q (n,)
-        n_envs = int(np.shape(observation["q"])[0]) if batched else 1
+        obs = {k: np.asarray(v, dtype=float) for k, v in observation.items()}
+        _check_observation(obs)
+        batched = obs["q"].ndim == 2  # every cir_gym observation has q (n,)
+        n_envs = len(obs["q"]) if batched else 1
+        size = self.state_size
         if state is None:
-            state = np.zeros((n_envs, self.state_size))
-            episode_start = np.ones(n_envs, dtype=bool)
+            state = np.zeros((n_envs, size))
+            starts = None  # every row starts
         else:
-            state = np.array(state, dtype=float, copy=True).reshape(n_envs, self.state_size)
-        starts = (
-            np.ones(n_envs, dtype=bool)
-            if episode_start is None
-            else np.broadcast_to(np.asarray(episode_start, dtype=bool), (n_envs,))
-        )
-        actions = np.zeros((n_envs, self.action_scale.size), dtype=np.float32)
-        for i in range(n_envs):
-            obs_i = (
-                {k: np.asarray(v[i], dtype=float) for k, v in observation.items()}
-                if batched
-                else {k: np.asarray(v, dtype=float) for k, v in observation.items()}
+            state = np.array(state, dtype=float, copy=True).reshape(n_envs, size)
+            starts = (
+                None
+                if episode_start is None
+                else np.broadcast_to(np.asarray(episode_start, dtype=bool), (n_envs,))
             )
-            if starts[i]:
-                state[i] = self.initial_state(obs_i)
-            command = self.control(obs_i, state[i])
-            if not np.all(np.isfinite(command)):
-                raise FloatingPointError(
-                    f"controller {self.name!r} produced a non-finite command {command}"
-                )
-            actions[i] = np.clip(command / self.action_scale, -1.0, 1.0)
-        return (actions if batched else actions[0]), state
+        if self.vectorized:  # the law on all rows at once (a single observation: 1-D values)
+            if size:
+                for i in range(n_envs) if starts is None else np.flatnonzero(starts):
+                    state[i] = self.initial_state(_row(obs, i) if batched else obs)
+            commands = self.control_batch(obs, state if batched else state[0])
+        elif batched:
+            commands = np.empty((n_envs, self.action_scale.size))
+            for i in range(n_envs):
+                obs_i = _row(obs, i)
+                if starts is None or starts[i]:
+                    state[i] = self.initial_state(obs_i)
+                commands[i] = self.control(obs_i, state[i])
+        else:
+            if starts is None or starts[0]:
+                state[0] = self.initial_state(obs)
+            commands = np.asarray(self.control(obs, state[0]), dtype=float)
+        actions = commands / self.action_scale
+        flat = actions if batched is False else actions.ravel()
+        if not _isfinite(flat.dot(flat)):  # NaN/inf (or an overflow: the exact check decides)
+            _check_command(self.name, commands)
+        _CLIP(actions, -1.0, 1.0, actions)
+        return actions.astype(np.float32), state  # clipped in float64, then rounded
 
     def __call__(self, observation: Observation) -> np.ndarray:
         """Stateless convenience for a single step from a fresh state."""

@@ -125,12 +125,22 @@ class PDGravity(_ModelBased):
         self.kp = self.gains.omega**2 * b
         self.kd = 2.0 * self.gains.zeta * self.gains.omega * b
 
+    vectorized = True
+
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q = obs["q"]
         return (
-            self.gravity(q)
-            + self.kp * (obs["q_ref"] - q)
-            + self.kd * (obs["qd_ref"] - obs["qd"])
+            self.gravity(q) + self.kp * (obs["q_ref"] - q) + self.kd * (obs["qd_ref"] - obs["qd"])
+        )
+
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """:meth:`control` on rows (N, n): ĝ row by row in MuJoCo, the PD on all rows."""
+        rows = self.row_dynamics()
+        if rows is None:
+            return super().control_batch(obs, state)
+        q = obs["q"]
+        return (
+            rows.gravity(q) + self.kp * (obs["q_ref"] - q) + self.kd * (obs["qd_ref"] - obs["qd"])
         )
 
 
@@ -158,7 +168,27 @@ class ComputedTorqueGains:
         return 2.0 * self.zeta * self.omega_n
 
 
-class ComputedTorque(_ModelBased):
+class _InverseDynamicsLaw(_ModelBased):
+    """τ = B̂(q) y + n̂(q, q̇) with the law's outer loop y (:meth:`outer_loop`)."""
+
+    vectorized = True
+
+    def outer_loop(self, obs: Observation) -> np.ndarray:
+        """y (rad/s²) for one observation (n,) or rows of them (N, n)."""
+        raise NotImplementedError
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return self.inverse_dynamics(obs["q"], obs["qd"], self.outer_loop(obs))
+
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """:meth:`control` on rows (N, n): y on all rows, B̂ y + n̂ row by row in MuJoCo."""
+        rows = self.row_dynamics()
+        if rows is None:
+            return super().control_batch(obs, state)
+        return rows.inverse_dynamics(obs["q"], obs["qd"], self.outer_loop(obs))
+
+
+class ComputedTorque(_InverseDynamicsLaw):
     """Inverse dynamics: τ = B̂(q) y + n̂(q, q̇), y = q̄̈ + K_D q̃̇ + K_P q̃.
 
     With the exact model the closed loop is q̃̈ + K_D q̃̇ + K_P q̃ = 0.
@@ -167,15 +197,16 @@ class ComputedTorque(_ModelBased):
     name = "computed_torque"
     tasks = RIGID_MODEL_TASKS
     Gains = ComputedTorqueGains
+    _gain_vectors: tuple = (None, None, None)  # (gains, K_P (n,), K_D (n,)), see outer_loop
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def outer_loop(self, obs: Observation) -> np.ndarray:
+        """y = q̄̈ + K_D q̃̇ + K_P q̃ (rad/s²), for one observation or rows of them."""
+        g = self.gains
+        if self._gain_vectors[0] is not g:  # K_P, K_D as (n,) arrays: a cheaper product
+            self._gain_vectors = (g, np.full(self.n, g.kp), np.full(self.n, g.kd))
+        _, kp, kd = self._gain_vectors
         q, qd = obs["q"], obs["qd"]
-        y = (
-            obs["qdd_ref"]
-            + self.gains.kd * (obs["qd_ref"] - qd)
-            + self.gains.kp * (obs["q_ref"] - q)
-        )
-        return self.inverse_dynamics(q, qd, y)
+        return obs["qdd_ref"] + kd * (obs["qd_ref"] - qd) + kp * (obs["q_ref"] - q)
 
 
 # ---------------------------------------------------------------------- robust
@@ -238,8 +269,14 @@ class RobustGains:
             _positive(name, getattr(self, name))
         if self.epsilon is not None:
             _positive("epsilon", self.epsilon)
-        for name in ("payload_bound", "mass_scale_bound", "viscous_friction_bound",
-                     "coulomb_friction_bound", "error_bound", "qdd_ref_bound"):
+        for name in (
+            "payload_bound",
+            "mass_scale_bound",
+            "viscous_friction_bound",
+            "coulomb_friction_bound",
+            "error_bound",
+            "qdd_ref_bound",
+        ):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise InvalidGain(f"{name} must be a finite number >= 0, got {v!r}")
@@ -249,7 +286,7 @@ class RobustGains:
             raise InvalidGain(f"rho must be >= 0 or None, got {self.rho!r}")
 
 
-class RobustControl(_ModelBased):
+class RobustControl(_InverseDynamicsLaw):
     """Robust control: τ = B̂ y + n̂, y = q̄̈ + K_D q̃̇ + K_P q̃ + w.
 
     ξ = [q̃; q̃̇], H̃ = [[0, I], [−K_P, −K_D]], Q solves H̃ᵀQ + QH̃ = −P with
@@ -361,8 +398,9 @@ class RobustControl(_ModelBased):
                 alpha = max(alpha, self.inertia_error_norm(B, B_hat))
                 for f in (0.0 * friction, friction):  # ñ = n̂ − n, n with the friction
                     n_tilde = n_hat - true.bias(q, qd) - f
-                    b_phi = max(b_phi, float(np.linalg.norm(
-                        self.weight * np.linalg.solve(B, n_tilde))))
+                    b_phi = max(
+                        b_phi, float(np.linalg.norm(self.weight * np.linalg.solve(B, n_tilde)))
+                    )
         if alpha >= 1:
             raise InvalidGain(f"uncertainty too large for robust control: α = {alpha:.2f} ≥ 1")
         k_norm = np.hypot(g.omega_n**2, 2 * g.zeta * g.omega_n)
@@ -371,14 +409,19 @@ class RobustControl(_ModelBased):
             (alpha * g.qdd_ref_bound + alpha * k_norm * g.error_bound + b_phi) / (1 - alpha)
         )
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        q, qd = obs["q"], obs["qd"]
-        g = self.gains
-        e, ed = obs["q_ref"] - q, obs["qd_ref"] - qd
+    def robust_term(self, e: np.ndarray, ed: np.ndarray) -> np.ndarray:
+        """w = ρ z / max(‖S z‖, ε), z = DᵀQ [q̃; q̃̇] (rad/s²), for (n,) or rows (N, n)."""
+        if e.ndim == 2:
+            return np.array([self.robust_term(*row) for row in zip(e, ed, strict=True)])
         z = self.DtQ @ np.concatenate((e, ed))
-        w = self.rho * z / max(float(np.linalg.norm(self.weight * z)), self.epsilon)
-        y = obs["qdd_ref"] + (2 * g.zeta * g.omega_n) * ed + g.omega_n**2 * e + w
-        return self.inverse_dynamics(q, qd, y)
+        return self.rho * z / max(float(np.linalg.norm(self.weight * z)), self.epsilon)
+
+    def outer_loop(self, obs: Observation) -> np.ndarray:
+        """y = q̄̈ + K_D q̃̇ + K_P q̃ + w (rad/s²), for one observation or rows of them."""
+        g = self.gains
+        e, ed = obs["q_ref"] - obs["q"], obs["qd_ref"] - obs["qd"]
+        w = self.robust_term(e, ed)
+        return obs["qdd_ref"] + (2 * g.zeta * g.omega_n) * ed + g.omega_n**2 * e + w
 
 
 # ---------------------------------------------------------------------- adaptive
@@ -425,8 +468,11 @@ class AdaptiveControl(_ModelBased):
     ) -> None:
         super().__init__(context, gains, robot=robot, **overrides)
         self.model = self.robot.model
-        self.pi0 = (dynamics.inertial_parameters(self.model) if self.parameters is None
-                    else self.parameters.copy())
+        self.pi0 = (
+            dynamics.inertial_parameters(self.model)
+            if self.parameters is None
+            else self.parameters.copy()
+        )
         home = self.model.key("home").qpos if self.model.nkey else np.zeros(self.n)
         self.kd = self.gains.kd * np.diag(self.robot.inertia(home))
         scale = self.parameter_scale()

@@ -74,6 +74,9 @@ def effective_motor_inertia(
 
 class _Decentralized(Controller):
     tasks = JOINT_TASKS
+    #: every law below is element-wise per joint, so :meth:`control` runs on rows (N, n) as
+    #: it runs on one observation; the model calls (ĝ, B̂ q̈ + n̂) go row by row
+    vectorized = True
     #: finite-difference step (s) of dĝ(q̄)/dt ≈ (ĝ(q̄ + h q̄̇) − ĝ(q̄)) / h
     GRAVITY_RATE_STEP = 1e-6
 
@@ -101,10 +104,35 @@ class _Decentralized(Controller):
         q_ref, qd_ref = obs["q_ref"], obs["qd_ref"]
         if self.stiffness is None:
             return q_ref, qd_ref
-        g = self.robot.gravity(q_ref)
+        g = self.nominal_gravity(q_ref)
         h = self.GRAVITY_RATE_STEP
-        g_rate = (self.robot.gravity(q_ref + h * qd_ref) - g) / h
+        g_rate = (self.nominal_gravity(q_ref + h * qd_ref) - g) / h
         return q_ref + g / self.stiffness, qd_ref + g_rate / self.stiffness
+
+    def nominal_gravity(self, q: np.ndarray) -> np.ndarray:
+        """ĝ(q) of the nominal robot for q (n,) or rows (N, n) (N m)."""
+        rows = self.row_dynamics()
+        if rows is not None:
+            return rows.gravity(q)
+        if q.ndim == 1:
+            return self.robot.gravity(q)
+        return np.array([self.robot.gravity(q_i) for q_i in q])
+
+    def nominal_inverse_dynamics(
+        self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+    ) -> np.ndarray:
+        """B̂(q) q̈ + n̂(q, q̇) of the nominal robot for (n,) or rows (N, n) (N m)."""
+        rows = self.row_dynamics()
+        if rows is not None:
+            return rows.inverse_dynamics(q, qd, qdd)
+        if q.ndim == 1:
+            return self.robot.inertia(q) @ qdd + self.robot.bias(q, qd)
+        return np.array(
+            [self.nominal_inverse_dynamics(*row) for row in zip(q, qd, qdd, strict=True)]
+        )
+
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return np.asarray(self.control(obs, state), dtype=float)
 
     def anti_windup(
         self, command: np.ndarray, error: np.ndarray, state: np.ndarray, gain: np.ndarray
@@ -283,6 +311,5 @@ class DecentralizedFeedforward(PPIFeedforward):
     name = "decentralized_feedforward"
 
     def feedforward(self, obs: Observation) -> np.ndarray:
-        q_ref = obs["q_ref"]
-        tau_ff = self.robot.inertia(q_ref) @ obs["qdd_ref"] + self.robot.bias(q_ref, obs["qd_ref"])
+        tau_ff = self.nominal_inverse_dynamics(obs["q_ref"], obs["qd_ref"], obs["qdd_ref"])
         return motor_torques(tau_ff, self.N)

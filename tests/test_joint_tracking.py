@@ -68,8 +68,9 @@ def test_pd_gravity_regulates_from_random_starts():
 
 def test_pd_gravity_offset_matches_theory_under_gravity_model_error():
     """At equilibrium K_P q̃ = g(q) − ĝ(q): the offset the theory predicts."""
-    env = gym.make(ENV, reference="regulation", payload_mass=3.0, episode_duration=6.0,
-                   max_episode_steps=-1)  # longer than the registered TimeLimit
+    env = gym.make(
+        ENV, reference="regulation", payload_mass=3.0, episode_duration=6.0, max_episode_steps=-1
+    )  # longer than the registered TimeLimit
     policy = baselines.make("pd_gravity", ENV, env=env)
     steps, _ = rollout(policy, env, seed=4)
     obs = steps[-1][0]
@@ -93,16 +94,17 @@ def test_robust_inside_its_boundary_layer_is_computed_torque_at_the_layer_gains(
     z = policy.DtQ @ np.concatenate((obs["q_ref"] - obs["q"], obs["qd_ref"] - obs["qd"]))
     assert np.linalg.norm(policy.weight * z) < policy.epsilon  # inside the layer
     omega = np.sqrt(policy.kp_layer)
-    ct = baselines.make("computed_torque", ENV, omega_n=omega,
-                        zeta=policy.kd_layer / (2 * omega))
+    ct = baselines.make("computed_torque", ENV, omega_n=omega, zeta=policy.kd_layer / (2 * omega))
     np.testing.assert_allclose(policy(obs), ct(obs), rtol=1e-9, atol=1e-12)
     # outside the layer the robust term is the course's bounded w: ‖S w‖ = ρ
     far = {**obs, "q": obs["q"] + 3.0}
     z = policy.DtQ @ np.concatenate((far["q_ref"] - far["q"], far["qd_ref"] - far["qd"]))
     assert np.linalg.norm(policy.weight * z) > policy.epsilon
     nominal = baselines.make("computed_torque", ENV)  # the designed ω_n = 20, ζ = 1
-    w = np.linalg.solve(policy.inertia(far["q"]), policy.control(far, np.zeros(0))
-                        - nominal.control(far, np.zeros(0)))
+    w = np.linalg.solve(
+        policy.inertia(far["q"]),
+        policy.control(far, np.zeros(0)) - nominal.control(far, np.zeros(0)),
+    )
     assert np.linalg.norm(policy.weight * w) == pytest.approx(policy.rho, rel=1e-9)
 
 
@@ -113,8 +115,9 @@ def test_robust_bound_covers_the_friction_and_masses_randomize_draws():
     assert g.mass_scale_bound == pytest.approx(RANDOM_RANGES["mass_scale"][1] - 1.0)
     assert g.viscous_friction_bound == RANDOM_RANGES["viscous_friction"][1]
     assert g.coulomb_friction_bound == RANDOM_RANGES["coulomb_friction"][1]
-    narrow = baselines.make("robust", ENV, mass_scale_bound=0.1, viscous_friction_bound=0.0,
-                            coulomb_friction_bound=0.0)
+    narrow = baselines.make(
+        "robust", ENV, mass_scale_bound=0.1, viscous_friction_bound=0.0, coulomb_friction_bound=0.0
+    )
     assert baselines.make("robust", ENV).rho > narrow.rho
 
 
@@ -313,8 +316,13 @@ def test_adaptive_control_learns_the_payload_and_drives_y_pi_tilde_to_zero():
 def test_randomize_draws_the_model_error_per_seed_and_overrides_only_those_arguments():
     """randomize=True: payload, mass scale and both frictions from RANDOM_RANGES replace the
     arguments, per reset, in the simulator; torque noise and encoder resolution stay."""
-    kwargs = {"payload_mass": 1.0, "mass_scale": 1.5, "torque_noise": 0.3,
-              "encoder_resolution": 1e-4, "episode_duration": 0.1}
+    kwargs = {
+        "payload_mass": 1.0,
+        "mass_scale": 1.5,
+        "torque_noise": 0.3,
+        "encoder_resolution": 1e-4,
+        "episode_duration": 0.1,
+    }
     env = gym.make(ENV, randomize=True, **kwargs)
     base = env.unwrapped
     nominal = Robot.from_name("iiwa14").model
@@ -606,3 +614,221 @@ def test_anti_windup_lets_regulation_reach_its_setpoint(name):
         policy = baselines.make(name, ENV, env_kwargs=kwargs, anti_windup=mode)
         final[mode] = evaluate(policy, ENV, 1, 2000, **kwargs).episodes[0].metrics["final_error"]
     assert final["back_calculation"] < 1e-6 and final["none"] > 0.05
+
+
+# ---------------------------------------------------------------------------------------------
+# The hot paths (issue 21) against straightforward reference computations
+# ---------------------------------------------------------------------------------------------
+
+
+def _reference_step(env, obs_before_k, action, a_prev):
+    """What one JointTracking step must give, written plainly from the docstring (np.clip,
+    np.mean, np.linalg.norm), from the env's state after the step (ideal drive)."""
+    u = env.unwrapped
+    a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+    q = u.data.qpos[u.robot.qpos_adr]
+    qd = u.data.qvel[u.robot.dof_adr]
+    k = u._k
+    err = u._ref[0, k] - q
+    err_sq = float(err @ err)
+    r_track = -(1.0 - float(np.mean(np.exp(-err_sq / u.error_scales**2))))
+    r_torque = -u.torque_weight * float(a @ a) / u.n
+    r_rate = -u.action_rate_weight * float((a - a_prev) @ (a - a_prev)) / u.n
+    raw = {"q": q, "qd": qd, "q_ref": u._ref[0, k], "qd_ref": u._ref[1, k], "qdd_ref": u._ref[2, k]}
+    bounds = {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
+    obs = {key: np.clip(v, -bounds[key], bounds[key]) for key, v in raw.items()}
+    return obs, r_track, r_torque, r_rate, float(np.linalg.norm(err)), a
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{}, {"reference": "sine", "payload_mass": 2.0}, {"action_rate_weight": 0.5}]
+)
+def test_step_matches_a_plain_reference_computation_and_keeps_past_observations(kwargs):
+    """Every observation entry bit for bit, every reward term to the last bits, joint error,
+    saturation and torque metrics as the docstring defines them; observations returned
+    earlier are never changed by later steps (the step builds one fresh array per step)."""
+    env = gym.make(ENV, episode_duration=0.3, max_following_error=None, **kwargs)
+    obs, _ = env.reset(seed=7)
+    rng = np.random.default_rng(7)
+    kept, a_prev, sat, tau = [], np.zeros(7), [], []
+    for k in range(env.unwrapped.max_steps):
+        action = rng.uniform(-1.3, 1.3, 7).astype(np.float32)  # some entries clipped
+        if k % 3 == 0:
+            action[:] = 0.0
+        if k % 7 == 1:
+            action[2] = 1.0  # at the limit: saturated, not clipped
+        kept.append(({key: v for key, v in obs.items()}, {key: v.copy() for key, v in obs.items()}))
+        obs, reward, terminated, truncated, info = env.step(action)
+        want_obs, r_track, r_torque, r_rate, joint_error, a = _reference_step(
+            env, None, action, a_prev
+        )
+        for key in want_obs:
+            np.testing.assert_array_equal(obs[key], want_obs[key], err_msg=f"{k} {key}")
+        assert info["reward_tracking"] == pytest.approx(r_track, rel=1e-15, abs=1e-15)
+        assert info["reward_torque"] == pytest.approx(r_torque, rel=1e-15, abs=1e-18)
+        assert info["reward_action_rate"] == pytest.approx(r_rate, rel=1e-15, abs=1e-18)
+        assert info["joint_error"] == pytest.approx(joint_error, rel=1e-15)
+        assert reward == pytest.approx(r_track + r_torque + r_rate, rel=1e-14, abs=1e-15)
+        sat.append(bool(np.any(np.abs(a) >= 1.0)))
+        tau.append(a * env.unwrapped.torque_limit)
+        a_prev = a
+        if terminated or truncated:
+            break
+    assert truncated
+    metrics = info["episode_metrics"]
+    assert metrics["saturation"] == pytest.approx(np.mean(sat), rel=1e-15)
+    assert 0 < metrics["saturation"] < 1
+    assert metrics["rms_torque"] == pytest.approx(np.sqrt(np.mean(np.square(tau))), rel=1e-14)
+    for returned, copy in kept:  # what a user kept is what was returned
+        for key in copy:
+            np.testing.assert_array_equal(returned[key], copy[key])
+
+
+@pytest.mark.parametrize("drive_kwargs", [{"drive": "industrial"}, {"encoder_resolution": 1e-3}])
+def test_measured_rows_match_the_sensor_models(drive_kwargs):
+    """With the industrial drive q is the encoder reading Δ round(q / Δ) and q̇ the backward
+    difference of two readings; with ``encoder_resolution`` likewise (q̇ = 0 at reset)."""
+    env = gym.make(ENV, episode_duration=0.1, **drive_kwargs)
+    u = env.unwrapped
+    res = u.drive.resolution if u.drive is not None else u.encoder_resolution
+    obs, _ = env.reset(seed=3)
+    q_prev_meas = obs["q"].copy()
+    if u.drive is None:
+        np.testing.assert_array_equal(obs["qd"], 0.0)
+    for _ in range(20):
+        obs, *_ = env.step(np.full(7, 0.05, dtype=np.float32))
+        q_meas = np.round(u.data.qpos[:7] / res) * res
+        np.testing.assert_array_equal(obs["q"], q_meas)
+        np.testing.assert_array_equal(obs["qd"], (q_meas - q_prev_meas) / u.dt)
+        q_prev_meas = q_meas
+
+
+def test_index_view_is_a_slice_exactly_when_the_addresses_are_evenly_spaced():
+    from cir_gym.envs.base import index_view
+
+    data = np.arange(20.0)
+    for idx in ([0, 1, 2, 3], [13, 12, 11, 10, 9, 8, 7], [6, 5, 4, 3, 2, 1, 0], [4], [1, 3, 5]):
+        view = index_view(np.array(idx))
+        assert isinstance(view, slice), idx
+        np.testing.assert_array_equal(data[view], data[idx])
+    for idx in ([0, 2, 3], [3, 3], []):
+        got = index_view(np.array(idx, dtype=int))
+        assert not isinstance(got, slice)
+        np.testing.assert_array_equal(data[got], data[idx])
+
+
+def test_an_unpickled_env_steps_as_the_original_and_still_detects_divergence():
+    """The cached views of MuJoCo's arrays are rebuilt for the new MjData after pickling."""
+    import pickle
+
+    env = gym.make(ENV, episode_duration=0.2, max_following_error=None).unwrapped
+    env.reset(seed=1)
+    for _ in range(5):
+        env.step(np.full(7, 0.1, dtype=np.float32))
+    twin = pickle.loads(pickle.dumps(env))
+    for _ in range(5):
+        a, b = (
+            env.step(np.full(7, -0.2, dtype=np.float32)),
+            twin.step(np.full(7, -0.2, dtype=np.float32)),
+        )
+        for key in a[0]:
+            np.testing.assert_array_equal(a[0][key], b[0][key])
+        assert a[1] == b[1]
+    twin.data.qvel[0] = 1e6  # absurd speed: the next step must end as diverged, state restored
+    _, _, terminated, _, info = twin.step(np.zeros(7, dtype=np.float32))
+    assert terminated and info["diverged"]
+
+
+JOINT_LAWS = [
+    "pid",
+    "p_pi_cascade",
+    "p_pi_feedforward",
+    "decentralized_feedforward",
+    "pd_gravity",
+    "computed_torque",
+    "robust",
+]
+
+
+def _observations(env_id, n, seed=0, **kwargs):
+    """n different observations of env_id (a few steps apart, under a weak random torque)."""
+    env = gym.make(env_id, max_following_error=None, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        for _ in range(3):
+            obs, *_ = env.step(rng.uniform(-0.05, 0.05, 7).astype(np.float32))
+        out.append(obs)
+    return env, out
+
+
+@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v2"])
+def test_batched_predict_is_row_by_row_predict_bit_for_bit(env_id):
+    """For every vectorised law: a batch of N different observations and states (N = 1, 4)
+    gives, row for row, the action and state of predict on that row alone, which is the
+    law's plain ``control`` (Robot.inertia/bias/gravity, one row) scaled and clipped."""
+    env, rows = _observations(env_id, 4)
+    stacked = {k: np.stack([o[k] for o in rows]) for k in rows[0]}
+    for name in baselines.available(env_id):
+        if name not in JOINT_LAWS:
+            continue
+        policy = baselines.make(name, env_id, env=env)
+        assert policy.vectorized
+        _, state = policy.predict(stacked)  # a batch of states: after one step
+        state = state + np.arange(state.size).reshape(state.shape) * 1e-3
+        for n in (1, 4):
+            sub = {k: v[:n] for k, v in stacked.items()}
+            actions, new_state = policy.predict(sub, state[:n], np.zeros(n, dtype=bool))
+            assert actions.shape == (n, 7) and actions.dtype == np.float32
+            for i in range(n):
+                single = {k: v[i] for k, v in sub.items()}
+                a_i, s_i = policy.predict(single, state[i : i + 1], np.zeros(1, dtype=bool))
+                np.testing.assert_array_equal(actions[i], a_i, err_msg=f"{name} {n} {i}")
+                np.testing.assert_array_equal(new_state[i], s_i[0], err_msg=name)
+                s_plain = state[i].copy()
+                command = policy.control(single, s_plain)  # the law on one row, plainly
+                want = np.clip(command / policy.action_scale, -1, 1).astype(np.float32)
+                np.testing.assert_array_equal(a_i, want, err_msg=name)
+                np.testing.assert_array_equal(s_i[0], s_plain, err_msg=name)
+
+
+def test_row_dynamics_are_the_robot_calls_bit_for_bit():
+    """RowDynamics (the controllers' batched model calls) against Robot.gravity and
+    Robot.inertia(q) @ q̈ + Robot.bias(q, q̇) on random states, one row and a batch."""
+    from baselines.base import RowDynamics
+
+    robot = Robot.from_name("iiwa14")
+    rows = RowDynamics.for_robot(robot)
+    rng = np.random.default_rng(0)
+    q = rng.uniform(robot.lower, robot.upper, (5, 7))
+    qd, qdd = rng.normal(0, 1, (5, 7)), rng.normal(0, 3, (5, 7))
+    g_rows, tau_rows = rows.gravity(q), rows.inverse_dynamics(q, qd, qdd)
+    for i in range(5):
+        g = robot.gravity(q[i])
+        tau = robot.inertia(q[i]) @ qdd[i] + robot.bias(q[i], qd[i])
+        np.testing.assert_array_equal(g_rows[i], g)
+        np.testing.assert_array_equal(rows.gravity(q[i]), g)
+        np.testing.assert_array_equal(tau_rows[i], tau)
+        np.testing.assert_array_equal(rows.inverse_dynamics(q[i], qd[i], qdd[i]), tau)
+    import pickle
+
+    twin = pickle.loads(pickle.dumps(rows))
+    np.testing.assert_array_equal(twin.inverse_dynamics(q, qd, qdd), tau_rows)
+
+
+def test_predict_still_names_a_non_finite_observation_and_command():
+    env, rows = _observations(ENV, 1)
+    policy = baselines.make("computed_torque", ENV, env=env)
+    for key in rows[0]:
+        bad = {k: v.copy() for k, v in rows[0].items()}
+        bad[key][3] = np.nan
+        with pytest.raises(ValueError, match=rf"observation\['{key}'\] contains NaN or inf"):
+            policy.predict(bad)
+    huge = {k: np.full(7, 1e200) for k in rows[0]}  # finite, squares overflow: still accepted
+    policy_pd = baselines.make("pd_gravity", ENV, env=env)
+    actions, _ = policy_pd.predict({**rows[0], "qdd_ref": huge["qdd_ref"]})
+    assert np.all(np.isfinite(actions))
+    policy.robot.model.opt.gravity[2] = np.inf  # a model that yields an infinite torque
+    with pytest.raises(FloatingPointError, match="non-finite command"):
+        policy.predict(rows[0])
