@@ -429,3 +429,44 @@ def test_ray_stays_optional():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
     ).stdout
     assert out.strip() == "[]"
+
+
+@pytest.mark.slow
+def test_a_training_task_killed_mid_run_resumes_from_its_checkpoint(training_sweep, tmp_path):
+    """A seed's run as a kill at 128 of 256 steps leaves it (checkpoint at 128, no final model,
+    no task file): the re-run resumes it from that checkpoint and skips the other seed."""
+    import yaml as _yaml
+
+    src, _ = training_sweep
+    out = tmp_path / "out"
+    shutil.copytree(src, out)
+    run = out / "runs/JointTracking-v1/ppo_lr3/seed_0"
+    for f in ("model.zip", "meta.json", "checkpoints/model_256_steps.zip"):
+        (run / f).unlink()
+    task = next(
+        p
+        for p in (out / "tasks").glob("*.json")
+        if json.loads(p.read_text())["task"]["train_seed"] == 0
+    )
+    record = json.loads(task.read_text())
+    task.unlink()
+    params = record["task"]
+    grid = {
+        "train": {
+            "envs": [params["env_id"]],
+            "algos": ["ppo"],
+            "seeds": [0, 1],
+            "hyperparams_path": params["hyperparams_path"],
+            "hyperparams": [{"name": "lr3", **params["hyperparams"]}],
+            "env_kwargs": params["env_kwargs"],
+            "evaluate": {"episodes": 2, "seed": 1000},
+        }
+    }
+    summary = run_sweep(grid, out, workers=1, progress=False)
+    assert (summary.skipped, summary.ran, summary.failed) == (1, 1, 0)
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["timesteps"] == 256 and meta["finished"] and (run / "model.zip").is_file()
+    # resumed, not restarted: the curve keeps the first session's rows (a restart removes it)
+    curve = (run / "learning_curve.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in curve] == [128, 256, 256]
+    assert _yaml.safe_load((run / "config.yml").read_text())["seed"] == 0
