@@ -124,8 +124,9 @@ def _decor(geom: Any) -> None:
 
 def _init(geom: Any, rgba: Any) -> None:
     """mjv_initGeom with defaults (a decor sphere at the origin) and the colour."""
-    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_SPHERE), np.zeros(3), np.zeros(3), _EYE,
-                        _rgba(rgba))
+    mujoco.mjv_initGeom(
+        geom, int(mujoco.mjtGeom.mjGEOM_SPHERE), np.zeros(3), np.zeros(3), _EYE, _rgba(rgba)
+    )
     _decor(geom)
 
 
@@ -134,27 +135,34 @@ def add_sphere(scene: mujoco.MjvScene, pos: Any, radius: float, rgba: Any = TARG
     geom = _next(scene)
     if geom is None:
         return 0
-    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_SPHERE), np.full(3, float(radius)),
-                        _vec3(pos), _EYE, _rgba(rgba))
+    mujoco.mjv_initGeom(
+        geom,
+        int(mujoco.mjtGeom.mjGEOM_SPHERE),
+        np.full(3, float(radius)),
+        _vec3(pos),
+        _EYE,
+        _rgba(rgba),
+    )
     _decor(geom)
     return 1
 
 
-def add_box(scene: mujoco.MjvScene, pos: Any, half_size: Any, rgba: Any = OBSTACLE,
-            mat: Any = None) -> int:
+def add_box(
+    scene: mujoco.MjvScene, pos: Any, half_size: Any, rgba: Any = OBSTACLE, mat: Any = None
+) -> int:
     """A box centred at ``pos`` (3,) m with half sizes ``half_size`` (3,) m, axes ``mat`` (3, 3)."""
     geom = _next(scene)
     if geom is None:
         return 0
     rot = _EYE if mat is None else np.asarray(mat, dtype=np.float64).reshape(9)
-    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_BOX), _vec3(half_size), _vec3(pos), rot,
-                        _rgba(rgba))
+    mujoco.mjv_initGeom(
+        geom, int(mujoco.mjtGeom.mjGEOM_BOX), _vec3(half_size), _vec3(pos), rot, _rgba(rgba)
+    )
     _decor(geom)
     return 1
 
 
-def _connector(scene: mujoco.MjvScene, kind: int, p0: Any, p1: Any, width: float, rgba: Any
-               ) -> int:
+def _connector(scene: mujoco.MjvScene, kind: int, p0: Any, p1: Any, width: float, rgba: Any) -> int:
     a, b = _vec3(p0), _vec3(p1)
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
         return 0
@@ -166,20 +174,23 @@ def _connector(scene: mujoco.MjvScene, kind: int, p0: Any, p1: Any, width: float
     return 1
 
 
-def add_capsule(scene: mujoco.MjvScene, p0: Any, p1: Any, radius: float, rgba: Any = REFERENCE
-                ) -> int:
+def add_capsule(
+    scene: mujoco.MjvScene, p0: Any, p1: Any, radius: float, rgba: Any = REFERENCE
+) -> int:
     """A capsule (a thick line segment) from ``p0`` to ``p1`` (3,) m, ``radius`` m."""
     return _connector(scene, int(mujoco.mjtGeom.mjGEOM_CAPSULE), p0, p1, radius, rgba)
 
 
-def add_line(scene: mujoco.MjvScene, p0: Any, p1: Any, width_px: float = 2.0,
-             rgba: Any = REFERENCE) -> int:
+def add_line(
+    scene: mujoco.MjvScene, p0: Any, p1: Any, width_px: float = 2.0, rgba: Any = REFERENCE
+) -> int:
     """A GL line from ``p0`` to ``p1`` (3,) m, ``width_px`` pixels wide (cheapest marker)."""
     return _connector(scene, int(mujoco.mjtGeom.mjGEOM_LINE), p0, p1, width_px, rgba)
 
 
-def add_arrow(scene: mujoco.MjvScene, start: Any, vector: Any, radius: float, rgba: Any = RED
-              ) -> int:
+def add_arrow(
+    scene: mujoco.MjvScene, start: Any, vector: Any, radius: float, rgba: Any = RED
+) -> int:
     """An arrow from ``start`` (3,) m along ``vector`` (3,) m (its length is ``|vector|``).
 
     A vector shorter than ``radius`` draws nothing (an arrow has no direction then); scale
@@ -192,8 +203,14 @@ def add_arrow(scene: mujoco.MjvScene, start: Any, vector: Any, radius: float, rg
     return _connector(scene, int(mujoco.mjtGeom.mjGEOM_ARROW), s, s + v, radius, rgba)
 
 
-def add_frame(scene: mujoco.MjvScene, pos: Any, mat: Any, length: float,
-              radius: float | None = None, alpha: float = 1.0) -> int:
+def add_frame(
+    scene: mujoco.MjvScene,
+    pos: Any,
+    mat: Any,
+    length: float,
+    radius: float | None = None,
+    alpha: float = 1.0,
+) -> int:
     """A coordinate frame: x, y, z axes (columns of ``mat`` (3, 3)) as red, green, blue capsules.
 
     Args:
@@ -212,8 +229,13 @@ def add_frame(scene: mujoco.MjvScene, pos: Any, mat: Any, length: float,
     return added
 
 
-def add_polyline(scene: mujoco.MjvScene, points: Any, radius: float, rgba: Any = REFERENCE,
-                 max_segments: int = 80) -> int:
+def add_polyline(
+    scene: mujoco.MjvScene,
+    points: Any,
+    radius: float,
+    rgba: Any = REFERENCE,
+    max_segments: int = 80,
+) -> int:
     """A line through consecutive ``points`` (k, 3) m, about ``2 radius`` m thick.
 
     In a frame of :meth:`RobotEnv.render` (between :func:`begin_frame` and
@@ -261,30 +283,86 @@ def finish_frame(frame: np.ndarray, scene: mujoco.MjvScene, caption: str = "") -
     ``frame`` (h, w, 3) uint8, rows top first (``mujoco.Renderer.render``), is what
     ``scene`` (after ``update_scene``, whose camera is used) was rendered to. In place.
     """
-    for pts, radius, rgba in _OVERLAYS.pop(id(scene), []):
-        uv, depth = project_points(scene, pts, frame.shape[1], frame.shape[0])
-        _, _, bottom, top, near, _, _ = _frustum(scene)
-        focal = frame.shape[0] * near / max(top - bottom, 1e-12)  # px
-        front = depth[depth > 0]
-        width = 2.0 * radius * focal / float(np.median(front)) if len(front) else 2.0
-        draw_polyline_2d(frame, uv, float(np.clip(width, 1.5, MAX_LINE_PX)), rgba)
+    overlays = _OVERLAYS.pop(id(scene), [])
+    if overlays:
+        camera = _camera_key(scene, frame.shape)
+        previous = _MASKS.get(id(scene), {})
+        current: dict[bytes, _Mask | None] = {}
+        for pts, radius, rgba in overlays:
+            key = camera + np.float64(radius).tobytes() + pts.tobytes()
+            if key in previous:  # same line, camera and frame size: the same pixels
+                mask = previous[key]
+            else:
+                mask = _overlay_mask(scene, pts, radius, frame.shape)
+            current[key] = mask
+            if mask is not None:
+                _blend(frame, mask, rgba)
+        _MASKS[id(scene)] = current  # only this frame's lines are kept
     return draw_caption(frame, caption)
 
 
-def _frustum(scene: mujoco.MjvScene) -> tuple[np.ndarray, np.ndarray, float, float, float,
-                                                 np.ndarray, float]:
+#: (y0, x0, mask): the pixels of a 2-D line, a boolean mask of the crop at (y0, x0)
+_Mask = tuple[int, int, np.ndarray]
+#: the last frame's line masks per scene (id), keyed by camera, frame size, radius and points:
+#: a static line (a reference path) seen by a still camera is rasterised once
+_MASKS: dict[int, dict[bytes, _Mask | None]] = {}
+
+
+def _camera_key(scene: mujoco.MjvScene, shape: tuple[int, ...]) -> bytes:
+    """Everything of ``scene``'s camera and the frame size a projected line depends on."""
+    c0, c1 = scene.camera[0], scene.camera[1]
+    values = [
+        *c0.pos,
+        *c0.forward,
+        *c0.up,
+        *c1.pos,
+        *c1.forward,
+        *c1.up,
+        c0.frustum_bottom,
+        c0.frustum_top,
+        c0.frustum_near,
+        c0.frustum_center,
+        *shape[:2],
+    ]
+    return np.array(values, dtype=np.float64).tobytes()
+
+
+def _overlay_mask(
+    scene: mujoco.MjvScene, pts: np.ndarray, radius: float, shape: tuple[int, ...]
+) -> _Mask | None:
+    """The pixels of the 2-D line through world ``pts`` (k, 3), ``2 radius`` m thick at the
+    line's median depth (1.5 to ``MAX_LINE_PX`` px), in a frame of ``shape`` of ``scene``."""
+    uv, depth = project_points(scene, pts, shape[1], shape[0])
+    _, _, bottom, top, near, _, _ = _frustum(scene)
+    focal = shape[0] * near / max(top - bottom, 1e-12)  # px
+    front = depth[depth > 0]
+    width = 2.0 * radius * focal / float(np.median(front)) if len(front) else 2.0
+    return _line_mask(uv, float(np.clip(width, 1.5, MAX_LINE_PX)), shape[0], shape[1])
+
+
+def _frustum(
+    scene: mujoco.MjvScene,
+) -> tuple[np.ndarray, np.ndarray, float, float, float, np.ndarray, float]:
     """(pos, forward, bottom, top, near, up, centre) of the scene's mono camera (the mean of
     the two GL cameras, as mjr_render draws)."""
     c0, c1 = scene.camera[0], scene.camera[1]
     pos = (np.asarray(c0.pos) + np.asarray(c1.pos)) / 2
     fwd = (np.asarray(c0.forward) + np.asarray(c1.forward)) / 2
     up = (np.asarray(c0.up) + np.asarray(c1.up)) / 2
-    return (pos, fwd / np.linalg.norm(fwd), float(c0.frustum_bottom), float(c0.frustum_top),
-            float(c0.frustum_near), up / np.linalg.norm(up), float(c0.frustum_center))
+    return (
+        pos,
+        fwd / np.linalg.norm(fwd),
+        float(c0.frustum_bottom),
+        float(c0.frustum_top),
+        float(c0.frustum_near),
+        up / np.linalg.norm(up),
+        float(c0.frustum_center),
+    )
 
 
-def project_points(scene: mujoco.MjvScene, points: Any, width: int, height: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def project_points(
+    scene: mujoco.MjvScene, points: Any, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates (k, 2) (u right, v down, pixel centres at integers) and depths (k,) m
     of world ``points`` (k, 3) in a ``width`` × ``height`` frame of ``scene``'s camera.
 
@@ -310,29 +388,38 @@ def draw_polyline_2d(image: np.ndarray, uv: np.ndarray, width: float, rgba: Any)
 
     Segments with a NaN end are skipped; ``width`` in px; alpha ``rgba[3]``.
     """
-    uv = np.asarray(uv, dtype=np.float64)
+    mask = _line_mask(np.asarray(uv, dtype=np.float64), width, *image.shape[:2])
+    if mask is not None:
+        _blend(image, mask, rgba)
+    return image
+
+
+def _line_mask(uv: np.ndarray, width: float, h: int, w: int) -> _Mask | None:
+    """:func:`draw_polyline_2d`'s pixels in an h × w image (None: none inside)."""
     a, b = uv[:-1], uv[1:]
     ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
     a, b = a[ok], b[ok]
     if len(a) == 0:
-        return image
-    h, w = image.shape[:2]
+        return None
     lengths = np.linalg.norm(b - a, axis=1)
     counts = np.minimum(np.ceil(lengths).astype(int) + 1, 2 * (h + w))  # ~1 px steps
     seg = np.repeat(np.arange(len(a)), counts)
     start = np.repeat(np.cumsum(counts) - counts, counts)
     t = (np.arange(len(seg)) - start) / np.maximum(np.repeat(counts, counts) - 1, 1)
     samples = np.rint(a[seg] + t[:, None] * (b - a)[seg]).astype(np.int64)
-    keep = (samples[:, 0] >= -8) & (samples[:, 0] < w + 8) & (samples[:, 1] >= -8) & (
-        samples[:, 1] < h + 8)
+    keep = (
+        (samples[:, 0] >= -8)
+        & (samples[:, 0] < w + 8)
+        & (samples[:, 1] >= -8)
+        & (samples[:, 1] < h + 8)
+    )
     samples = samples[keep]
     r = max(width / 2.0, 0.5)
     k = int(np.ceil(r))
-    inside = (samples[:, 0] >= 0) & (samples[:, 0] < w) & (samples[:, 1] >= 0) & (
-        samples[:, 1] < h)
+    inside = (samples[:, 0] >= 0) & (samples[:, 0] < w) & (samples[:, 1] >= 0) & (samples[:, 1] < h)
     samples = samples[inside]
     if len(samples) == 0:
-        return image
+        return None
     # the line's bounding box, grown by the pen's radius: the dilation works on that crop
     x0, y0 = np.maximum(samples.min(axis=0) - k, 0)
     x1, y1 = np.minimum(samples.max(axis=0) + k + 1, (w, h))
@@ -343,19 +430,29 @@ def draw_polyline_2d(image: np.ndarray, uv: np.ndarray, width: float, rgba: Any)
     for dy in range(-k, k + 1):  # dilate the centre line by a disc: one slice per offset
         for dx in range(-k, k + 1):
             if dx * dx + dy * dy <= r * r + 0.25:
-                mask |= centres[k + dy: k + dy + bh, k + dx: k + dx + bw]
-    crop = image[y0:y1, x0:x1]  # a view: blending into it draws into the frame
+                mask |= centres[k + dy : k + dy + bh, k + dx : k + dx + bw]
+    return int(y0), int(x0), mask
+
+
+def _blend(image: np.ndarray, line: _Mask, rgba: Any) -> None:
+    """Blend colour ``rgba`` (alpha ``rgba[3]``) into ``image`` where ``line`` is set."""
+    y0, x0, mask = line
+    crop = image[y0 : y0 + mask.shape[0], x0 : x0 + mask.shape[1]]  # a view into the frame
     colour = _rgba(rgba)
     alpha = float(colour[3])
     pixels = crop[mask]
     blended = (1.0 - alpha) * pixels[:, :3] + alpha * 255.0 * colour[:3]
     crop[mask, :3] = np.clip(blended, 0, 255).astype(image.dtype)
-    return image
 
 
-def add_ghost(scene: mujoco.MjvScene, model: mujoco.MjModel, data: mujoco.MjData,
-              rgba: Any = REFERENCE, option: mujoco.MjvOption | None = None,
-              inflate: float = 1.03) -> int:
+def add_ghost(
+    scene: mujoco.MjvScene,
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    rgba: Any = REFERENCE,
+    option: mujoco.MjvOption | None = None,
+    inflate: float = 1.03,
+) -> int:
     """A translucent copy of the robot's moving geoms at the pose held in ``data``.
 
     ``data`` is a second ``MjData`` of ``model`` (not the simulation's) on which the caller ran
@@ -364,8 +461,14 @@ def add_ghost(scene: mujoco.MjvScene, model: mujoco.MjModel, data: mujoco.MjData
     ghost does not flicker against the arm when they coincide.
     """
     start = scene.ngeom
-    mujoco.mjv_addGeoms(model, data, option or _default_option(), _default_perturb(),
-                        int(mujoco.mjtCatBit.mjCAT_DYNAMIC), scene)
+    mujoco.mjv_addGeoms(
+        model,
+        data,
+        option or _default_option(),
+        _default_perturb(),
+        int(mujoco.mjtCatBit.mjCAT_DYNAMIC),
+        scene,
+    )
     colour = _rgba(rgba)
     mesh = int(mujoco.mjtGeom.mjGEOM_MESH)
     for i in range(start, scene.ngeom):
@@ -420,17 +523,17 @@ def limit_colour(margin: float, base: Any, warn_below: float = 0.1) -> np.ndarra
 # 5 × 7 glyphs, written for cir_gym: each glyph is its character followed by 7 rows, top to
 # bottom, one base-32 digit per row (bit 4 = leftmost pixel).
 _GLYPHS = (
-    ' 0000000!4444404"aa00000#aavavaa$4fke5u4%op248j3&cik8lid\'4400000(2488842)8422248'
-    '*04lel40+044v440,0000c48-000v000.00000cc/01248g00ehjlphe14c4444e2eh1248v3v2421he'
-    '426aiv225vgu11he668guhhe7v1248888ehhehhe9ehhf12c:0cc0cc0;0cc0c48<248g842=00v0v00'
-    '>8421248?eh12404@eh1dlleAehhvhhhBuhhuhhuCehgggheDsihhhisEvgguggvFvggugggGehgnhhf'
-    'HhhhvhhhIe44444eJ72222icKhikokihLggggggvMhrllhhhNhhpljhhOehhhhhePuhhugggQehhhlid'
-    'RuhhukihSfgge11uTv444444UhhhhhheVhhhhha4WhhhlllaXhha4ahhYhha4444Zv1248gv[e88888e'
-    '\\0g84210]e22222e^4ah0000_000000v`8400000a00e1fhfbggmphhuc00egghed11djhhfe00ehvge'
-    'f698s888g0fhhf1ehggmphhhi40c444ej20622ickggikokilc44444em00qllhhn00mphhho00ehhhe'
-    'p00uhuggq00djf11r00mpgggs00ege1ut88s8896u00hhhjdv00hhha4w00hhllax00ha4ahy00hhf1e'
-    'z00v248v{2448442|4444444}8442448~008l200°ciic000±44v440v×0ha4ah0·0004000Δ044aahv'
-    'θehhvhheτ00v4442µ00hhjtg≤248420f≥842480uω00ahlla‖aaaaaaa→042v240'
+    " 0000000!4444404\"aa00000#aavavaa$4fke5u4%op248j3&cik8lid'4400000(2488842)8422248"
+    "*04lel40+044v440,0000c48-000v000.00000cc/01248g00ehjlphe14c4444e2eh1248v3v2421he"
+    "426aiv225vgu11he668guhhe7v1248888ehhehhe9ehhf12c:0cc0cc0;0cc0c48<248g842=00v0v00"
+    ">8421248?eh12404@eh1dlleAehhvhhhBuhhuhhuCehgggheDsihhhisEvgguggvFvggugggGehgnhhf"
+    "HhhhvhhhIe44444eJ72222icKhikokihLggggggvMhrllhhhNhhpljhhOehhhhhePuhhugggQehhhlid"
+    "RuhhukihSfgge11uTv444444UhhhhhheVhhhhha4WhhhlllaXhha4ahhYhha4444Zv1248gv[e88888e"
+    "\\0g84210]e22222e^4ah0000_000000v`8400000a00e1fhfbggmphhuc00egghed11djhhfe00ehvge"
+    "f698s888g0fhhf1ehggmphhhi40c444ej20622ickggikokilc44444em00qllhhn00mphhho00ehhhe"
+    "p00uhuggq00djf11r00mpgggs00ege1ut88s8896u00hhhjdv00hhha4w00hhllax00ha4ahy00hhf1e"
+    "z00v248v{2448442|4444444}8442448~008l200°ciic000±44v440v×0ha4ah0·0004000Δ044aahv"
+    "θehhvhheτ00v4442µ00hhjtg≤248420f≥842480uω00ahlla‖aaaaaaa→042v240"
 )
 GLYPH_W, GLYPH_H = 5, 7
 
@@ -477,9 +580,14 @@ def caption_scale(height: int) -> int:
     return max(1, 1 + (int(height) - 60) // 240)
 
 
-def draw_caption(image: np.ndarray, text: str, scale: int | None = None,
-                 colour: tuple[int, int, int] = (255, 255, 255), background: float = 0.55,
-                 margin: int = 4) -> np.ndarray:
+def draw_caption(
+    image: np.ndarray,
+    text: str,
+    scale: int | None = None,
+    colour: tuple[int, int, int] = (255, 255, 255),
+    background: float = 0.55,
+    margin: int = 4,
+) -> np.ndarray:
     """Write ``text`` at the top-left of ``image`` (h, w, 3) uint8, in place; return ``image``.
 
     The text sits on a dark band (the pixels under it are multiplied by ``1 - background``)
@@ -500,10 +608,10 @@ def draw_caption(image: np.ndarray, text: str, scale: int | None = None,
     if mh <= 0 or mw <= 0:
         return image
     pad = s
-    band = image[max(0, y0 - pad): y0 + mh + pad, max(0, x0 - pad): x0 + mw + pad]
+    band = image[max(0, y0 - pad) : y0 + mh + pad, max(0, x0 - pad) : x0 + mw + pad]
     keep = round(256 * (1.0 - background))
     band[:] = ((band.astype(np.uint16) * keep) >> 8).astype(image.dtype)
-    region = image[y0: y0 + mh, x0: x0 + mw]
+    region = image[y0 : y0 + mh, x0 : x0 + mw]
     region[mask[:mh, :mw]] = colour
     return image
 
@@ -557,9 +665,15 @@ def joint_margins(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.nda
     return np.clip(np.minimum(q - lower, upper - q) / span, 0.0, 0.5)
 
 
-def tint_joint_limits(scene: mujoco.MjvScene, model: mujoco.MjModel, joint_ids: np.ndarray,
-                      q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                      warn_below: float = 0.1) -> int:
+def tint_joint_limits(
+    scene: mujoco.MjvScene,
+    model: mujoco.MjModel,
+    joint_ids: np.ndarray,
+    q: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    warn_below: float = 0.1,
+) -> int:
     """Colour each link toward red as its joint (``joint_ids``, (n,)) nears a limit.
 
     A link whose joint is at least ``warn_below`` of its range from both limits keeps its
@@ -590,8 +704,7 @@ class _Ghost:
         mujoco.mj_kinematics(self.model, self.data)
         return self.data
 
-    def site_path(self, qpos: np.ndarray, adr: np.ndarray, qs: np.ndarray, site: int
-                  ) -> np.ndarray:
+    def site_path(self, qpos: np.ndarray, adr: np.ndarray, qs: np.ndarray, site: int) -> np.ndarray:
         """World positions (k, 3) of ``site`` along the joint path ``qs`` (k, n)."""
         out = np.empty((len(qs), 3))
         for i, q in enumerate(qs):
@@ -687,8 +800,12 @@ def draw_redundant_ik(env: Any, scene: mujoco.MjvScene) -> None:
         clear = float(env._trace[4, k - 1])
         if clear < 0.05:  # a halo out to the arm: orange, more opaque as it closes in
             centre = _as_3d(np.asarray(env._obstacle_centre))
-            add_sphere(scene, centre, radius + max(clear, 0.0),
-                       (1.0, 0.6, 0.1, 0.15 + 0.35 * (1.0 - max(clear, 0.0) / 0.05)))
+            add_sphere(
+                scene,
+                centre,
+                radius + max(clear, 0.0),
+                (1.0, 0.6, 0.1, 0.15 + 0.35 * (1.0 - max(clear, 0.0) / 0.05)),
+            )
 
 
 def redundant_ik_caption(env: Any) -> str:

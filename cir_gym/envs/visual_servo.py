@@ -240,6 +240,7 @@ class _VisualServoBase(RobotEnv):
         )
         self._nominal_intrinsic = model.cam_intrinsic[self._cam_id].copy()
         self._eye: mujoco.Renderer | None = None
+        self._eye_small: mujoco.Renderer | None = None  # the rendered frame's camera inset
 
         n_act = 6 if action == "twist" else 7
         self.action_space = spaces.Box(-1.0, 1.0, (n_act,), dtype=np.float32)
@@ -607,14 +608,20 @@ class _VisualServoBase(RobotEnv):
     def _render_camera(self) -> None:
         if self._eye is None:
             self._eye = self._make_camera_renderer()
+        self._camera_view(self._eye, self._image)
+
+    def _camera_view(self, renderer: mujoco.Renderer, out: np.ndarray) -> None:
+        """The servo camera's view into ``out`` (renderer.height, renderer.width, 3)."""
         # geom group 1 holds the robot file's translucent payload placeholder at the flange,
         # around the camera: not part of this task, hidden from the camera
         option = mujoco.MjvOption()
         option.geomgroup[1] = 0
-        self._eye.update_scene(self.data, camera=self._cam_id, scene_option=option)
-        self._eye.render(out=self._image)
+        renderer.update_scene(self.data, camera=self._cam_id, scene_option=option)
+        renderer.render(out=out)
 
-    def _make_camera_renderer(self) -> mujoco.Renderer:
+    def _make_camera_renderer(
+        self, height: int = IMAGE_HEIGHT, width: int = IMAGE_WIDTH
+    ) -> mujoco.Renderer:
         import os
 
         backend = os.environ.get("MUJOCO_GL", "").strip().lower()
@@ -624,7 +631,7 @@ class _VisualServoBase(RobotEnv):
                 f"{what} renders the camera image: {GL_HELP} (MUJOCO_GL={backend!r})"
             )
         try:
-            renderer = mujoco.Renderer(self.model, IMAGE_HEIGHT, IMAGE_WIDTH)
+            renderer = mujoco.Renderer(self.model, height, width)
         except Exception as exc:
             raise RuntimeError(
                 f"{what} renders the camera image: {GL_HELP} ({type(exc).__name__}: {exc})"
@@ -705,9 +712,13 @@ class _VisualServoBase(RobotEnv):
         sy, sx = IMAGE_HEIGHT / ih, IMAGE_WIDTH / iw
         inset = np.full((ih, iw, 3), 30, dtype=np.uint8)
         try:
-            self._render_camera()
-            inset = self._image[(np.arange(ih) * sy).astype(int)][
-                :, (np.arange(iw) * sx).astype(int)
+            if self.obs_image or self.features == "detected":  # this step's image exists
+                image, rows, cols = self._image, IMAGE_HEIGHT, IMAGE_WIDTH
+            else:  # the camera's view rendered at the inset's height only (4:3 kept)
+                image = self._small_camera_view(ih)
+                rows, cols = image.shape[:2]
+            inset = image[(np.arange(ih) * (rows / ih)).astype(int)][
+                :, (np.arange(iw) * (cols / iw)).astype(int)
             ].copy()
         except RuntimeError:
             pass
@@ -719,15 +730,31 @@ class _VisualServoBase(RobotEnv):
         frame[h - ih :, w - iw :] = inset
         return frame
 
+    def _small_camera_view(self, height: int) -> np.ndarray:
+        """The camera's view rendered ``height`` px tall (the image's aspect ratio), for the
+        inset: ~1/30 of the pixels of the full 640 × 480 image at a 320 px frame."""
+        width = max(1, round(height * IMAGE_WIDTH / IMAGE_HEIGHT))
+        small = self._eye_small
+        if small is None or (small.height, small.width) != (height, width):
+            if small is not None:
+                small.close()
+            small = self._eye_small = self._make_camera_renderer(height, width)
+        image = np.empty((height, width, 3), dtype=np.uint8)
+        self._camera_view(small, image)
+        return image
+
     def close(self) -> None:
-        if self._eye is not None:
-            self._eye.close()
-            self._eye = None
+        for name in ("_eye", "_eye_small"):
+            renderer = getattr(self, name, None)
+            if renderer is not None:
+                renderer.close()
+                setattr(self, name, None)
         super().close()
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         state["_eye"] = None
+        state["_eye_small"] = None
         return state
 
     def controller_context(self) -> TaskContext:
