@@ -206,3 +206,31 @@ def test_torque_interface_reads_every_physics_step_from_the_sensor_history() -> 
     hist = u.sensor_history(2) @ u._normal
     np.testing.assert_allclose(hist, contact, rtol=1e-9, atol=1e-9)
     assert np.ptp(contact) > 0.1 and info["in_contact"]  # values differ: the order is tested
+
+
+def test_explicit_force_reference_ramps_from_the_contact_force_to_f_ref() -> None:
+    """The quintic ramp starts at the contact force at rest and ends at f̄ at rest; its
+    derivatives are the quintic's (central differences); ramp_time=0 is a step to f̄."""
+    env = gym.make(ENV_ID, stiffness=1e4, force_ref=20.0)
+    law = baselines.make("explicit_force", ENV_ID, env=env)
+    from baselines.interaction import _COMMON
+
+    state = np.zeros(law.state_size)
+    state[_COMMON + 2] = 3.0  # f̂ at contact (N)
+    T = law.ramp_time
+    assert T == pytest.approx(0.3)
+
+    def ref(t: float) -> np.ndarray:
+        state[_COMMON + 1] = t
+        return np.array(law.reference(20.0, state))
+
+    np.testing.assert_allclose(ref(0.0), [3.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(ref(T), [20.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(ref(2 * T), [20.0, 0.0, 0.0], atol=1e-12)
+    assert ref(T / 2)[0] == pytest.approx(11.5)  # the quintic is symmetric about its midpoint
+    h = 1e-6
+    for t in (0.05, 0.13, 0.21):
+        assert ref(t)[1] == pytest.approx((ref(t + h)[0] - ref(t - h)[0]) / (2 * h), rel=1e-5)
+        assert ref(t)[2] == pytest.approx((ref(t + h)[1] - ref(t - h)[1]) / (2 * h), rel=1e-4)
+    step = baselines.make("explicit_force", ENV_ID, env=env, ramp_time=0.0)
+    assert step.reference(20.0, state) == (20.0, 0.0, 0.0)
