@@ -595,6 +595,26 @@ def test_report_main_writes_one_seed_table_per_leaderboard_variant(tmp_path, mon
     assert all(f"## {v}" in text for v in variants) and "TABLE {'payload_mass': 3.0}" in text
 
 
+def test_a_batched_run_trains_ships_and_loads_like_any_other(tmp_path):
+    from agents.train import train
+
+    hp = tiny_hyperparams(tmp_path, vec_env="batched", n_envs=4, reward_offset=1.0,
+                          log_error_bonus={"weight": 0.5},
+                          env_wrapper={"agents.observation.TaskObservation":
+                                       {"features": ["gravity"]}})
+    run = train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, hyperparams_path=hp,
+                progress_bar=False, verbose=0)
+    rows = list(csv.DictReader((run / "learning_curve.csv").open()))
+    assert [int(r["timesteps"]) for r in rows] == [128, 256]
+    assert json.loads((run / "meta.json").read_text())["finished"]
+    agent = agents.load(ENV, "b", path=run)
+    result = evaluate(agent, ENV, 1, seed=100_000, **SHORT)
+    assert np.isfinite(result.summary["rms_error"]["mean"])
+    with pytest.raises(HyperparameterError, match="batched"):
+        train(ENV, "ppo", out=tmp_path, name="r", residual="computed_torque", env_kwargs=SHORT,
+              hyperparams_path=hp, progress_bar=False, verbose=0)
+
+
 def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
     from agents.train import ship, train
 
