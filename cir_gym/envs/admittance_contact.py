@@ -235,8 +235,12 @@ class AdmittanceContactEnv(RobotEnv):
     - r_path = −``path_weight`` (1 − exp(−‖e_t‖² / ``path_scale``²)), e_t the tip's path error
       in the nominal surface's plane;
     - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / dim(a);
-    - r_force_limit = −``force_limit_penalty`` on the step the force exceeds ``force_limit``;
-    - r_diverged = −``divergence_penalty`` on the step the physics diverged.
+    - r_force_limit = −(``force_limit_penalty`` + N_left (1 + ``path_weight``)) on the step the
+      force exceeds ``force_limit``, N_left the steps the stop leaves unplayed: the rest of the
+      horizon at the worst per-step reward, as the metrics score a stopped episode, so that
+      ending an episode early never pays (with all rewards ≤ 0 a fixed penalty made slamming
+      into the surface the best return for an agent that cannot yet press well);
+    - r_diverged = −(``divergence_penalty`` + N_left (1 + ``path_weight``)) likewise.
 
     ## Starting State
     At rest at ``START_Q`` (tip 3 cm above the nominal surface, tool pointing down), the sensor
@@ -274,8 +278,8 @@ class AdmittanceContactEnv(RobotEnv):
     | path_scale | 0.01 | path reward kernel width (m), in [1e-6, 10] |
     | path_weight | 0.5 | weight of the path term |
     | action_rate_weight | 0.01 | weight of the action-rate term |
-    | force_limit_penalty | 50.0 | reward lost when the force limit ends the episode |
-    | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | force_limit_penalty | 50.0 | reward lost when the force limit ends the episode (plus the rest of the horizon) |
+    | divergence_penalty | 100.0 | reward lost when the physics diverges (plus the rest of the horizon) |
     | success_threshold | 1.0 | normal-force RMS error (N) below which an episode succeeds |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
@@ -611,8 +615,11 @@ class AdmittanceContactEnv(RobotEnv):
         r_path = -self.path_weight * (1.0 - math.exp(-path_sq / self.path_scale**2))
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / a.size
-        r_limit = -self.force_limit_penalty if over else 0.0
-        r_div = -self.divergence_penalty if diverged else 0.0
+        # a stop also costs the rest of the horizon at the worst per-step reward (as the metrics
+        # score it): ending the episode early never pays
+        rest = (self.max_steps - self._k) * (1.0 + self.path_weight)
+        r_limit = -(self.force_limit_penalty + rest) if over else 0.0
+        r_div = -(self.divergence_penalty + rest) if diverged else 0.0
         self._a_prev[:] = a
         reward = r_force + r_path + r_rate + r_limit + r_div
         terminated = diverged or over
