@@ -118,6 +118,13 @@ def quat_error(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
 def rotvec_from_quat(quat: ArrayLike) -> np.ndarray:
     """Rotation vector θ r (..., 3) of unit quaternions (..., 4), θ ∈ [0, π] (rad)."""
     q = np.asarray(quat, dtype=float)
+    if q.shape == (4,):  # one quaternion (the controllers' hot path): the same operations
+        w, x, y, z = q.tolist()
+        if w < 0.0:
+            w, x, y, z = -w, -x, -y, -z
+        s1 = math.sqrt(0.0 + x * x + y * y + z * z)
+        scale1 = 2.0 * float(_ARCTAN2(s1, w)) / s1 if s1 > 1e-12 else 2.0
+        return np.array([scale1 * x, scale1 * y, scale1 * z])
     q = q * np.where(q[..., :1] < 0.0, -1.0, 1.0)  # η ≥ 0: the shorter rotation
     eps = q[..., 1:]
     s = np.linalg.norm(eps, axis=-1, keepdims=True)
@@ -413,7 +420,10 @@ def damped_least_squares(J: ArrayLike, damping: ArrayLike) -> np.ndarray:
     """
     J = np.asarray(J, dtype=float)
     k = np.asarray(damping, dtype=float)
-    if np.any(~np.isfinite(k)) or np.any(k < 0):
+    if k.ndim == 0:  # one number (the common case): no array reductions
+        if not (math.isfinite(float(k)) and float(k) >= 0):
+            raise ValueError(f"damping must be finite and >= 0, got {damping!r}")
+    elif np.any(~np.isfinite(k)) or np.any(k < 0):
         raise ValueError(f"damping must be finite and >= 0, got {damping!r}")
     m = J.shape[-2]
     JJt = J @ np.swapaxes(J, -1, -2) + (k**2)[..., None, None] * np.eye(m)
