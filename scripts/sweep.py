@@ -584,6 +584,20 @@ def _archive(run_dir: Path) -> bytes:
     return buffer.getvalue()
 
 
+def unpack_run(record: dict[str, Any], out: Path) -> Path | None:
+    """Unpack the run directory that a training task on another host returned (``archive``,
+    removed from ``record``) to ``out/<its run_dir>``, unless that directory exists (a shared
+    filesystem, or this host ran it); return the directory, or None without an archive."""
+    archive = record.pop("archive", None)
+    if archive is None:
+        return None
+    run_dir = out / record["rows"][0]["run_dir"]
+    if not run_dir.exists():
+        with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
+            tar.extractall(run_dir, filter="data")  # no absolute paths, links or devices
+    return run_dir
+
+
 def run_task(task: dict[str, Any], out: str, driver_host: str = "") -> dict[str, Any]:
     """Run one task in this process and return its record (raises on failure, for retries).
 
@@ -893,14 +907,8 @@ def run_sweep(
 
     def done(record: dict[str, Any]) -> None:
         nonlocal failures
-        archive = record.pop("archive", None)
         task = by_id[record["task_id"]]
-        if archive is not None:
-            target = out / "runs"
-            run_dir = target / record["rows"][0]["run_dir"].split("/", 1)[1]
-            if not run_dir.exists():
-                with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
-                    tar.extractall(run_dir, filter="data")
+        unpack_run(record, out)
         failures += record["status"] != "ok"
         _write_json(task_dir / f"{record['task_id']}.json", {**record, "task": task})
         if bar is not None:

@@ -470,3 +470,31 @@ def test_a_training_task_killed_mid_run_resumes_from_its_checkpoint(training_swe
     curve = (run / "learning_curve.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in curve] == [128, 256, 256]
     assert _yaml.safe_load((run / "config.yml").read_text())["seed"] == 0
+
+
+@pytest.mark.slow
+def test_a_training_run_on_another_host_comes_back_to_the_driver(training_sweep, tmp_path):
+    """A training task whose driver is elsewhere (a multi-node Ray cluster without a shared
+    filesystem) returns its run directory; the driver unpacks it under its own ``out``."""
+    import agents
+    from scripts.sweep import unpack_run
+
+    src, _ = training_sweep
+    record = json.loads(next((src / "tasks").glob("*.json")).read_text())
+    task = record["task"]
+    node = tmp_path / "node"  # the worker node's copy of --out
+    result = run_task(task, str(node), driver_host="not-" + __import__("socket").gethostname())
+    assert isinstance(result["archive"], bytes)
+    driver = tmp_path / "driver"
+    run_dir = unpack_run(result, driver)
+    assert "archive" not in result and run_dir == driver / result["rows"][0]["run_dir"]
+    files = {p.relative_to(run_dir).as_posix() for p in run_dir.rglob("*") if p.is_file()}
+    assert {"model.zip", "config.yml", "learning_curve.csv", "meta.json"} <= files
+    assert not any(f.startswith(("checkpoints/", "tb/")) for f in files)
+    from cir_gym.evaluation import evaluate
+
+    policy = agents.load(task["env_id"], "copy", path=run_dir)  # the same agent, complete
+    res = evaluate(
+        policy, task["env_id"], task["eval_episodes"], task["seed"], **task["env_kwargs"]
+    )
+    assert [e.episode_return for e in res.episodes] == [r["return"] for r in result["rows"]]
