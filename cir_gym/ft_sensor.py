@@ -26,13 +26,15 @@ Presets (:data:`PRESETS`), from the sensors' documents as summarised in
   steps, about 0.1 N effective resolution over its 300 N range (Robotiq FT 300 manual; a
   third-party comparison table). Noise std 0.1 N / 0.005 N m (the effective resolution taken
   as the noise level; the torque figure is an assumption), cut-off 20 Hz (an anti-aliasing
-  filter well below the 50 Hz Nyquist frequency, assumption: with 50 Hz the 1-ms contact bounces
-  of a sliding tool aliased into a 5 N bias of the 100 Hz samples), delay 5 ms (transport over
+  filter well below the 50 Hz Nyquist frequency, assumption: with 50 Hz, at a 1-ms physics
+  step, the contact bounces of a sliding tool aliased into a 5 N bias of the 100 Hz samples),
+  delay 5 ms (transport over
   the serial/USB link, assumption).
 * ``"ati_gamma"``: ATI Gamma SI-32-2.5 class: about 6 mN resolution, sampled up to 7 kHz
-  (ATI data sheet). Here sampled at the physics rate (1 kHz; faster sampling cannot be
-  represented), noise std 0.01 N / 0.0005 N m, resolution 1/160 N / 1/2000 N m (torque:
-  assumption), cut-off 200 Hz, delay 1 ms (assumptions).
+  (ATI data sheet). Here sampled at 1 kHz (at most the physics rate can be represented: 1 kHz
+  for the robot files' 1-ms step, 4 kHz in AdmittanceContact), noise std 0.01 N / 0.0005 N m,
+  resolution 1/160 N / 1/2000 N m (torque: assumption), cut-off 200 Hz, delay 1 ms
+  (assumptions).
 * ``"ideal"``: the exact MuJoCo wrench every physics step (tests, upper bounds).
 """
 
