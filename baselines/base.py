@@ -29,25 +29,37 @@ Observation = dict[str, np.ndarray]
 
 _CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
 _isfinite = math.isfinite
+_F64 = np.dtype(np.float64)
 
 
-def _check_observation(obs: Observation) -> None:
-    """ValueError naming the first key with a NaN or inf value. One dot product of all the
-    values decides the common case (finite unless NaN/inf, or an overflow of the squares,
-    which sends it to the exact per-key check). A cir_gym env's observation is the rows of
-    one array: then that array is checked as it is (a superset of the values), else the
-    values are concatenated."""
-    values = tuple(obs.values())
-    base = values[0].base
-    if base is not None and base.dtype == np.float64 and all(v.base is base for v in values):
-        flat = base.ravel()
+def _float_observation(observation: Observation) -> Observation:
+    """``observation`` with float64 arrays (the same arrays where they are already), checked:
+    ValueError naming the first key with a NaN or inf value.
+
+    One dot product of all the values decides the common case (finite unless NaN/inf, or an
+    overflow of the squares, which sends it to the exact per-key check). A cir_gym env's
+    observation is the rows of one float64 array: then that array is checked as it is (a
+    superset of the values) and the dict is used as it is; else the values are converted
+    and concatenated.
+    """
+    base = getattr(observation.get("q"), "base", None)
+    shared = type(base) is np.ndarray and base.dtype == _F64
+    if shared:
+        for v in observation.values():
+            if type(v) is not np.ndarray or v.base is not base:
+                shared = False
+                break
+    if shared:
+        obs, flat = observation, base.ravel()
     else:
-        flat = np.concatenate(values, axis=None)
+        obs = {k: np.asarray(v, dtype=float) for k, v in observation.items()}
+        flat = np.concatenate(tuple(obs.values()), axis=None)
     if _isfinite(flat.dot(flat)):
-        return
+        return obs
     for key, value in obs.items():
         if not np.all(np.isfinite(value)):
             raise ValueError(f"observation[{key!r}] contains NaN or inf")
+    return obs
 
 
 def _check_command(name: str, commands: np.ndarray) -> None:
@@ -370,8 +382,7 @@ class Controller:
             raise ValueError(
                 f"observation must be a dict with a 'q' entry, got keys {list(observation)}"
             )
-        obs = {k: np.asarray(v, dtype=float) for k, v in observation.items()}
-        _check_observation(obs)
+        obs = _float_observation(observation)
         batched = obs["q"].ndim == 2  # every cir_gym observation has q (n,)
         n_envs = len(obs["q"]) if batched else 1
         size = self.state_size

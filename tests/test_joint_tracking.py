@@ -825,6 +825,12 @@ def test_predict_still_names_a_non_finite_observation_and_command():
         bad[key][3] = np.nan
         with pytest.raises(ValueError, match=rf"observation\['{key}'\] contains NaN or inf"):
             policy.predict(bad)
+    shared = rows[0]  # an env observation: the rows of one array, checked as that array
+    assert all(v.base is shared["q"].base for v in shared.values())
+    shared["qdd_ref"][1] = np.inf
+    with pytest.raises(ValueError, match=r"observation\['qdd_ref'\] contains NaN or inf"):
+        policy.predict(shared)
+    shared["qdd_ref"][1] = 0.0
     huge = {k: np.full(7, 1e200) for k in rows[0]}  # finite, squares overflow: still accepted
     policy_pd = baselines.make("pd_gravity", ENV, env=env)
     actions, _ = policy_pd.predict({**rows[0], "qdd_ref": huge["qdd_ref"]})
