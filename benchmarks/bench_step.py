@@ -134,7 +134,7 @@ def kinematics_loop(model: mujoco.MjModel, site: int, steps: int) -> Callable[[]
     return loop
 
 
-def bench_envs(ids: list[str], steps: int, repeat: int) -> list[str]:
+def bench_envs(ids: list[str], steps: int, repeat: int, ratios: dict | None = None) -> list[str]:
     rows = []
     results = {}
     for env_id in [REFERENCE, *ids]:
@@ -165,9 +165,9 @@ def bench_envs(ids: list[str], steps: int, repeat: int) -> list[str]:
     for env_id, (t_step, t_raw, what, kin) in results.items():
         over = t_step - t_raw
         vs_ref = "—" if kin else f"{over / ref_over:.2f}"
-        rows.append(
-            f"| {env_id} | {what} | {t_step / t_raw:.2f} | {vs_ref} | {over / t_raw:.2f} |"
-        )
+        if ratios is not None and not kin and env_id != REFERENCE:
+            ratios[env_id] = over / ref_over
+        rows.append(f"| {env_id} | {what} | {t_step / t_raw:.2f} | {vs_ref} | {over / t_raw:.2f} |")
     return rows
 
 
@@ -220,10 +220,13 @@ def stack(obs: dict, n: int) -> dict:
     return {k: np.stack([np.asarray(v)] * n) for k, v in obs.items()}
 
 
-def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> list[str]:
+def bench_controllers(
+    ids: list[str], calls: int, repeat: int, batch: int, ratios: dict | None = None
+) -> list[str]:
     rows = [
-        f"| controller | env | predict(1 obs) / mj_step | predict({batch} obs) per row / mj_step |",
-        "|---|---|---:|---:|",
+        f"| controller | env | predict(1 obs) / mj_step | predict({batch} obs) per row / mj_step "
+        "| per row / single |",
+        "|---|---|---:|---:|---:|",
     ]
     envs: dict[str, gym.Env] = {}
     for name in baselines.CONTROLLERS:
@@ -258,11 +261,16 @@ def bench_controllers(ids: list[str], calls: int, repeat: int, batch: int) -> li
 
             t_batch, t_step2 = best_pair(batched, raw, repeat)
             per_row = f"{t_batch / t_step2:.2f}"
+            vs_single = f"{(t_batch / t_step2) / (t_pred / t_step):.2f}"
         except Exception as exc:  # a controller that takes single observations only
-            per_row = f"not batched ({type(exc).__name__})"
-        print(f"  {name} on {env_id}: predict {t_pred * 1e6:.1f} µs, mj_step {t_step * 1e6:.1f} µs",
-              flush=True)
-        rows.append(f"| {name} | {env_id} | {t_pred / t_step:.2f} | {per_row} |")
+            per_row, vs_single = f"not batched ({type(exc).__name__})", "—"
+        print(
+            f"  {name} on {env_id}: predict {t_pred * 1e6:.1f} µs, mj_step {t_step * 1e6:.1f} µs",
+            flush=True,
+        )
+        rows.append(f"| {name} | {env_id} | {t_pred / t_step:.2f} | {per_row} | {vs_single} |")
+        if ratios is not None:
+            ratios[name] = (t_pred / t_step, per_row, vs_single)
     for env in envs.values():
         env.close()
     return rows
@@ -279,8 +287,9 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     kw = {"max_following_error": None}
     vec = JointTrackingVectorEnv(num_envs, nthread=nthread, **kw)
     vec.reset(seed=0)
-    sync = gym.make_vec("cir_gym/JointTracking-v1", num_envs=num_envs, vectorization_mode="sync",
-                        **kw)
+    sync = gym.make_vec(
+        "cir_gym/JointTracking-v1", num_envs=num_envs, vectorization_mode="sync", **kw
+    )
     sync.reset(seed=0)
     raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=nthread)
     raw.state[:] = vec.batch.state
@@ -316,13 +325,42 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     ]
 
 
+#: issue 21's targets: the torque envs' step overhead at most Reacher-v5's; the joint-space
+#: laws' predict on one observation at most 2 mj_step
+TORQUE_ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+TARGET_LAWS = ("pd_gravity", "computed_torque")
+
+
+def target_lines(env_ratios: dict[str, float], ctrl_ratios: dict[str, tuple]) -> list[str]:
+    """Issue 21's targets for the joint-space envs and laws, met or missed, from this run."""
+
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "missed"
+
+    lines = ["Issue 21 targets in this run (joint-space envs and laws):", ""]
+    for env_id in TORQUE_ENVS:
+        if env_id in env_ratios:
+            r = env_ratios[env_id]
+            lines.append(f"- {env_id}: overhead {r:.2f}× Reacher-v5's (≤ 1): {verdict(r <= 1)}")
+    for name in TARGET_LAWS:
+        if name in ctrl_ratios:
+            single, per_row, vs_single = ctrl_ratios[name]
+            lines.append(
+                f"- {name}: predict(1 obs) {single:.2f} mj_step (≤ 2): {verdict(single <= 2)}; "
+                f"a batched row {per_row} mj_step ({vs_single} of a single call)"
+            )
+    return lines
+
+
 def write_section(path: Path, body: str) -> None:
     """Replace (or append) the ``SECTION`` of ``path``, keeping every other ``## `` section."""
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
     block = f"{SECTION}\n\n{body.strip()}\n\n"
-    text = pattern.sub(lambda _: block, text) if pattern.search(text) else (
-        text.rstrip() + "\n\n" + block
+    text = (
+        pattern.sub(lambda _: block, text)
+        if pattern.search(text)
+        else (text.rstrip() + "\n\n" + block)
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text.rstrip() + "\n")
@@ -341,10 +379,12 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore")
     ids = args.env or list(cir_gym.ENVIRONMENTS)
     print("env.step:", flush=True)
-    env_rows = bench_envs(ids, args.steps, args.repeat)
+    env_ratios: dict[str, float] = {}
+    ctrl_ratios: dict[str, tuple] = {}
+    env_rows = bench_envs(ids, args.steps, args.repeat, env_ratios)
     plumbing_rows = bench_plumbing(ids, args.steps, args.repeat)
     print("controllers:", flush=True)
-    ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch)
+    ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch, ctrl_ratios)
     print("vector env:", flush=True)
     vec_rows = bench_vector(args.num_envs, args.steps, args.repeat, args.nthread)
     body = "\n".join(
@@ -360,6 +400,8 @@ def main(argv: list[str] | None = None) -> int:
             "",
             *env_rows,
             "",
+            *target_lines(env_ratios, ctrl_ratios),
+            "",
             "RobotEnv's shared plumbing per step (cir_gym/envs/base.py), in units of one "
             "`mj_step` of the env's model (a difference of two timings: with many substeps "
             "(VisualServo: 20) it is below their spread and can come out negative):",
@@ -367,7 +409,12 @@ def main(argv: list[str] | None = None) -> int:
             *plumbing_rows,
             "",
             "Controllers' `predict` (fresh state: an episode's first step) against one "
-            "`mj_step` of the env's model; batched: stacked copies of the observation.",
+            "`mj_step` of the env's model; batched: stacked copies of the observation; the "
+            "last column is a batched row's cost over a single call's (< 1: batching pays). "
+            "The joint-space laws (decentralized, `pd_gravity`, `computed_torque`, `robust`) "
+            "set `vectorized`: their law runs on all rows at once, the model calls "
+            "(`baselines.base.RowDynamics`: the calls of `Robot.gravity`/`inertia`/`bias` on "
+            "an own MjData) row by row; the others run `control` row by row.",
             "",
             *ctrl_rows,
             "",

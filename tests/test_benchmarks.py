@@ -41,3 +41,47 @@ def test_bench_robot_main_returns_1_when_a_ratio_misses_the_target(capsys):
     bench = _load_bench_robot()
     assert bench.main([*QUICK, "--target", "1e-9"]) == 1
     assert "MISSED" in capsys.readouterr().out
+
+
+BENCH_STEP = Path(__file__).parents[1] / "benchmarks" / "bench_step.py"
+
+
+def test_bench_step_writes_only_its_section_with_the_targets_it_measured(tmp_path):
+    """A tiny run on one env: its section replaces the old one, the other sections stay, and
+    the issue-21 target lines say met or missed for the numbers of that run."""
+    out = tmp_path / "benchmarks.md"
+    out.write_text("# Benchmarks\n\n## env.step and predict\n\nold\n\n## Other\n\nkept\n")
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(BENCH_STEP),
+            "--env",
+            "cir_gym/JointTracking-v1",
+            "--steps",
+            "3",
+            "--repeat",
+            "1",
+            "--batch",
+            "2",
+            "--num-envs",
+            "2",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    text = out.read_text()
+    assert "old" not in text and "## Other\n\nkept" in text
+    assert text.count("## env.step and predict") == 1
+    for line in (
+        "- cir_gym/JointTracking-v1: overhead",
+        "- pd_gravity: predict(1 obs)",
+        "- computed_torque: predict(1 obs)",
+    ):
+        got = [row for row in text.splitlines() if row.startswith(line)]
+        assert len(got) == 1 and got[0].split(": ")[-1].split(";")[0] in ("met", "missed"), got
+    assert "| computed_torque | cir_gym/JointTracking-v1 |" in text
