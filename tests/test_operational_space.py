@@ -46,8 +46,9 @@ def test_rotvec_error_is_the_axis_angle_of_R_ref_Rt_and_sign_free() -> None:
         np.testing.assert_allclose(_exp(p), R_e, atol=1e-12)
     np.testing.assert_allclose(osp.rotvec_error(-qa, qb), phi, atol=1e-14)
     np.testing.assert_allclose(osp.rotvec_error(qa, -qb), phi, atol=1e-14)
-    np.testing.assert_allclose(osp.orientation_angle(qa, qb), np.linalg.norm(phi, axis=1),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        osp.orientation_angle(qa, qb), np.linalg.norm(phi, axis=1), atol=1e-12
+    )
     assert np.all(np.linalg.norm(phi, axis=1) <= np.pi + 1e-12)
 
 
@@ -68,14 +69,16 @@ def test_small_rotation_vector_is_accurate() -> None:
     r = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     for theta in (1e-12, 1e-8, 1e-4):
         quat = traj.quat_from_matrix(traj.matrix_from_axis_angle(r, theta))
-        np.testing.assert_allclose(osp.rotvec_error(quat, [1, 0, 0, 0]), theta * r,
-                                   rtol=1e-9, atol=1e-20)
+        np.testing.assert_allclose(
+            osp.rotvec_error(quat, [1, 0, 0, 0]), theta * r, rtol=1e-9, atol=1e-20
+        )
 
 
 def test_continuous_quats_and_align() -> None:
     rng = np.random.default_rng(2)
-    R = traj.OrientationInterpolation(np.eye(3), traj.matrix_from_axis_angle([0, 0, 1], 3.0),
-                                      traj.TimingLaw.quintic(1.0))
+    R = traj.OrientationInterpolation(
+        np.eye(3), traj.matrix_from_axis_angle([0, 0, 1], 3.0), traj.TimingLaw.quintic(1.0)
+    )
     quats = traj.quat_from_matrix(R.evaluate(np.linspace(0, 1, 200))[0])
     flipped = quats * rng.choice([-1.0, 1.0], size=(200, 1))
     c = osp.continuous_quats(flipped)
@@ -97,8 +100,9 @@ def test_left_jacobian_against_finite_differences(theta: float) -> None:
     Rdot = (_exp(phi + h * v) - _exp(phi - h * v)) / (2 * h)
     omega = _vee(Rdot @ _exp(phi).T)  # world-frame angular velocity
     np.testing.assert_allclose(osp.left_jacobian(phi) @ v, omega, atol=1e-8)
-    np.testing.assert_allclose(osp.left_jacobian_inverse(phi) @ osp.left_jacobian(phi),
-                               np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(
+        osp.left_jacobian_inverse(phi) @ osp.left_jacobian(phi), np.eye(3), atol=1e-12
+    )
     # d/dt J_l⁻¹ along φ̇ = v
     D = (osp.left_jacobian_inverse(phi + h * v) - osp.left_jacobian_inverse(phi - h * v)) / (2 * h)
     np.testing.assert_allclose(osp.left_jacobian_inverse_dot(phi, v), D, atol=1e-8)
@@ -110,8 +114,7 @@ def test_jacobians_are_batched() -> None:
     Jb, Db = osp.left_jacobian_inverse(phi), osp.left_jacobian_inverse_dot(phi, v)
     for i in range(5):
         np.testing.assert_allclose(Jb[i], osp.left_jacobian_inverse(phi[i]), atol=1e-15)
-        np.testing.assert_allclose(Db[i], osp.left_jacobian_inverse_dot(phi[i], v[i]),
-                                   atol=1e-15)
+        np.testing.assert_allclose(Db[i], osp.left_jacobian_inverse_dot(phi[i], v[i]), atol=1e-15)
 
 
 def test_pose_error_kinematics_against_finite_differences(robot: Robot) -> None:
@@ -122,16 +125,25 @@ def test_pose_error_kinematics_against_finite_differences(robot: Robot) -> None:
     timing = traj.TimingLaw.quintic(2.0)
     circle = traj.Circle([0.5, 0.1, 0.6], 0.1, traj.TimingLaw.quintic(2.0))
     R0 = traj.matrix_from_axis_angle([1, 0, 0], 2.5)  # ~2.5 rad from the arm's frame: large φ
-    orient = traj.OrientationInterpolation(R0, R0 @ traj.matrix_from_axis_angle([0, 1, 1], 1.0),
-                                           timing)
+    orient = traj.OrientationInterpolation(
+        R0, R0 @ traj.matrix_from_axis_angle([0, 1, 1], 1.0), timing
+    )
 
     def at(t: float) -> osp.PoseErrorKinematics:
         q = q0 + qd0 * t + 0.5 * qdd * t**2
         qd = qd0 + qdd * t
         p, v, a = circle.evaluate(0.7 + t)
         R, w, wd = orient.evaluate(0.7 + t)
-        return osp.pose_error_kinematics(robot, SITE, q, qd, p, traj.quat_from_matrix(R),
-                                         np.concatenate((v, w)), np.concatenate((a, wd)))
+        return osp.pose_error_kinematics(
+            robot,
+            SITE,
+            q,
+            qd,
+            p,
+            traj.quat_from_matrix(R),
+            np.concatenate((v, w)),
+            np.concatenate((a, wd)),
+        )
 
     k0 = at(0.0)
     assert 1.0 < np.linalg.norm(k0.error[3:]) < np.pi  # a large orientation error
@@ -178,8 +190,7 @@ def test_task_inertia_against_mujoco(robot: Robot) -> None:
     # regularised form: (Λ⁻¹ + k² I)⁻¹, bounded by 1/k²
     k = 0.3
     Lk = osp.task_inertia(J, B, damping=k)
-    np.testing.assert_allclose(np.linalg.inv(Lk), np.linalg.inv(Lam) + k**2 * np.eye(6),
-                               atol=1e-9)
+    np.testing.assert_allclose(np.linalg.inv(Lk), np.linalg.inv(Lam) + k**2 * np.eye(6), atol=1e-9)
     assert np.max(np.linalg.eigvalsh(Lk)) <= 1 / k**2
     with pytest.raises(ValueError, match="damping"):
         osp.task_inertia(J, B, damping=-1.0)
@@ -193,8 +204,12 @@ def test_task_inertia_blows_up_at_the_wrist_singularity_unless_damped(robot: Rob
     for q6 in (0.3, 0.03, 0.003):
         q[5] = q6
         J, B = robot.jacobian(SITE, q), robot.inertia(q)
-        eig.append((np.max(np.linalg.eigvalsh(osp.task_inertia(J, B))),
-                    np.max(np.linalg.eigvalsh(osp.task_inertia(J, B, damping=0.1)))))
+        eig.append(
+            (
+                np.max(np.linalg.eigvalsh(osp.task_inertia(J, B))),
+                np.max(np.linalg.eigvalsh(osp.task_inertia(J, B, damping=0.1))),
+            )
+        )
     plain, damped = np.array(eig).T
     assert plain[2] > 1e3 * plain[0]  # ~1/σ² growth
     assert np.all(damped <= 100.0 + 1e-9)
@@ -229,8 +244,7 @@ def test_damped_least_squares() -> None:
     Js = osp.damped_least_squares(J, k)
     for i in range(4):
         U, s, Vt = np.linalg.svd(J[i], full_matrices=False)
-        np.testing.assert_allclose(Js[i], Vt.T @ np.diag(s / (s**2 + k[i] ** 2)) @ U.T,
-                                   atol=1e-10)
+        np.testing.assert_allclose(Js[i], Vt.T @ np.diag(s / (s**2 + k[i] ** 2)) @ U.T, atol=1e-10)
     Jsing = J[0].copy()
     Jsing[5] = Jsing[4]  # rank 5
     assert np.linalg.norm(osp.damped_least_squares(Jsing, 0.1), 2) <= 1 / (2 * 0.1) + 1e-9
@@ -246,3 +260,28 @@ def test_damping_schedule() -> None:
     assert osp.damping_schedule(0.1 - eps, 0.2, 0.1) < 1e-3
     with pytest.raises(ValueError):
         osp.damping_schedule(s, 0.2, 0.0)
+
+
+def test_single_pose_fast_paths_are_bit_identical_to_the_array_paths() -> None:
+    """orientation_angle, align_quat and rotvec_from_quat of one quaternion (the envs' and
+    controllers' scalar paths) give exactly the bits of the batched array code, also at
+    tiny angles, on the far hemisphere and at θ = π."""
+    rng = np.random.default_rng(3)
+    ref = _random_quats(rng, 400)
+    near = ref + rng.standard_normal((400, 4)) * 10.0 ** rng.uniform(-9, 0, (400, 1))
+    near /= np.linalg.norm(near, axis=1, keepdims=True)
+    near[::3] *= -1.0  # either sign
+    special = np.array([[1.0, 0, 0, 0], [-1.0, 0, 0, 0], [0.0, 1, 0, 0], [1.0, 1e-13, 0, 0]])
+    ref, near = np.vstack((ref, special)), np.vstack((near, special[::-1]))
+    angle = osp.orientation_angle(ref, near)
+    aligned = osp.align_quat(near, ref)
+    rotvec = osp.rotvec_from_quat(near)
+    for i in range(len(ref)):
+        assert osp.orientation_angle(ref[i], near[i]).tobytes() == angle[i].tobytes()
+        assert osp.align_quat(near[i], ref[i]).tobytes() == aligned[i].tobytes()
+        assert osp.rotvec_from_quat(near[i]).tobytes() == rotvec[i].tobytes()
+    assert osp.quat_angle([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]) == pytest.approx(np.pi)
+    with pytest.raises(ValueError, match="damping"):
+        osp.damped_least_squares(np.eye(3), -1.0)
+    with pytest.raises(ValueError, match="damping"):
+        osp.damped_least_squares(np.eye(3), np.nan)

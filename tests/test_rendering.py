@@ -133,8 +133,9 @@ def test_limit_colour_and_joint_margins() -> None:
     np.testing.assert_allclose(rendering.limit_colour(0.1, base), base, atol=1e-6)
     np.testing.assert_allclose(rendering.limit_colour(0.0, base), rendering.WARNING, atol=1e-6)
     half = rendering.limit_colour(0.05, base)
-    np.testing.assert_allclose(half[:3], (np.array(base[:3]) + rendering.WARNING[:3]) / 2,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        half[:3], (np.array(base[:3]) + rendering.WARNING[:3]) / 2, atol=1e-6
+    )
     m = rendering.joint_margins(np.array([0.0, 0.9, -1.0]), -np.ones(3), np.ones(3))
     np.testing.assert_allclose(m, [0.5, 0.05, 0.0])
 
@@ -146,8 +147,15 @@ def test_tint_joint_limits_recolours_only_the_link_behind_the_joint_at_its_limit
     q = np.array([0.0, r.upper[1] - 0.01, 0.0])  # joint 2 at 0.2 % of its range from the limit
     data.qpos[r.qpos_adr] = q
     mujoco.mj_forward(r.model, data)
-    mujoco.mjv_updateScene(r.model, data, mujoco.MjvOption(), None, mujoco.MjvCamera(),
-                           int(mujoco.mjtCatBit.mjCAT_ALL), scene)
+    mujoco.mjv_updateScene(
+        r.model,
+        data,
+        mujoco.MjvOption(),
+        None,
+        mujoco.MjvCamera(),
+        int(mujoco.mjtCatBit.mjCAT_ALL),
+        scene,
+    )
     geoms = [scene.geoms[i] for i in range(scene.ngeom)]
     before = {(g.objtype, g.objid): np.array(g.rgba) for g in geoms}
     assert rendering.tint_joint_limits(scene, r.model, r.joint_ids, q, r.lower, r.upper) == 1
@@ -170,11 +178,21 @@ def test_place_world_geoms_uses_the_model_pose() -> None:
     model.geom_pos[gid] = [0.4, -0.2, 0.0]
     mujoco.mj_kinematics(model, data)
     scene = mujoco.MjvScene(model, 100)
-    mujoco.mjv_updateScene(model, data, mujoco.MjvOption(), None, mujoco.MjvCamera(),
-                           int(mujoco.mjtCatBit.mjCAT_ALL), scene)
+    mujoco.mjv_updateScene(
+        model,
+        data,
+        mujoco.MjvOption(),
+        None,
+        mujoco.MjvCamera(),
+        int(mujoco.mjtCatBit.mjCAT_ALL),
+        scene,
+    )
     assert rendering.place_world_geoms(scene, model) >= 1
-    obstacle = [scene.geoms[i] for i in range(scene.ngeom) if scene.geoms[i].objid == gid
-                and scene.geoms[i].objtype == mujoco.mjtObj.mjOBJ_GEOM]
+    obstacle = [
+        scene.geoms[i]
+        for i in range(scene.ngeom)
+        if scene.geoms[i].objid == gid and scene.geoms[i].objtype == mujoco.mjtObj.mjOBJ_GEOM
+    ]
     np.testing.assert_allclose(obstacle[0].pos, [0.4, -0.2, 0.0])
 
 
@@ -336,3 +354,44 @@ def test_overlay_projection_matches_the_rendered_scene(env_id: str) -> None:
     changed = np.argwhere(np.any(marked != bare, axis=2))
     assert depth[0] > 0 and len(changed) > 10
     assert np.linalg.norm(changed.mean(axis=0)[::-1] - uv[0]) < 2.5, (changed.mean(0), uv)
+
+
+def test_a_cached_overlay_draws_the_same_pixels_and_follows_the_camera() -> None:
+    """finish_frame reuses a line's pixel mask only while the points, the camera and the
+    frame size are the same: the cached frame equals a fresh one, and moving the camera
+    redraws the line elsewhere."""
+    model = load_model("planar3r")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    scene = mujoco.MjvScene(model, maxgeom=100)
+    cam = mujoco.MjvCamera()
+    mujoco.mjv_defaultFreeCamera(model, cam)
+    mujoco.mjv_updateScene(
+        model, data, mujoco.MjvOption(), None, cam, int(mujoco.mjtCatBit.mjCAT_ALL), scene
+    )
+    path = np.column_stack(
+        (
+            0.4 * np.cos(np.linspace(0, 6.3, 200)),
+            0.4 * np.sin(np.linspace(0, 6.3, 200)),
+            np.zeros(200),
+        )
+    )
+
+    def frame() -> np.ndarray:
+        image = np.zeros((120, 160, 3), np.uint8)
+        rendering.begin_frame(scene)
+        rendering.add_polyline(scene, path, 0.004, (1.0, 0.0, 0.0, 1.0))
+        return rendering.finish_frame(image, scene)
+
+    rendering._MASKS.clear()
+    fresh = frame()
+    assert len(rendering._MASKS[id(scene)]) == 1 and fresh[..., 0].sum() > 0
+    assert np.array_equal(frame(), fresh)  # from the cache
+    cam.azimuth += 40.0
+    mujoco.mjv_updateScene(
+        model, data, mujoco.MjvOption(), None, cam, int(mujoco.mjtCatBit.mjCAT_ALL), scene
+    )
+    moved = frame()
+    assert not np.array_equal(moved, fresh)
+    rendering._MASKS.clear()
+    assert np.array_equal(frame(), moved)  # the same as drawn without the cache

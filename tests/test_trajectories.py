@@ -645,3 +645,29 @@ def test_wrong_timing_type_raises_type_error():
         Segment([0, 0], [1, 1], "quintic")
     with pytest.raises(TypeError, match="Generator"):
         random_joint_trajectory("seed", [0], [1], duration=1, n_points=3, v_max=1)
+
+
+def test_quat_from_matrix_of_one_matrix_is_bit_identical_to_the_batched_path() -> None:
+    """The single-matrix path (Python floats) and the array path agree bit for bit, with each
+    of the four Shepperd pivots, at 180° turns and on ties; non-finite input still raises."""
+    rng = np.random.default_rng(5)
+    axes = rng.standard_normal((300, 3))
+    mats = [
+        matrix_from_axis_angle(a / np.linalg.norm(a), t)
+        for a, t in zip(axes, rng.uniform(0.0, np.pi, 300), strict=True)
+    ]
+    mats += [
+        np.eye(3),
+        np.diag([1.0, -1.0, -1.0]),
+        np.diag([-1.0, 1.0, -1.0]),
+        np.diag([-1.0, -1.0, 1.0]),
+        matrix_from_axis_angle(np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0), np.pi),
+    ]
+    batched = quat_from_matrix(np.array(mats))
+    pivots = set()
+    for R, q in zip(mats, batched, strict=True):
+        assert quat_from_matrix(R).tobytes() == q.tobytes()
+        pivots.add(int(np.argmax([1 + np.trace(R), *(1 + 2 * np.diag(R) - np.trace(R))])))
+    assert pivots == {0, 1, 2, 3}
+    with pytest.raises(ValueError, match="finite"):
+        quat_from_matrix(np.full((3, 3), np.nan))
