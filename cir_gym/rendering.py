@@ -297,6 +297,8 @@ def finish_frame(frame: np.ndarray, scene: mujoco.MjvScene, caption: str = "") -
             current[key] = mask
             if mask is not None:
                 _blend(frame, mask, rgba)
+        if len(_MASKS) >= _MAX_CACHED_SCENES and id(scene) not in _MASKS:
+            _MASKS.clear()  # scenes come and go (one per renderer): forget the old ones
         _MASKS[id(scene)] = current  # only this frame's lines are kept
     return draw_caption(frame, caption)
 
@@ -306,6 +308,7 @@ _Mask = tuple[int, int, np.ndarray]
 #: the last frame's line masks per scene (id), keyed by camera, frame size, radius and points:
 #: a static line (a reference path) seen by a still camera is rasterised once
 _MASKS: dict[int, dict[bytes, _Mask | None]] = {}
+_MAX_CACHED_SCENES = 32
 
 
 def _camera_key(scene: mujoco.MjvScene, shape: tuple[int, ...]) -> bytes:
