@@ -12,6 +12,7 @@ deterministic for a given seed (no timings in the tables).
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import sys
 import time
@@ -85,7 +86,10 @@ def run_leaderboard(
     seconds: dict[tuple[str, str, str], float] = {}
     bar = _progress(len(jobs))
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # spawn, not fork: a child forked from a parent that has already run torch (an agent's
+    # policy, a test that trained one) can deadlock in torch's thread pool at its first op.
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=spawn) as pool:
         futures = [pool.submit(run_job, j, episodes, seed) for j in jobs]
         for fut in as_completed(futures):
             key, result, sec = fut.result()
