@@ -298,7 +298,9 @@ class AdmittanceContactEnv(RobotEnv):
     explicit_force, implicit_force, parallel_force_position (:mod:`baselines.interaction`).
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version. Changed before the issue closed (no v1): the physics step 1 ms →
+      0.25 ms (``timestep``) and a stop's cost includes the rest of the horizon; the shipped
+      agents were retrained on this version.
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
