@@ -42,6 +42,8 @@ def _run(name: str, env_kwargs: dict, seed: int = 1, **gains) -> tuple[list[dict
         ({"sensor_noise": (0.1, 0.1, 0.1)}, "sensor_noise"),
         ({"force_ref": 80.0}, "force_ref"),
         ({"tilt_error": 1.0}, "tilt_error"),
+        ({"timestep": 0.01}, "timestep"),
+        ({"timestep": 0.0003}, "control_freq"),  # 2 ms is not a whole number of 0.3-ms steps
     ],
 )
 def test_bad_arguments_name_the_argument(kwargs: dict, name: str) -> None:
