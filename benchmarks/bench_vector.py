@@ -175,6 +175,7 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
         "|---|---|---|---:|---:|---:|---|",
     ]
     total_now = total_seq = 0.0
+    by_kind: dict[str, list[float]] = {}  # kind of job → [sequential s, now s, jobs]
     for env_id in VECTOR_ENVS:
         for _, variant, kwargs, name in jobs_for(env_id):
             seq, t_seq = _timed_evaluate(env_id, kwargs, name, seq_episodes, batched=False)
@@ -192,12 +193,26 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
                 cells = f"– (sequential: {why}) | 1.0 | –"
             total_now += t_fast
             total_seq += t_seq
+            kind = (
+                "batched controllers"
+                if can
+                else "agents (sequential)"
+                if name.startswith("agent:")
+                else "industrial-drive controllers (sequential)"
+            )
+            acc = by_kind.setdefault(kind, [0.0, 0.0, 0])
+            acc[0], acc[1], acc[2] = acc[0] + t_seq, acc[1] + t_fast, acc[2] + 1
             print(f"  {env_id} {variant} {name}: seq {t_seq:.1f} s, now {t_fast:.1f} s", flush=True)
             rows.append(f"| {env_id.split('/')[-1]} | {variant} | {name} | {t_seq:.1f} | {cells} |")
     rows += [
         "",
         f"These {len(rows) - 4} jobs: {total_seq:.0f} CPU s sequential → "
-        f"{total_now:.0f} CPU s with the batched evaluator ({total_seq / total_now:.1f}×).",
+        f"{total_now:.0f} CPU s with the batched evaluator ({total_seq / total_now:.1f}×): "
+        + "; ".join(
+            f"{kind} ({int(n)} jobs) {seq:.0f} → {now:.0f} s"
+            for kind, (seq, now, n) in by_kind.items()
+        )
+        + ".",
     ]
     return rows, total_now, total_seq
 
@@ -357,8 +372,9 @@ def main(argv: list[str] | None = None) -> int:
             f"### Full leaderboard at {args.episodes} seeds per variant (estimate)",
             "",
             f"The envs without a batched env, sequential: {args.other_episodes} episode(s) per "
-            f"job timed (policy and env construction included), ×"
-            f"{args.episodes / args.other_episodes:g}.",
+            f"job timed (policy and env construction included, so scaled ×"
+            f"{args.episodes / args.other_episodes:g} with the episodes: an overestimate by "
+            "the construction time, ≲ 1 s per job).",
             "",
             f"| env | jobs | CPU s at {args.episodes} seeds |",
             "|---|---:|---:|",
