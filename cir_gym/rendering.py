@@ -23,7 +23,9 @@ Rendering cost: in software GL (llvmpipe) every geom is a draw call of ~0.1-0.3 
 comparable to the whole bare robot, so a task should add a handful of geoms. Long lines
 (paths, traces) therefore go through :func:`add_polyline`, which in a frame of
 ``RobotEnv.render`` (between :func:`begin_frame` and :func:`finish_frame`) is drawn into the
-image as a 2-D overlay (on top of the scene, no occlusion) for ~0.3 ms whatever its length.
+image as a 2-D overlay (on top of the scene, no occlusion) for ~0.3 ms whatever its length;
+a line whose points, camera and frame size are those of the previous frame (a reference path
+under a still camera) reuses its pixel mask, and only the blend is paid (~0.05 ms).
 ``benchmarks/bench_render.py`` measures the cost per frame against the bare robot.
 
 The second half of the module draws the shipped environments' tasks (their ``draw_task`` and
@@ -240,7 +242,8 @@ def add_polyline(
 
     In a frame of :meth:`RobotEnv.render` (between :func:`begin_frame` and
     :func:`finish_frame`) the line is drawn into the image after the 3-D scene, as a 2-D
-    overlay on top of it (no occlusion): a polyline costs ~1 ms however long, where each
+    overlay on top of it (no occlusion): a polyline costs ~1 ms however long (its pixels are
+    kept for the next frame while it and the camera stay the same), where each
     capsule costs ~0.2 ms in software GL (each geom is a draw call). Elsewhere (the human
     viewer's scene, a bare ``MjvScene``) it is at most ``max_segments`` capsules (``radius ==
     0``: 2-pixel GL lines), subsampled evenly with both ends kept. Non-finite points break
