@@ -15,22 +15,28 @@ instances in the same state (a few zero-action steps into an episode):
 Time is the process's CPU time (software GL renders on the CPU, in threads this counts), so
 other jobs on the machine do not inflate one side; wall time is printed too. Each side renders
 ``--frames`` frames per trial, the sides alternate, the best of ``--repeat`` trials is kept.
-Prints a markdown table and exits 1 if a ratio now / before exceeds ``--target``. The GL
+Prints a markdown table, writes it to ``--out`` under ``## Rendering`` (only that
+section is replaced) and exits 1 if a ratio now / before exceeds ``--target``. The GL
 backend is the one cir_gym chose (MUJOCO_GL); a GPU gives other absolute numbers.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import mujoco
 import numpy as np
+from _sections import write_section  # sibling module: the scripts run as files
 
 import cir_gym
 
+SECTION = "## Rendering"
+OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
 HIDDEN_GROUP = 5  # MjvOption shows geom groups 0-2 by default
 DEFAULT_QUALITY = (28, 16)  # MuJoCo's default numslices, numstacks (the robot files before)
 
@@ -81,23 +87,42 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="trials per side (best kept)")
     parser.add_argument("--target", type=float, default=2.0, help="largest full/bare ratio")
     parser.add_argument("--env", action="append", help="env id (default: every registered)")
+    parser.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = parser.parse_args(argv)
     ids = args.env or sorted(cir_gym.ENVIRONMENTS)
-    print(f"MUJOCO_GL={__import__('os').environ.get('MUJOCO_GL', '')}, {args.size} px, "
-          f"best of {args.repeat} x {args.frames} frames\n")
-    print("| env | before CPU (ms/frame) | now CPU (ms/frame) | ratio | before wall | now wall "
-          "| scene geoms now |")
-    print("|---|---|---|---|---|---|---|")
+    lines = [
+        f"`python benchmarks/bench_render.py --size {args.size} --frames {args.frames} "
+        f"--repeat {args.repeat}` (MUJOCO_GL={os.environ.get('MUJOCO_GL', '')}, mujoco "
+        f"{mujoco.__version__}; process CPU time per frame, best of the trials, the two sides "
+        "alternating in one run). *before*: the bare robot as rendered before issue 23; "
+        "*now*: the shipped frame (checker floor, the task's markers, 2-D overlays, caption).",
+        "",
+        "| env | before CPU (ms/frame) | now CPU (ms/frame) | now / before | before wall "
+        "| now wall | scene geoms now |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    print(lines[0] + "\n")
+    print("\n".join(lines[2:]))
     worst = 0.0
     for env_id in ids:
         m = measure(env_id, args.size, args.frames, args.repeat)
         ratio = m["cpu_now"] / m["cpu_before"]
         worst = max(worst, ratio)
-        print(f"| {env_id} | {1e3 * m['cpu_before']:.2f} | {1e3 * m['cpu_now']:.2f} | "
-              f"{ratio:.2f} | {1e3 * m['wall_before']:.2f} | {1e3 * m['wall_now']:.2f} | "
-              f"{m['ngeom']:.0f} |")
+        lines.append(
+            f"| {env_id} | {1e3 * m['cpu_before']:.2f} | {1e3 * m['cpu_now']:.2f} | "
+            f"{ratio:.2f} | {1e3 * m['wall_before']:.2f} | {1e3 * m['wall_now']:.2f} | "
+            f"{m['ngeom']:.0f} |"
+        )
+        print(lines[-1], flush=True)
     ok = worst <= args.target
-    print(f"\nworst ratio {worst:.2f} ({'within' if ok else 'ABOVE'} the target {args.target:g})")
+    lines += [
+        "",
+        f"Worst ratio {worst:.2f}: {'within' if ok else 'ABOVE'} the target "
+        f"{args.target:g} (issue 23).",
+    ]
+    print("\n" + lines[-1])
+    if str(args.out) != "-":
+        write_section(args.out, SECTION, "\n".join(lines))
     return 0 if ok else 1
 
 

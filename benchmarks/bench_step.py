@@ -39,7 +39,6 @@ replacing only that section (other sections of the file, e.g. vector-env scaling
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 import warnings
@@ -50,12 +49,14 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 import numpy as np
+from _sections import write_section  # sibling module: the scripts run as files
 
 import baselines
 import cir_gym
 
 KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
 REFERENCE = "Reacher-v5"
+
 SECTION = "## env.step and predict"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
 
@@ -352,20 +353,6 @@ def target_lines(env_ratios: dict[str, float], ctrl_ratios: dict[str, tuple]) ->
     return lines
 
 
-def write_section(path: Path, body: str) -> None:
-    """Replace (or append) the ``SECTION`` of ``path``, keeping every other ``## `` section."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    block = f"{SECTION}\n\n{body.strip()}\n\n"
-    text = (
-        pattern.sub(lambda _: block, text)
-        if pattern.search(text)
-        else (text.rstrip() + "\n\n" + block)
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text.rstrip() + "\n")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=100, help="steps/calls per timed trial")
@@ -426,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(body)
     if str(args.out) != "-":
-        write_section(args.out, body)
+        write_section(args.out, SECTION, body)
     return 0
 
 

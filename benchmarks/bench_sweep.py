@@ -26,11 +26,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _sections import write_section  # sibling module: the scripts run as files
 
 SECTION = "## Sweeps"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
@@ -77,18 +78,6 @@ def one_run(g: dict, out: Path, workers: int, ray: str | None) -> dict:
         "steady": steady,
         "task_s": task_s,
     }
-
-
-def write_section(path: Path, body: str) -> None:
-    """Replace (or append) ``SECTION`` of ``path``, keeping every other ``## `` section."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    block = f"{SECTION}\n\n{body.strip()}\n\n"
-    if pattern.search(text):
-        text = pattern.sub(lambda _: block, text)
-    else:
-        text = text.rstrip() + "\n\n" + block
-    path.write_text(text)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -154,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     print(body)
     if args.out:
         text = body + "\n\n" + reading()
-        write_section(args.out, text)
+        write_section(args.out, SECTION, text)
         print(f"wrote the {SECTION!r} section of {args.out}", file=sys.stderr)
     return 0
 

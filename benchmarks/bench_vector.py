@@ -38,7 +38,6 @@ replaced; the other sections belong to other scripts):
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 import warnings
@@ -50,6 +49,7 @@ import gymnasium as gym
 import mujoco
 import mujoco.batch
 import numpy as np
+from _sections import write_section  # sibling module: the scripts run as files
 
 import cir_gym
 from cir_gym.envs.base import make_env
@@ -316,16 +316,6 @@ def bench_ppo(steps: int) -> list[str]:
 
 
 # ---------------------------------------------------------------------- output
-def write_section(path: Path, body: str) -> None:
-    """Replace (or append) ``SECTION`` in ``path``, keeping every other ``## `` section."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    block = f"{SECTION}\n\n{body.strip()}\n\n"
-    if pattern.search(text):
-        text = pattern.sub(lambda _: block, text)
-    else:
-        text = text.rstrip() + "\n\n" + block
-    path.write_text(text.rstrip() + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -401,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(text)
     if str(args.out) != "-":
-        write_section(args.out, text)
+        write_section(args.out, SECTION, text)
     return 0
 
 
