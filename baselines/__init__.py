@@ -20,13 +20,21 @@ from baselines.decentralized import (
     PCascade,
     PPIFeedforward,
 )
-from baselines.hybrid import HYBRID_CONTROLLERS
+from baselines.hybrid import HYBRID_CONTROLLERS, TASK_ADAPTERS
 from baselines.interaction import INTERACTION_CONTROLLERS
 from baselines.kinematic import KINEMATIC_CONTROLLERS
 from baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
 from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
-__all__ = ["CONTROLLERS", "Controller", "InvalidGain", "available", "make", "task_name"]
+__all__ = [
+    "CONTROLLERS",
+    "Controller",
+    "InvalidGain",
+    "available",
+    "controller_class",
+    "make",
+    "task_name",
+]
 
 CONTROLLERS: dict[str, type[Controller]] = {
     cls.name: cls
@@ -54,9 +62,20 @@ def task_name(env_id: str) -> str:
 
 
 def available(env_id: str) -> list[str]:
-    """Names of the controllers that apply to an environment id."""
+    """Names of the controllers that apply to an environment id (task adapters included)."""
     task = task_name(env_id)
-    return [name for name, cls in CONTROLLERS.items() if task in cls.tasks]
+    names = [name for name, cls in CONTROLLERS.items() if task in cls.tasks]
+    return names + [n for n, t in TASK_ADAPTERS if t == task and n not in names]
+
+
+def controller_class(name: str, env_id: str) -> type[Controller]:
+    """The class that implements controller ``name`` on ``env_id``.
+
+    Usually ``CONTROLLERS[name]``; a law written for one task and carried to another through
+    an observation adapter (``baselines.hybrid.TASK_ADAPTERS``: AdmittanceContact's
+    ``admittance`` on PegInHole) has its own class there, with its own ``Gains``.
+    """
+    return TASK_ADAPTERS.get((name, task_name(env_id)), CONTROLLERS[name])
 
 
 def make(
@@ -106,4 +125,4 @@ def make(
         env.close()
     else:
         context = env.unwrapped.controller_context()
-    return CONTROLLERS[name](context, **gains)
+    return controller_class(name, env_id)(context, **gains)

@@ -82,7 +82,9 @@ def split_settings(
     if policy in baselines.CONTROLLERS:
         import dataclasses
 
-        gain_keys = [f.name for f in dataclasses.fields(baselines.CONTROLLERS[policy].Gains)]
+        gain_keys = [
+            f.name for f in dataclasses.fields(baselines.controller_class(policy, env_id).Gains)
+        ]
     env_kwargs: dict[str, Any] = {}
     gains: dict[str, Any] = {}
     for item in settings:

@@ -253,7 +253,7 @@ def _is_factory(policy: str) -> bool:
     return ":" in policy and not policy.startswith("agent:")
 
 
-def _gain_sets(where: str, policy: str, spec: Any) -> list[dict[str, Any]]:
+def _gain_sets(where: str, env_id: str, policy: str, spec: Any) -> list[dict[str, Any]]:
     import baselines
 
     if not isinstance(spec, dict):
@@ -261,7 +261,9 @@ def _gain_sets(where: str, policy: str, spec: Any) -> list[dict[str, Any]]:
     axes = spec.get(policy)
     sets = _product(f"{where} gains of {policy}", axes)
     if axes and policy in baselines.CONTROLLERS:
-        fields = [f.name for f in dataclasses.fields(baselines.CONTROLLERS[policy].Gains)]
+        fields = [
+            f.name for f in dataclasses.fields(baselines.controller_class(policy, env_id).Gains)
+        ]
         unknown = sorted(set(axes) - set(fields))
         if unknown:
             raise GridError(f"{where}: {policy} has no gain(s) {unknown}; gains: {fields}")
@@ -321,7 +323,7 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
         for env_id in _env_ids(where, block):
             variants = _variants(where, env_id, block.get("env_kwargs"), block.get("env_overrides"))
             for policy in _policies(where, env_id, block.get("policies")):
-                for gains in _gain_sets(where, policy, block.get("gains") or {}):
+                for gains in _gain_sets(where, env_id, policy, block.get("gains") or {}):
                     for variant, kwargs in variants:
                         for first in range(seed, seed + episodes, per_task):
                             tasks.append(
