@@ -163,10 +163,10 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     runs += [(f.stem, f) for f in sorted(curves.glob("*.csv"))]
     for label, src in runs:
         steps, values = read_curve(src, primary)
-        keep = steps <= 2_500_000
+        keep = steps <= 3_100_000
         axes[0].plot(steps[keep], values[keep], "o-", ms=3, label=label)
         steps, returns = read_curve(src, "return")
-        axes[1].plot(steps[steps <= 2_500_000], returns[steps <= 2_500_000], "o-", ms=3,
+        axes[1].plot(steps[steps <= 3_100_000], returns[steps <= 3_100_000], "o-", ms=3,
                      label=label)
     for f in training:  # batched-env levers: training episode length (the survival they learn)
         data = np.genfromtxt(f, delimiter=",", names=True)
