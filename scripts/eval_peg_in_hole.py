@@ -139,7 +139,17 @@ def main() -> None:
         action="store_true",
         help="only render insertion.png (hybrid_spiral, seed 1000, mid-search)",
     )
+    parser.add_argument(
+        "--summarise-sweep",
+        type=Path,
+        metavar="DIR",
+        help="only summarise a `cir-gym sweep` of PegInHole (e.g. sweeps/peg_speed_unseen.yaml) "
+        "into DIR/README.md: success and success with peak <= 50 N per gain set",
+    )
     args = parser.parse_args()
+    if args.summarise_sweep:
+        print(summarise_sweep(args.summarise_sweep))
+        return
     args.out.mkdir(parents=True, exist_ok=True)
     if args.picture_only:
         picture(args.out)
@@ -186,6 +196,39 @@ def main() -> None:
                 _write(args.out, results)
         _figures(results, args.out)
     print(_write(args.out, results))
+
+
+def summarise_sweep(directory: Path) -> str:
+    """Success rate and success with peak force <= 50 N per gain set of a sweep's table."""
+    import pandas as pd
+
+    table = directory / "results.parquet"
+    df = pd.read_parquet(table) if table.exists() else pd.read_csv(directory / "results.csv")
+    df = df[df["status"] == "ok"]
+    gains = [c for c in df.columns if c.startswith("gain.")]
+    lines = [
+        f"# {directory.name}: success and peak force per gain set",
+        "",
+        f"Written by `python scripts/eval_peg_in_hole.py --summarise-sweep {directory}` from the "
+        "sweep's table (`cir-gym sweep`; the grid in `sweep.json`).",
+        "",
+        "| controller | gains | episodes (seeds) | success | success with peak ≤ 50 N "
+        "| peak force median / worst (N) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for (policy, *values), g in df.groupby(["policy", *gains], dropna=False):
+        ok = g["success"].astype(bool).to_numpy()
+        peak = g["metric.peak_force"].to_numpy(dtype=float)
+        label = ", ".join(f"{k[5:]}={v}" for k, v in zip(gains, values, strict=True)) or "default"
+        lines.append(
+            f"| {policy} | {label} | {len(g)} ({g['episode_seed'].min()}-"
+            f"{g['episode_seed'].max()}) | {100 * ok.mean():.0f} % | "
+            f"{100 * np.mean(ok & (peak <= 50.0)):.0f} % | "
+            f"{np.median(peak):.1f} / {peak.max():.1f} |"
+        )
+    text = "\n".join(lines) + "\n"
+    (directory / "README.md").write_text(text)
+    return text
 
 
 def _key(r: dict[str, Any]) -> str:
