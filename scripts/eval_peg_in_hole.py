@@ -200,12 +200,13 @@ def main() -> None:
 
 def summarise_sweep(directory: Path) -> str:
     """Success rate and success with peak force <= 50 N per gain set of a sweep's table."""
-    import pandas as pd
+    from scripts.sweep import read_table
 
-    table = directory / "results.parquet"
-    df = pd.read_parquet(table) if table.exists() else pd.read_csv(directory / "results.csv")
-    df = df[df["status"] == "ok"]
-    gains = [c for c in df.columns if c.startswith("gain.")]
+    rows = [r for r in read_table(directory) if r["status"] == "ok"]
+    gains = sorted({k for r in rows for k in r if k.startswith("gain.")})
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["policy"], *(r.get(k) for k in gains)), []).append(r)
     lines = [
         f"# {directory.name}: success and peak force per gain set",
         "",
@@ -216,14 +217,14 @@ def summarise_sweep(directory: Path) -> str:
         "| peak force median / worst (N) |",
         "|---|---|---|---|---|---|",
     ]
-    for (policy, *values), g in df.groupby(["policy", *gains], dropna=False):
-        ok = g["success"].astype(bool).to_numpy()
-        peak = g["metric.peak_force"].to_numpy(dtype=float)
+    for (policy, *values), g in sorted(groups.items(), key=lambda kv: str(kv[0])):
+        ok = np.array([bool(r["success"]) for r in g])
+        peak = np.array([float(r["metric.peak_force"]) for r in g])
+        seeds = [r["episode_seed"] for r in g]
         label = ", ".join(f"{k[5:]}={v}" for k, v in zip(gains, values, strict=True)) or "default"
         lines.append(
-            f"| {policy} | {label} | {len(g)} ({g['episode_seed'].min()}-"
-            f"{g['episode_seed'].max()}) | {100 * ok.mean():.0f} % | "
-            f"{100 * np.mean(ok & (peak <= 50.0)):.0f} % | "
+            f"| {policy} | {label} | {len(g)} ({min(seeds)}-{max(seeds)}) | "
+            f"{100 * ok.mean():.0f} % | {100 * np.mean(ok & (peak <= 50.0)):.0f} % | "
             f"{np.median(peak):.1f} / {peak.max():.1f} |"
         )
     text = "\n".join(lines) + "\n"
