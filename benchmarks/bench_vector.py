@@ -315,9 +315,6 @@ def bench_ppo(steps: int) -> list[str]:
     return rows
 
 
-# ---------------------------------------------------------------------- output
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--num-envs", type=int, default=64, help="copies for the throughput part")
