@@ -44,6 +44,9 @@ def _run(name: str, env_kwargs: dict, seed: int = 1, **gains) -> tuple[list[dict
         ({"tilt_error": 1.0}, "tilt_error"),
         ({"timestep": 0.01}, "timestep"),
         ({"timestep": 0.0003}, "control_freq"),  # 2 ms is not a whole number of 0.3-ms steps
+        # a tiny rate once asked the scene for ~4e296 steps of sensor history (TypeError)
+        ({"control_freq": 1e-300}, "control_freq"),
+        ({"control_freq": 333.0}, "control_freq"),
     ],
 )
 def test_bad_arguments_name_the_argument(kwargs: dict, name: str) -> None:

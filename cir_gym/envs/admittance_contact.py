@@ -10,7 +10,13 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import rendering
-from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import (
+    MIN_CONTROL_FREQ,
+    InvalidArgument,
+    RobotEnv,
+    TaskContext,
+    check_number,
+)
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
     PRESETS,
@@ -399,10 +405,12 @@ class AdmittanceContactEnv(RobotEnv):
 
         # the solref time constant (2 ms) must stay ≥ 2 physics steps
         self.timestep = check_number("timestep", timestep, 1.0e-4, 1.0e-3)
-        try:  # physics steps per control period; RobotEnv reports a bad control_freq
-            history = physics_steps(float(control_freq), self.timestep)
-        except (InvalidArgument, TypeError, ValueError, ZeroDivisionError, OverflowError):
-            history = 1
+        # physics steps per control period, checked as RobotEnv checks them (the model keeps
+        # that many steps of sensor history, so it is built only for a valid control_freq)
+        control_freq = check_number(
+            "control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / self.timestep
+        )
+        history = physics_steps(control_freq, self.timestep)
         model = build_model(self.stiffness, self.damping, self.timestep, history)
         super().__init__(
             model,
