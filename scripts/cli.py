@@ -270,6 +270,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             name=args.name,
             env_kwargs=env_kwargs,
             n_envs=args.n_envs,
+            hyperparams_path=args.hyperparams,
         )
     except ValueError as exc:  # bad residual controller, existing run without --resume, ...
         raise CliError(str(exc)) from exc
@@ -395,6 +396,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--name", default=None)
     t.add_argument("--out", default="runs")
     t.add_argument("--set", action="append", metavar="KEY=VALUE", help="environment argument")
+    t.add_argument(
+        "--hyperparams",
+        metavar="YAML",
+        default=None,
+        help="hyperparameter file instead of agents/hyperparams/<algo>.yml "
+        "(e.g. agents/hyperparams/levers/rik_*.yml)",
+    )
     t.set_defaults(func=cmd_train)
 
     i = sub.add_parser("identify", help="least-squares identification, then computed torque")

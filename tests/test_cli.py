@@ -155,3 +155,16 @@ def test_a_bad_grid_exits_2_with_a_message(grid, needle, tmp_path, capsys):
 def test_leaderboard_from_a_directory_without_a_sweep_exits_2(tmp_path, capsys):
     assert main(["leaderboard", "--from", str(tmp_path)]) == 2
     assert "no sweep table" in capsys.readouterr().err
+
+
+def test_train_command_passes_its_hyperparameter_file_on(tmp_path, monkeypatch):
+    """``--hyperparams`` reaches ``agents.train.train`` (the default file when omitted)."""
+    pytest.importorskip("stable_baselines3")
+    calls = []
+    monkeypatch.setattr("agents.train.train", lambda env_id, algo, **kw: calls.append(kw))
+    argv = ["train", "--env", "cir_gym/RedundantIK-v3", "--out", str(tmp_path)]
+    hp = "agents/hyperparams/levers/rik_base.yml"
+    assert main([*argv, "--hyperparams", hp]) == 0
+    assert main(argv) == 0
+    assert [c["hyperparams_path"] for c in calls] == [hp, None]
+    assert calls[0]["out"] == str(tmp_path)
