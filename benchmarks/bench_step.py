@@ -13,9 +13,13 @@ not timed):
 
 - physics-driven envs (every env whose ``step`` runs ``mj_step``: the torque-driven ones and
   VisualServo, whose joint velocity servos are simulated): overhead = time of ``env.step``
-  minus ``frame_skip`` × ``mj_step`` on a fresh ``MjData`` of the same model (zero control),
-  timed in the same run. Gymnasium's ``Reacher-v5`` is measured the same way; the table gives
-  each env's overhead / Reacher's overhead.
+  minus the ``mj_step`` calls that step makes, replayed on the states it visited (a
+  :class:`PhysicsTape` records, in an untimed pass over the same steps, MuJoCo's full
+  integration state before every ``mj_step`` call and its ``nstep``; the replay restores each
+  state with ``mj_setState`` and steps it, minus the same ``mj_setState`` loop alone). So a
+  contact env's physics is timed with its contacts, the way the env pays for them, not on a
+  fresh ``MjData`` in free space. Gymnasium's ``Reacher-v5`` is measured the same way; the
+  table gives each env's overhead / Reacher's overhead.
 - kinematic envs (RedundantIK, RedundantIK7: no dynamics in ``step``): overhead = time of
   ``env.step`` minus ``mj_kinematics + mj_comPos + mj_jacSite`` (the end-effector site), and
   the ratio of that overhead to the same kinematics.
@@ -25,8 +29,8 @@ the ``frame_skip`` × ``mj_step`` it runs, per env, in units of one ``mj_step``.
 
 Controllers: every controller in ``baselines.CONTROLLERS`` on the first registered env it
 applies to: ``predict`` on one observation (fresh state each call: the first step of an
-episode) against one ``mj_step`` of that env's model; then ``predict`` on ``--batch`` stacked
-observations, per row.
+episode) against one ``mj_step`` of that env's model (replayed on the states of the env's
+zero-action steps, as above); then ``predict`` on ``--batch`` stacked observations, per row.
 
 Vector env: env-steps/s of ``--num-envs`` JointTracking copies in
 ``cir_gym.vector.JointTrackingVectorEnv``, of the same model's raw ``mujoco.batch.Batch.step``
@@ -77,8 +81,13 @@ def best_pair(
     return min(t_mine), min(t_raw)
 
 
-def step_loop(env: gym.Env, steps: int) -> Callable[[], float]:
-    """Seconds per ``env.step`` (zero action) over up to ``steps`` steps; resets untimed."""
+def step_loop(env: gym.Env, steps: int, count: bool = False) -> Callable[[], float]:
+    """Seconds per ``env.step`` (zero action) over up to ``steps`` steps; resets untimed.
+
+    Each call continues the episode of the last (a fresh loop starts with ``reset(seed=0)``)
+    and resets it when fewer than ``steps`` steps are left. ``count``: return the number of
+    steps played instead of a time (the untimed recording pass of :func:`recorded_step_loop`).
+    """
     action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     left = [0]
 
@@ -95,26 +104,103 @@ def step_loop(env: gym.Env, steps: int) -> Callable[[], float]:
                 break
         t = time.process_time() - t0
         left[0] = 0 if (terminated or truncated) else left[0] - n
-        return t / n
+        return n if count else t / n
 
     return loop
 
 
-def physics_loop(model: mujoco.MjModel, frame_skip: int, steps: int) -> Callable[[], float]:
-    """Seconds per ``frame_skip`` × ``mj_step`` at zero control on a fresh MjData."""
+_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+
+
+class PhysicsTape:
+    """The ``mj_step`` calls made on one model while it is recording: MuJoCo's full
+    integration state (time, qpos, qvel, act, sensor history, warm start, ctrl, applied
+    forces, mocap, ...) before each call, and the call's ``nstep``.
+
+    ``with tape:`` replaces ``mujoco.mj_step`` by a wrapper that records, then calls the
+    original (the physics is unchanged: ``mj_getState`` only reads). :meth:`cut` closes a
+    segment (one timed trial) and notes how many env steps it covered.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.size = mujoco.mj_stateSize(model, _INTEGRATION)
+        self.segments: list[tuple[np.ndarray, list[int], int]] = []
+        self._states: list[np.ndarray] = []
+        self._nsteps: list[int] = []
+        self._orig: Callable[..., None] | None = None
+
+    def __enter__(self) -> PhysicsTape:
+        orig = self._orig = mujoco.mj_step
+        model, size, states, nsteps = self.model, self.size, self._states, self._nsteps
+
+        def recording_step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
+            if m is model:
+                state = np.empty(size)
+                mujoco.mj_getState(m, d, state, _INTEGRATION)
+                states.append(state)
+                nsteps.append(int(nstep))
+            orig(m, d, nstep)
+
+        mujoco.mj_step = recording_step
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        mujoco.mj_step = self._orig
+
+    def cut(self, env_steps: int) -> None:
+        """Close the calls recorded since the last cut as one segment of ``env_steps`` steps."""
+        states = np.array(self._states).reshape(-1, self.size)
+        self.segments.append((states, list(self._nsteps), env_steps))
+        self._states.clear()
+        self._nsteps.clear()
+
+    def steps_per_env_step(self) -> float:
+        """``mj_step`` physics steps per env step over every segment (the env's frame_skip)."""
+        total = sum(sum(n) for _, n, _ in self.segments)
+        return total / max(1, sum(e for _, _, e in self.segments))
+
+
+def recorded_step_loop(
+    env: gym.Env, steps: int, trials: int
+) -> tuple[Callable[[], float], PhysicsTape]:
+    """:func:`step_loop` and the physics of its first ``trials`` calls.
+
+    An untimed pass of ``trials`` calls of a fresh :func:`step_loop` records the ``mj_step``
+    calls of each (one tape segment per trial); the returned loop starts over from the same
+    seeded reset, so its k-th call plays the very steps of segment k (the env is
+    deterministic: same seed, same actions).
+    """
+    tape = PhysicsTape(env.unwrapped.model)
+    counted = step_loop(env, steps, count=True)
+    with tape:
+        for _ in range(trials):
+            tape.cut(counted())
+    return step_loop(env, steps), tape
+
+
+def replay_loop(tape: PhysicsTape, per_mj_step: bool = False) -> Callable[[], float]:
+    """Seconds of the physics of the tape's next segment (cycling), per env step (or per
+    physics step): each recorded state restored with ``mj_setState`` and stepped with its
+    ``nstep``, minus the same ``mj_setState`` loop alone, on an own MjData."""
+    model = tape.model
     data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    qpos0, qvel0 = data.qpos.copy(), data.qvel.copy()
+    set_state, mj_step = mujoco.mj_setState, mujoco.mj_step
+    turn = [0]
 
     def loop() -> float:
-        data.qpos[:] = qpos0
-        data.qvel[:] = qvel0
-        data.time = 0.0
+        states, nsteps, env_steps = tape.segments[turn[0] % len(tape.segments)]
+        turn[0] += 1
+        calls = list(zip(states, nsteps, strict=True))
         t0 = time.process_time()
-        for _ in range(steps):
-            for _ in range(frame_skip):
-                mujoco.mj_step(model, data)
-        return (time.process_time() - t0) / steps
+        for s, n in calls:
+            set_state(model, data, s, _INTEGRATION)
+            mj_step(model, data, n)
+        t1 = time.process_time()
+        for s, _n in calls:
+            set_state(model, data, s, _INTEGRATION)
+        t2 = time.process_time()
+        return ((t1 - t0) - (t2 - t1)) / (sum(nsteps) if per_mj_step else env_steps)
 
     return loop
 
@@ -142,8 +228,8 @@ def bench_envs(ids: list[str], steps: int, repeat: int, ratios: dict | None = No
         env = gym.make(env_id)
         env.reset(seed=0)
         u = env.unwrapped
-        mine = step_loop(env, steps)
         if env_id in KINEMATIC:
+            mine = step_loop(env, steps)
             site = u.model.nsite - 1
             ctx = u.controller_context()
             if ctx.site is not None:
@@ -151,8 +237,10 @@ def bench_envs(ids: list[str], steps: int, repeat: int, ratios: dict | None = No
             raw = kinematics_loop(u.model, site, steps)
             what = "mj_kinematics + mj_comPos + mj_jacSite"
         else:
-            raw = physics_loop(u.model, u.frame_skip, steps)
-            what = f"{u.frame_skip} × mj_step"
+            mine, tape = recorded_step_loop(env, steps, repeat + 1)  # best_pair: 1 + repeat
+            raw = replay_loop(tape)
+            per = tape.steps_per_env_step()
+            what = f"{per:g} × mj_step, replayed"
         t_step, t_raw = best_pair(mine, raw, repeat)
         results[env_id] = (t_step, t_raw, what, env_id in KINEMATIC)
         env.close()
@@ -230,16 +318,19 @@ def bench_controllers(
         "|---|---|---:|---:|---:|",
     ]
     envs: dict[str, gym.Env] = {}
+    units: dict[str, Callable[[], float]] = {}  # env id → one mj_step on its visited states
     for name in baselines.CONTROLLERS:
         env_id = next((i for i in ids if name in baselines.available(i)), None)
         if env_id is None:
             continue
         if env_id not in envs:
             envs[env_id] = gym.make(env_id)
+            stepped = gym.make(env_id)
+            units[env_id] = replay_loop(recorded_step_loop(stepped, calls, 2)[1], per_mj_step=True)
+            stepped.close()
         env = envs[env_id]
         obs, _ = env.reset(seed=0)
         policy = baselines.make(name, env_id, env=env)
-        u = env.unwrapped
 
         def single(policy=policy, obs=obs) -> float:
             t0 = time.process_time()
@@ -247,7 +338,7 @@ def bench_controllers(
                 policy.predict(obs)
             return (time.process_time() - t0) / calls
 
-        raw = physics_loop(u.model, 1, calls)
+        raw = units[env_id]
         t_pred, t_step = best_pair(single, raw, repeat)
         many = stack(obs, batch)
         try:
@@ -382,8 +473,11 @@ def main(argv: list[str] | None = None) -> int:
             "alternately in one run).",
             "",
             "`env.step` through `gymnasium.make` (default wrappers), zero action, resets not "
-            "timed. Overhead = step − MuJoCo part (the raw C calls on a fresh MjData of the "
-            "same model). Reacher-v5 is Gymnasium's, measured the same way.",
+            "timed. Overhead = step − MuJoCo part: for the physics-driven envs the `mj_step` "
+            "calls of those very steps, replayed on the states they visited (each state "
+            "restored with `mj_setState`, whose own cost is subtracted), so contacts are "
+            "timed as the env meets them; for RedundantIK the kinematics named. Reacher-v5 "
+            "is Gymnasium's, measured the same way.",
             "",
             *env_rows,
             "",
@@ -396,7 +490,8 @@ def main(argv: list[str] | None = None) -> int:
             *plumbing_rows,
             "",
             "Controllers' `predict` (fresh state: an episode's first step) against one "
-            "`mj_step` of the env's model; batched: stacked copies of the observation; the "
+            "`mj_step` of the env's model (on the states of its zero-action steps); batched: "
+            "stacked copies of the observation; the "
             "last column is a batched row's cost over a single call's (< 1: batching pays). "
             "The joint-space laws (decentralized, `pd_gravity`, `computed_torque`, `robust`) "
             "set `vectorized`: their law runs on all rows at once, the model calls "

@@ -85,3 +85,43 @@ def test_bench_step_writes_only_its_section_with_the_targets_it_measured(tmp_pat
         got = [row for row in text.splitlines() if row.startswith(line)]
         assert len(got) == 1 and got[0].split(": ")[-1].split(";")[0] in ("met", "missed"), got
     assert "| computed_torque | cir_gym/JointTracking-v1 |" in text
+
+
+def _load_bench_step():
+    sys.path.insert(0, str(BENCH_STEP.parent))  # its sibling _sections module
+    spec = importlib.util.spec_from_file_location("bench_step", BENCH_STEP)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
+    """The tape holds the env's own mj_step calls (frame_skip physics steps per env step, on
+    the contact states it met); a recorded state restored and stepped gives the next recorded
+    state bit for bit, and the timed loop replays the recorded steps."""
+    import gymnasium as gym
+    import mujoco
+    import numpy as np
+
+    bench = _load_bench_step()
+    env = gym.make("cir_gym/PegInHole-v0")
+    u = env.unwrapped
+    mj_step = mujoco.mj_step
+    mine, tape = bench.recorded_step_loop(env, 5, 2)
+    assert mujoco.mj_step is mj_step  # restored
+    assert len(tape.segments) == 2 and all(e == 5 for *_, e in tape.segments)
+    assert tape.steps_per_env_step() == u.frame_skip
+    states, nsteps, _ = tape.segments[0]
+    m, data, recorded = u.model, mujoco.MjData(u.model), mujoco.MjData(u.model)
+    full = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+    physics = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)  # time, qpos, qvel, act, history, ...
+    got, want = (np.empty(mujoco.mj_stateSize(m, physics)) for _ in range(2))
+    for i in range(len(states) - 1):
+        mujoco.mj_setState(m, data, states[i], full)
+        mujoco.mj_step(m, data, nsteps[i])
+        mujoco.mj_getState(m, data, got, physics)
+        mujoco.mj_setState(m, recorded, states[i + 1], full)
+        mujoco.mj_getState(m, recorded, want, physics)
+        np.testing.assert_array_equal(got, want)
+    assert mine() > 0 and bench.replay_loop(tape)() > 0
+    env.close()
