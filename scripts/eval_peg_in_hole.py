@@ -172,9 +172,10 @@ def main() -> None:
         results["main"] = []
         for name, n, kwargs, gains in (
             ("hybrid_spiral", args.episodes, {}, None),
-            # the in-bore peaks above 50 N (two-point contact 15-20 mm deep while the walls
-            # turn the arm to the hole's tilt) scale with the insertion speed
-            ("hybrid_spiral", args.episodes, {}, {"speed": 0.007}),
+            # its former default insertion speed: the in-bore peaks above 50 N (two-point
+            # contact 15-20 mm deep while the walls turn the arm to the hole's tilt) scale
+            # with it (7 mm/s, the default since, see baselines.hybrid.HybridSpiralGains)
+            ("hybrid_spiral", args.episodes, {}, {"speed": 0.01}),
             ("position_only", args.episodes, {}, None),
             ("hybrid_force_position", args.sweep_episodes, {}, None),
             ("admittance", args.sweep_episodes, {}, None),
