@@ -28,7 +28,13 @@ from agents.hyperparameters import algorithm_class, resolve_policy_kwargs
 from agents.observation import ObservationLayout
 from agents.residual import check_scale, combine
 
-__all__ = ["AgentFileError", "TrainedAgent", "load_agent", "read_config"]
+__all__ = ["INTERFACE_KEYS", "AgentFileError", "TrainedAgent", "load_agent", "read_config"]
+
+#: env arguments that set the action interface (what an action means and how often one is
+#: taken): an agent acts only on the interface it was trained on, whatever the task's other
+#: arguments. The other recorded env arguments (payload_mass, randomize, ...) are training
+#: conditions; an evaluation chooses those.
+INTERFACE_KEYS = ("control", "control_freq")
 
 CONFIG = "config.yml"
 MODEL = "model.zip"
@@ -47,6 +53,10 @@ class TrainedAgent:
         env_id: the environment id it was trained on.
         config: the agent's ``config.yml`` as a dict.
         controller: the residual's base controller, or None.
+        interface_kwargs: the env arguments of its action interface recorded at training
+            (:data:`INTERFACE_KEYS`, e.g. PegInHole's ``{"control": "position",
+            "control_freq": 100.0}``; empty for the default interface): evaluate it on
+            ``gym.make(env_id, **task_kwargs, **agent.interface_kwargs)``.
     """
 
     def __init__(self, name: str, env_id: str, config: dict[str, Any], policy: Any,
@@ -62,6 +72,8 @@ class TrainedAgent:
         self.controller = controller
         self.scale = scale
         self.flatten = flatten or layout.flatten  # layout.bind(env) when it has features
+        recorded = config.get("env_kwargs") or {}
+        self.interface_kwargs = {k: recorded[k] for k in INTERFACE_KEYS if k in recorded}
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
         """VecNormalize's observation transform with the frozen training statistics."""

@@ -402,6 +402,20 @@ def test_trained_model_reloads_and_evaluates(tiny_runs):
         assert len(result.episodes) == 2 and np.isfinite(result.summary["rms_error"]["mean"])
 
 
+def test_interface_kwargs_keep_only_the_action_interface(tiny_runs):
+    """An agent's interface arguments (what its action means) travel with it; the task
+    conditions it was trained under (payload_mass, episode_duration) do not."""
+    from agents.policy import TrainedAgent
+
+    for key in ("scratch", "residual"):
+        assert agents.load(ENV, "tiny", path=tiny_runs[key]).interface_kwargs == {}
+    loaded = agents.load(ENV, "tiny", path=tiny_runs["residual"])
+    config = {**loaded.config, "env_kwargs": {"control": "position", "control_freq": 100.0,
+                                              "chamfer": 0.003, "payload_mass": 3.0}}
+    agent = TrainedAgent("p", ENV, config, loaded.policy, loaded.layout, loaded.norm)
+    assert agent.interface_kwargs == {"control": "position", "control_freq": 100.0}
+
+
 def test_residual_agent_starts_at_the_controller(tiny_runs, tmp_path):
     """A residual agent whose last layer is still zero acts exactly like its controller."""
     from agents.train import train
@@ -525,18 +539,20 @@ def test_shipped_agents_are_listed_load_and_act():
     shipped = {env_id: agents.available(env_id) for env_id in cir_gym.ENVIRONMENTS}
     assert {"ppo", "residual_ppo_computed_torque"} <= set(shipped[ENV])
     for env_id, names in shipped.items():
-        env = gym.make(env_id)
-        obs, _ = env.reset(seed=0)
-        batch = {k: np.stack([v, v, v]) for k, v in obs.items()}
         for name in names:
             policy = agents.load(env_id, name)
             assert policy.name == name
+            # the env the agent was trained on: its recorded arguments (e.g. PegInHole's
+            # position interface, whose action has 6 components, not the torque default's 7)
+            env = gym.make(env_id, **policy.interface_kwargs)
+            obs, _ = env.reset(seed=0)
+            batch = {k: np.stack([v, v, v]) for k, v in obs.items()}
             action, _ = policy.predict(obs, deterministic=True)
             assert action.shape == env.action_space.shape
-            assert np.all(np.abs(action) <= 1.0)
+            assert env.action_space.contains(action.astype(env.action_space.dtype))
             actions, _ = policy.predict(batch, None, np.ones(3, dtype=bool))
             assert actions.shape == (3, *env.action_space.shape)
-        env.close()
+            env.close()
 
 
 # ---------------------------------------------------------------------- seeds and reporting
