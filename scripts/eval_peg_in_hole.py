@@ -2,7 +2,9 @@
 
     python scripts/eval_peg_in_hole.py --stage main --episodes 100 --out results/peg_in_hole/
     python scripts/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
-    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v0/ppo --episodes 20
+    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v0/ppo_position \\
+        --agent agents/trained/PegInHole-v0/residual_ppo_hybrid_force_position \\
+        --controller hybrid_force_position --episodes 100 --resume
 
 On the same seeds for every controller (seed i draws the same true hole pose for all) it reports
 success rate, insertion time, peak and mean contact force and ∫|F| dt. ``main``: the default task
@@ -131,8 +133,15 @@ def main() -> None:
         action="append",
         default=[],
         help="only evaluate this trained agent directory (repeatable) on the "
-        "same seeds, with the env arguments it was trained with; "
-        "writes agents.md",
+        "same seeds, on the action interface it was trained on; rows kept in agents.json, "
+        "the table of all rows in agents.md",
+    )
+    parser.add_argument(
+        "--controller",
+        action="append",
+        default=[],
+        help="with --agent (or alone): also evaluate this controller (repeatable) into the "
+        "same table, e.g. a residual agent's base controller",
     )
     parser.add_argument(
         "--picture-only",
@@ -154,8 +163,8 @@ def main() -> None:
     if args.picture_only:
         picture(args.out)
         return
-    if args.agent:
-        evaluate_agents(args.agent, args.episodes, args.out)
+    if args.agent or args.controller:
+        print(evaluate_agents(args.agent, args.episodes, args.out, args.controller, args.resume))
         return
     path = args.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -278,49 +287,104 @@ def _write(out: Path, results: dict[str, Any]) -> str:
     return text
 
 
-def evaluate_agents(paths: list[Path], episodes: int, out: Path) -> None:
-    """Trained agents on seeds 1000, 1001, … (the hole poses every controller met), each with the
-    env arguments of its config.yml; the table goes to ``<out>/agents.md``."""
+def evaluate_agents(
+    paths: list[Path], episodes: int, out: Path, controllers: list[str], resume: bool = False
+) -> str:
+    """Controllers and trained agents side by side on seeds 1000, 1001, … (the hole poses every
+    controller met): the default task (pose noise, clearance, force limit, sharp edge), each
+    agent on the action interface it was trained on (its ``interface_kwargs``: a from-scratch
+    agent may act through the position interface). Rows are kept in ``<out>/agents.json``
+    (with ``resume``, a row of the same policy, episodes and training steps is reused, so
+    several processes can fill it in parallel); the table of all of them goes to
+    ``<out>/agents.md``; returns its text."""
     from agents.policy import load_agent, read_config
 
-    rows = []
+    store = out / "agents.json"
+    jobs: list[tuple[str, Any, dict[str, Any], dict[str, Any]]] = []
+    for name in controllers:
+        jobs.append((name, None, {}, {}))
     for path in paths:
-        config = read_config(path)
-        kwargs = dict(config.get("env_kwargs") or {})
-        policy = load_agent(path, ENV_ID)
-        t0 = time.perf_counter()
-        result = evaluate(policy, ENV_ID, episodes, seed=1000, policy_name=str(path), **kwargs)
-        wall = time.perf_counter() - t0
-        peaks = np.array([ep.metrics["peak_force"] for ep in result.episodes])
         meta = json.loads((path / "meta.json").read_text())
-        r = {
-            "controller": f"{path.name} ({meta['timesteps']} steps)",
-            "env_kwargs": kwargs,
-            "episodes": episodes,
-            "success_rate": result.success_rate,
-            "success_and_peak_le_50N": float(
-                np.mean([ep.success and ep.metrics["peak_force"] <= 50.0 for ep in result.episodes])
-            ),
-            "force_limit_failures": float(np.mean(peaks > 100.0)),
-            "summary": result.summary,
-            "wall_time_s": wall,
+        config = read_config(path)
+        training = {
+            "agent": str(path),
+            "algo": config["algo"],
+            "residual": (config.get("residual") or {}).get("controller"),
+            "timesteps": int(meta["timesteps"]),
+            "train_wall_time_s": float(meta["wall_time_s"]),
+            "n_envs": int(meta.get("n_envs", 0)),
         }
-        rows.append(row(r))
-    text = (
-        "\n".join(
-            [
-                "# PegInHole-v0: trained agents on the controllers' seeds",
-                "",
-                f"Seeds 1000–{1000 + episodes - 1}; scripts/eval_peg_in_hole.py --agent.",
-                "",
-                HEADER,
-                *rows,
-            ]
-        )
-        + "\n"
-    )
+        jobs.append((path.name, path, {}, training))
+    for label, path, task_kwargs, training in jobs:
+        key = json.dumps([label, episodes, task_kwargs, training.get("timesteps")])
+        rows = json.loads(store.read_text()) if store.exists() else {}
+        if resume and key in rows:
+            continue
+        if path is None:
+            policy, kwargs = make_policy(label, None, **task_kwargs), dict(task_kwargs)
+        else:
+            policy = load_agent(path, ENV_ID)
+            kwargs = {**task_kwargs, **policy.interface_kwargs}
+        t0 = time.perf_counter()
+        result = evaluate(policy, ENV_ID, episodes, seed=SEED, policy_name=label, **kwargs)
+        r = summarise(label, kwargs, result)
+        r.update(wall_time_s=time.perf_counter() - t0, training=training)
+        print(row(r), flush=True)
+        rows = json.loads(store.read_text()) if store.exists() else {}  # others may have added
+        rows[key] = r
+        store.write_text(json.dumps(rows, indent=1))
+    rows = json.loads(store.read_text()) if store.exists() else {}
+    text = agents_table(list(rows.values()))
     (out / "agents.md").write_text(text)
-    print(text)
+    return text
+
+
+AGENT_HEADER = (
+    "| policy | trained | env arguments | episodes | success | success with peak ≤ 50 N | "
+    "force > 100 N | insertion time median (s) | peak force median / worst (N) | "
+    "mean force (N) | training steps | training wall time | evaluation wall time |\n"
+    + "|---" * 13
+    + "|"
+)
+
+
+def agents_table(rows: list[dict[str, Any]]) -> str:
+    """The side-by-side table of :func:`evaluate_agents`' rows, grouped by number of episodes."""
+    lines = []
+    for n in sorted({r["episodes"] for r in rows}, reverse=True):
+        lines += [
+            "",
+            f"## Seeds {SEED}–{SEED + n - 1} ({n} episodes each)",
+            "",
+            AGENT_HEADER,
+        ]
+        for r in sorted((r for r in rows if r["episodes"] == n), key=lambda r: bool(r["training"])):
+            s, t = r["summary"], r["training"]
+            if t:
+                how = f"{t['algo']}, residual on {t['residual']}" if t["residual"] else (
+                    f"{t['algo']} from scratch")
+                steps = f"{t['timesteps']:,}"
+                train_wall = f"{t['train_wall_time_s'] / 60:.0f} min ({t['n_envs']} envs)"
+            else:
+                how, steps, train_wall = "controller", "–", "–"
+            lines.append(
+                f"| {r['controller']} | {how} | {r['env_kwargs']} | {r['episodes']} | "
+                f"{100 * r['success_rate']:.0f} % | {100 * r['success_and_peak_le_50N']:.0f} % | "
+                f"{100 * r['force_limit_failures']:.0f} % | "
+                f"{s['insertion_time']['median']:.2f} | "
+                f"{s['peak_force']['median']:.1f} / {s['peak_force']['worst']:.1f} | "
+                f"{s['mean_force']['mean']:.2f} | {steps} | {train_wall} | "
+                f"{r['wall_time_s']:.0f} s |"
+            )
+    head = [
+        "# PegInHole-v0: controllers and trained agents on the same seeds",
+        "",
+        "Written by `python scripts/eval_peg_in_hole.py --agent DIR ... --controller NAME ...` "
+        "from `agents.json`. Default task (0.5 mm clearance, hole pose ±2 mm / ±2°, sharp "
+        "edge, 100 N force limit, 12 s); seed i draws the same true hole pose for every row. "
+        "Each agent acts through the interface it was trained on (env arguments column).",
+    ]
+    return "\n".join(head + lines) + "\n"
 
 
 def picture(out: Path, seed: int = 1000, steps: int = 2600) -> None:
