@@ -8,26 +8,16 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 STAMP=.venv/.cir_gym-installed
 
-# apt-get install as root, or through sudo otherwise.
-apt_install() {
-  local sudo=""
-  if [ "$(id -u)" != 0 ]; then sudo="sudo"; fi
-  $sudo apt-get update -qq && $sudo apt-get install -y -qq "$@" >/dev/null
-}
+# shellcheck source=scripts/apt.sh
+. scripts/apt.sh
 
 # Headless rendering: Mesa's EGL/OSMesa (software llvmpipe). Skipped when already present.
-need=()
-for p in libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6; do
-  dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
-done
-if [ ${#need[@]} -gt 0 ]; then
-  apt_install "${need[@]}"
-fi
+apt_need libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6
 
 if [ ! -x .venv/bin/python ]; then
   # Debian ships ensurepip (which `python3 -m venv` needs) in the separate python3-venv package.
   if ! "$PY" -c 'import ensurepip' >/dev/null 2>&1; then
-    apt_install python3-venv
+    apt_need python3-venv
   fi
   "$PY" -m venv .venv
 fi
