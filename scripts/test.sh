@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Sets up (if needed) and runs the default test suite (slow tests excluded: add `-m slow`).
 # Also installs Debian's chromium when it is missing: tests/test_leaderboard_page.py loads the
-# leaderboard page in it, headless (about 1 min and 400 MB the first time; CIR_GYM_NO_BROWSER=1
-# skips the install, and that test then skips with a message).
+# leaderboard page in it, headless (25 packages, ~350 MB, ~35 s here the first time).
+# CIR_GYM_NO_BROWSER=1 skips the install; that test then skips with a message (fails under CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
