@@ -9,7 +9,8 @@ instances in the same state (a few zero-action steps into an episode):
 - before: render() as it was before issue 23: the robot alone (the floor geom moved to a
   hidden geom group, ``draw_markers = False``: no ``draw_task``, no caption) with MuJoCo's
   default primitive meshes (``vis.quality`` numslices 28, numstacks 16);
-- now:    render() as shipped: the robot file's coarser meshes (16, 8), the checker floor,
+- now:    render() as shipped: the robot file's coarser meshes (16, 8), the checker floor
+  (sampled nearest-texel where the env's drawing calls ``rendering.sharp_floor``),
   ``draw_task``'s markers, the 2-D overlays and the caption.
 
 Time is the process's CPU time (software GL renders on the CPU, in threads this counts), so

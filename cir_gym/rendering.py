@@ -26,7 +26,11 @@ comparable to the whole bare robot, so a task should add a handful of geoms. Lon
 image as a 2-D overlay (on top of the scene, no occlusion) for ~0.3 ms whatever its length;
 a line whose points, camera and frame size are those of the previous frame (a reference path
 under a still camera) reuses its pixel mask, and only the blend is paid (~0.05 ms).
-``benchmarks/bench_render.py`` measures the cost per frame against the bare robot.
+The checker floor fills most of a frame: trilinear texture filtering makes it cost about as
+much as the bare robot, so :func:`sharp_floor` samples it nearest-texel (~0.6 ms less at
+320 px). A translucent geom costs about twice an opaque one (the JointTracking ghost arm,
+7 capsules: ~1 ms). ``benchmarks/bench_render.py`` measures the cost per frame against the
+bare robot.
 
 The second half of the module draws the shipped environments' tasks (their ``draw_task`` and
 ``caption`` call these), so that each env module keeps one short method.
@@ -72,6 +76,7 @@ __all__ = [
     "place_world_geoms",
     "project_points",
     "redundant_ik_caption",
+    "sharp_floor",
     "text_mask",
     "tint_bodies",
     "tint_joint_limits",
@@ -499,7 +504,8 @@ def _default_option() -> mujoco.MjvOption:
     global _OPTION
     if _OPTION is None:
         _OPTION = mujoco.MjvOption()
-        _OPTION.sitegroup[:] = 0  # the ghost shows geoms only
+        _OPTION.sitegroup[:] = 0  # the ghost shows geoms only,
+        _OPTION.geomgroup[1:] = 0  # the robot's (group 0): not a payload or a visual extra
     return _OPTION
 
 
@@ -523,6 +529,65 @@ def limit_colour(margin: float, base: Any, warn_below: float = 0.1) -> np.ndarra
     out = (1.0 - w) * b + w * _rgba(WARNING)
     out[3] = max(b[3], w)
     return out
+
+
+# ---------------------------------------------------------------------------- GL state
+#: renderers whose floor texture is already sampled nearest-texel
+_SHARP_FLOORS: weakref.WeakSet[Any] = weakref.WeakSet()
+
+
+def sharp_floor(renderer: mujoco.Renderer) -> int:
+    """Sample the floor's texture nearest-texel, without mipmaps, in ``renderer``'s GL context.
+
+    MuJoCo uploads 2-D textures with trilinear (mipmapped) filtering. In software GL (llvmpipe)
+    the checker floor, which fills most of a frame, then costs ~1 ms of a 320-px frame, about
+    as much as the bare robot (``benchmarks/bench_render.py``); sampled nearest-texel it costs
+    ~0.4 ms and stays a checker (hard square edges; far squares alias a little). Changes the
+    textures of the materials of the model's plane geoms, once per renderer (a second call
+    returns 0). Only how this renderer draws changes, never the model. Any GL failure (no
+    PyOpenGL, no current context) leaves the filtering as it was and returns 0; otherwise
+    returns the number of textures changed.
+    """
+    if renderer in _SHARP_FLOORS:
+        return 0
+    _SHARP_FLOORS.add(renderer)
+    model = getattr(renderer, "_model", None)
+    context = getattr(renderer, "_mjr_context", None)
+    if model is None or context is None:
+        return 0
+    plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
+    rgb = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
+    tex2d = int(mujoco.mjtTexture.mjTEXTURE_2D)
+    texids = {
+        int(model.mat_texid[m, rgb])
+        for m in model.geom_matid[model.geom_type == plane]
+        if m >= 0 and model.mat_texid[m, rgb] >= 0
+    }
+    names = [int(context.texture[t]) for t in texids if context.textureType[t] == tex2d]
+    if not names:
+        return 0
+    try:
+        from OpenGL import GL  # PyOpenGL: a dependency of mujoco (its EGL/OSMesa backends)
+
+        gl_context = getattr(renderer, "_gl_context", None)
+        if gl_context is not None:
+            gl_context.make_current()
+        for name in names:
+            GL.glBindTexture(GL.GL_TEXTURE_2D, name)
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_NEAREST)
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_NEAREST)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+    except Exception:  # an optimisation only: the frame is right either way
+        return 0
+    return len(names)
+
+
+def _sharp_floor_of(env: Any, scene: mujoco.MjvScene) -> None:
+    """:func:`sharp_floor` on ``env``'s frame renderer when ``scene`` is its scene (not the
+    human viewer's)."""
+    renderer = getattr(env, "_renderer", None)
+    if renderer is not None and getattr(renderer, "scene", None) is scene:
+        sharp_floor(renderer)
 
 
 # ---------------------------------------------------------------------------- caption
@@ -746,6 +811,7 @@ def draw_joint_tracking(env: Any, scene: mujoco.MjvScene) -> None:
     Reads ``env.model``, ``env.data``, ``env.robot.qpos_adr``, ``env._ref`` (3, K+1, n) and
     ``env._k``; the flange path (site ``flange``, else ``ee``) is computed once per episode.
     """
+    _sharp_floor_of(env, scene)
     ghost = _ghost(env)
     adr = env.robot.qpos_adr
     ref = env._ref[0]
@@ -790,6 +856,7 @@ def draw_redundant_ik(env: Any, scene: mujoco.MjvScene) -> None:
     halo when the arm comes within 5 cm. Reads ``env._x_ref``, ``env._R_ref``, ``env._k``,
     ``env._q``, ``env.lower``/``upper``, ``env.site``, ``env.task_dim``.
     """
+    _sharp_floor_of(env, scene)
     k = min(env._k, len(env._x_ref) - 1)
     path = _as_3d(env._x_ref)
     add_polyline(scene, path, 0.004, REFERENCE, max_segments=TRACE_SAMPLES)

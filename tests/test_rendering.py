@@ -117,11 +117,17 @@ def test_ghost_copies_the_moving_geoms_at_the_given_pose_in_one_colour() -> None
     data.qpos[r.qpos_adr] = q
     mujoco.mj_kinematics(r.model, data)
     n = rendering.add_ghost(scene, r.model, data, (0, 1, 1, 0.3), inflate=1.0)
-    moving = [g for g in range(r.model.ngeom) if r.model.geom_bodyid[g] > 1]  # beyond the base
+    # the arm's links beyond the base (geom group 0), not the payload box (group 1)
+    moving = [
+        g for g in range(r.model.ngeom) if r.model.geom_bodyid[g] > 1 and r.model.geom_group[g] == 0
+    ]
+    payload = mujoco.mj_name2id(r.model, mujoco.mjtObj.mjOBJ_GEOM, "payload_geom")
+    assert payload >= 0 and payload not in moving
     assert n == len(moving) == scene.ngeom
     centres = np.array([scene.geoms[i].pos for i in range(n)])
     for g in moving:  # every moving geom has a copy at its pose for q
         assert np.min(np.linalg.norm(centres - data.geom_xpos[g], axis=1)) < 1e-6
+    assert np.min(np.linalg.norm(centres - data.geom_xpos[payload], axis=1)) > 1e-3
     for i in range(n):
         np.testing.assert_allclose(scene.geoms[i].rgba, [0, 1, 1, 0.3], atol=1e-6)
         assert scene.geoms[i].category == mujoco.mjtCatBit.mjCAT_DECOR
@@ -309,6 +315,45 @@ def test_rendering_does_not_change_the_episode() -> None:
         env.close()
         runs.append(np.array(trace))
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+@needs_gl
+def test_sharp_floor_samples_the_floor_texture_nearest_and_changes_only_the_floor() -> None:
+    """sharp_floor sets the floor texture's GL filters to GL_NEAREST once per renderer; the
+    robot's pixels stay the same, the floor's checker stays two-tone-sharp (fewer colours)."""
+    from OpenGL import GL
+
+    model = load_model("iiwa14")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    camera = mujoco.MjvCamera()
+    mujoco.mjv_defaultFreeCamera(model, camera)
+    with mujoco.Renderer(model, 120, 160) as renderer:
+        renderer.update_scene(data, camera)
+        trilinear = renderer.render().copy()
+        renderer.update_scene(data, camera)
+        floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        for i in range(renderer.scene.ngeom):  # the robot alone: the floor out of the scene
+            if renderer.scene.geoms[i].objid == floor:
+                renderer.scene.geoms[i].rgba[3] = 0.0
+        robot = np.any(renderer.render() != 0, axis=2)
+        texture = int(model.mat_texid[model.geom_matid[floor], mujoco.mjtTextureRole.mjTEXROLE_RGB])
+        assert rendering.sharp_floor(renderer) == 1
+        assert rendering.sharp_floor(renderer) == 0  # once per renderer
+        renderer.update_scene(data, camera)
+        nearest = renderer.render().copy()
+        GL.glBindTexture(GL.GL_TEXTURE_2D, int(renderer._mjr_context.texture[texture]))
+        filters = [
+            GL.glGetTexParameteriv(GL.GL_TEXTURE_2D, p)
+            for p in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER)
+        ]
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+    assert [int(np.ravel(f)[0]) for f in filters] == [GL.GL_NEAREST, GL.GL_NEAREST]
+    assert robot.sum() > 200 and np.array_equal(nearest[robot], trilinear[robot])
+    changed = np.any(nearest != trilinear, axis=2)
+    assert changed.sum() > 200 and not np.any(changed & robot)
+    colours = [len(np.unique(f[~robot], axis=0)) for f in (trilinear, nearest)]
+    assert colours[1] < colours[0], colours
 
 
 def test_captions_report_the_primary_error_of_the_step() -> None:
