@@ -586,6 +586,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             mujoco.mjtRndFlag.mjRND_SKYBOX,
         ):
             renderer.scene.flags[flag] = False
+        rendering.sharp_floor(renderer)  # nearest-texel checker floor: ~0.6 ms less in llvmpipe
         return renderer
 
     def close(self) -> None:
