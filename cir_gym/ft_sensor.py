@@ -58,6 +58,7 @@ __all__ = [
 ]
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s², the robots' <option gravity>
+_RINT = np.rint  # np.round(x) with decimals=0 (half to even), without its Python wrapper
 
 
 @dataclass(frozen=True)
@@ -173,6 +174,7 @@ class WrenchSensor:
         self._noisy = bool(np.any(self._std > 0))
         self._quantised = self._res > 0
         self._any_quantised = bool(np.any(self._quantised))
+        self._all_quantised = bool(np.all(self._quantised))  # one rounding of all six
         self._head = 0
         self._count = 0
         self.reading = np.zeros(6)
@@ -206,6 +208,12 @@ class WrenchSensor:
         """Advance one physics step with the true wrench (6,); return the (held) reading."""
         self._advance(np.asarray(wrench, dtype=float))
         return self.reading.copy()
+
+    def advance(self, wrench: np.ndarray) -> None:
+        """:meth:`update` without the copy of the reading it returns (an env's physics loop
+        reads :attr:`reading` when it needs it). ``wrench``: a float64 (6,) array, read
+        before this returns (a view of MuJoCo's sensordata will do)."""
+        self._advance(wrench)
 
     def update_many(self, wrenches: np.ndarray) -> np.ndarray:
         """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
@@ -241,7 +249,10 @@ class WrenchSensor:
         value = self._line[oldest] + self.bias
         if self._noisy:
             value = value + self._std * self._rng.standard_normal(6)
-        if self._any_quantised:
+        if self._all_quantised:  # the masked rounding below on every entry, without the masks
+            res = self._res
+            value = _RINT(value / res) * res
+        elif self._any_quantised:
             q, res = self._quantised, self._res
             value[q] = np.round(value[q] / res[q]) * res[q]
         self.reading = value

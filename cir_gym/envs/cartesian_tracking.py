@@ -48,6 +48,9 @@ NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-epi
 
 
 _ABS, _MAX = np.abs, np.max
+# hot-path ufuncs called directly (np.clip/np.sum add a Python layer over the same loops)
+_EXP, _SUM = np.exp, np.add.reduce
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -331,6 +334,13 @@ class CartesianTrackingEnv(RobotEnv):
         }
         self._obs_high = np.concatenate([np.full(size, b) for size, b in self._obs_bounds.values()])
         self._obs_low = -self._obs_high
+        self._obs_size = self._obs_high.size
+        self._obs_keys = tuple(self._obs_slices)
+        self._obs_slice_list = list(self._obs_slices.values())
+        self._scales_sq = self.error_scales**2  # the reward's s²
+        self._jac = np.zeros((6, self.model.nv))  # mj_jacSite's [J_P; J_O] on self.data
+        self._whole = self.model.nv == n and np.array_equal(self._da, np.arange(n))
+        self._site_views: tuple[np.ndarray, ...] = ()
         steps = self.max_steps
         self._x_ref = np.zeros((steps + 1, 3))
         self._quat_ref = np.zeros((steps + 1, 4))
@@ -485,15 +495,40 @@ class CartesianTrackingEnv(RobotEnv):
         :func:`~cir_gym.operational_space.orientation_angle` (the step's hot path).
         """
         p, R = self.robot.site_pose(self._site, self.data.qpos[self._qa])
+        return self._errors_at(k, p, R)
+
+    def _errors_at(self, k: int, p: np.ndarray, R: np.ndarray) -> tuple[float, float]:
+        """:meth:`_errors` of a flange pose ``p`` (3,), ``R`` (3, 3) or flat (9,)."""
         d = self._x_ref[k] - p
         e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
         e_ang = osp.quat_angle(self._quat_ref[k].tolist(), _quat(R).tolist())
         return e_pos, e_ang
 
+    def _flange_now(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flange's position (3,) and rotation (9,, row-major) at the simulator's q now,
+        as views of ``self.data``: its kinematics (mj_kinematics, mj_comPos: what
+        ``Robot.site_pose``/``jacobian`` run on the robot's own MjData for the same q, so the
+        same numbers) recomputed in place. The next ``mj_step`` recomputes every such field
+        from qpos and qvel, so the physics is untouched."""
+        m, d = self.model, self.data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        return self._site_views
+
+    def _refresh_views(self, d: mujoco.MjData) -> None:
+        """RobotEnv's views, and the flange site's rows of ``d.site_xpos``/``site_xmat``."""
+        super()._refresh_views(d)
+        self._site_views = (d.site_xpos[self._site], d.site_xmat[self._site])
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state["_site_views"] = ()  # rebuilt on the new MjData by _simulate
+        return state
+
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        a, clipped = self._check_action(action)
+        a, _, peak = self._check_action_peak(action)
         k = self._k
         tau = a * self.torque_limit
         self._tau[k] = tau  # recorded without the noise
@@ -503,14 +538,19 @@ class CartesianTrackingEnv(RobotEnv):
             self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
         self._k = k + 1
-        e_pos, e_ang = self._errors(k + 1)
+        exact = self.encoder_resolution <= 0  # measured q = true q: one kinematics for both
+        if exact:
+            p, R = self._flange_now()
+            e_pos, e_ang = self._errors_at(k + 1, p, R)
+        else:
+            e_pos, e_ang = self._errors(k + 1)
         self._pos_err[k], self._ang_err[k] = e_pos, e_ang
-        self._speed[k] = _ABS(self.data.qvel[self._da])
-        self._sat[k] = clipped or bool(_MAX(_ABS(a)) >= 1.0)
+        self._speed[k] = _ABS(self._views[2][self._da])  # views: set by _simulate
+        self._sat[k] = peak >= 1.0  # clipped (peak 1), or an entry at ±1
 
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
-        kernel = np.exp(-e_sq / self.error_scales**2)
-        r_track = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
+        kernel = _EXP(-e_sq / self._scales_sq)
+        r_track = -(1.0 - float(_SUM(kernel)) / kernel.size)  # = np.mean, one reduction
         r_torque = -self.torque_weight * float(a @ a) / self.n
         da = a - self._a_prev
         r_rate = -self.action_rate_weight * float(da @ da) / self.n
@@ -541,7 +581,13 @@ class CartesianTrackingEnv(RobotEnv):
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
             info["is_success"] = bool(not terminated and self._settled())
-        return self._obs(), reward, terminated, truncated, info
+        return (
+            (self._obs_exact(p, R) if exact else self._obs()),
+            reward,
+            terminated,
+            truncated,
+            info,
+        )
 
     def _settled(self) -> bool:
         """Both errors below their thresholds at every step with t ≥ settling_time."""
@@ -579,6 +625,33 @@ class CartesianTrackingEnv(RobotEnv):
     def _quantize(self, q: np.ndarray) -> np.ndarray:
         res = self.encoder_resolution
         return np.round(q / res) * res if res > 0 else q.copy()
+
+    def _obs_exact(self, x: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`_obs` without encoder quantisation, from the flange pose ``x``, ``R`` (flat)
+        that :meth:`_flange_now` computed on ``self.data`` (its Jacobian: mj_jacSite there, the
+        call ``Robot.jacobian`` makes)."""
+        k = min(self._k, self.max_steps)
+        buf = np.empty(self._obs_size)
+        v = dict(zip(self._obs_keys, [buf[sl] for sl in self._obs_slice_list], strict=True))
+        _, qpos, qvel = self._views
+        qd = v["qd"]
+        v["q"][:] = qpos[self._qa]
+        qd[:] = qvel[self._da]
+        v["x"][:] = x
+        quat_ref = self._quat_ref[k]
+        quat = v["quat"]
+        mujoco.mju_mat2Quat(quat, R)
+        if osp.quat_dot(quat.tolist(), quat_ref.tolist()) < 0.0:  # align_quat: Q·Q̄ ≥ 0
+            np.negative(quat, out=quat)
+        jac = self._jac
+        mujoco.mj_jacSite(self.model, self.data, jac[:3], jac[3:], self._site)
+        np.matmul(jac if self._whole else jac[:, self._da], qd, out=v["twist"])
+        v["x_ref"][:] = self._x_ref[k]
+        v["quat_ref"][:] = quat_ref
+        v["twist_ref"][:] = self._twist_ref[k]
+        v["acc_ref"][:] = self._acc_ref[k]
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        return v
 
     def _obs(self) -> dict[str, np.ndarray]:
         """The observation: one new flat buffer, filled, clipped to the bounds once, handed

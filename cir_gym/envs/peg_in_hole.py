@@ -38,6 +38,9 @@ ALIGNED_QUAT = traj.quat_from_matrix(ALIGNED)
 #: singularity.
 PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
 STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact counts as stuck
+# hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
+_SUM = np.add.reduce
+_MINIMUM, _MAXIMUM = np.minimum, np.maximum
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
 
@@ -311,6 +314,15 @@ class PegInHoleEnv(RobotEnv):
         self.observation_space = spaces.Dict(
             {k: spaces.Box(-b, b, b.shape, dtype=np.float64) for k, b in self._obs_bounds.items()}
         )
+        # _obs fills one flat buffer in this layout and clips it once
+        self._obs_high = np.concatenate(list(self._obs_bounds.values()))
+        self._obs_low = -self._obs_high
+        self._obs_size = self._obs_high.size
+        ends = np.cumsum([b.size for b in self._obs_bounds.values()])
+        self._obs_slices = tuple(
+            (k, slice(int(e - b.size), int(e)))
+            for (k, b), e in zip(self._obs_bounds.items(), ends, strict=True)
+        )
         steps = self.max_steps
         self._force = np.zeros(steps)
         self._k = 0
@@ -321,6 +333,8 @@ class PegInHoleEnv(RobotEnv):
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
         self._cforce = np.zeros(6)
+        self._goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
+        self._wrench_view: np.ndarray | None = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -335,6 +349,7 @@ class PegInHoleEnv(RobotEnv):
         quat = np.concatenate(([np.cos(tilt / 2)], np.sin(tilt / 2) * axis))
         self.true_hole_pos = self.hole_pos + offset
         self.true_hole_R = traj.matrix_from_quat(quat)
+        self._goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]  # the reward's
         self.model.body_pos[self._block] = self.true_hole_pos
         self.model.body_quat[self._block] = quat
         self._reset_physics(self._q0, np.zeros(self.n))
@@ -369,8 +384,8 @@ class PegInHoleEnv(RobotEnv):
             self._inserted_at = self._k
         over = bool(not diverged and f > self.force_limit)
 
-        goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
-        dist = float(np.linalg.norm(self.data.site_xpos[self._tip] - goal))
+        to_goal = self.data.site_xpos[self._tip] - self._goal
+        dist = math.sqrt(float(to_goal.dot(to_goal)))  # = np.linalg.norm: the same dot
         r_dist = -min(dist / GOAL_SCALE, 1.0)
         r_force = -self.force_weight * min(f / self.force_limit, 10.0) ** 2
         r_success = self.success_bonus if inserted else 0.0
@@ -425,6 +440,7 @@ class PegInHoleEnv(RobotEnv):
             tau = a * self.torque_limit
         skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
         peak, diverged = 0.0, False
+        advance = self.ft_sensor.advance
         try:
             for i in range(skip):
                 if tau is None:
@@ -436,14 +452,30 @@ class PegInHoleEnv(RobotEnv):
                 diverged = self._simulate(ctrl)
                 if diverged:
                     break
-                self.ft_sensor.update(self._true_wrench())
+                wrench = self._wrench_view  # set by _simulate (None: not contiguous)
+                advance(self._true_wrench() if wrench is None else wrench)
                 self._slot = (self._slot + 1) % self._window
-                f = self._net_contact_force()
-                self._recent[self._slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f), cheaper
-                peak = max(peak, float(self._recent.sum()) / self._window)  # = np.mean
+                if self.data.ncon:
+                    f = self._net_contact_force()
+                    self._recent[self._slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
+                else:  # no contact: the net force is zero
+                    self._recent[self._slot] = 0.0
+                peak = max(peak, float(_SUM(self._recent)) / self._window)  # = np.mean
         finally:
             self.frame_skip = skip
         return diverged, peak
+
+    def _refresh_views(self, d: mujoco.MjData) -> None:
+        """RobotEnv's views, and the F/T sensors' six values in ``d.sensordata`` (a view, when
+        the force and torque sensors are neighbours: the true wrench without a copy)."""
+        super()._refresh_views(d)
+        adr = self._force_adr
+        self._wrench_view = d.sensordata[adr : adr + 6] if self._torque_adr == adr + 3 else None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state["_wrench_view"] = None  # rebuilt on the new MjData by _simulate
+        return state
 
     def _true_wrench(self) -> np.ndarray:
         d = self.data
@@ -559,22 +591,24 @@ class PegInHoleEnv(RobotEnv):
         R_hole = self._R_hole
         p = R_hole.T @ (d.site_xpos[self._tip] - self.hole_pos)
         R = R_hole.T @ d.site_xmat[self._tip].reshape(3, 3) @ ALIGNED.T
-        raw = {
-            "q": d.qpos[self._qa].copy(),
-            "qd": d.qvel[self._da].copy(),
-            "peg_pos": p,
-            "peg_quat": self._quat(R),
-            "peg_twist": np.concatenate((R_hole.T @ v, R_hole.T @ w)),
-            "wrench": self.wrench(),
-            "hole_pos": self.hole_pos.copy(),
-            "hole_quat": self.hole_quat.copy(),
-        }
-        # np.minimum(np.maximum(·)) is np.clip's result without its per-call overhead
-        return {
-            k: np.minimum(np.maximum(v, -b), b)
-            for k, v in raw.items()
-            for b in (self._obs_bounds[k],)
-        }
+        buf = np.empty(self._obs_size)  # one new buffer per step; the entries are its views
+        obs = {key: buf[sl] for key, sl in self._obs_slices}
+        obs["q"][:] = d.qpos[self._qa]
+        obs["qd"][:] = d.qvel[self._da]
+        obs["peg_pos"][:] = p
+        quat = obs["peg_quat"]
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())  # as _quat: w >= 0
+        if quat[0] < 0:
+            np.negative(quat, out=quat)
+        twist = obs["peg_twist"]
+        twist[:3] = R_hole.T @ v
+        twist[3:] = R_hole.T @ w
+        obs["wrench"][:] = self.ft_sensor.reading
+        obs["hole_pos"][:] = self.hole_pos
+        obs["hole_quat"][:] = self.hole_quat
+        # np.minimum(np.maximum(·, −b), b) of every entry in two calls (np.clip's result)
+        _MINIMUM(_MAXIMUM(buf, self._obs_low, out=buf), self._obs_high, out=buf)
+        return obs
 
     @staticmethod
     def _quat(R: np.ndarray) -> np.ndarray:
