@@ -10,12 +10,17 @@ training setting of those agents (e.g. the exact model and an unknown 3 kg paylo
 applicable controller is run through :func:`cir_gym.evaluation.evaluate` on the *same* seeds
 and number of episodes as the curves' evaluations (``agents.train.EVAL_SEED``): the best one
 is drawn as a dashed horizontal line, and a residual agent's base controller as a dotted one
-in the agent's colour.
+in the agent's colour. An agent's interface arguments (``control``, ``control_freq``: a
+PegInHole agent may act through the position interface) are not a training setting: the
+controllers run on the task's other arguments with their own interface. Environments in
+``SUCCESS_PANEL`` get a second panel, the evaluation success rate, where a failed episode's
+primary metric is only the time limit.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 from pathlib import Path
 from typing import Any
@@ -26,25 +31,31 @@ import yaml
 import agents
 import baselines
 import cir_gym
+from agents.policy import INTERFACE_KEYS
 from agents.report import curve_band, read_curve
 from agents.train import EVAL_SEED
 from cir_gym.evaluation import evaluate
 
 #: issue 20's bar for a from-scratch agent: this controller at its default gains
 TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
+#: environments whose failures all score the time limit: success rate drawn beside the metric
+SUCCESS_PANEL = {"cir_gym/PegInHole-v0"}
 
 
-def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int
-                      ) -> dict[str, float]:
-    """Mean primary metric of every applicable controller on these seeds."""
+def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int,
+                      success: dict[str, float] | None = None) -> dict[str, float]:
+    """Mean primary metric of every applicable controller on these seeds (and, into
+    ``success`` when given, each one's success rate)."""
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
         policy = baselines.make(name, env_id, env_kwargs=env_kwargs)
         result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
         scores[name] = result.summary[primary]["mean"]
-        print(f"  {name:28s} {env_kwargs or 'defaults'}: {primary} = {scores[name]:.4g}",
-              file=sys.stderr)
+        if success is not None:
+            success[name] = result.success_rate
+        print(f"  {name:28s} {env_kwargs or 'defaults'}: {primary} = {scores[name]:.4g}, "
+              f"success {result.success_rate:.0%}", file=sys.stderr)
     return scores
 
 
@@ -71,23 +82,33 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     primary = cls.primary_metric
     unit = next(s.unit for s in cls.metric_specs if s.name == primary)
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    panel = env_id in SUCCESS_PANEL
+    fig, axes = plt.subplots(1, 2 if panel else 1, figsize=(13 if panel else 7, 4.2))
+    ax, ax_s = (axes[0], axes[1]) if panel else (axes, None)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
+    successes: dict[str, dict[str, float]] = {}  # setting label -> controller -> success rate
     bases: list[tuple[str, str, str]] = []  # (controller, setting label, colour) of residuals
     for i, name in enumerate(names):
         seed_dirs = [agents.agent_dir(env_id, name, k) for k in agents.seeds(env_id, name)]
         d = seed_dirs[0]
         config = yaml.safe_load((d / "config.yml").read_text())
-        kwargs = config.get("env_kwargs") or {}
+        recorded = config.get("env_kwargs") or {}
+        kwargs = {k: v for k, v in recorded.items() if k not in INTERFACE_KEYS}
         label = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "defaults"
+        interface = "".join(f", {k}={recorded[k]}" for k in INTERFACE_KEYS if k in recorded)
         if label not in scores:
             episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
-            scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED)
+            successes[label] = {}
+            scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED,
+                                              successes[label])
         color = colors[i % len(colors)]
         if len(seed_dirs) == 1:
             steps, values = read_curve(d, primary)
-            ax.plot(steps, values, "o-", ms=3, color=color, label=f"{name} ({label}, 1 seed)")
+            ax.plot(steps, values, "o-", ms=3, color=color,
+                    label=f"{name} ({label}{interface}, 1 seed)")
+            if ax_s is not None:
+                ax_s.plot(steps, 100 * _success_curve(d), "o-", ms=3, color=color, label=name)
         else:  # IQM over seeds, 95 % stratified-bootstrap band, each seed thin
             band = curve_band([read_curve(sd, primary) for sd in seed_dirs])
             ax.plot(band["steps"], band["iqm"], "o-", ms=3, color=color,
@@ -105,12 +126,24 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     for controller, label, color in bases:
         ax.axhline(scores[label][controller], ls=":", color=color,
                    label=f"residual's base: {controller} ({label})")
+    if ax_s is not None:
+        for label, by_name in successes.items():
+            for k, (controller, rate) in enumerate(sorted(by_name.items())):
+                ax_s.axhline(100 * rate, ls=("--", ":", "-.")[k % 3],
+                             color=colors[(len(names) + k) % len(colors)],
+                             label=f"{controller} ({label})")
+        ax_s.set_xlabel("training steps")
+        ax_s.set_ylabel("success rate (%), evaluation")
+        ax_s.set_ylim(-5, 105)
+        ax_s.grid(True, alpha=0.3)
+        ax_s.legend(fontsize=8)
     target = TARGETS.get(env_id)
     for label, by_name in scores.items():  # issue 20's bar for a from-scratch agent
         if target in by_name and (best_of(env_id, by_name) or ("",))[0] != target:
             ax.axhline(by_name[target], ls="-.", color="k", lw=0.8,
                        label=f"target: {target}, default gains ({label})")
-    ax.set_yscale("log")
+    if not panel:  # a time to the goal capped by the time limit reads better linear
+        ax.set_yscale("log")
     ax.set_xlabel("training steps")
     ax.set_ylabel(f"{primary} ({unit})" if unit else primary)
     ax.set_title(f"{env_id}: evaluation during training (seeds {EVAL_SEED}…)")
@@ -122,6 +155,12 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def _success_curve(path: Path) -> np.ndarray:
+    """The ``success_rate`` column of an agent directory's ``learning_curve.csv``."""
+    with (Path(path) / "learning_curve.csv").open() as f:
+        return np.array([float(r["success_rate"]) for r in csv.DictReader(f)])
 
 
 def export_training_curve(run_dir: Path, dest: Path) -> Path:
