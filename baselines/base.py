@@ -62,6 +62,15 @@ def _float_observation(observation: Observation) -> Observation:
     return obs
 
 
+_NO_STATE = np.zeros(0)  # the state row of a stateless law (nothing can be written to it)
+_NO_STATE.flags.writeable = False
+
+
+def _no_state() -> np.ndarray:
+    """The state ``predict`` returns for one observation of a stateless law: (1, 0)."""
+    return np.zeros((1, 0))
+
+
 def _check_command(name: str, commands: np.ndarray) -> None:
     """FloatingPointError showing the first non-finite command (one row, or the only one)."""
     rows = commands.reshape(-1, commands.shape[-1]) if commands.ndim else commands.reshape(1, 1)
@@ -193,6 +202,7 @@ class RowDynamics:
 
     def _build(self) -> None:
         self.data = mujoco.MjData(self.model)
+        self._qpos, self._qvel = self.data.qpos, self.data.qvel  # views, built once
         self._M = np.zeros((self.model.nv, self.model.nv))
         # gravity's own data: q̇ = 0 for good, so the body velocities and ċdof that
         # mj_comVel computes here stay zero at every q (kinematics does not touch them):
@@ -255,12 +265,12 @@ class RowDynamics:
     def _inertia_row(self, q: np.ndarray, qd: np.ndarray, bias: np.ndarray) -> np.ndarray:
         """B̂(q) (a buffer, overwritten by the next call); n̂(q, q̇) into ``bias``."""
         m, d, M = self.model, self.data, self._M
-        d.qpos[:] = q
+        self._qpos[:] = q
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_crb(m, d)
         mujoco.mj_fullM(m, d, M)
-        d.qvel[:] = qd
+        self._qvel[:] = qd
         mujoco.mj_comVel(m, d)
         mujoco.mj_rne(m, d, 0, bias)
         return M
@@ -384,8 +394,14 @@ class Controller:
             )
         obs = _float_observation(observation)
         batched = obs["q"].ndim == 2  # every cir_gym observation has q (n,)
-        n_envs = len(obs["q"]) if batched else 1
         size = self.state_size
+        if (
+            not (batched or size)
+            and self.vectorized
+            and (state is None or getattr(state, "size", None) == 0)
+        ):  # a stateless law on one observation: no state rows to build
+            return self._finish(self.control_batch(obs, _NO_STATE), False), _no_state()
+        n_envs = len(obs["q"]) if batched else 1
         if state is None:
             state = np.zeros((n_envs, size))
             starts = None  # every row starts
@@ -412,12 +428,17 @@ class Controller:
             if starts is None or starts[0]:
                 state[0] = self.initial_state(obs)
             commands = np.asarray(self.control(obs, state[0]), dtype=float)
+        return self._finish(commands, batched), state
+
+    def _finish(self, commands: np.ndarray, batched: bool) -> np.ndarray:
+        """Commands → actions: scaled, checked finite (one dot product), clipped to [-1, 1] in
+        float64, then rounded to float32."""
         actions = commands / self.action_scale
         flat = actions if batched is False else actions.ravel()
         if not _isfinite(flat.dot(flat)):  # NaN/inf (or an overflow: the exact check decides)
             _check_command(self.name, commands)
-        _CLIP(actions, -1.0, 1.0, actions)
-        return actions.astype(np.float32), state  # clipped in float64, then rounded
+        out = np.empty(actions.shape, np.float32)
+        return _CLIP(actions, -1.0, 1.0, out=out)  # clipped in float64, then rounded (one pass)
 
     def __call__(self, observation: Observation) -> np.ndarray:
         """Stateless convenience for a single step from a fresh state."""

@@ -25,6 +25,8 @@ __all__ = [
     "lyapunov_solution",
 ]
 
+_MUL, _ADD = np.multiply, np.add  # the ufuncs, called with out= on the hot path
+
 JOINT_TASKS = ("JointTracking",)
 RIGID_MODEL_TASKS = ("JointTracking", "ElasticJointTracking")  # laws that work on link q, q̇
 
@@ -205,8 +207,13 @@ class ComputedTorque(_InverseDynamicsLaw):
         if self._gain_vectors[0] is not g:  # K_P, K_D as (n,) arrays: a cheaper product
             self._gain_vectors = (g, np.full(self.n, g.kp), np.full(self.n, g.kd))
         _, kp, kd = self._gain_vectors
-        q, qd = obs["q"], obs["qd"]
-        return obs["qdd_ref"] + kd * (obs["qd_ref"] - qd) + kp * (obs["q_ref"] - q)
+        # q̄̈ + K_D (q̄̇ − q̇) + K_P (q̄ − q) in that order, the products in place (a·b = b·a)
+        d_err = obs["qd_ref"] - obs["qd"]
+        p_err = obs["q_ref"] - obs["q"]
+        _MUL(d_err, kd, out=d_err)
+        _MUL(p_err, kp, out=p_err)
+        y = obs["qdd_ref"] + d_err
+        return _ADD(y, p_err, out=y)
 
 
 # ---------------------------------------------------------------------- robust
