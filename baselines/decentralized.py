@@ -47,6 +47,8 @@ from cir_gym.motor import (
 )
 from cir_gym.robot import Robot
 
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
+
 __all__ = [
     "CascadeGains",
     "DecentralizedFeedforward",
@@ -149,7 +151,7 @@ class _Decentralized(Controller):
         """
         mode = self.gains.anti_windup
         if mode == "back_calculation":
-            excess = np.clip(command, -self.action_scale, self.action_scale) - command
+            excess = _CLIP(command, -self.action_scale, self.action_scale) - command
             state += self.dt * excess / gain
         elif mode == "clamping":
             windup = (np.abs(command) > self.action_scale) & (np.sign(command) == np.sign(error))

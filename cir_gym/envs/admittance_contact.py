@@ -705,7 +705,7 @@ class AdmittanceContactEnv(RobotEnv):
                 tau = self.interface.torque(
                     d.qpos[self._qa].copy(), d.qvel[self._da].copy(), (i + 1) / n
                 )
-                if self._simulate(np.clip(tau, -self.torque_limit, self.torque_limit)):
+                if self._simulate(_CLIP(tau, -self.torque_limit, self.torque_limit)):
                     return True, contact
                 wrench[:3] = sd[f0 : f0 + 3]
                 wrench[3:] = sd[t0 : t0 + 3]

@@ -679,7 +679,7 @@ class CartesianTrackingEnv(RobotEnv):
         v["quat_ref"][:] = quat_ref
         v["twist_ref"][:] = self._twist_ref[k]
         v["acc_ref"][:] = self._acc_ref[k]
-        np.clip(buf, self._obs_low, self._obs_high, out=buf)
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return v
 
     def controller_context(self) -> TaskContext:

@@ -40,7 +40,7 @@ PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
 STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact counts as stuck
 # hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
 _SUM = np.add.reduce
-_MINIMUM, _MAXIMUM = np.minimum, np.maximum
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
 
@@ -446,7 +446,7 @@ class PegInHoleEnv(RobotEnv):
                 if tau is None:
                     d = self.data
                     ctrl = self.motion.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / skip)
-                    ctrl = np.clip(ctrl, -self.torque_limit, self.torque_limit)
+                    ctrl = _CLIP(ctrl, -self.torque_limit, self.torque_limit)
                 else:
                     ctrl = tau
                 diverged = self._simulate(ctrl)
@@ -606,8 +606,8 @@ class PegInHoleEnv(RobotEnv):
         obs["wrench"][:] = self.ft_sensor.reading
         obs["hole_pos"][:] = self.hole_pos
         obs["hole_quat"][:] = self.hole_quat
-        # np.minimum(np.maximum(·, −b), b) of every entry in two calls (np.clip's result)
-        _MINIMUM(_MAXIMUM(buf, self._obs_low, out=buf), self._obs_high, out=buf)
+        # np.minimum(np.maximum(·, −b), b) of every entry: the clip ufunc (bounds ≠ 0)
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return obs
 
     @staticmethod

@@ -38,6 +38,8 @@ from cir_gym.redundancy import (
 )
 from cir_gym.robot import Robot, robot_path
 
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
+
 __all__ = [
     "REDUNDANT_IK_ENVIRONMENTS",
     "SHAPES",
@@ -717,7 +719,7 @@ class _RedundantIKBase(RobotEnv):
         v["q_lower"][:] = self.lower
         v["q_upper"][:] = self.upper
         v["obstacle"][:] = self._obstacle
-        np.clip(buf, self._obs_low, self._obs_high, out=buf)
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return v
 
     def controller_context(self) -> TaskContext:

@@ -35,6 +35,8 @@ from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
+_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
+
 __all__ = [
     "VISUAL_SERVO_ENVIRONMENTS",
     "VisualServoEnv",
@@ -254,6 +256,8 @@ class _VisualServoBase(RobotEnv):
             obs["image"] = spaces.Box(0, 255, (IMAGE_HEIGHT, IMAGE_WIDTH, 3), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)
         self._bound = bound
+        self._obs_high = np.r_[np.full(16, float(bound)), np.full(7, 2 * np.pi)]  # _obs's clip
+        self._obs_low = -self._obs_high
 
         steps = self.max_steps
         self._err = np.zeros(steps + 1)  # true feature error (px) at each step
@@ -645,12 +649,12 @@ class _VisualServoBase(RobotEnv):
         return renderer
 
     def _obs(self) -> dict[str, np.ndarray]:
-        b = self._bound
         buf = np.empty(23)  # one new buffer, views handed out
         out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
-        np.clip(self._s_obs.ravel(), -b, b, out=out["features"])
-        np.clip(self._s_ref.ravel(), -b, b, out=out["features_ref"])
-        np.clip(self.data.qpos[self.qpos_adr], -2 * np.pi, 2 * np.pi, out=out["q"])
+        out["features"][:] = self._s_obs.ravel()
+        out["features_ref"][:] = self._s_ref.ravel()
+        out["q"][:] = self.data.qpos[self.qpos_adr]
+        _CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
         if self.obs_image:
             out["image"] = self._image.copy()
         return out
