@@ -125,3 +125,24 @@ def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
         np.testing.assert_array_equal(got, want)
     assert mine() > 0 and bench.replay_loop(tape)() > 0
     env.close()
+
+
+BENCH_BOUND = Path(__file__).parents[1] / "benchmarks" / "bench_leaderboard_bound.py"
+
+
+def test_leaderboard_bound_counts_every_physics_step_of_a_job():
+    """One short job: the recorder sees frame_skip physics steps per env step (the evaluator
+    runs sequentially), restores mujoco.mj_step, and the replayed physics is part of the
+    evaluator's own time."""
+    import mujoco
+
+    sys.path.insert(0, str(BENCH_BOUND.parent))
+    spec = importlib.util.spec_from_file_location("bench_leaderboard_bound", BENCH_BOUND)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    mj_step = mujoco.mj_step
+    job = ("cir_gym/JointTracking-v1", "exact model", {"episode_duration": 0.05}, "pd_gravity")
+    r = bench.run_job(job, episodes=2, seed=1000, repeat=1)
+    assert mujoco.mj_step is mj_step
+    assert r["env_steps"] == 2 * 25 and r["physics_steps"] == 2 * r["env_steps"]
+    assert 0 < r["physics_s"] < r["total_s"]
