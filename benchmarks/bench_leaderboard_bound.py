@@ -28,6 +28,7 @@ floor`` (the other sections are kept).
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import time
 import warnings
@@ -51,27 +52,40 @@ KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
 
 
 class StepRecorder:
-    """Every ``mj_step`` call made while it records, on any model: the model, MuJoCo's full
-    integration state before the call and its ``nstep`` (``with recorder:`` wraps
-    ``mujoco.mj_step``; the physics is unchanged, ``mj_getState`` only reads)."""
+    """Every ``mj_step`` call made while it records, on any model: MuJoCo's full integration
+    state before the call and its ``nstep``, grouped by episode with a copy of the model as
+    it was then (``with recorder:`` wraps ``mujoco.mj_step``; the physics is unchanged,
+    ``mj_getState`` only reads).
+
+    The copy matters: an env may change its model at ``reset`` (PegInHole moves the hole
+    block, ``randomize`` draws masses or a stiffness), so replaying an early episode on the
+    model of the last one would time other contacts. An episode starts where the simulated
+    time goes back (``reset`` sets it to 0).
+    """
 
     def __init__(self) -> None:
-        self.calls: dict[int, tuple[mujoco.MjModel, list[np.ndarray], list[int]]] = {}
+        #: (model copy, states, nsteps) per episode of each model, in call order
+        self.calls: list[tuple[mujoco.MjModel, list[np.ndarray], list[int]]] = []
         self._orig: Callable[..., None] | None = None
 
     def __enter__(self) -> StepRecorder:
         orig = self._orig = mujoco.mj_step
         calls = self.calls
+        current: dict[int, tuple[float, tuple]] = {}  # id(model) → (last time, its entry)
 
         def recording_step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
-            entry = calls.get(id(m))
-            if entry is None:
-                entry = calls[id(m)] = (m, [], [])
+            last = current.get(id(m))
+            if last is None or d.time < last[0]:  # a new episode: the model as it is now
+                entry = (copy.copy(m), [], [])
+                calls.append(entry)
+            else:
+                entry = last[1]
             state = np.empty(mujoco.mj_stateSize(m, _INTEGRATION))
             mujoco.mj_getState(m, d, state, _INTEGRATION)
             entry[1].append(state)
             entry[2].append(int(nstep))
             orig(m, d, nstep)
+            current[id(m)] = (d.time, entry)
 
         mujoco.mj_step = recording_step
         return self
@@ -80,14 +94,14 @@ class StepRecorder:
         mujoco.mj_step = self._orig
 
     def physics_steps(self) -> int:
-        return sum(sum(nsteps) for _, _, nsteps in self.calls.values())
+        return sum(sum(nsteps) for _, _, nsteps in self.calls)
 
     def replay_seconds(self, repeat: int) -> float:
         """CPU seconds of the recorded calls' physics (best of ``repeat``)."""
         best = np.inf
         for _ in range(repeat):
             total = 0.0
-            for m, states, nsteps in self.calls.values():
+            for m, states, nsteps in self.calls:
                 d = mujoco.MjData(m)
                 calls = list(zip(states, nsteps, strict=True))
                 t0 = time.process_time()

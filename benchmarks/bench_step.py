@@ -205,6 +205,25 @@ def replay_loop(tape: PhysicsTape, per_mj_step: bool = False) -> Callable[[], fl
     return loop
 
 
+def physics_loop(model: mujoco.MjModel, steps: int) -> Callable[[], float]:
+    """Seconds per ``mj_step`` at zero control on a fresh MjData (for the kinematic envs,
+    whose steps run no physics to replay)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    qpos0, qvel0 = data.qpos.copy(), data.qvel.copy()
+
+    def loop() -> float:
+        data.qpos[:] = qpos0
+        data.qvel[:] = qvel0
+        data.time = 0.0
+        t0 = time.process_time()
+        for _ in range(steps):
+            mujoco.mj_step(model, data)
+        return (time.process_time() - t0) / steps
+
+    return loop
+
+
 def kinematics_loop(model: mujoco.MjModel, site: int, steps: int) -> Callable[[], float]:
     """Seconds per mj_kinematics + mj_comPos + mj_jacSite on a fresh MjData."""
     data = mujoco.MjData(model)
@@ -325,9 +344,13 @@ def bench_controllers(
             continue
         if env_id not in envs:
             envs[env_id] = gym.make(env_id)
-            stepped = gym.make(env_id)
-            units[env_id] = replay_loop(recorded_step_loop(stepped, calls, 2)[1], per_mj_step=True)
-            stepped.close()
+            if env_id in KINEMATIC:  # no physics in its steps: mj_step on a fresh MjData
+                units[env_id] = physics_loop(envs[env_id].unwrapped.model, calls)
+            else:
+                stepped = gym.make(env_id)
+                tape = recorded_step_loop(stepped, calls, 2)[1]
+                units[env_id] = replay_loop(tape, per_mj_step=True)
+                stepped.close()
         env = envs[env_id]
         obs, _ = env.reset(seed=0)
         policy = baselines.make(name, env_id, env=env)
@@ -490,7 +513,8 @@ def main(argv: list[str] | None = None) -> int:
             *plumbing_rows,
             "",
             "Controllers' `predict` (fresh state: an episode's first step) against one "
-            "`mj_step` of the env's model (on the states of its zero-action steps); batched: "
+            "`mj_step` of the env's model (on the states of its zero-action steps; RedundantIK, "
+            "which steps no physics: on a fresh MjData); batched: "
             "stacked copies of the observation; the "
             "last column is a batched row's cost over a single call's (< 1: batching pays). "
             "The joint-space laws (decentralized, `pd_gravity`, `computed_torque`, `robust`) "
