@@ -36,6 +36,7 @@ from cir_gym.robot import ASSETS, Robot
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
 _CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
+_MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their wrappers
 
 __all__ = [
     "VISUAL_SERVO_ENVIRONMENTS",
@@ -339,6 +340,10 @@ class _VisualServoBase(RobotEnv):
             m.actuator_forcerange[a] = (-tau, tau)
             m.actuator_forcelimited[a] = 1
         self._act = self.robot.actuator_ids.copy()
+        self._servo_limit = self.model.actuator_ctrlrange[self._act, 1].copy()  # _ctrl's
+        # the joint-limit test's thresholds (step)
+        self._low_stop = self.lower + JOINT_MARGIN
+        self._high_stop = self.upper - JOINT_MARGIN
 
     # ------------------------------------------------------------------ geometry
     def _moving_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -526,9 +531,7 @@ class _VisualServoBase(RobotEnv):
         q = self.data.qpos[self.qpos_adr]
         s = None if diverged else self._true_features()
         lost = s is None or not self._in_image(s)
-        at_limit = bool(
-            (q < self.lower + JOINT_MARGIN).any() or (q > self.upper - JOINT_MARGIN).any()
-        )
+        at_limit = bool((q < self._low_stop).any() or (q > self._high_stop).any())
         if s is not None:
             self._s_true = s
         detection_failure = self._observe()
@@ -583,9 +586,8 @@ class _VisualServoBase(RobotEnv):
 
     def _ctrl(self, qd: np.ndarray) -> np.ndarray:
         """Velocity-servo commands: q̇ scaled down uniformly to the actuators' ctrlrange."""
-        limit = self.model.actuator_ctrlrange[self._act, 1]
         with np.errstate(all="ignore"):
-            ratio = float(np.max(np.abs(qd) / limit))
+            ratio = float(_MAXR(_ABS(qd) / self._servo_limit))  # = np.max(np.abs(qd) / limit)
         if np.isfinite(ratio) and ratio > 1.0:
             qd = qd / ratio
         ctrl = np.zeros(self.model.nu)
