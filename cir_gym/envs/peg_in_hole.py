@@ -41,6 +41,7 @@ STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact co
 # hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
 _SUM = np.add.reduce
 _CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
+_NO_FRAMES = np.zeros((0, 9))
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
 
@@ -490,14 +491,23 @@ class PegInHoleEnv(RobotEnv):
         """Net contact force on the peg (3,), world frame (N)."""
         m, d = self.model, self.data
         total = np.zeros(3)
-        for i in range(d.ncon):
-            c = d.contact[i]
-            if c.geom1 != self._peg_geom and c.geom2 != self._peg_geom:
-                continue
+        hits, first, frames = self._peg_contacts()
+        for i in hits:  # in contact order, as a loop over d.contact[i] would add them
             mujoco.mj_contactForce(m, d, i, self._cforce)
-            sign = -1.0 if c.geom1 == self._peg_geom else 1.0
-            total += sign * (c.frame.reshape(3, 3).T @ self._cforce[:3])
+            sign = -1.0 if first[i] == self._peg_geom else 1.0
+            total += sign * (frames[i].reshape(3, 3).T @ self._cforce[:3])
         return total
+
+    def _peg_contacts(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """The indices of the contacts that involve the peg (in MuJoCo's order), every
+        contact's first geom (ncon,) and frame (ncon, 9): MuJoCo's contact arrays read once
+        (a ``d.contact[i]`` struct per contact costs more than its force)."""
+        con = self.data.contact
+        geom = con.geom  # (ncon, 2)
+        peg = self._peg_geom
+        first = geom[:, 0]
+        hits = np.flatnonzero((first == peg) | (geom[:, 1] == peg)).tolist()
+        return hits, first, (con.frame if hits else _NO_FRAMES)
 
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:
@@ -512,16 +522,16 @@ class PegInHoleEnv(RobotEnv):
         m, d = self.model, self.data
         axis = self.true_hole_R[:, 2]
         side: list[np.ndarray] = []
-        for i in range(d.ncon):
-            c = d.contact[i]
-            if c.geom1 != self._peg_geom and c.geom2 != self._peg_geom:
-                continue
+        hits, first, frames = self._peg_contacts() if d.ncon else ([], None, _NO_FRAMES)
+        for i in hits:
             mujoco.mj_contactForce(m, d, i, self._cforce)
-            sign = -1.0 if c.geom1 == self._peg_geom else 1.0  # frame[0] points geom1 → geom2
-            n = sign * c.frame[:3]  # normal pushing the peg
-            if abs(float(n @ axis)) < SIDE_NORMAL and self._cforce[0] > 0:
-                lateral = n - (n @ axis) * axis
-                side.append(lateral / max(float(np.linalg.norm(lateral)), 1e-12))
+            sign = -1.0 if first[i] == self._peg_geom else 1.0  # frame[0] points geom1 → geom2
+            n = sign * frames[i][:3]  # normal pushing the peg
+            along = float(n @ axis)
+            if abs(along) < SIDE_NORMAL and self._cforce[0] > 0:
+                lateral = n - along * axis
+                # ‖lateral‖ as np.linalg.norm computes it: sqrt of the same dot product
+                side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
         tip = self._tip_in_hole()
         depth = float(-tip[2])
         two_point = any(float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :])
