@@ -437,8 +437,8 @@ class Controller:
         flat = actions if batched is False else actions.ravel()
         if not _isfinite(flat.dot(flat)):  # NaN/inf (or an overflow: the exact check decides)
             _check_command(self.name, commands)
-        out = np.empty(actions.shape, np.float32)
-        return _CLIP(actions, -1.0, 1.0, out=out)  # clipped in float64, then rounded (one pass)
+        _CLIP(actions, -1.0, 1.0, actions)  # (into a float32 out=: slower, a casting loop)
+        return actions.astype(np.float32)  # clipped in float64, then rounded
 
     def __call__(self, observation: Observation) -> np.ndarray:
         """Stateless convenience for a single step from a fresh state."""

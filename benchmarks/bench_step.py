@@ -169,7 +169,9 @@ def recorded_step_loop(
     An untimed pass of ``trials`` calls of a fresh :func:`step_loop` records the ``mj_step``
     calls of each (one tape segment per trial); the returned loop starts over from the same
     seeded reset, so its k-th call plays the very steps of segment k (the env is
-    deterministic: same seed, same actions).
+    deterministic: same seed, same actions). Every episode starts from ``reset(seed=0)``, so
+    a model the env changes at reset (PegInHole's hole pose, a randomized mass) is the same
+    in every recorded step and at the replay.
     """
     tape = PhysicsTape(env.unwrapped.model)
     counted = step_loop(env, steps, count=True)
