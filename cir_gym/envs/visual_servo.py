@@ -340,7 +340,6 @@ class _VisualServoBase(RobotEnv):
             m.actuator_forcerange[a] = (-tau, tau)
             m.actuator_forcelimited[a] = 1
         self._act = self.robot.actuator_ids.copy()
-        self._servo_limit = self.model.actuator_ctrlrange[self._act, 1].copy()  # _ctrl's
         # the joint-limit test's thresholds (step)
         self._low_stop = self.lower + JOINT_MARGIN
         self._high_stop = self.upper - JOINT_MARGIN
@@ -586,8 +585,9 @@ class _VisualServoBase(RobotEnv):
 
     def _ctrl(self, qd: np.ndarray) -> np.ndarray:
         """Velocity-servo commands: q̇ scaled down uniformly to the actuators' ctrlrange."""
+        limit = self.model.actuator_ctrlrange[self._act, 1]  # the model's now (tests scale it)
         with np.errstate(all="ignore"):
-            ratio = float(_MAXR(_ABS(qd) / self._servo_limit))  # = np.max(np.abs(qd) / limit)
+            ratio = float(_MAXR(_ABS(qd) / limit))  # = np.max(np.abs(qd) / limit)
         if np.isfinite(ratio) and ratio > 1.0:
             qd = qd / ratio
         ctrl = np.zeros(self.model.nu)
