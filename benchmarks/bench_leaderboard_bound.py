@@ -236,12 +236,19 @@ def main(argv: list[str] | None = None) -> int:
     per_env = "; ".join(
         f"{e.split('/')[-1]} {v[0]:.1f}" for e, v in sorted(by_env.items(), key=lambda x: -x[1][0])
     )
+    env_steps = sum(r["env_steps"] for r in rows.values()) * scale
+    physics_steps = sum(r["physics_steps"] for r in rows.values()) * scale
+    left_us = (args.budget_min - phys_total) * 60 / env_steps * 1e6
+    now_us = (eval_total - phys_total) * 60 / env_steps * 1e6
     verdict = (
         "the physics alone exceeds the budget: the target cannot be met on this machine at "
         "these time steps, whatever the Python costs"
         if phys_total > args.budget_min
         else f"the physics fits: {args.budget_min - phys_total:.1f} CPU min are left for "
-        "everything else (Python, policies, start-up)"
+        f"everything else (envs' Python, policies, evaluator, start-up), {left_us:.1f} µs per "
+        f"env step over the {env_steps / 1e6:.1f} M env steps ({physics_steps / 1e6:.1f} M "
+        f"physics steps) of the {args.seeds}-seed leaderboard; the sequential evaluator "
+        f"spends {now_us:.0f} µs per env step on them today ({now_us / max(left_us, 1e-9):.1f}×)"
     )
     body = "\n".join(
         [
