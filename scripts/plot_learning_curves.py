@@ -13,8 +13,8 @@ is drawn as a dashed horizontal line, and a residual agent's base controller as 
 in the agent's colour. An agent's interface arguments (``control``, ``control_freq``: a
 PegInHole agent may act through the position interface) are not a training setting: the
 controllers run on the task's other arguments with their own interface. Environments in
-``SUCCESS_PANEL`` get a second panel, the evaluation success rate, where a failed episode's
-primary metric is only the time limit.
+``SUCCESS_PANEL`` get two more panels, the evaluation success rate and mean return (a failed
+episode's primary metric is only the time limit; the return still shows progress).
 """
 
 from __future__ import annotations
@@ -43,17 +43,18 @@ SUCCESS_PANEL = {"cir_gym/PegInHole-v0"}
 
 
 def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int,
-                      success: dict[str, float] | None = None) -> dict[str, float]:
+                      extras: dict[str, dict[str, float]] | None = None) -> dict[str, float]:
     """Mean primary metric of every applicable controller on these seeds (and, into
-    ``success`` when given, each one's success rate)."""
+    ``extras`` when given, each one's success rate and mean return)."""
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
         policy = baselines.make(name, env_id, env_kwargs=env_kwargs)
         result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
         scores[name] = result.summary[primary]["mean"]
-        if success is not None:
-            success[name] = result.success_rate
+        if extras is not None:
+            extras[name] = {"success_rate": result.success_rate,
+                            "return": result.summary["return"]["mean"]}
         print(f"  {name:28s} {env_kwargs or 'defaults'}: {primary} = {scores[name]:.4g}, "
               f"success {result.success_rate:.0%}", file=sys.stderr)
     return scores
@@ -83,11 +84,11 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     primary = cls.primary_metric
     unit = next(s.unit for s in cls.metric_specs if s.name == primary)
     panel = env_id in SUCCESS_PANEL
-    fig, axes = plt.subplots(1, 2 if panel else 1, figsize=(13 if panel else 7, 4.2))
-    ax, ax_s = (axes[0], axes[1]) if panel else (axes, None)
+    fig, axes = plt.subplots(1, 3 if panel else 1, figsize=(18 if panel else 7, 4.2))
+    ax, ax_s, ax_r = (axes[0], axes[1], axes[2]) if panel else (axes, None, None)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
-    successes: dict[str, dict[str, float]] = {}  # setting label -> controller -> success rate
+    extras: dict[str, dict[str, dict[str, float]]] = {}  # label -> controller -> rate, return
     bases: list[tuple[str, str, str]] = []  # (controller, setting label, colour) of residuals
     for i, name in enumerate(names):
         seed_dirs = [agents.agent_dir(env_id, name, k) for k in agents.seeds(env_id, name)]
@@ -99,16 +100,17 @@ def plot_env(env_id: str, out: Path) -> Path | None:
         interface = "".join(f", {k}={recorded[k]}" for k in INTERFACE_KEYS if k in recorded)
         if label not in scores:
             episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
-            successes[label] = {}
+            extras[label] = {}
             scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED,
-                                              successes[label])
+                                              extras[label])
         color = colors[i % len(colors)]
         if len(seed_dirs) == 1:
             steps, values = read_curve(d, primary)
             ax.plot(steps, values, "o-", ms=3, color=color,
                     label=f"{name} ({label}{interface}, 1 seed)")
-            if ax_s is not None:
+            if ax_s is not None and ax_r is not None:
                 ax_s.plot(steps, 100 * _success_curve(d), "o-", ms=3, color=color, label=name)
+                ax_r.plot(*read_curve(d, "return"), "o-", ms=3, color=color, label=name)
         else:  # IQM over seeds, 95 % stratified-bootstrap band, each seed thin
             band = curve_band([read_curve(sd, primary) for sd in seed_dirs])
             ax.plot(band["steps"], band["iqm"], "o-", ms=3, color=color,
@@ -126,17 +128,21 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     for controller, label, color in bases:
         ax.axhline(scores[label][controller], ls=":", color=color,
                    label=f"residual's base: {controller} ({label})")
-    if ax_s is not None:
-        for label, by_name in successes.items():
-            for k, (controller, rate) in enumerate(sorted(by_name.items())):
-                ax_s.axhline(100 * rate, ls=("--", ":", "-.")[k % 3],
-                             color=colors[(len(names) + k) % len(colors)],
-                             label=f"{controller} ({label})")
-        ax_s.set_xlabel("training steps")
+    if ax_s is not None and ax_r is not None:
+        for label, by_name in extras.items():
+            for k, (controller, e) in enumerate(sorted(by_name.items())):
+                style = {"ls": ("--", ":", "-.")[k % 3],
+                         "color": colors[(len(names) + k) % len(colors)],
+                         "label": f"{controller} ({label})"}
+                ax_s.axhline(100 * e["success_rate"], **style)
+                ax_r.axhline(e["return"], **style)
         ax_s.set_ylabel("success rate (%), evaluation")
         ax_s.set_ylim(-5, 105)
-        ax_s.grid(True, alpha=0.3)
-        ax_s.legend(fontsize=8)
+        ax_r.set_ylabel("mean return (env reward), evaluation")
+        for a in (ax_s, ax_r):
+            a.set_xlabel("training steps")
+            a.grid(True, alpha=0.3)
+            a.legend(fontsize=7)
     target = TARGETS.get(env_id)
     for label, by_name in scores.items():  # issue 20's bar for a from-scratch agent
         if target in by_name and (best_of(env_id, by_name) or ("",))[0] != target:
