@@ -38,6 +38,7 @@ __all__ = [
     "Policy",
     "batches_exactly",
     "evaluate",
+    "interface_env_kwargs",
     "metric_specs",
     "rank",
     "variant_primary_metric",
@@ -58,6 +59,32 @@ class Policy(Protocol):
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]: ...
+
+
+def interface_env_kwargs(policy: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``env_kwargs`` with the action interface that ``policy``'s actions are defined on.
+
+    A policy may carry ``interface_kwargs``: environment arguments without which its actions
+    mean something else (a trained agent's recorded ``control``/``control_freq``: a PegInHole
+    agent of the position interface outputs 6 pose increments, not 7 torques). They are added
+    to the task's arguments wherever an environment is built for the policy (evaluation,
+    videos). A task argument that contradicts them is an error, never silently replaced.
+
+    Raises:
+        ValueError: ``env_kwargs`` sets an interface argument to another value.
+    """
+    interface = dict(getattr(policy, "interface_kwargs", None) or {})
+    clash = {
+        k: (env_kwargs[k], v)
+        for k, v in interface.items()
+        if k in env_kwargs and env_kwargs[k] != v
+    }
+    if clash:
+        text = ", ".join(f"{k}={a!r} (the policy acts on {k}={b!r})" for k, (a, b) in clash.items())
+        raise ValueError(
+            f"the environment arguments contradict the policy's action interface: {text}"
+        )
+    return {**env_kwargs, **interface}
 
 
 @dataclass
@@ -207,6 +234,8 @@ def evaluate(
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     name = policy_name or getattr(policy, "name", None) or type(policy).__name__
+    if env is None:
+        env_kwargs = interface_env_kwargs(policy, env_kwargs)
     vec_cls = _batched_env_class(env_id, env, record, env_kwargs, batched)
     if vec_cls is not None and (batched or batches_exactly(policy)):
         specs, primary = (

@@ -21,7 +21,7 @@ from typing import Any
 import baselines
 import cir_gym
 from cir_gym.envs.base import constructor_arguments, make_env
-from cir_gym.evaluation import EvaluationResult, evaluate
+from cir_gym.evaluation import EvaluationResult, evaluate, interface_env_kwargs
 
 
 class CliError(Exception):
@@ -210,6 +210,7 @@ def record_video(
     """One episode rendered with ``rgb_array`` frames at ≤ 25 fps."""
     from cir_gym.plotting import save_video
 
+    env_kwargs = interface_env_kwargs(policy, env_kwargs)
     env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
     every = max(1, round(1.0 / (25 * env.unwrapped.dt)))
     frames = []

@@ -28,6 +28,7 @@ import numpy as np
 
 import cir_gym
 from cir_gym.envs.base import make_env
+from cir_gym.evaluation import interface_env_kwargs
 
 #: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
 VIDEO_SIZE = 180
@@ -161,6 +162,7 @@ def episode_frames(
     from scripts.cli import make_policy
 
     policy = make_policy(env_id, policy_name, env_kwargs, {})
+    env_kwargs = interface_env_kwargs(policy, env_kwargs)
     env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
     dt = env.unwrapped.dt
     every = max(1, round(1.0 / (fps * dt)))

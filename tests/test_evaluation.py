@@ -153,6 +153,33 @@ def test_a_policy_with_the_wrong_action_shape_is_reported_with_the_expected_shap
         evaluate(Broken(), ENV, 1, 0, **SHORT)
 
 
+def test_a_policy_is_evaluated_on_its_recorded_action_interface():
+    """An agent trained on the position interface (6 pose increments) is scored there; the
+    torque interface (7 torques) would refuse its actions, and a task that asks for another
+    interface is an error, not silently replaced."""
+
+    class PositionAgent:
+        def __init__(self) -> None:
+            self.interface_kwargs = {"control": "position", "control_freq": 100.0}
+
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros(6), state
+
+    short = {"episode_duration": 0.05}
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, **short)
+    assert result.episodes[0].length == 5  # 0.05 s at 100 Hz, not 25 steps at 500 Hz
+    with pytest.raises(ValueError, match=r"expects shape \(7,\)"):
+        evaluate(
+            PositionAgent(),
+            "cir_gym/AdmittanceContact-v0",
+            1,
+            0,
+            env=gym.make("cir_gym/AdmittanceContact-v0", **short),
+        )
+    with pytest.raises(ValueError, match=r"control='torque'.*control='position'"):
+        evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, control="torque", **short)
+
+
 # ---------------------------------------------------------------------- ranking
 def _result(
     name: str, successes: list[bool], errors: list[float], manipulability: list[float]
