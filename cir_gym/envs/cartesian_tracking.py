@@ -637,21 +637,10 @@ class CartesianTrackingEnv(RobotEnv):
         qd = v["qd"]
         v["q"][:] = qpos[self._qa]
         qd[:] = qvel[self._da]
-        v["x"][:] = x
-        quat_ref = self._quat_ref[k]
-        quat = v["quat"]
-        mujoco.mju_mat2Quat(quat, R)
-        if osp.quat_dot(quat.tolist(), quat_ref.tolist()) < 0.0:  # align_quat: Q·Q̄ ≥ 0
-            np.negative(quat, out=quat)
         jac = self._jac
         mujoco.mj_jacSite(self.model, self.data, jac[:3], jac[3:], self._site)
         np.matmul(jac if self._whole else jac[:, self._da], qd, out=v["twist"])
-        v["x_ref"][:] = self._x_ref[k]
-        v["quat_ref"][:] = quat_ref
-        v["twist_ref"][:] = self._twist_ref[k]
-        v["acc_ref"][:] = self._acc_ref[k]
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
-        return v
+        return self._finish_obs(buf, v, k, x, R)
 
     def _obs(self) -> dict[str, np.ndarray]:
         """The observation: one new flat buffer, filled, clipped to the bounds once, handed
@@ -668,13 +657,20 @@ class CartesianTrackingEnv(RobotEnv):
         else:
             qd[:] = 0.0
         x, R = self.robot.site_pose(self._site, q)
+        np.matmul(self.robot.jacobian(self._site, q), qd, out=v["twist"])
+        return self._finish_obs(buf, v, k, x, R.ravel())
+
+    def _finish_obs(
+        self, buf: np.ndarray, v: dict[str, np.ndarray], k: int, x: np.ndarray, R: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Fill the flange pose (``x``, flat ``R``) and the references at sample ``k`` into
+        the views ``v`` of ``buf``, clip ``buf`` to the bounds once, return ``v``."""
         v["x"][:] = x
         quat_ref = self._quat_ref[k]
         quat = v["quat"]
-        mujoco.mju_mat2Quat(quat, R.ravel())
+        mujoco.mju_mat2Quat(quat, R)
         if osp.quat_dot(quat.tolist(), quat_ref.tolist()) < 0.0:  # align_quat: Q·Q̄ ≥ 0
             np.negative(quat, out=quat)
-        np.matmul(self.robot.jacobian(self._site, q), qd, out=v["twist"])
         v["x_ref"][:] = self._x_ref[k]
         v["quat_ref"][:] = quat_ref
         v["twist_ref"][:] = self._twist_ref[k]
