@@ -44,8 +44,8 @@ class BatchedTaskObservation(VecEnv):
         flatten: ``obs ↦ (n_envs, size)``, ``layout.bind(template_env)``.
         reward_offset: added to every step's reward (training only, as
             :class:`agents.shaping.RewardOffset`).
-        log_error: ``{weight, max_error, floor}`` of :class:`agents.shaping.LogErrorBonus`
-            (training only), or None.
+        log_error: ``{weight, max_error, floor[, orientation_scale = 0]}`` of
+            :class:`agents.shaping.LogErrorBonus` (training only), or None.
     """
 
     def __init__(
@@ -65,6 +65,10 @@ class BatchedTaskObservation(VecEnv):
         self._flatten = flatten
         self.reward_offset = float(reward_offset)
         self.log_error = check_log_error_bonus(log_error) if log_error else None
+        if self.log_error:  # the batched envs have no orientation task (JointTracking)
+            if self.log_error.pop("orientation_scale") > 0:
+                raise ValueError("log_error_bonus orientation_scale > 0 needs an orientation "
+                                 "error; the batched envs have none (use 0 or vec_env 'dummy')")
         self._ret = np.zeros(self.num_envs)
         self._len = np.zeros(self.num_envs, dtype=np.int64)
 

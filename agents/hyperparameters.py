@@ -85,10 +85,11 @@ TRAINING_KEYS = {
     "checkpoint_freq": "environment steps between checkpoints",
     "task_errors": "add k_ref - k features to the observation (true/false)",
     "zero_init_action": "zero the last layer of the actor (the action mean starts at 0)",
-    "early_termination": "training only: {max_error, penalty} (agents/shaping.py)",
+    "early_termination": "training only: {max_error, penalty, orientation_scale} "
+                         "(agents/shaping.py)",
     "reward_offset": "training only: added to every step's reward (agents/shaping.py)",
-    "log_error_bonus": "training only: {weight, max_error, floor}: + weight * ln(max_error / "
-                       "max(|error|, floor)) per step (agents/shaping.py)",
+    "log_error_bonus": "training only: {weight, max_error, floor, orientation_scale}: + weight "
+                       "* ln(max_error / max(|error|, floor)) per step (agents/shaping.py)",
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",
@@ -318,9 +319,10 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
         raise HyperparameterError(f"{where}: normalize must be true/false or a mapping")
     early = entry.get("early_termination")
     if early is not None and (not isinstance(early, dict) or "max_error" not in early
-                              or set(early) - {"max_error", "penalty"}):
+                              or set(early) - {"max_error", "penalty", "orientation_scale"}):
         raise HyperparameterError(f"{where}: early_termination must be "
-                                  f"{{max_error: <float>, penalty: <float, optional>}}")
+                                  f"{{max_error: <float>, penalty: <float, optional>, "
+                                  f"orientation_scale: <float >= 0, optional>}}")
     if entry.get("log_error_bonus") is not None:
         from agents.shaping import check_log_error_bonus
 

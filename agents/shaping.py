@@ -7,7 +7,10 @@ the episode when the task error exceeds ``max_error`` and charges the reward the
 have collected by staying lost forever, ``penalty = r_lost / (1 − γ)`` (γ the training
 discount), so ending early is never a shortcut. It wraps the *training* environments only:
 evaluation, the learning curve and the shipped agent's scores use the unmodified environment.
-The error is read from ``info["joint_error"]`` or ``info["task_error"]`` (rad or m).
+The error is read from ``info["joint_error"]`` or ``info["task_error"]`` (rad or m); with
+``orientation_scale`` s > 0 (both wrappers) the error norm is max(‖e‖, s · θ), θ =
+``info["orientation_error"]`` (rad; RedundantIK7-v4's pose tracking): s = 0.1 m/rad makes
+10 mrad count as 1 mm, the env's success ratio. s = 0 (the default) reads ‖e‖ alone.
 """
 
 from __future__ import annotations
@@ -18,9 +21,36 @@ import gymnasium as gym
 import numpy as np
 
 __all__ = ["EarlyTermination", "LogErrorBonus", "RewardOffset", "check_log_error_bonus",
-           "log_error_bonus"]
+           "error_norm", "log_error_bonus"]
 
 ERROR_KEYS = ("joint_error", "task_error")
+ORIENTATION_KEY = "orientation_error"
+
+
+def _check_scale(orientation_scale: float) -> float:
+    if not np.isfinite(orientation_scale) or orientation_scale < 0:
+        raise ValueError(f"orientation_scale must be finite and >= 0, got {orientation_scale!r}")
+    return float(orientation_scale)
+
+
+def error_norm(info: dict, orientation_scale: float = 0.0, who: str = "shaping") -> float:
+    """‖info[joint_error | task_error]‖, or max(that, s · ‖info["orientation_error"]‖) for
+    ``orientation_scale`` s > 0 (task units: s in m/rad turns radians into metres).
+
+    Raises:
+        KeyError: no error key in ``info`` (or no orientation error while s > 0).
+    """
+    key = next((k for k in ERROR_KEYS if k in info), None)
+    if key is None:
+        raise KeyError(f"{who} needs info[{ERROR_KEYS[0]!r}] or info[{ERROR_KEYS[1]!r}]; got "
+                       f"{sorted(info)}")
+    e = float(np.linalg.norm(info[key]))
+    if orientation_scale > 0:
+        if ORIENTATION_KEY not in info:
+            raise KeyError(f"{who} with orientation_scale > 0 needs info[{ORIENTATION_KEY!r}]; "
+                           f"got {sorted(info)}")
+        e = max(e, orientation_scale * float(np.linalg.norm(info[ORIENTATION_KEY])))
+    return e
 
 
 class EarlyTermination(gym.Wrapper):
@@ -30,9 +60,11 @@ class EarlyTermination(gym.Wrapper):
         env: an environment whose ``info`` has ``joint_error`` or ``task_error`` each step.
         max_error: error norm beyond which the episode is lost (task units).
         penalty: reward added on the terminating step, e.g. −1 / (1 − γ) for rewards ≥ −1.
+        orientation_scale: s ≥ 0; s > 0: the error is max(‖e‖, s · θ) (:func:`error_norm`).
     """
 
-    def __init__(self, env: gym.Env, max_error: float, penalty: float) -> None:
+    def __init__(self, env: gym.Env, max_error: float, penalty: float,
+                 orientation_scale: float = 0.0) -> None:
         super().__init__(env)
         if not np.isfinite(max_error) or max_error <= 0:
             raise ValueError(f"max_error must be > 0, got {max_error!r}")
@@ -40,14 +72,12 @@ class EarlyTermination(gym.Wrapper):
             raise ValueError(f"penalty must be <= 0, got {penalty!r}")
         self.max_error = float(max_error)
         self.penalty = float(penalty)
+        self.orientation_scale = _check_scale(orientation_scale)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        key = next((k for k in ERROR_KEYS if k in info), None)
-        if key is None:
-            raise KeyError(f"early termination needs info[{ERROR_KEYS[0]!r}] or "
-                           f"info[{ERROR_KEYS[1]!r}]; got {sorted(info)}")
-        if not (terminated or truncated) and float(np.linalg.norm(info[key])) > self.max_error:
+        e = error_norm(info, self.orientation_scale, "early termination")
+        if not (terminated or truncated) and e > self.max_error:
             terminated = True
             reward = float(reward) + self.penalty
             info["early_termination"] = True
@@ -76,21 +106,23 @@ class RewardOffset(gym.Wrapper):
         return obs, float(reward) + self.offset, terminated, truncated, info
 
 
-#: ``log_error_bonus`` keys → defaults (JointTracking's following-error limit, 1 mm/1 mrad)
-LOG_ERROR_DEFAULTS = {"weight": 1.0, "max_error": 0.5, "floor": 1e-3}
+#: ``log_error_bonus`` keys → defaults (JointTracking's following-error limit, 1 mm/1 mrad;
+#: orientation_scale 0: the position/joint error alone)
+LOG_ERROR_DEFAULTS = {"weight": 1.0, "max_error": 0.5, "floor": 1e-3, "orientation_scale": 0.0}
 
 
 def check_log_error_bonus(spec: Any) -> dict[str, float]:
-    """``{weight, max_error, floor}`` with defaults filled in, or ValueError saying what is
-    allowed (weight ≥ 0, 0 < floor < max_error, all finite)."""
+    """``{weight, max_error, floor, orientation_scale}`` with defaults filled in, or ValueError
+    saying what is allowed (weight ≥ 0, 0 < floor < max_error, orientation_scale ≥ 0, all
+    finite)."""
     if not isinstance(spec, dict) or set(spec) - set(LOG_ERROR_DEFAULTS):
         raise ValueError(f"log_error_bonus must be a mapping with keys from "
                          f"{sorted(LOG_ERROR_DEFAULTS)}, got {spec!r}")
     out = {k: float(spec.get(k, v)) for k, v in LOG_ERROR_DEFAULTS.items()}
     if not all(np.isfinite(v) for v in out.values()) or out["weight"] < 0 \
-            or not 0 < out["floor"] < out["max_error"]:
-        raise ValueError(f"log_error_bonus needs finite weight >= 0 and 0 < floor < max_error, "
-                         f"got {out}")
+            or not 0 < out["floor"] < out["max_error"] or out["orientation_scale"] < 0:
+        raise ValueError(f"log_error_bonus needs finite weight >= 0, 0 < floor < max_error and "
+                         f"orientation_scale >= 0, got {out}")
     return out
 
 
@@ -111,20 +143,21 @@ class LogErrorBonus(gym.Wrapper):
     of the error, and, being ≥ 0 up to the following-error limit (``max_error`` = 0.5 rad),
     it is also an alive bonus: a stopped episode loses every bonus it does not play (issue
     20's reward review). The error norm is read from ``info["joint_error"]`` or
-    ``info["task_error"]``; evaluation, learning curves and shipped scores use the env's reward.
+    ``info["task_error"]`` (with ``orientation_scale`` s > 0: max(‖e‖, s · θ),
+    :func:`error_norm`); evaluation, learning curves and shipped scores use the env's reward.
     """
 
     def __init__(self, env: gym.Env, weight: float = 1.0, max_error: float = 0.5,
-                 floor: float = 1e-3) -> None:
+                 floor: float = 1e-3, orientation_scale: float = 0.0) -> None:
         super().__init__(env)
         self.spec_ = check_log_error_bonus({"weight": weight, "max_error": max_error,
-                                            "floor": floor})
+                                            "floor": floor,
+                                            "orientation_scale": orientation_scale})
+        self.orientation_scale = self.spec_["orientation_scale"]
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        key = next((k for k in ERROR_KEYS if k in info), None)
-        if key is None:
-            raise KeyError(f"the log-error bonus needs info[{ERROR_KEYS[0]!r}] or "
-                           f"info[{ERROR_KEYS[1]!r}]; got {sorted(info)}")
-        bonus = log_error_bonus(np.linalg.norm(info[key]), **self.spec_)
+        e = error_norm(info, self.orientation_scale, "the log-error bonus")
+        bonus = log_error_bonus(e, self.spec_["weight"], self.spec_["max_error"],
+                                self.spec_["floor"])
         return obs, float(reward) + float(bonus), terminated, truncated, info

@@ -380,7 +380,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     early = hp.get("early_termination")
     if early:  # default penalty: staying lost forever at r = -1 per step
         early = {"max_error": float(early["max_error"]),
-                 "penalty": float(early.get("penalty", -1.0 / (1.0 - gamma)))}
+                 "penalty": float(early.get("penalty", -1.0 / (1.0 - gamma))),
+                 "orientation_scale": float(early.get("orientation_scale", 0.0))}
     log_error = (check_log_error_bonus(hp["log_error_bonus"])
                  if hp.get("log_error_bonus") is not None else None)
     factory = EnvFactory(config["env_id"], config.get("env_kwargs") or {}, layout,

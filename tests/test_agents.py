@@ -6,6 +6,7 @@ import csv
 import json
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -356,6 +357,72 @@ def test_early_termination_ends_a_lost_episode_at_its_full_cost():
     assert info["joint_error"] > 0.1 and reward < -100.0 and steps < 200
     with pytest.raises(ValueError, match="penalty"):
         EarlyTermination(gym.make(ENV, **SHORT), max_error=0.1, penalty=5.0)
+
+
+class _PoseErrorEnv(gym.Env):
+    """Steps report a fixed position error (m) and orientation error (rad), as RedundantIK7-v4."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,))
+
+    def __init__(self, task_error: float, orientation_error: float | None) -> None:
+        self.info = {"task_error": task_error}
+        if orientation_error is not None:
+            self.info["orientation_error"] = orientation_error
+
+    def reset(self, *, seed=None, options=None):
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        return np.zeros(1, np.float32), -0.5, False, False, dict(self.info)
+
+
+def test_shaping_reads_the_orientation_error_with_orientation_scale():
+    """orientation_scale s > 0: the error norm is max(|e|, s * theta), so 0.5 mm of position and
+    0.3 rad of orientation (RedundantIK7-v4's position-only run) is a lost lap at 10 mm / s = 0.1
+    and earns a negative bonus; s = 0 (the default) reads the position alone, as before."""
+    from agents.batched import BatchedTaskObservation
+    from agents.shaping import EarlyTermination, LogErrorBonus, check_log_error_bonus, error_norm
+    from agents.train import EnvFactory
+
+    info = {"task_error": 5e-4, "orientation_error": 0.3}
+    assert error_norm(info) == 5e-4 and error_norm(info, 0.1) == pytest.approx(0.03)
+    assert error_norm({"task_error": 5e-4, "orientation_error": 2e-3}, 0.1) == 5e-4
+    spec = {"weight": 0.5, "max_error": 0.01, "floor": 1e-4}
+    for scale, lost, bonus in ((0.0, False, 0.5 * np.log(20.0)),
+                               (0.1, True, 0.5 * np.log(1.0 / 3.0))):
+        env = EarlyTermination(_PoseErrorEnv(5e-4, 0.3), max_error=0.01, penalty=-50.0,
+                               orientation_scale=scale)
+        env.reset()
+        _, r, terminated, _, info = env.step(np.zeros(1))
+        assert terminated is lost and r == (-50.5 if lost else -0.5)
+        assert info.get("early_termination", False) is lost
+        env = LogErrorBonus(_PoseErrorEnv(5e-4, 0.3), **spec, orientation_scale=scale)
+        env.reset()
+        assert env.step(np.zeros(1))[1] == pytest.approx(-0.5 + bonus)
+    assert check_log_error_bonus(spec)["orientation_scale"] == 0.0  # the default: as before
+    with pytest.raises(KeyError, match="orientation_error"):  # no orientation in the env
+        EarlyTermination(_PoseErrorEnv(5e-4, None), 0.01, -50.0, 0.1).step(np.zeros(1))
+    with pytest.raises(ValueError, match="orientation_scale"):
+        LogErrorBonus(_PoseErrorEnv(5e-4, 0.3), **spec, orientation_scale=-0.1)
+    with pytest.raises(ValueError, match="orientation_scale"):
+        EarlyTermination(_PoseErrorEnv(5e-4, 0.3), 0.01, -50.0, float("nan"))
+    # the hyperparameter files accept it in both terms; the batched env (no orientation) refuses
+    path = Path(__file__).parents[1] / "agents/hyperparams/levers/rik7_et_log_orient.yml"
+    hp = load_hyperparams("ppo", "cir_gym/RedundantIK7-v4", path=path)
+    assert hp["early_termination"]["orientation_scale"] == 0.1
+    assert hp["log_error_bonus"]["orientation_scale"] == 0.1
+    probe = gym.make(ENV, **SHORT)
+    layout = ObservationLayout.from_space(probe.observation_space)
+    factory = EnvFactory(ENV, SHORT, layout, early_termination={"max_error": 0.5, "penalty": -1.0,
+                                                                "orientation_scale": 0.1})
+    with pytest.raises(KeyError, match="orientation_error"):  # JointTracking has none
+        e = factory()
+        e.reset(seed=0)
+        e.step(np.zeros(7))
+    with pytest.raises(ValueError, match="orientation"):
+        stub = SimpleNamespace(num_envs=1, action_space=probe.action_space, render_mode=None)
+        BatchedTaskObservation(stub, layout, None, 0.0, {**spec, "orientation_scale": 0.1})
 
 
 # ---------------------------------------------------------------------- training
