@@ -20,14 +20,13 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from cir_gym.envs.base import TaskContext
+from cir_gym.envs.base import CLIP, TaskContext
 from cir_gym.robot import Robot
 
 __all__ = ["Controller", "InvalidGain", "Observation", "RowDynamics", "check_gain_type"]
 
 Observation = dict[str, np.ndarray]
 
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
 _isfinite = math.isfinite
 _F64 = np.dtype(np.float64)
 
@@ -437,7 +436,7 @@ class Controller:
         flat = actions if batched is False else actions.ravel()
         if not _isfinite(flat.dot(flat)):  # NaN/inf (or an overflow: the exact check decides)
             _check_command(self.name, commands)
-        _CLIP(actions, -1.0, 1.0, actions)  # (into a float32 out=: slower, a casting loop)
+        CLIP(actions, -1.0, 1.0, actions)  # (into a float32 out=: slower, a casting loop)
         return actions.astype(np.float32)  # clipped in float64, then rounded
 
     def __call__(self, observation: Observation) -> np.ndarray:

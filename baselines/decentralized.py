@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from baselines.base import Controller, InvalidGain, Observation
-from cir_gym.envs.base import TaskContext
+from cir_gym.envs.base import CLIP, TaskContext
 from cir_gym.motor import (
     average_inertia,
     joint_torques,
@@ -46,8 +46,6 @@ from cir_gym.motor import (
     motor_torques,
 )
 from cir_gym.robot import Robot
-
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
 
 __all__ = [
     "CascadeGains",
@@ -151,7 +149,7 @@ class _Decentralized(Controller):
         """
         mode = self.gains.anti_windup
         if mode == "back_calculation":
-            excess = _CLIP(command, -self.action_scale, self.action_scale) - command
+            excess = CLIP(command, -self.action_scale, self.action_scale) - command
             state += self.dt * excess / gain
         elif mode == "clamping":
             windup = (np.abs(command) > self.action_scale) & (np.sign(command) == np.sign(error))

@@ -551,8 +551,8 @@ def sharp_floor(renderer: mujoco.Renderer) -> int:
     if renderer in _SHARP_FLOORS:
         return 0
     _SHARP_FLOORS.add(renderer)
-    model = getattr(renderer, "_model", None)
-    context = getattr(renderer, "_mjr_context", None)
+    model = getattr(renderer, "model", None)
+    context = getattr(renderer, "_mjr_context", None)  # no public accessor (mujoco 4.0.0)
     if model is None or context is None:
         return 0
     plane = int(mujoco.mjtGeom.mjGEOM_PLANE)
@@ -580,14 +580,6 @@ def sharp_floor(renderer: mujoco.Renderer) -> int:
     except Exception:  # an optimisation only: the frame is right either way
         return 0
     return len(names)
-
-
-def _sharp_floor_of(env: Any, scene: mujoco.MjvScene) -> None:
-    """:func:`sharp_floor` on ``env``'s frame renderer when ``scene`` is its scene (not the
-    human viewer's)."""
-    renderer = getattr(env, "_renderer", None)
-    if renderer is not None and getattr(renderer, "scene", None) is scene:
-        sharp_floor(renderer)
 
 
 # ---------------------------------------------------------------------------- caption
@@ -811,7 +803,6 @@ def draw_joint_tracking(env: Any, scene: mujoco.MjvScene) -> None:
     Reads ``env.model``, ``env.data``, ``env.robot.qpos_adr``, ``env._ref`` (3, K+1, n) and
     ``env._k``; the flange path (site ``flange``, else ``ee``) is computed once per episode.
     """
-    _sharp_floor_of(env, scene)
     ghost = _ghost(env)
     adr = env.robot.qpos_adr
     ref = env._ref[0]
@@ -856,7 +847,6 @@ def draw_redundant_ik(env: Any, scene: mujoco.MjvScene) -> None:
     halo when the arm comes within 5 cm. Reads ``env._x_ref``, ``env._R_ref``, ``env._k``,
     ``env._q``, ``env.lower``/``upper``, ``env.site``, ``env.task_dim``.
     """
-    _sharp_floor_of(env, scene)
     k = min(env._k, len(env._x_ref) - 1)
     path = _as_3d(env._x_ref)
     add_polyline(scene, path, 0.004, REFERENCE, max_segments=TRACE_SAMPLES)

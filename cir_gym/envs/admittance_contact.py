@@ -11,6 +11,7 @@ from gymnasium import spaces
 
 from cir_gym import rendering
 from cir_gym.envs.base import (
+    CLIP,
     MIN_CONTROL_FREQ,
     InvalidArgument,
     RobotEnv,
@@ -43,7 +44,6 @@ __all__ = [
     "tool_robot",
 ]
 
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 SCENE = ASSETS / "scenes" / "admittance_contact.xml"
 JOINTS = [f"joint{i}" for i in range(1, 8)]
 SITE = "tcp"  # the tool tip: the lowest point of the hemisphere when the tool points down
@@ -705,7 +705,7 @@ class AdmittanceContactEnv(RobotEnv):
                 tau = self.interface.torque(
                     d.qpos[self._qa].copy(), d.qvel[self._da].copy(), (i + 1) / n
                 )
-                if self._simulate(_CLIP(tau, -self.torque_limit, self.torque_limit)):
+                if self._simulate(CLIP(tau, -self.torque_limit, self.torque_limit)):
                     return True, contact
                 wrench[:3] = sd[f0 : f0 + 3]
                 wrench[3:] = sd[t0 : t0 + 3]
@@ -805,7 +805,7 @@ class AdmittanceContactEnv(RobotEnv):
         buf = np.empty(self._obs_size)
         for sl, value in zip(self._obs_slices, values, strict=True):
             buf[sl] = value
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return {key: buf[sl] for key, sl in zip(self._bounds, self._obs_slices, strict=True)}
 
     def measured_contact_wrench(self) -> np.ndarray:

@@ -71,7 +71,9 @@ _SUB = np.subtract
 _MUL = np.multiply
 _EXP = np.exp
 _RINT = np.rint  # np.round(x) with decimals=0 is rint (half to even), without its wrapper
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
+#: numpy's clip ufunc without np.clip's Python wrapper (~4x cheaper on small arrays; the same
+#: values); np.clip itself where numpy has no such private module. The one definition.
+CLIP = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip", np.clip)
 _isfinite = math.isfinite
 _MAX_SPEED_SQ = MAX_JOINT_SPEED**2  # ‖q̇‖² bound of the pre-check in _simulate
 _STATE = int(
@@ -437,7 +439,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             return a, False, 0.0
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
-        return _CLIP(a, -1.0, 1.0, out=a), True, 1.0
+        return CLIP(a, -1.0, 1.0, out=a), True, 1.0
 
     # ------------------------------------------------------------------ physics
     def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:

@@ -12,6 +12,7 @@ from gymnasium import spaces
 from cir_gym import operational_space as osp
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import (
+    CLIP,
     InvalidArgument,
     RobotEnv,
     TaskContext,
@@ -50,7 +51,6 @@ NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-epi
 _ABS, _MAX = np.abs, np.max
 # hot-path ufuncs called directly (np.clip/np.sum add a Python layer over the same loops)
 _EXP, _SUM = np.exp, np.add.reduce
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -675,7 +675,7 @@ class CartesianTrackingEnv(RobotEnv):
         v["quat_ref"][:] = quat_ref
         v["twist_ref"][:] = self._twist_ref[k]
         v["acc_ref"][:] = self._acc_ref[k]
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return v
 
     def controller_context(self) -> TaskContext:

@@ -11,10 +11,10 @@ from gymnasium import spaces
 from cir_gym import trajectories as traj
 from cir_gym.drives import DRIVES, DriveModel, DriveState
 from cir_gym.envs.base import (
-    _CLIP,
     _EXP,
     _RINT,
     _SUM,
+    CLIP,
     InvalidArgument,
     RobotEnv,
     TaskContext,
@@ -591,7 +591,7 @@ class JointTrackingEnv(RobotEnv):
         out = np.empty(self._obs_shape)
         self._measure(out)
         out[2:5] = self._ref[:, k]  # q̄, q̄̇, q̄̈
-        _CLIP(out, self._obs_lo, self._obs_hi, out=out)
+        CLIP(out, self._obs_lo, self._obs_hi, out=out)
         return dict(zip(self._obs_keys, out, strict=False))  # (strict=True: 2 µs more)
 
     def controller_context(self) -> TaskContext:

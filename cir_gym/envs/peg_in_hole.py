@@ -13,7 +13,7 @@ from gymnasium import spaces
 
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, check_number
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
@@ -40,7 +40,6 @@ PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
 STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact counts as stuck
 # hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
 _SUM = np.add.reduce
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip
 _NO_FRAMES = np.zeros((0, 9))
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
@@ -447,7 +446,7 @@ class PegInHoleEnv(RobotEnv):
                 if tau is None:
                     d = self.data
                     ctrl = self.motion.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / skip)
-                    ctrl = _CLIP(ctrl, -self.torque_limit, self.torque_limit)
+                    ctrl = CLIP(ctrl, -self.torque_limit, self.torque_limit)
                 else:
                     ctrl = tau
                 diverged = self._simulate(ctrl)
@@ -617,7 +616,7 @@ class PegInHoleEnv(RobotEnv):
         obs["hole_pos"][:] = self.hole_pos
         obs["hole_quat"][:] = self.hole_quat
         # np.minimum(np.maximum(·, −b), b) of every entry: the clip ufunc (bounds ≠ 0)
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return obs
 
     @staticmethod

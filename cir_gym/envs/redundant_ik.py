@@ -22,7 +22,7 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, check_number
 from cir_gym.metrics import MetricSpec
 from cir_gym.operational_space import align_quat
 from cir_gym.redundancy import (
@@ -37,8 +37,6 @@ from cir_gym.redundancy import (
     walk_self_motion,
 )
 from cir_gym.robot import Robot, robot_path
-
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
 
 __all__ = [
     "REDUNDANT_IK_ENVIRONMENTS",
@@ -719,7 +717,7 @@ class _RedundantIKBase(RobotEnv):
         v["q_lower"][:] = self.lower
         v["q_upper"][:] = self.upper
         v["obstacle"][:] = self._obstacle
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)
         return v
 
     def controller_context(self) -> TaskContext:

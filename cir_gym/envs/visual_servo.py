@@ -22,6 +22,7 @@ from gymnasium import spaces
 from cir_gym import rendering
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import (
+    CLIP,
     GL_DISABLED,
     GL_HELP,
     InvalidArgument,
@@ -35,7 +36,6 @@ from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
-_CLIP = np.clip if not hasattr(np, "_core") else np._core.umath.clip  # the ufunc, no wrapper
 _MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their wrappers
 
 __all__ = [
@@ -656,7 +656,7 @@ class _VisualServoBase(RobotEnv):
         out["features"][:] = self._s_obs.ravel()
         out["features_ref"][:] = self._s_ref.ravel()
         out["q"][:] = self.data.qpos[self.qpos_adr]
-        _CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
         if self.obs_image:
             out["image"] = self._image.copy()
         return out
