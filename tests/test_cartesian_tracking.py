@@ -308,3 +308,20 @@ def test_a_path_that_leaves_the_reachable_workspace_is_drawn_again():
     policy = baselines.make("os_inverse_dynamics", "cir_gym/CartesianTracking-v0")
     episode = evaluate(policy, "cir_gym/CartesianTracking-v0", 1, 1001).episodes[0]
     assert episode.success and episode.metrics["position_rms"] <= 1e-4
+
+
+def test_the_step_observation_equals_the_reset_path_observation() -> None:
+    """With exact encoders ``step`` builds its observation from the flange kinematics it
+    computed on the simulator's MjData (``_obs_exact``); ``_obs`` (reset, quantised encoders)
+    computes it through the nominal Robot. Both must give the same numbers on the same state."""
+    env = gym.make("cir_gym/CartesianTracking-v0", payload_mass=3.0).unwrapped
+    env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        obs = env.step(rng.uniform(-0.3, 0.3, env.action_space.shape))[0]
+        p, R = env._flange_now()
+        exact, reference = env._obs_exact(p, R), env._obs()
+        for key, value in reference.items():
+            np.testing.assert_allclose(exact[key], value, rtol=0, atol=1e-12, err_msg=key)
+            np.testing.assert_allclose(obs[key], value, rtol=0, atol=1e-12, err_msg=key)
+    env.close()
