@@ -25,12 +25,18 @@ class MetricSpec:
         unit: SI unit ("rad", "m", "N m", "" for ratios).
         better: "lower" or "higher".
         description: one line for tables and docstrings.
+        failure_scores_limit: a failed episode scores a fixed limit rather than a measured
+            value (PegInHole's ``insertion_time`` is the time limit when the peg never
+            reaches the goal depth): the value is censored, so a mean over episodes that
+            include failures, or a ratio of two such means, measures the failures, not the
+            metric. The leaderboard leaves such ratios out.
     """
 
     name: str
     unit: str
     better: Literal["lower", "higher"]
     description: str
+    failure_scores_limit: bool = False
 
     def worst(self, values: np.ndarray) -> float:
         """Worst value over episodes (max if lower is better, min otherwise)."""
