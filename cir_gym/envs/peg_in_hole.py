@@ -205,7 +205,13 @@ class PegInHoleEnv(RobotEnv):
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
-        MetricSpec("insertion_time", "s", "lower", "time to the goal depth (time limit if not)"),
+        MetricSpec(
+            "insertion_time",
+            "s",
+            "lower",
+            "time to the goal depth (time limit if not)",
+            failure_scores_limit=True,
+        ),
         MetricSpec("peak_force", "N", "lower", "peak net contact force"),
         MetricSpec("mean_force", "N", "lower", "mean net contact force"),
         MetricSpec("force_impulse", "N s", "lower", "integral of the net contact force"),
