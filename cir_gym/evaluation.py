@@ -37,6 +37,7 @@ __all__ = [
     "EvaluationResult",
     "Policy",
     "batches_exactly",
+    "check_env_interface",
     "evaluate",
     "interface_env_kwargs",
     "metric_specs",
@@ -85,6 +86,63 @@ def interface_env_kwargs(policy: Any, env_kwargs: dict[str, Any]) -> dict[str, A
             f"the environment arguments contradict the policy's action interface: {text}"
         )
     return {**env_kwargs, **interface}
+
+
+_MISSING = object()
+
+
+def _env_interface_value(env: gym.Env, key: str) -> Any:
+    """The value of the interface argument ``key`` that ``env`` was built with: its control
+    rate 1 / ``dt`` for ``control_freq``, else the env's attribute of that name (PegInHole's
+    and AdmittanceContact's ``control``), else the argument given to ``gymnasium.make``
+    (``env.spec.kwargs``); ``_MISSING`` if none says."""
+    base = env.unwrapped
+    if key == "control_freq" and getattr(base, "dt", None):
+        return 1.0 / float(base.dt)
+    value = getattr(base, key, _MISSING)
+    if value is _MISSING and env.spec is not None:
+        value = (env.spec.kwargs or {}).get(key, _MISSING)
+    return value
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return bool(np.isclose(float(a), float(b), rtol=1e-9, atol=0.0))
+    return bool(a == b)
+
+
+def check_env_interface(policy: Any, env: gym.Env) -> None:
+    """Refuse a ready ``env`` whose action interface is not ``policy``'s ``interface_kwargs``.
+
+    :func:`interface_env_kwargs` builds an environment on the policy's interface; an env the
+    caller built may be on another one. Its actions would then be scored at another rate or
+    with another meaning, silently whenever the action shapes agree (a JointTracking agent
+    trained at ``control_freq=100`` on the default 500 Hz env). ``control_freq`` is compared
+    with the env's 1 / ``dt`` (to 1e-9, relative), other keys with the env's attribute or
+    its ``gymnasium.make`` arguments.
+
+    Raises:
+        ValueError: naming each differing argument, the env's value and the policy's.
+    """
+    interface = dict(getattr(policy, "interface_kwargs", None) or {})
+    clash = {}
+    for key, needed in interface.items():
+        has = _env_interface_value(env, key)
+        if has is _MISSING or not _same(has, needed):
+            clash[key] = (has, needed)
+    if clash:
+        name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+        text = "; ".join(
+            f"{k}: the env has "
+            + ("no such argument" if has is _MISSING else f"{k}={has!r}")
+            + f", the policy needs {k}={needed!r}"
+            for k, (has, needed) in clash.items()
+        )
+        raise ValueError(
+            f"the given {name} env is not on the policy's action interface ({text}); build "
+            "it with the policy's interface_kwargs (interface_env_kwargs), or let evaluate "
+            "make it"
+        )
 
 
 @dataclass
@@ -218,7 +276,8 @@ def evaluate(
         seed: seed of the first episode.
         record: keep each episode's trajectory in ``EpisodeResult.trace`` (for plots).
         policy_name: label for tables (default: the policy's ``name`` or class name).
-        env: use this environment instead of making one (``env_kwargs`` must then be empty).
+        env: use this environment instead of making one (``env_kwargs`` must then be empty;
+            it must be on the policy's ``interface_kwargs``: :func:`check_env_interface`).
         batched: None (default): the episodes run batched on ``cir_gym.vector``'s native env
             when the id and ``env_kwargs`` have one and :func:`batches_exactly` holds for the
             policy (the same results as one at a time, faster), else one after the other.
@@ -251,6 +310,8 @@ def evaluate(
         env = make_env(env_id, **env_kwargs)  # no TimeLimit cuts a longer episode
     elif env_kwargs:
         raise ValueError("pass env_kwargs or an env, not both")
+    else:
+        check_env_interface(policy, env)
     specs, primary = metric_specs(env)
     dt = float(getattr(env.unwrapped, "dt", 1.0))  # s per step, for plots
     episodes: list[EpisodeResult] = []

@@ -154,9 +154,9 @@ def test_a_policy_with_the_wrong_action_shape_is_reported_with_the_expected_shap
 
 
 def test_a_policy_is_evaluated_on_its_recorded_action_interface():
-    """An agent trained on the position interface (6 pose increments) is scored there; the
-    torque interface (7 torques) would refuse its actions, and a task that asks for another
-    interface is an error, not silently replaced."""
+    """An agent trained on the position interface (6 pose increments) is scored there; a
+    ready env on the torque interface (7 torques, 500 Hz) is refused naming both, and a task
+    that asks for another interface is an error, not silently replaced."""
 
     class PositionAgent:
         def __init__(self) -> None:
@@ -168,7 +168,11 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
     short = {"episode_duration": 0.05}
     result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, **short)
     assert result.episodes[0].length == 5  # 0.05 s at 100 Hz, not 25 steps at 500 Hz
-    with pytest.raises(ValueError, match=r"expects shape \(7,\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"control: the env has control='torque', the policy needs control='position'; "
+        r"control_freq: the env has control_freq=500",
+    ):
         evaluate(
             PositionAgent(),
             "cir_gym/AdmittanceContact-v0",
@@ -178,6 +182,38 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
         )
     with pytest.raises(ValueError, match=r"control='torque'.*control='position'"):
         evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, control="torque", **short)
+    ready = gym.make(
+        "cir_gym/AdmittanceContact-v0", control="position", control_freq=100.0, **short
+    )
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, env=ready)
+    assert result.episodes[0].length == 5
+
+
+def test_a_given_env_off_the_policys_action_interface_is_an_error_even_when_shapes_agree():
+    """A JointTracking agent recorded at 100 Hz on a ready 500 Hz env: the actions have the
+    env's shape (7 torques), so it used to run at five times its rate without a word."""
+
+    class Agent:
+        def __init__(self, **interface_kwargs) -> None:
+            self.interface_kwargs = interface_kwargs
+
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros(7), state
+
+    with pytest.raises(
+        ValueError,
+        match=r"JointTracking-v1 env is not on the policy's action interface \(control_freq: "
+        r"the env has control_freq=500.0, the policy needs control_freq=100.0\)",
+    ):
+        evaluate(Agent(control_freq=100.0), ENV, 1, 0, env=gym.make(ENV, **SHORT))
+    with pytest.raises(ValueError, match=r"control: the env has no such argument"):
+        agent = Agent(control="position", control_freq=100.0)
+        evaluate(agent, ENV, 1, 0, env=gym.make(ENV, control_freq=100.0, **SHORT))
+    agent = Agent(control_freq=100)  # an int rate is the same rate
+    result = evaluate(agent, ENV, 1, 0, env=gym.make(ENV, control_freq=100.0, **SHORT))
+    assert result.episodes[0].length == 20  # 0.2 s at 100 Hz
+    controller = baselines.make("computed_torque", ENV)  # no interface_kwargs: any env
+    assert evaluate(controller, ENV, 1, 0, env=gym.make(ENV, **SHORT)).episodes[0].length == 100
 
 
 # ---------------------------------------------------------------------- ranking
@@ -250,6 +286,51 @@ def test_the_factor_to_the_best_controller_is_left_out_when_a_value_is_not_posit
     half = _result("agent:ppo", [False], [1e-2], [0.15]).ranked_on("min_manipulability")
     assert "×" not in _summary_cell(zero, best)
     assert "**2×** the best controller's" in _summary_cell(half, best)
+
+
+def _pegs(name: str, successes: list[bool], times: list[float]) -> EvaluationResult:
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+
+    episodes = [
+        EpisodeResult(i, 0.0, 1, s, False, {"insertion_time": t})
+        for i, (s, t) in enumerate(zip(successes, times, strict=True))
+    ]
+    return EvaluationResult(
+        "cir_gym/PegInHole-v0", name, episodes, PegInHoleEnv.metric_specs, "insertion_time"
+    )
+
+
+def test_no_factor_to_the_best_controller_of_censored_insertion_times():
+    """A failed PegInHole episode scores the 12 s time limit: a 0 %-success agent's mean is
+    the limit, and 12 s / 7.85 s "1.53× the best controller's" compared the limit with real
+    insertion times. Such a factor is "–†" with a footnote; a factor of two fully successful
+    rows stays, and so does one of a metric measured in every episode."""
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+    from scripts.leaderboard import NO_FACTOR, _summary_cell, censored_ratio, rl_summary
+
+    spec = next(s for s in PegInHoleEnv.metric_specs if s.name == PegInHoleEnv.primary_metric)
+    assert spec.failure_scores_limit
+    assert not MetricSpec("rms_error", "rad", "lower", "").failure_scores_limit  # the default
+    ctrl = _pegs("hybrid_spiral", [True, True], [7.8, 7.9])
+    never = _pegs("agent:ppo_position", [False, False], [12.0, 12.0])
+    partly = _pegs("agent:residual_ppo_a", [True, False], [9.0, 12.0])
+    always = _pegs("agent:residual_ppo_b", [True, True], [9.0, 9.0])
+    assert censored_ratio(never, ctrl) and censored_ratio(partly, ctrl)
+    assert not censored_ratio(always, ctrl)
+    assert censored_ratio(always, _pegs("ctrl", [True, False], [7.8, 12.0]))  # either side
+    assert _summary_cell(never, ctrl).endswith(f"0 % success), {NO_FACTOR}")
+    assert "×" not in _summary_cell(partly, ctrl)
+    assert "**1.15×** the best controller's" in _summary_cell(always, ctrl)
+
+    summary = rl_summary({"sharp edge": [ctrl, never, partly]})
+    assert summary.count(NO_FACTOR) == 2 and "×" not in summary
+    footnote = summary.splitlines()[-1]
+    assert footnote.startswith("† No factor to the best controller")
+    assert "`insertion_time`" in footnote
+    assert "†" not in rl_summary({"sharp edge": [ctrl, always]})  # no footnote without a "–†"
+    # a 0 %-success row of a metric measured in every episode keeps its factor
+    rms, clik = _result("agent:ppo", [False], [2e-2], [0.1]), _result("clik", [True], [1e-2], [0.3])
+    assert "**2×** the best controller's" in _summary_cell(rms, clik)
 
 
 def test_an_episode_longer_than_the_registered_spec_is_played_in_full():
