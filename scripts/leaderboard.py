@@ -194,8 +194,25 @@ def _best(group: list[EvaluationResult]) -> EvaluationResult | None:
     return rank(finite)[0] if finite else None
 
 
+#: in a summary cell, the factor to the best controller left out (:func:`censored_ratio`)
+NO_FACTOR = "–†"
+
+
+def censored_ratio(r: EvaluationResult, reference: EvaluationResult) -> bool:
+    """Whether the factor of ``r`` to ``reference`` on their primary metric would compare
+    censored values: the metric scores a failed episode at a fixed limit
+    (``MetricSpec.failure_scores_limit``, PegInHole's ``insertion_time``: the time limit) and
+    either mean includes a failed episode. A 0 %-success agent's mean is then the limit
+    itself, and a partly successful one's is pulled towards it: the ratio would measure the
+    failures, not the metric. Other metrics are measured in every episode, so their ratios
+    stand (the success rate is printed beside them)."""
+    spec = r.spec(r.primary_metric)
+    return spec.failure_scores_limit and min(r.success_rate, reference.success_rate) < 1.0
+
+
 def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
-    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse)."""
+    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse);
+    :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`)."""
     if r is None:
         return "–"
     primary = r.primary_metric
@@ -206,7 +223,9 @@ def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None
     )
     if reference is not None:
         c = reference.summary[primary]["mean"]
-        if np.isfinite(c) and c > 0 and s["mean"] > 0:  # a ratio of clearances < 0 says nothing
+        if censored_ratio(r, reference):
+            text += f", {NO_FACTOR}"
+        elif np.isfinite(c) and c > 0 and s["mean"] > 0:  # a ratio of clearances < 0 says nothing
             higher = r.spec(primary).better == "higher"
             factor = c / s["mean"] if higher else s["mean"] / c
             text += f", **{factor:.3g}×** the best controller's"
@@ -216,11 +235,13 @@ def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None
 def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
     """Per variant: the best controller, the best from-scratch agent and the best residual
     agent on the primary metric (mean), with success, worst episode and the factor to the
-    best controller (> 1: worse than it, in the metric's own direction)."""
+    best controller (> 1: worse than it, in the metric's own direction); a footnote under the
+    table when a factor is left out (:func:`censored_ratio`)."""
     lines = [
         "| variant | ranked on | best controller | best from-scratch RL | best residual RL |",
         "|---|---|---|---|---|",
     ]
+    censored: set[str] = set()
     for variant, rows in by_variant.items():
         if not rows:
             continue
@@ -228,16 +249,30 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
         agents_ = [r for r in rows if r.policy_name.startswith("agent:")]
         scratch = _best([r for r in agents_ if "residual" not in r.policy_name])
         residual = _best([r for r in agents_ if "residual" in r.policy_name])
+        for r in (scratch, residual):
+            if r is not None and ctrl is not None and censored_ratio(r, ctrl):
+                censored.add(r.primary_metric)
         lines.append(
             f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(ctrl, None)} | "
             f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
         )
+    notes = []
+    if censored:
+        names = ", ".join(f"`{m}`" for m in sorted(censored))
+        notes = [
+            "",
+            f"{NO_FACTOR[-1]} No factor to the best controller: a failed episode scores {names} "
+            "at a fixed limit (a time: the time limit), not a measured value, and a mean here "
+            "includes failed episodes (at 0 % success it is the limit itself), so the ratio would "
+            "compare the limit with measured values.",
+        ]
     return "\n".join(
         [
             "Controllers vs RL on each variant's primary metric (mean over the same "
             "seeds; best = highest success rate, then the best mean):",
             "",
             *lines,
+            *notes,
         ]
     )
 

@@ -48,6 +48,24 @@ def test_markdown_tables_and_inline_marks_become_html() -> None:
     assert out.count("<tr>") == 3 and "<th>rank</th>" in out and "<td><em>pid</em></td>" in out
 
 
+def test_the_summary_footnote_of_a_left_out_factor_is_a_paragraph_under_its_table() -> None:
+    """rl_summary's "–†" cells and their footnote (a censored insertion time) on the page."""
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+    from cir_gym.evaluation import EpisodeResult, EvaluationResult
+    from scripts.leaderboard import rl_summary
+
+    def result(name: str, success: bool, seconds: float) -> EvaluationResult:
+        episodes = [EpisodeResult(0, 0.0, 1, success, False, {"insertion_time": seconds})]
+        specs = PegInHoleEnv.metric_specs
+        return EvaluationResult("cir_gym/PegInHole-v0", name, episodes, specs, "insertion_time")
+
+    rows = [result("hybrid_spiral", True, 7.8), result("agent:ppo_position", False, 12.0)]
+    out = markdown_to_html(rl_summary({"sharp edge": rows}), "summary")
+    table, after = out.split("</table>", 1)
+    assert "0 % success), –†</td>" in table
+    assert re.search(r"<p>† No factor to the best controller: .*<code>insertion_time</code>", after)
+
+
 def test_gif_round_trip_keeps_the_frames_and_stays_small(tmp_path: Path) -> None:
     from PIL import Image, ImageSequence
 
