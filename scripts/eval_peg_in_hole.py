@@ -21,8 +21,13 @@ from all of it, with the wall time of every run and the CPU cost of one control 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import fcntl
 import json
+import os
+import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -295,7 +300,7 @@ def evaluate_agents(
     agent on the action interface it was trained on (its ``interface_kwargs``: a from-scratch
     agent may act through the position interface). Rows are kept in ``<out>/agents.json``
     (with ``resume``, a row of the same policy, episodes and training steps is reused, so
-    several processes can fill it in parallel); the table of all of them goes to
+    several processes can fill it in parallel: :func:`merge_rows`); the table of all of them goes to
     ``<out>/agents.md``; returns its text."""
     from agents.policy import load_agent, read_config
 
@@ -330,13 +335,55 @@ def evaluate_agents(
         r = summarise(label, kwargs, result)
         r.update(wall_time_s=time.perf_counter() - t0, training=training)
         print(row(r), flush=True)
-        rows = json.loads(store.read_text()) if store.exists() else {}  # others may have added
-        rows[key] = r
-        store.write_text(json.dumps(rows, indent=1))
-    rows = json.loads(store.read_text()) if store.exists() else {}
-    text = agents_table(list(rows.values()))
-    (out / "agents.md").write_text(text)
+        merge_rows(store, {key: r})
+    with locked(out):  # the table of every row so far, not of an older read than another's
+        rows = json.loads(store.read_text()) if store.exists() else {}
+        text = agents_table(list(rows.values()))
+        _replace(out / "agents.md", text)
     return text
+
+
+@contextlib.contextmanager
+def locked(directory: Path) -> Iterator[None]:
+    """Hold an exclusive ``fcntl.flock`` on ``directory`` (blocks until the other holder lets
+    go): the lock of a read-merge-write of a file in it. The directory is locked, not a lock
+    file beside the results, so nothing is left behind in ``results/``; flock is advisory,
+    so only writers that take it (:func:`merge_rows`) are kept apart."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _replace(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` at once: a temporary file beside it, then ``os.replace``, so
+    a reader never sees a half-written file."""
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644  # mkstemp's is 0o600
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def merge_rows(store: Path, new: dict[str, Any]) -> dict[str, Any]:
+    """Add ``new`` (key → row) to the JSON object in ``store`` and return the merged rows.
+
+    The read, the merge and the write hold :func:`locked` on the store's directory, and the
+    file is replaced at once (:func:`_replace`): processes filling ``agents.json`` in parallel
+    keep each other's rows (without the lock, two that read before either wrote lost one).
+    """
+    with locked(store.parent):
+        rows = json.loads(store.read_text()) if store.exists() else {}
+        rows.update(new)
+        _replace(store, json.dumps(rows, indent=1))
+    return rows
 
 
 AGENT_HEADER = (

@@ -168,3 +168,36 @@ def test_train_command_passes_its_hyperparameter_file_on(tmp_path, monkeypatch):
     assert main(argv) == 0
     assert [c["hyperparams_path"] for c in calls] == [hp, None]
     assert calls[0]["out"] == str(tmp_path)
+
+
+# ---------------------------------------------------------------------- scripts/eval_peg_in_hole
+def _merge_many(store: str, worker: int, n: int) -> None:
+    from pathlib import Path
+
+    from scripts.eval_peg_in_hole import merge_rows
+
+    for i in range(n):
+        merge_rows(Path(store), {f"{worker}/{i}": {"worker": worker, "i": i}})
+
+
+def test_parallel_runs_keep_every_row_of_agents_json(tmp_path):
+    """Four processes add 25 rows each to one agents.json: the locked read-merge-write keeps
+    all 100 (the unlocked one lost the rows another process wrote between its read and its
+    write), leaves no temporary file and keeps the file's mode."""
+    import json
+    import multiprocessing
+
+    store = tmp_path / "agents.json"
+    store.write_text(json.dumps({"old": {"kept": True}}))
+    store.chmod(0o644)
+    fork = multiprocessing.get_context("fork")  # the workers only read and write JSON
+    workers = [fork.Process(target=_merge_many, args=(str(store), w, 25)) for w in range(4)]
+    for p in workers:
+        p.start()
+    for p in workers:
+        p.join(120)
+    assert [p.exitcode for p in workers] == [0, 0, 0, 0]
+    rows = json.loads(store.read_text())
+    assert set(rows) == {"old"} | {f"{w}/{i}" for w in range(4) for i in range(25)}
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["agents.json"]
+    assert store.stat().st_mode & 0o777 == 0o644
