@@ -15,7 +15,12 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
   ``cir_gym.evaluation.evaluate(..., seed=EVAL_SEED)`` runs (the same ones every time);
 * ``meta.json``: steps, wall time, steps/s, whether it finished or was interrupted;
 * ``checkpoints/`` (model + VecNormalize every ``checkpoint_freq`` steps, and on Ctrl-C) and
-  ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint.
+  ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint, with the
+  optimiser keys of ``config.yml`` (:data:`RESUME_KEYS`) as they are in the file then: editing
+  ``learning_rate`` there (e.g. ``lin_3.0e-4``) before resuming fine-tunes a run. A linear
+  schedule then runs over the steps of the resumed part only from where it would stand at the
+  resumed step (SB3's progress counts all steps): from ``start · (1 − k / n)`` at step k of n
+  down to 0.
 
 :func:`ship` copies a run's files into ``agents/trained/`` for :func:`agents.load`.
 """
@@ -233,6 +238,10 @@ def _last_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     return model, (vn if vn.exists() else None)
 
 
+#: optimiser keys that a resumed run takes from its (possibly edited) config.yml
+RESUME_KEYS = ("learning_rate", "clip_range", "ent_coef", "n_epochs", "batch_size")
+
+
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
@@ -427,8 +436,9 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
                 raise ValueError(f"checkpoint {model_file} has no VecNormalize statistics")
             venv = VecNormalize.load(str(vn_file), venv)  # our own checkpoint: trusted pickle
             venv.training = True
+        custom = {k: algo_kwargs[k] for k in RESUME_KEYS if k in algo_kwargs}
         model = algo_cls.load(str(model_file), env=venv, device="cpu",
-                              tensorboard_log=str(run_dir / "tb"))
+                              tensorboard_log=str(run_dir / "tb"), custom_objects=custom)
         print(f"resuming {run_dir} from {model_file.name} ({model.num_timesteps} steps)",
               file=sys.stderr)
     else:

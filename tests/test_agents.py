@@ -531,6 +531,31 @@ def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
     assert meta["timesteps"] >= 384 and meta["sessions"] == 2
 
 
+def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path):
+    """Fine-tuning: a learning rate edited in config.yml before resuming is the one trained
+    with (a linear schedule starts where it stands at the resumed step), not the saved one."""
+    import yaml
+    from stable_baselines3 import PPO
+
+    from agents.train import train
+
+    out = tmp_path / "out"
+    shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
+    run = out / "JointTracking-v1" / "ppo"
+    config = yaml.safe_load((run / "config.yml").read_text())
+    assert config["hyperparams"].get("learning_rate", 3e-4) != "lin_1.0e-5"
+    config["hyperparams"]["learning_rate"] = "lin_1.0e-5"
+    (run / "config.yml").write_text(yaml.safe_dump(config, sort_keys=False))
+    steps_before = PPO.load(str(run / "model.zip"), device="cpu").num_timesteps
+    train(ENV, "ppo", out=out, resume=True, timesteps=2 * steps_before, progress_bar=False,
+          verbose=0)
+    model = PPO.load(str(run / "model.zip"), device="cpu")
+    assert repr(model.learning_rate) == "lin_1e-05"
+    # SB3's progress runs over all steps: at the resumed step 1 - k/n = 1/2 of the start
+    assert model.lr_schedule(0.5) == pytest.approx(0.5e-5)
+    assert model.policy.optimizer.param_groups[0]["lr"] < 0.5e-5 + 1e-12
+
+
 def test_ctrl_c_saves_a_checkpoint(tmp_path, monkeypatch):
     from agents import train as train_module
 

@@ -1,0 +1,128 @@
+"""A policy's joint tracking error between its samples: JointTracking at every 1-ms physics step.
+
+    python scripts/eval_intersample.py --agent ppo_100hz [--seed-agent 0] [--controller pd_gravity]
+        [--control-freq 100] [--episodes 10] [--seed 1000] [--set payload_mass=3.0]
+
+JointTracking's metrics read the error at the control instants only. A policy that acts at
+100 Hz holds each torque for 10 physics steps of 1 ms; if its error between those instants
+were much larger than at them (a policy that is exact at the samples and swings between them),
+its RMS error would flatter it against controllers that act at 500 Hz. This script runs the
+policy in its own environment, records the joint positions at the start of every ``mj_step``
+(MuJoCo's control callback, ``mujoco.set_mjcb_control``: the state at t = 0, 1, 2 ... ms) and
+compares them with the same episode's reference evaluated on the 1-ms grid (the reference
+of a ``control_freq=1000`` env reset with the same seed: for ``reference="random"`` the path
+is drawn from the seed independently of the grid). It prints, per episode, the RMS error at
+the control instants (the env's own ``rms_error``) and at every physics step.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+import cir_gym  # noqa: F401  (registers the environments)
+from cir_gym.evaluation import interface_env_kwargs
+
+ENV_ID = "cir_gym/JointTracking-v1"
+
+
+def _value(text: str) -> Any:
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int
+                        ) -> tuple[float, float, int]:
+    """(env rms_error at the control instants, RMS error at every physics step, physics steps).
+
+    The episode is one deterministic rollout of ``policy`` in ``gym.make(ENV_ID, **env_kwargs)``
+    reset with ``seed``; the reference on the 1-ms grid comes from the same seed's reset of a
+    ``control_freq=1000`` env (same other arguments)."""
+    env = gym.make(ENV_ID, **env_kwargs)
+    fine = gym.make(ENV_ID, **{**env_kwargs, "control_freq": 1000.0})
+    fine.reset(seed=seed)
+    ref_fine = fine.unwrapped._ref[0].copy()
+    fine.close()
+    base = env.unwrapped
+    joints = base.robot.qpos_adr
+    qs: list[np.ndarray] = []
+
+    def record(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        if data is base.data:
+            qs.append(data.qpos.copy())
+
+    obs, _ = env.reset(seed=seed)
+    if hasattr(policy, "reset"):
+        policy.reset()
+    if not np.array_equal(ref_fine[0], base._ref[0, 0]):
+        raise RuntimeError("the 1-ms reference does not start where the env's does: the "
+                           "reference is not grid-independent for these arguments")
+    mujoco.set_mjcb_control(record)
+    try:
+        done = False
+        while not done:
+            action = policy.predict(obs, deterministic=True)[0]
+            obs, _, term, trunc, _ = env.step(action)
+            done = term or trunc
+    finally:
+        mujoco.set_mjcb_control(None)
+    metrics = base.episode_metrics()
+    q = np.array(qs)
+    q = q[:, joints]
+    n = min(len(q), len(ref_fine))
+    err = ref_fine[:n] - q[:n]  # (steps, joints): the env's rms_error is over both
+    env.close()
+    return float(metrics["rms_error"]), float(np.sqrt(np.mean(err**2))), n
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    who = ap.add_mutually_exclusive_group(required=True)
+    who.add_argument("--agent", help="a shipped agent's name (agents.available)")
+    who.add_argument("--controller", help="a controller's name (baselines.available)")
+    ap.add_argument("--seed-agent", type=int, default=None, help="the agent's training seed")
+    ap.add_argument("--control-freq", type=float, default=None,
+                    help="the controller's control rate (Hz); an agent uses its recorded one")
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="environment argument (e.g. payload_mass=3.0)")
+    args = ap.parse_args(argv)
+    env_kwargs = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
+    if args.agent:
+        import agents
+
+        policy = agents.load(ENV_ID, args.agent, seed=args.seed_agent)
+        env_kwargs = interface_env_kwargs(policy, env_kwargs)
+        label = f"agent {args.agent}"
+    else:
+        import baselines
+
+        if args.control_freq is not None:
+            env_kwargs["control_freq"] = args.control_freq
+        policy = baselines.make(args.controller, ENV_ID, env_kwargs=env_kwargs)
+        label = f"controller {args.controller}"
+    print(f"{label}, env arguments {env_kwargs}")
+    print("| seed | rms_error at control instants (rad) | RMS error at every 1-ms step (rad) "
+          "| ratio | physics steps |")
+    print("|---|---:|---:|---:|---:|")
+    ratios = []
+    for s in range(args.seed, args.seed + args.episodes):
+        at_samples, every_step, n = physics_rate_errors(policy, env_kwargs, s)
+        ratios.append(every_step / at_samples)
+        print(f"| {s} | {at_samples:.3e} | {every_step:.3e} | {ratios[-1]:.3f} | {n} |")
+    print(f"\nratio (every step / control instants): median {np.median(ratios):.3f}, "
+          f"max {np.max(ratios):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
