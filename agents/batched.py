@@ -28,7 +28,10 @@ from agents.shaping import check_log_error_bonus, log_error_bonus
 __all__ = ["BATCHED_ENVS", "BatchedTaskObservation", "make_batched_vec_env"]
 
 #: env ids with a native batched implementation → what it needs
-BATCHED_ENVS = {"cir_gym/JointTracking-v1": "cir_gym.vector.JointTrackingVectorEnv"}
+BATCHED_ENVS = {
+    "cir_gym/JointTracking-v1": "cir_gym.vector.JointTrackingVectorEnv",
+    "cir_gym/ElasticJointTracking-v2": "cir_gym.vector.ElasticJointTrackingVectorEnv",
+}
 
 
 class BatchedTaskObservation(VecEnv):
@@ -143,9 +146,9 @@ def make_batched_vec_env(
             f"vec_env 'batched' exists for {sorted(BATCHED_ENVS)} only, not "
             f"{key!r}; use vec_env 'dummy'"
         )
-    from cir_gym.vector import JointTrackingVectorEnv, sb3_vec_env
+    from cir_gym.vector import VECTOR_ENVS, sb3_vec_env
 
-    venv = JointTrackingVectorEnv(num_envs=n_envs, nthread=1, **env_kwargs)
+    venv = VECTOR_ENVS[key](num_envs=n_envs, nthread=1, **env_kwargs)
     layout.check_space(venv.single_observation_space)
     flatten = layout.bind(venv.template)
     sb3 = sb3_vec_env(venv)

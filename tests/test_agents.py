@@ -257,26 +257,36 @@ def test_log_error_bonus_pays_each_halving_of_the_error_alike(tmp_path):
     assert load_hyperparams("ppo", ENV, path=path)["log_error_bonus"] == {"weight": 0.5}
 
 
-def test_batched_training_env_matches_the_single_env_stack(tmp_path):
-    """vec_env 'batched': copy i is EnvFactory's env (flat obs + gravity, r + offset) with
-    seed + i, step for step, and a finished episode reports Monitor-style statistics."""
+@pytest.mark.parametrize("env_id, features, kwargs", [
+    (ENV, ["gravity"], {}),
+    ("cir_gym/ElasticJointTracking-v2", [], {}),
+    (ENV, [], {"control_freq": 100.0, "episode_duration": 0.2}),
+])
+def test_batched_training_env_matches_the_single_env_stack(tmp_path, env_id, features, kwargs):
+    """vec_env 'batched': copy i is EnvFactory's env (flat obs [+ gravity], r + offset) with
+    seed + i, step for step, and a finished episode reports Monitor-style statistics; for
+    JointTracking and ElasticJointTracking, at 500 and at 100 Hz."""
     from agents.batched import make_batched_vec_env
     from agents.train import EnvFactory
 
-    probe = gym.make(ENV, **SHORT)
-    layout = ObservationLayout.from_space(probe.observation_space, features=["gravity"])
+    env_kwargs = {**SHORT, **kwargs}
+    probe = gym.make(env_id, **env_kwargs)
+    layout = ObservationLayout.from_space(probe.observation_space, features=features)
     spec = {"weight": 0.5, "max_error": 0.5, "floor": 1e-3}
-    venv = make_batched_vec_env(ENV, SHORT, layout, 3, seed=7, reward_offset=1.0, log_error=spec)
-    singles = [EnvFactory(ENV, SHORT, layout, reward_offset=1.0, log_error=spec)()
+    venv = make_batched_vec_env(env_id, env_kwargs, layout, 3, seed=7, reward_offset=1.0,
+                                log_error=spec)
+    singles = [EnvFactory(env_id, env_kwargs, layout, reward_offset=1.0, log_error=spec)()
                for _ in range(3)]
+    n_act = probe.action_space.shape[0]
+    steps = probe.unwrapped.max_steps
     obs = venv.reset()
     assert obs.shape == (3, layout.size) and venv.observation_space == layout.space()
     for i, e in enumerate(singles):
         np.testing.assert_allclose(obs[i], e.reset(seed=7 + i)[0], atol=1e-6)
     rng = np.random.default_rng(0)
     ret = np.zeros(3)
-    for k in range(50):  # 50 steps: every copy ends (truncated) on the last one
-        a = rng.uniform(-0.05, 0.05, (3, 7)).astype(np.float32)
+    for k in range(steps):  # every copy ends (truncated) on the last step
+        a = rng.uniform(-0.05, 0.05, (3, n_act)).astype(np.float32)
         obs, rew, dones, infos = venv.step(a)
         for i, e in enumerate(singles):
             o, r, term, trunc, _ = e.step(a[i])
