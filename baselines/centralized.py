@@ -66,6 +66,9 @@ class _ModelBased(Controller):
         """τ = B̂(q) q̈ + n̂(q, q̇) of the controller's model."""
         if self.parameters is not None:
             return dynamics.rnea(self.robot.model, q, qd, qdd, parameters=self.parameters)
+        rows = self.row_dynamics()
+        if rows is not None:  # MuJoCo's Newton-Euler, the law's batched path too
+            return rows.newton_euler(q, qd, qdd)
         return self.robot.inertia(q) @ qdd + self.robot.bias(q, qd)
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
@@ -141,9 +144,12 @@ class PDGravity(_ModelBased):
         if rows is None:
             return super().control_batch(obs, state)
         q = obs["q"]
-        return (
-            rows.gravity(q) + self.kp * (obs["q_ref"] - q) + self.kd * (obs["qd_ref"] - obs["qd"])
-        )
+        # ĝ + K_P q̃ + K_D q̃̇ in control's order, the products and sums in place (a·b = b·a)
+        tau = rows.gravity(q)
+        err = obs["q_ref"] - q
+        _ADD(tau, _MUL(err, self.kp, out=err), out=tau)
+        err = obs["qd_ref"] - obs["qd"]
+        return _ADD(tau, _MUL(err, self.kd, out=err), out=tau)
 
 
 # ---------------------------------------------------------------------- computed torque
@@ -187,7 +193,7 @@ class _InverseDynamicsLaw(_ModelBased):
         rows = self.row_dynamics()
         if rows is None:
             return super().control_batch(obs, state)
-        return rows.inverse_dynamics(obs["q"], obs["qd"], self.outer_loop(obs))
+        return rows.newton_euler(obs["q"], obs["qd"], self.outer_loop(obs))
 
 
 class ComputedTorque(_InverseDynamicsLaw):

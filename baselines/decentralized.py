@@ -124,7 +124,7 @@ class _Decentralized(Controller):
         """B̂(q) q̈ + n̂(q, q̇) of the nominal robot for (n,) or rows (N, n) (N m)."""
         rows = self.row_dynamics()
         if rows is not None:
-            return rows.inverse_dynamics(q, qd, qdd)
+            return rows.newton_euler(q, qd, qdd)
         if q.ndim == 1:
             return self.robot.inertia(q) @ qdd + self.robot.bias(q, qd)
         return np.array(
