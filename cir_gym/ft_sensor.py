@@ -167,9 +167,12 @@ class WrenchSensor:
         self.bias = np.array(spec.bias)
         self._std = np.repeat(spec.noise_std, 3)
         self._res = np.repeat(spec.resolution, 3)
-        self._filtered = np.zeros(6)
-        self._line = np.zeros((self.delay_steps + 1, 6))  # ring buffer of filtered values
+        # the filter state and the delay line as Python floats: the recursion runs one physics
+        # step at a time over six numbers, where a numpy call costs more than the arithmetic
+        # (the same IEEE operations: f + (w − f) α, bit for bit)
+        self._f = [0.0] * 6  # the filtered wrench
         self._nline = self.delay_steps + 1
+        self._line: list[tuple[float, ...]] = [(0.0,) * 6] * self._nline  # ring of filtered values
         self._filter = self.alpha < 1.0
         self._noisy = bool(np.any(self._std > 0))
         self._quantised = self._res > 0
@@ -185,6 +188,11 @@ class WrenchSensor:
         """Time between two samples (s)."""
         return self.sample_steps * self.timestep
 
+    @property
+    def _filtered(self) -> np.ndarray:
+        """The low-pass filter's output now (6,) (a copy)."""
+        return np.array(self._f)
+
     def reset(
         self,
         rng: np.random.Generator,
@@ -196,9 +204,9 @@ class WrenchSensor:
         self._rng = rng
         if bias is not None:
             self.bias = np.asarray(bias, dtype=float).reshape(6).copy()
-        w = np.asarray(wrench, dtype=float)
-        self._filtered[:] = w
-        self._line[:] = w
+        w = np.broadcast_to(np.asarray(wrench, dtype=float), (6,))
+        self._f = w.tolist()
+        self._line = [tuple(self._f)] * self._nline
         self._head = 0
         self._count = 0
         self._sample()
@@ -206,47 +214,61 @@ class WrenchSensor:
 
     def update(self, wrench: np.ndarray) -> np.ndarray:
         """Advance one physics step with the true wrench (6,); return the (held) reading."""
-        self._advance(np.asarray(wrench, dtype=float))
+        self._run((np.broadcast_to(np.asarray(wrench, dtype=float), (6,)).tolist(),))
         return self.reading.copy()
 
     def advance(self, wrench: np.ndarray) -> None:
         """:meth:`update` without the copy of the reading it returns (an env's physics loop
         reads :attr:`reading` when it needs it). ``wrench``: a float64 (6,) array, read
         before this returns (a view of MuJoCo's sensordata will do)."""
-        self._advance(wrench)
+        self._run((wrench.tolist(),))
 
     def update_many(self, wrenches: np.ndarray) -> np.ndarray:
         """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
         ((N, 6), oldest first): the same as N calls of :meth:`update`, bit for bit; return the
         reading after the last."""
-        advance = self._advance
-        for w in np.asarray(wrenches, dtype=float):
-            advance(w)
+        self._run(np.asarray(wrenches, dtype=float).reshape(-1, 6).tolist())
         return self.reading.copy()
 
-    def _advance(self, w: np.ndarray) -> None:
-        filtered = self._filtered
-        if self._filter:
-            d = w - filtered
-            d *= self.alpha
-            filtered += d
-        else:  # no filter: exactly the input
-            filtered[:] = w
-        head = self._head + 1
-        if head == self._nline:
-            head = 0
-        self._head = head
-        self._line[head] = filtered
-        self._count += 1
-        if self._count >= self.sample_steps:
-            self._count = 0
-            self._sample()
+    def advance_many(self, wrenches: Any) -> None:
+        """:meth:`update_many` of the rows of ``wrenches`` (a sequence of six floats each,
+        e.g. ``array.tolist()``), without the copy of the reading."""
+        self._run(wrenches)
+
+    def _run(self, rows: Any) -> None:
+        """Advance one physics step per row (six floats), oldest first: filter, delay line,
+        sampling (see the module docstring)."""
+        f0, f1, f2, f3, f4, f5 = self._f
+        alpha, line, nline = self.alpha, self._line, self._nline
+        head, count, steps = self._head, self._count, self.sample_steps
+        filtering = self._filter
+        for w0, w1, w2, w3, w4, w5 in rows:
+            if filtering:  # filtered += (w − filtered) α, entry by entry
+                f0 += (w0 - f0) * alpha
+                f1 += (w1 - f1) * alpha
+                f2 += (w2 - f2) * alpha
+                f3 += (w3 - f3) * alpha
+                f4 += (w4 - f4) * alpha
+                f5 += (w5 - f5) * alpha
+            else:  # no filter: exactly the input
+                f0, f1, f2, f3, f4, f5 = w0, w1, w2, w3, w4, w5
+            head += 1
+            if head == nline:
+                head = 0
+            line[head] = (f0, f1, f2, f3, f4, f5)
+            count += 1
+            if count >= steps:
+                count = 0
+                self._head = head
+                self._sample()
+        self._f = [f0, f1, f2, f3, f4, f5]
+        self._head, self._count = head, count
 
     def _sample(self) -> None:
         oldest = self._head + 1  # the value delay_steps ago
         if oldest == self._nline:
             oldest = 0
-        value = self._line[oldest] + self.bias
+        value = np.array(self._line[oldest]) + self.bias
         if self._noisy:
             value = value + self._std * self._rng.standard_normal(6)
         if self._all_quantised:  # the masked rounding below on every entry, without the masks

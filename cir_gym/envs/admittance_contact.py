@@ -11,12 +11,14 @@ from gymnasium import spaces
 
 from cir_gym import rendering
 from cir_gym.envs.base import (
+    _SUM,
     CLIP,
     MIN_CONTROL_FREQ,
     InvalidArgument,
     RobotEnv,
     TaskContext,
     check_number,
+    index_view,
 )
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
@@ -446,8 +448,10 @@ class AdmittanceContactEnv(RobotEnv):
             int(model.sensor_historyadr[model.sensor(s).id])
             for s in ("ft_force", "ft_torque", "plate_contact")
         ]
-        self._wrenches = np.zeros((self._substeps, 6))
         self._history_index: dict[int, np.ndarray] = {}  # newest ring slot -> value indices
+        # newest ring slot -> (the period's wrenches (n, 6) and contact forces (n, 3) in
+        # MuJoCo's history, oldest first): _read_history's two gathers
+        self._period_index: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         try:
             self.sensor = WrenchSensor(self.sensor_spec, model.opt.timestep)
         except InvalidArgument as exc:  # the only physics-dependent limit: the sample rate
@@ -485,6 +489,14 @@ class AdmittanceContactEnv(RobotEnv):
         self._obs_size = int(ends[-1])
         self._obs_low = np.concatenate([self.observation_space[k].low for k in self._bounds])
         self._obs_high = np.concatenate([self.observation_space[k].high for k in self._bounds])
+        self._obs_items = tuple(zip(self._bounds, self._obs_slices, strict=True))
+        at = dict(self._obs_items)
+        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
+        # the observation's slices that _obs fills (setpoint pose: next to each other, as
+        # the tool's pose is)
+        self._pose_at = slice(at["tool_pos"].start, at["tool_quat"].stop)
+        self._setpoint_at = slice(at["setpoint_pos"].start, at["setpoint_quat"].stop)
+        self._vel_buf = np.zeros(6)  # mj_objectVelocity's [ω; v] of the tcp
         steps = self.max_steps
         self._pos_ref = np.zeros((steps + 1, 3))
         self._vel_ref = np.zeros((steps + 1, 3))
@@ -590,28 +602,33 @@ class AdmittanceContactEnv(RobotEnv):
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        a, _ = self._check_action(action)
-        if self.interface is not None:
-            self.interface.command(a * self.increment_scale, self.dt)
-        d = self.data
+        a = self._check_action_peak(action)[0]
         if self.interface is None:  # one call: the torque is held over the period
             diverged = self._simulate(a * self.torque_limit)
             contact = 0.0 if diverged else self._read_history()
         else:
+            self.interface.command(a * self.increment_scale, self.dt)
             diverged, contact = self._motion_period()
         # fresh poses and velocities for the observation (the stages of mj_forward it needs:
         # contacts and constraint forces stay those of the period's last physics step)
-        m = self.model
+        m, d = self.model, self.data
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_camlight(m, d)
         mujoco.mj_comVel(m, d)
         k = self._k
-        self._k += 1
+        self._k = k1 = k + 1
         touching = contact / self._substeps > CONTACT_THRESHOLD
-        force = self.normal_force()
+        # normal_force() and _path_error_vector() on the views _simulate refreshed
+        _, qpos, qvel = self._views
+        stiffness, damping = self._spring_views
+        x = -qpos[self._slide_qpos]  # compression (m)
+        force = float(
+            stiffness[self._slide_jnt] * x - damping[self._slide_dof] * qvel[self._slide_dof]
+        )
         self._force[k] = force
-        e_t = self._path_error_vector()
+        e = self._pos_ref[min(k1, self.max_steps)] - self._tcp_views[0]
+        e_t = e - (e @ SURFACE_NORMAL) * SURFACE_NORMAL
         path_sq = float(e_t @ e_t)
         self._path[k] = math.sqrt(path_sq)  # = np.linalg.norm(e_t)
         self._touch[k] = touching
@@ -681,15 +698,40 @@ class AdmittanceContactEnv(RobotEnv):
 
     def _read_history(self) -> float:
         """Feed the period's wrenches to the sensor model (oldest first) from MuJoCo's sensor
-        history; return Σ over the period's physics steps of the tool-plate normal force (N)."""
-        values = self._history()
-        out = self._wrenches
-        out[:, :3] = values[0]
-        out[:, 3:] = values[1]
-        self.sensor.update_many(out)
+        history; return Σ over the period's physics steps of the tool-plate normal force (N).
+
+        Two gathers from ``d.history`` with indices built once per ring position: the
+        wrenches (n, 6) as :meth:`_history`'s force and torque rows side by side, and the
+        contact forces (n, 3), the very array :meth:`_history` gives for sensor 2."""
+        hist = self._hist
+        newest = int(hist[self._history_adr[0] + 1])
+        index = self._period_index.get(newest)
+        if index is None:
+            rows = self._history_index.get(newest)
+            if rows is None:
+                self._history()  # builds self._history_index[newest]
+                rows = self._history_index[newest]
+            index = (np.concatenate((rows[0], rows[1]), axis=1), rows[2].copy())
+            self._period_index[newest] = index
+        self.sensor.advance_many(hist[index[0]].tolist())
         # the sensor's net force is the one the plate exerts (−surface_force): n̂ · it = the
         # push along the inward normal
-        return float(self._normal @ values[2].sum(axis=0))
+        return float(self._normal @ _SUM(hist[index[1]], 0))  # = .sum(axis=0)
+
+    def _refresh_views(self, d: mujoco.MjData) -> None:
+        """RobotEnv's views, and those of ``d`` that step and _obs read: the sensor history,
+        the tcp's position and rotation rows, the slide joint's position and velocity."""
+        super()._refresh_views(d)
+        self._hist = d.history
+        self._tcp_views = (d.site_xpos[self._site], d.site_xmat[self._site])
+        m = self.model
+        self._spring_views = (m.jnt_stiffness, m.dof_damping)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        for name in ("_hist", "_tcp_views", "_spring_views"):  # rebuilt on the new MjData
+            state.pop(name, None)
+        return state
 
     def _motion_period(self) -> tuple[bool, float]:
         """The position interface: one _simulate call per physics step, the motion controller's
@@ -777,36 +819,38 @@ class AdmittanceContactEnv(RobotEnv):
         }
 
     def _obs(self) -> dict[str, np.ndarray]:
-        d = self.data
+        """One new flat buffer in the layout of ``_bounds``, filled, clipped once, handed out
+        as views (each step's arrays are new; nothing is shared with the env's state)."""
+        m, d = self.model, self.data
+        _, qpos, qvel = self._data_views()
+        pos, xmat = self._tcp_views
         k = min(self._k, self.max_steps)
-        vel = np.zeros(6)
-        mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
-        pos = d.site_xpos[self._site]
-        quat = _quat(d.site_xmat[self._site])
+        vel = self._vel_buf
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
+        buf = np.empty(self._obs_size)
+        sl = self._obs_slices  # q, qd, tool_pos, tool_quat, tool_vel, tool_angvel, wrench,
+        # f_ref, tool_pos_ref, tool_vel_ref, setpoint_pos, setpoint_quat
+        buf[sl[0]] = qpos[self._q_at]
+        buf[sl[1]] = qvel[self._qd_at]
+        buf[sl[2]] = pos
+        quat = buf[sl[3]]
+        mujoco.mju_mat2Quat(quat, xmat)
+        if not quat[0] >= 0:  # _quat: w ≥ 0
+            np.negative(quat, out=quat)
+        buf[sl[4]] = vel[3:]
+        buf[sl[5]] = vel[:3]
+        buf[sl[6]] = self.sensor.reading
+        buf[sl[7]] = self._f_ref
+        buf[sl[8]] = self._pos_ref[k]
+        buf[sl[9]] = self._vel_ref[k]
         if self.interface is not None:
             sp, sR = self.interface.setpoint_pose()
-            squat = _quat(sR)
+            buf[sl[10]] = sp
+            buf[sl[11]] = _quat(sR)
         else:
-            sp, squat = pos, quat
-        values = (
-            d.qpos[self._qa],
-            d.qvel[self._da],
-            pos,
-            quat,
-            vel[3:],
-            vel[:3],
-            self.sensor.reading,
-            self._f_ref,
-            self._pos_ref[k],
-            self._vel_ref[k],
-            sp,
-            squat,
-        )
-        buf = np.empty(self._obs_size)
-        for sl, value in zip(self._obs_slices, values, strict=True):
-            buf[sl] = value
+            buf[self._setpoint_at] = buf[self._pose_at]
         CLIP(buf, self._obs_low, self._obs_high, out=buf)
-        return {key: buf[sl] for key, sl in zip(self._bounds, self._obs_slices, strict=True)}
+        return {key: buf[s] for key, s in self._obs_items}
 
     def measured_contact_wrench(self) -> np.ndarray:
         """The sensor's reading compensated with the true bias and tool weight (world, (6,))."""
