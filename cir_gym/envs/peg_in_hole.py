@@ -13,7 +13,14 @@ from gymnasium import spaces
 
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.envs.base import (
+    CLIP,
+    InvalidArgument,
+    RobotEnv,
+    TaskContext,
+    check_number,
+    index_view,
+)
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
@@ -289,9 +296,12 @@ class PegInHoleEnv(RobotEnv):
             self.torque_limit.copy() if control == "torque" else self.increment_scale.copy()
         )
         self._window = max(1, round(FORCE_WINDOW / model.opt.timestep))
-        self._recent = np.zeros(self._window)
+        # the force monitor's window: the last _window physics steps' net contact force (N),
+        # Python floats (summed as numpy sums fewer than 8 terms: left to right)
+        self._recent = [0.0] * self._window
         self._slot = 0
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
+        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
         self._tip = model.site("peg_tip").id
         self._ft = model.site("ft_site").id
         self._block = model.body("block").id
@@ -336,8 +346,8 @@ class PegInHoleEnv(RobotEnv):
         self._diverged = False
         self.true_hole_pos = self.hole_pos.copy()
         self.true_hole_R = np.eye(3)
-        self._jacp = np.zeros((3, model.nv))
-        self._jacr = np.zeros((3, model.nv))
+        self._jac = np.zeros((6, model.nv))  # [J_p; J_r] of the peg tip (mj_jacSite)
+        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._cforce = np.zeros(6)
         self._goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
         self._wrench_view: np.ndarray | None = None
@@ -362,7 +372,7 @@ class PegInHoleEnv(RobotEnv):
         self.motion.reset(self._q0)
         R_ws = self.data.site_xmat[self._ft].reshape(3, 3)
         self.ft_sensor.reset(rng, tool_gravity_wrench(geo.PEG_MASS, TOOL_COM, R_ws))
-        self._recent[:] = 0.0
+        self._recent = [0.0] * self._window
         self._slot = 0
         self._k = 0
         self._inserted_at = None
@@ -378,7 +388,7 @@ class PegInHoleEnv(RobotEnv):
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        a, _ = self._check_action(action)
+        a = self._check_action_peak(action)[0]
         diverged, f = self._advance(a)
         k = self._k
         self._k += 1
@@ -390,7 +400,7 @@ class PegInHoleEnv(RobotEnv):
             self._inserted_at = self._k
         over = bool(not diverged and f > self.force_limit)
 
-        to_goal = self.data.site_xpos[self._tip] - self._goal
+        to_goal = self._tip_views[0] - self._goal  # views: set by _simulate
         dist = math.sqrt(float(to_goal.dot(to_goal)))  # = np.linalg.norm: the same dot
         r_dist = -min(dist / GOAL_SCALE, 1.0)
         r_force = -self.force_weight * min(f / self.force_limit, 10.0) ** 2
@@ -447,28 +457,34 @@ class PegInHoleEnv(RobotEnv):
         skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
         peak, diverged = 0.0, False
         advance = self.ft_sensor.advance
+        recent, window, slot = self._recent, self._window, self._slot
+        simulate, d = self._simulate, self.data
         try:
             for i in range(skip):
                 if tau is None:
-                    d = self.data
                     ctrl = self.motion.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / skip)
                     ctrl = CLIP(ctrl, -self.torque_limit, self.torque_limit)
                 else:
                     ctrl = tau
-                diverged = self._simulate(ctrl)
+                diverged = simulate(ctrl)
                 if diverged:
                     break
                 wrench = self._wrench_view  # set by _simulate (None: not contiguous)
                 advance(self._true_wrench() if wrench is None else wrench)
-                self._slot = (self._slot + 1) % self._window
-                if self.data.ncon:
+                slot += 1
+                if slot == window:
+                    slot = 0
+                if d.ncon:
                     f = self._net_contact_force()
-                    self._recent[self._slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
+                    recent[slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
                 else:  # no contact: the net force is zero
-                    self._recent[self._slot] = 0.0
-                peak = max(peak, float(_SUM(self._recent)) / self._window)  # = np.mean
+                    recent[slot] = 0.0
+                # = np.mean: numpy sums fewer than 8 terms from left to right, as sum() does
+                total = sum(recent) if window < 8 else float(_SUM(np.array(recent)))
+                peak = max(peak, total / window)
         finally:
             self.frame_skip = skip
+            self._slot = slot
         return diverged, peak
 
     def _refresh_views(self, d: mujoco.MjData) -> None:
@@ -477,11 +493,18 @@ class PegInHoleEnv(RobotEnv):
         super()._refresh_views(d)
         adr = self._force_adr
         self._wrench_view = d.sensordata[adr : adr + 6] if self._torque_adr == adr + 3 else None
+        self._tip_views = (d.site_xpos[self._tip], d.site_xmat[self._tip])
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         state["_wrench_view"] = None  # rebuilt on the new MjData by _simulate
+        state.pop("_tip_views", None)
+        state["_jacp"] = state["_jacr"] = None  # views of _jac, rebuilt by __setstate__
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
 
     def _true_wrench(self) -> np.ndarray:
         d = self.data
@@ -517,7 +540,8 @@ class PegInHoleEnv(RobotEnv):
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:
         """Tip position in the true hole frame (m)."""
-        return self.true_hole_R.T @ (self.data.site_xpos[self._tip] - self.true_hole_pos)
+        self._data_views()  # (re)builds self._tip_views on a new MjData
+        return self.true_hole_R.T @ (self._tip_views[0] - self.true_hole_pos)
 
     def _depth(self) -> float:
         return float(-self._tip_in_hole()[2])
@@ -539,7 +563,9 @@ class PegInHoleEnv(RobotEnv):
                 side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
         tip = self._tip_in_hole()
         depth = float(-tip[2])
-        two_point = any(float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :])
+        two_point = len(side) > 1 and any(
+            float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :]
+        )
         mu_d = geo.FRICTION * 2 * self.geometry.hole_radius
         v_axis = 0.0
         if two_point:
@@ -600,16 +626,18 @@ class PegInHoleEnv(RobotEnv):
 
     def _obs(self) -> dict[str, np.ndarray]:
         d = self.data
+        _, qpos, qvel = self._data_views()
+        xpos, xmat = self._tip_views
         mujoco.mj_jacSite(self.model, d, self._jacp, self._jacr, self._tip)
-        v = self._jacp @ d.qvel
-        w = self._jacr @ d.qvel
+        vw = self._jac @ qvel  # [J_p q̇; J_r q̇]
+        v, w = vw[:3], vw[3:]
         R_hole = self._R_hole
-        p = R_hole.T @ (d.site_xpos[self._tip] - self.hole_pos)
-        R = R_hole.T @ d.site_xmat[self._tip].reshape(3, 3) @ ALIGNED.T
+        p = R_hole.T @ (xpos - self.hole_pos)
+        R = R_hole.T @ xmat.reshape(3, 3) @ ALIGNED.T
         buf = np.empty(self._obs_size)  # one new buffer per step; the entries are its views
         obs = {key: buf[sl] for key, sl in self._obs_slices}
-        obs["q"][:] = d.qpos[self._qa]
-        obs["qd"][:] = d.qvel[self._da]
+        obs["q"][:] = qpos[self._q_at]
+        obs["qd"][:] = qvel[self._qd_at]
         obs["peg_pos"][:] = p
         quat = obs["peg_quat"]
         mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())  # as _quat: w >= 0
