@@ -20,6 +20,7 @@ from cir_gym.envs.base import (
     check_encoder_resolution,
     check_flag,
     check_number,
+    index_view,
     model_error_arguments,
 )
 from cir_gym.metrics import MetricSpec
@@ -337,15 +338,20 @@ class CartesianTrackingEnv(RobotEnv):
         self._obs_size = self._obs_high.size
         self._obs_keys = tuple(self._obs_slices)
         self._obs_slice_list = list(self._obs_slices.values())
+        self._obs_items = tuple(self._obs_slices.items())
+        at = self._obs_slices
+        self._refs_at = slice(at["x_ref"].start, at["acc_ref"].stop)  # x_ref ... acc_ref
+        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
         self._scales_sq = self.error_scales**2  # the reward's s²
         self._jac = np.zeros((6, self.model.nv))  # mj_jacSite's [J_P; J_O] on self.data
         self._whole = self.model.nv == n and np.array_equal(self._da, np.arange(n))
         self._site_views: tuple[np.ndarray, ...] = ()
         steps = self.max_steps
-        self._x_ref = np.zeros((steps + 1, 3))
-        self._quat_ref = np.zeros((steps + 1, 4))
-        self._twist_ref = np.zeros((steps + 1, 6))
-        self._acc_ref = np.zeros((steps + 1, 6))
+        # the reference, one row per control instant: [p̄ (3), Q̄ (4), [ṗ̄; ω̄] (6), [p̈̄; ω̄̇] (6)],
+        # the observation's last four entries in its order (one copy per step); _x_ref,
+        # _quat_ref, _twist_ref and _acc_ref are views of its columns
+        self._refs = np.zeros((steps + 1, 19))
+        self._ref_views()
         self._pos_err = np.zeros(steps)  # ‖p̄ − p‖ per step (m)
         self._ang_err = np.zeros(steps)  # θ̃ per step (rad)
         self._tau = np.zeros((steps, n))
@@ -427,6 +433,16 @@ class CartesianTrackingEnv(RobotEnv):
             self._twist_ref[k] = J @ qd
             self._acc_ref[k] = J @ qdd + self.robot.jacobian_dot_qdot(self._site, q, qd)
         return qa
+
+    def _ref_views(self) -> None:
+        """The reference's columns of ``self._refs`` (views: what reset writes, step reads)."""
+        refs = self._refs
+        self._x_ref, self._quat_ref = refs[:, 0:3], refs[:, 3:7]
+        self._twist_ref, self._acc_ref = refs[:, 7:13], refs[:, 13:19]
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._ref_views()  # pickled views come back as copies
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -537,15 +553,20 @@ class CartesianTrackingEnv(RobotEnv):
         if self.encoder_resolution > 0:  # the previous measurement, for the velocity estimate
             self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
-        self._k = k + 1
+        self._k = k1 = k + 1
         exact = self.encoder_resolution <= 0  # measured q = true q: one kinematics for both
-        if exact:
+        if exact:  # _errors_at on the flange pose now, its quaternion kept for _obs_exact
             p, R = self._flange_now()
-            e_pos, e_ang = self._errors_at(k + 1, p, R)
+            buf = np.empty(self._obs_size)
+            quat = buf[self._obs_slices["quat"]]
+            mujoco.mju_mat2Quat(quat, R)
+            d = self._x_ref[k1] - p
+            e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
+            e_ang = osp.quat_angle(self._quat_ref[k1].tolist(), quat.tolist())
         else:
-            e_pos, e_ang = self._errors(k + 1)
+            e_pos, e_ang = self._errors(k1)
         self._pos_err[k], self._ang_err[k] = e_pos, e_ang
-        self._speed[k] = _ABS(self._views[2][self._da])  # views: set by _simulate
+        _ABS(self._views[2][self._qd_at], out=self._speed[k])  # views: set by _simulate
         self._sat[k] = peak >= 1.0  # clipped (peak 1), or an entry at ±1
 
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
@@ -582,7 +603,7 @@ class CartesianTrackingEnv(RobotEnv):
             info["episode_metrics"] = metrics
             info["is_success"] = bool(not terminated and self._settled())
         return (
-            (self._obs_exact(p, R) if exact else self._obs()),
+            (self._obs_exact(p, R, buf) if exact else self._obs()),
             reward,
             terminated,
             truncated,
@@ -626,21 +647,32 @@ class CartesianTrackingEnv(RobotEnv):
         res = self.encoder_resolution
         return np.round(q / res) * res if res > 0 else q.copy()
 
-    def _obs_exact(self, x: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
+    def _obs_exact(
+        self, x: np.ndarray, R: np.ndarray, buf: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
         """:meth:`_obs` without encoder quantisation, from the flange pose ``x``, ``R`` (flat)
         that :meth:`_flange_now` computed on ``self.data`` (its Jacobian: mj_jacSite there, the
-        call ``Robot.jacobian`` makes)."""
+        call ``Robot.jacobian`` makes). ``buf``: a new observation buffer whose ``quat``
+        entries already hold ``mju_mat2Quat`` of ``R`` (step computed it for the error)."""
         k = min(self._k, self.max_steps)
-        buf = np.empty(self._obs_size)
-        v = dict(zip(self._obs_keys, [buf[sl] for sl in self._obs_slice_list], strict=True))
+        if buf is None:
+            buf = np.empty(self._obs_size)
+            mujoco.mju_mat2Quat(buf[self._obs_slices["quat"]], R)
+        v = {key: buf[sl] for key, sl in self._obs_items}
         _, qpos, qvel = self._views
         qd = v["qd"]
-        v["q"][:] = qpos[self._qa]
-        qd[:] = qvel[self._da]
+        v["q"][:] = qpos[self._q_at]
+        qd[:] = qvel[self._qd_at]
         jac = self._jac
         mujoco.mj_jacSite(self.model, self.data, jac[:3], jac[3:], self._site)
         np.matmul(jac if self._whole else jac[:, self._da], qd, out=v["twist"])
-        return self._finish_obs(buf, v, k, x, R)
+        v["x"][:] = x
+        quat = v["quat"]
+        if osp.quat_dot(quat.tolist(), self._quat_ref[k].tolist()) < 0.0:  # align_quat
+            np.negative(quat, out=quat)
+        buf[self._refs_at] = self._refs[k]  # x_ref, quat_ref, twist_ref, acc_ref
+        CLIP(buf, self._obs_low, self._obs_high, out=buf)
+        return v
 
     def _obs(self) -> dict[str, np.ndarray]:
         """The observation: one new flat buffer, filled, clipped to the bounds once, handed
