@@ -37,6 +37,9 @@ from cir_gym.robot import ASSETS, Robot
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
 _MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their wrappers
+_MINR, _FMINR = np.minimum.reduce, np.fmin.reduce  # np.min; a min that skips NaN
+_ADDR = np.add.reduce  # ndarray.sum without its wrapper
+_ANY = np.logical_or.reduce  # ndarray.any without its wrapper
 
 __all__ = [
     "VISUAL_SERVO_ENVIRONMENTS",
@@ -226,6 +229,9 @@ class _VisualServoBase(RobotEnv):
         self.robot = Robot(model, [f"joint{i}" for i in range(1, 8)])  # kinematics queries
         self.n = 7
         self.qpos_adr = self.robot.qpos_adr
+        first = int(self.qpos_adr[0])  # the joints' rows of qpos: a slice when consecutive
+        consecutive = np.array_equal(self.qpos_adr, np.arange(first, first + len(self.qpos_adr)))
+        self._q_rows = slice(first, first + len(self.qpos_adr)) if consecutive else self.qpos_adr
         self.lower, self.upper = self.robot.lower.copy(), self.robot.upper.copy()
         self.velocity_limit = self.robot.velocity_limit.copy()
         self.twist_limit = np.array(TWIST_LIMIT)
@@ -233,6 +239,12 @@ class _VisualServoBase(RobotEnv):
         self._flange = self.robot.site_id("flange")
         self._cam_id = model.camera("servo_cam").id
         self._marker_ids = np.array([model.geom(f"marker{i}").id for i in range(4)])
+        # the markers' rows of geom_xpos: a slice (a view) when their ids are consecutive
+        first = int(self._marker_ids[0])
+        consecutive = np.array_equal(self._marker_ids, np.arange(first, first + 4))
+        self._marker_rows = slice(first, first + 4) if consecutive else self._marker_ids
+        self._data_vs: tuple = ()  # views of self.data's arrays, see _camera_views
+        self._projection: tuple = (None, None, None)  # (camera, (f_u, f_v), (c_u, c_v))
         self.model_points = self._model_points()
         self.nominal_camera = Camera.from_fovy(FOVY, IMAGE_WIDTH, IMAGE_HEIGHT)
         self.true_camera = self.nominal_camera
@@ -340,6 +352,8 @@ class _VisualServoBase(RobotEnv):
             m.actuator_forcerange[a] = (-tau, tau)
             m.actuator_forcelimited[a] = 1
         self._act = self.robot.actuator_ids.copy()
+        # every actuator, in order: the control vector is q̇ itself (_ctrl)
+        self._act_all = np.array_equal(self._act, np.arange(m.nu))
         # the joint-limit test's thresholds (step)
         self._low_stop = self.lower + JOINT_MARGIN
         self._high_stop = self.upper - JOINT_MARGIN
@@ -383,22 +397,39 @@ class _VisualServoBase(RobotEnv):
 
         :func:`~cir_gym.vision.optical_pose` and :func:`~cir_gym.vision.project` inlined
         (the same operations: the step's hot path)."""
-        d, cid = self.data, self._cam_id
-        R_c = d.cam_xmat[cid].reshape(3, 3) @ MUJOCO_TO_OPTICAL
-        points = (d.geom_xpos[self._marker_ids] - d.cam_xpos[cid]) @ R_c
-        Z = points[:, 2]
-        if (Z <= 1e-6).any():
+        cam_xmat, cam_xpos, markers = self._camera_views()
+        R_c = cam_xmat @ MUJOCO_TO_OPTICAL
+        points = (markers - cam_xpos) @ R_c
+        Z = points[:, 2:]  # (k, 1)
+        if _FMINR(Z, axis=None) <= 1e-6:  # = (Z <= 1e-6).any(): NaN skipped by both
             return None
         cam = self.true_camera
-        s = np.empty((len(Z), 2))
-        s[:, 0] = cam.cu + cam.fu * points[:, 0] / Z
-        s[:, 1] = cam.cv + cam.fv * points[:, 1] / Z
-        return s
+        if self._projection[0] is not cam:  # the episode's true camera, as (2,) arrays
+            self._projection = (cam, np.array([cam.fu, cam.fv]), np.array([cam.cu, cam.cv]))
+        _, f, c = self._projection
+        return c + f * points[:, :2] / Z  # c + f X / Z per column, in project's order
+
+    def _camera_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cam_xmat (3, 3), cam_xpos (3,)) of the servo camera and the markers' geom_xpos
+        (4, 3) of ``self.data``: views built once per MjData (a pybind property builds a new
+        array on every access), the markers' a copy when their rows are not consecutive."""
+        views = self._data_vs
+        d = self.data
+        if not views or views[0] is not d:
+            cid = self._cam_id
+            views = self._data_vs = (
+                d,
+                d.cam_xmat[cid].reshape(3, 3),
+                d.cam_xpos[cid],
+                d.geom_xpos,
+            )
+        markers = views[3][self._marker_rows]
+        return views[1], views[2], markers
 
     def _in_image(self, s: np.ndarray) -> bool:
         """Every feature (k, 2) inside the true image (``Camera.inside`` of all, one pass;
         NaN is outside)."""
-        lo, hi = s.min(axis=0), s.max(axis=0)
+        lo, hi = _MINR(s, axis=0), _MAXR(s, axis=0)
         cam = self.true_camera
         return bool(
             lo[0] >= -0.5
@@ -521,16 +552,17 @@ class _VisualServoBase(RobotEnv):
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a, _ = self._check_action(action)
-        q = self.data.qpos[self.qpos_adr]  # a copy (index array)
+        qpos, rows = self._data_views()[1], self._q_rows
+        q = qpos[rows].copy()
         qd = self._joint_command(a, q)
         diverged = self._simulate(self._ctrl(qd))
         self._kinematics()
         k = min(self._k, self.max_steps - 1)
         self._k = k + 1
-        q = self.data.qpos[self.qpos_adr]
+        q = qpos[rows].copy()
         s = None if diverged else self._true_features()
         lost = s is None or not self._in_image(s)
-        at_limit = bool((q < self._low_stop).any() or (q > self._high_stop).any())
+        at_limit = bool(_ANY(q < self._low_stop) or _ANY(q > self._high_stop))
         if s is not None:
             self._s_true = s
         detection_failure = self._observe()
@@ -538,7 +570,7 @@ class _VisualServoBase(RobotEnv):
         terminated = diverged or lost or at_limit
         e = float(self._err[self._k])
         kernel = np.exp(-(e**2) / REWARD_SCALES_SQ)
-        r_features = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
+        r_features = -(1.0 - float(_ADDR(kernel)) / kernel.size)  # = np.mean, one reduction
         r_action = -self.action_weight * float(a @ a) / a.size
         # a failure is charged the rest of the episode at the worst feature reward (−1 per
         # step) on top of the penalty, so that ending an episode early never pays
@@ -570,7 +602,7 @@ class _VisualServoBase(RobotEnv):
         """q̇ (7,) from the action: a ⊙ q̇_max, or J⁺ V for a twist V = a ⊙ twist limits."""
         if self.action_kind == "joint_velocity":
             return a * self.velocity_limit
-        if not math.isfinite(q.sum()) and not np.all(np.isfinite(q)):  # a corrupted state:
+        if not math.isfinite(q.dot(q)) and not np.all(np.isfinite(q)):  # a corrupted state:
             return np.zeros(self.n)  # the physics step reports it
         V = a * self.twist_limit
         J = self._moving_jacobian(q)
@@ -588,8 +620,10 @@ class _VisualServoBase(RobotEnv):
         limit = self.model.actuator_ctrlrange[self._act, 1]  # the model's now (tests scale it)
         with np.errstate(all="ignore"):
             ratio = float(_MAXR(_ABS(qd) / limit))  # = np.max(np.abs(qd) / limit)
-        if np.isfinite(ratio) and ratio > 1.0:
+        if math.isfinite(ratio) and ratio > 1.0:
             qd = qd / ratio
+        if self._act_all:  # every actuator, in order
+            return qd.copy()
         ctrl = np.zeros(self.model.nu)
         ctrl[self._act] = qd
         return ctrl
@@ -655,7 +689,7 @@ class _VisualServoBase(RobotEnv):
         out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
         out["features"][:] = self._s_obs.ravel()
         out["features_ref"][:] = self._s_ref.ravel()
-        out["q"][:] = self.data.qpos[self.qpos_adr]
+        out["q"][:] = self._data_views()[1][self._q_rows]
         CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
         if self.obs_image:
             out["image"] = self._image.copy()
@@ -666,7 +700,7 @@ class _VisualServoBase(RobotEnv):
         ``q``: the joint positions now, if the caller has them."""
         d = ((self._s_true - self._s_ref) ** 2).tolist()  # summed in numpy's order
         self._err[k] = math.sqrt((0.0 + sum(0.0 + u + v for u, v in d)) / len(d))
-        p = self._moving_pose(self.data.qpos[self.qpos_adr] if q is None else q)[0]
+        p = self._moving_pose(self._data_views()[1][self._q_rows].copy() if q is None else q)[0]
         p_g, R_g = self._goal_pose
         self._pos[k] = R_g.T @ (p - p_g)
 
@@ -761,6 +795,7 @@ class _VisualServoBase(RobotEnv):
         state = super().__getstate__()
         state["_eye"] = None
         state["_eye_small"] = None
+        state["_data_vs"] = ()  # views would come back as copies, detached from the MjData
         return state
 
     def controller_context(self) -> TaskContext:
