@@ -305,17 +305,9 @@ class RowDynamics:
         matrix-vector product). No passive or constraint forces (``mj_inverse`` would add
         them, and run collision detection to find the constraints).
         """
-        m, d = self.model, self.data
-        qpos, qvel, qacc = self._qpos, self._qvel, self._qacc
         tau = np.empty(q.shape)
         if q.ndim == 1:  # one row, without the row loop
-            qpos[:] = q
-            qvel[:] = qd
-            qacc[:] = qdd
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            mujoco.mj_comVel(m, d)
-            mujoco.mj_rne(m, d, 1, tau)
+            self._newton_euler_row(q, qd, qdd, tau)
         else:
             n = q.shape[-1]
             for q_i, qd_i, qdd_i, t_i in zip(
@@ -325,14 +317,21 @@ class RowDynamics:
                 tau.reshape(-1, n),
                 strict=False,  # (equal lengths)
             ):
-                qpos[:] = q_i
-                qvel[:] = qd_i
-                qacc[:] = qdd_i
-                mujoco.mj_kinematics(m, d)
-                mujoco.mj_comPos(m, d)
-                mujoco.mj_comVel(m, d)
-                mujoco.mj_rne(m, d, 1, t_i)
+                self._newton_euler_row(q_i, qd_i, qdd_i, t_i)
         return _ADD(tau, _MUL(self._armature, qdd), out=tau)
+
+    def _newton_euler_row(
+        self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, out: np.ndarray
+    ) -> None:
+        """M(q) q̈ + c(q, q̇) + g(q) of the rigid bodies (no armature) into ``out``."""
+        m, d = self.model, self.data
+        self._qpos[:] = q
+        self._qvel[:] = qd
+        self._qacc[:] = qdd
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        mujoco.mj_rne(m, d, 1, out)
 
     def _inertia_row(self, q: np.ndarray, qd: np.ndarray, bias: np.ndarray) -> np.ndarray:
         """B̂(q) (a buffer, overwritten by the next call); n̂(q, q̇) into ``bias``."""
