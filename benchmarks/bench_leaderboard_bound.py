@@ -28,17 +28,16 @@ floor`` (the other sections are kept).
 from __future__ import annotations
 
 import argparse
-import copy
 import sys
 import time
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
-from _sections import write_section  # sibling module: the scripts run as files
+from _sections import write_section  # sibling modules: the scripts run as files
+from _tape import PhysicsTape, replay_seconds
 
 sys.path.insert(0, str(Path(__file__).parents[1]))  # scripts.leaderboard, run as a file
 
@@ -47,73 +46,7 @@ from cir_gym.evaluation import evaluate
 
 SECTION = "## Leaderboard at 100 seeds: the physics floor"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
-_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
-
-
-class StepRecorder:
-    """Every ``mj_step`` call made while it records, on any model: MuJoCo's full integration
-    state before the call and its ``nstep``, grouped by episode with a copy of the model as
-    it was then (``with recorder:`` wraps ``mujoco.mj_step``; the physics is unchanged,
-    ``mj_getState`` only reads).
-
-    The copy matters: an env may change its model at ``reset`` (PegInHole moves the hole
-    block, ``randomize`` draws masses or a stiffness), so replaying an early episode on the
-    model of the last one would time other contacts. An episode starts where the simulated
-    time goes back (``reset`` sets it to 0).
-    """
-
-    def __init__(self) -> None:
-        #: (model copy, states, nsteps) per episode of each model, in call order
-        self.calls: list[tuple[mujoco.MjModel, list[np.ndarray], list[int]]] = []
-        self._orig: Callable[..., None] | None = None
-
-    def __enter__(self) -> StepRecorder:
-        orig = self._orig = mujoco.mj_step
-        calls = self.calls
-        current: dict[int, tuple[float, tuple]] = {}  # id(model) → (last time, its entry)
-
-        def recording_step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
-            last = current.get(id(m))
-            if last is None or d.time < last[0]:  # a new episode: the model as it is now
-                entry = (copy.copy(m), [], [])
-                calls.append(entry)
-            else:
-                entry = last[1]
-            state = np.empty(mujoco.mj_stateSize(m, _INTEGRATION))
-            mujoco.mj_getState(m, d, state, _INTEGRATION)
-            entry[1].append(state)
-            entry[2].append(int(nstep))
-            orig(m, d, nstep)
-            current[id(m)] = (d.time, entry)
-
-        mujoco.mj_step = recording_step
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        mujoco.mj_step = self._orig
-
-    def physics_steps(self) -> int:
-        return sum(sum(nsteps) for _, _, nsteps in self.calls)
-
-    def replay_seconds(self, repeat: int) -> float:
-        """CPU seconds of the recorded calls' physics (best of ``repeat``)."""
-        best = np.inf
-        for _ in range(repeat):
-            total = 0.0
-            for m, states, nsteps in self.calls:
-                d = mujoco.MjData(m)
-                calls = list(zip(states, nsteps, strict=True))
-                t0 = time.process_time()
-                for s, n in calls:
-                    mujoco.mj_setState(m, d, s, _INTEGRATION)
-                    mujoco.mj_step(m, d, n)
-                t1 = time.process_time()
-                for s, _n in calls:
-                    mujoco.mj_setState(m, d, s, _INTEGRATION)
-                total += (t1 - t0) - (time.process_time() - t1)
-            best = min(best, total)
-        return float(best)
 
 
 def kinematics_seconds(env_id: str, env_kwargs: dict[str, Any], steps: int, repeat: int) -> float:
@@ -149,7 +82,7 @@ def run_job(
     policy = make_policy(env_id, policy_name, env_kwargs, {})
     # an agent runs on the action interface it was trained on (agents.policy.TrainedAgent)
     env_kwargs = {**env_kwargs, **getattr(policy, "interface_kwargs", {})}
-    recorder = StepRecorder()
+    recorder = PhysicsTape()  # every model's calls, an episode per segment (model copied)
     with recorder:  # the recording is left out of the evaluator's time below
         result = evaluate(
             policy, env_id, episodes, seed, policy_name=policy_name, batched=False, **env_kwargs
@@ -161,7 +94,9 @@ def run_job(
     if env_id in KINEMATIC:
         physics = kinematics_seconds(env_id, env_kwargs, steps, repeat)
     else:
-        physics = recorder.replay_seconds(repeat)
+        physics = min(
+            sum(replay_seconds(segment) for segment in recorder.segments) for _ in range(repeat)
+        )
     return {
         "env_steps": steps,
         "physics_steps": recorder.physics_steps(),

@@ -18,8 +18,9 @@ not timed):
   integration state before every ``mj_step`` call and its ``nstep``; the replay restores each
   state with ``mj_setState`` and steps it, minus the same ``mj_setState`` loop alone). So a
   contact env's physics is timed with its contacts, the way the env pays for them, not on a
-  fresh ``MjData`` in free space. Gymnasium's ``Reacher-v5`` is measured the same way; the
-  table gives each env's overhead / Reacher's overhead.
+  fresh ``MjData`` in free space (``_tape.py``, shared with ``bench_leaderboard_bound.py``).
+  Gymnasium's ``Reacher-v5`` is measured the same way; the table gives each env's overhead /
+  Reacher's overhead.
 - kinematic envs (RedundantIK, RedundantIK7: no dynamics in ``step``): overhead = time of
   ``env.step`` minus ``mj_kinematics + mj_comPos + mj_jacSite`` (the end-effector site), and
   the ratio of that overhead to the same kinematics.
@@ -53,7 +54,8 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 import numpy as np
-from _sections import write_section  # sibling module: the scripts run as files
+from _sections import write_section  # sibling modules: the scripts run as files
+from _tape import PhysicsTape, replay_seconds
 
 import baselines
 import cir_gym
@@ -109,58 +111,6 @@ def step_loop(env: gym.Env, steps: int, count: bool = False) -> Callable[[], flo
     return loop
 
 
-_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
-
-
-class PhysicsTape:
-    """The ``mj_step`` calls made on one model while it is recording: MuJoCo's full
-    integration state (time, qpos, qvel, act, sensor history, warm start, ctrl, applied
-    forces, mocap, ...) before each call, and the call's ``nstep``.
-
-    ``with tape:`` replaces ``mujoco.mj_step`` by a wrapper that records, then calls the
-    original (the physics is unchanged: ``mj_getState`` only reads). :meth:`cut` closes a
-    segment (one timed trial) and notes how many env steps it covered.
-    """
-
-    def __init__(self, model: mujoco.MjModel) -> None:
-        self.model = model
-        self.size = mujoco.mj_stateSize(model, _INTEGRATION)
-        self.segments: list[tuple[np.ndarray, list[int], int]] = []
-        self._states: list[np.ndarray] = []
-        self._nsteps: list[int] = []
-        self._orig: Callable[..., None] | None = None
-
-    def __enter__(self) -> PhysicsTape:
-        orig = self._orig = mujoco.mj_step
-        model, size, states, nsteps = self.model, self.size, self._states, self._nsteps
-
-        def recording_step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
-            if m is model:
-                state = np.empty(size)
-                mujoco.mj_getState(m, d, state, _INTEGRATION)
-                states.append(state)
-                nsteps.append(int(nstep))
-            orig(m, d, nstep)
-
-        mujoco.mj_step = recording_step
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        mujoco.mj_step = self._orig
-
-    def cut(self, env_steps: int) -> None:
-        """Close the calls recorded since the last cut as one segment of ``env_steps`` steps."""
-        states = np.array(self._states).reshape(-1, self.size)
-        self.segments.append((states, list(self._nsteps), env_steps))
-        self._states.clear()
-        self._nsteps.clear()
-
-    def steps_per_env_step(self) -> float:
-        """``mj_step`` physics steps per env step over every segment (the env's frame_skip)."""
-        total = sum(sum(n) for _, n, _ in self.segments)
-        return total / max(1, sum(e for _, _, e in self.segments))
-
-
 def recorded_step_loop(
     env: gym.Env, steps: int, trials: int
 ) -> tuple[Callable[[], float], PhysicsTape]:
@@ -185,24 +135,14 @@ def replay_loop(tape: PhysicsTape, per_mj_step: bool = False) -> Callable[[], fl
     """Seconds of the physics of the tape's next segment (cycling), per env step (or per
     physics step): each recorded state restored with ``mj_setState`` and stepped with its
     ``nstep``, minus the same ``mj_setState`` loop alone, on an own MjData."""
-    model = tape.model
-    data = mujoco.MjData(model)
-    set_state, mj_step = mujoco.mj_setState, mujoco.mj_step
+    data = mujoco.MjData(tape.model)
     turn = [0]
 
     def loop() -> float:
-        states, nsteps, env_steps = tape.segments[turn[0] % len(tape.segments)]
+        segment = tape.segments[turn[0] % len(tape.segments)]
         turn[0] += 1
-        calls = list(zip(states, nsteps, strict=True))
-        t0 = time.process_time()
-        for s, n in calls:
-            set_state(model, data, s, _INTEGRATION)
-            mj_step(model, data, n)
-        t1 = time.process_time()
-        for s, _n in calls:
-            set_state(model, data, s, _INTEGRATION)
-        t2 = time.process_time()
-        return ((t1 - t0) - (t2 - t1)) / (sum(nsteps) if per_mj_step else env_steps)
+        seconds = replay_seconds(segment, data)
+        return seconds / (sum(segment.nsteps) if per_mj_step else segment.env_steps)
 
     return loop
 

@@ -111,7 +111,7 @@ def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
     assert mujoco.mj_step is mj_step  # restored
     assert len(tape.segments) == 2 and all(e == 5 for *_, e in tape.segments)
     assert tape.steps_per_env_step() == u.frame_skip
-    states, nsteps, _ = tape.segments[0]
+    states, nsteps = tape.segments[0].states, tape.segments[0].nsteps
     m, data, recorded = u.model, mujoco.MjData(u.model), mujoco.MjData(u.model)
     full = int(mujoco.mjtState.mjSTATE_INTEGRATION)
     physics = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)  # time, qpos, qvel, act, history, ...
@@ -146,3 +146,30 @@ def test_leaderboard_bound_counts_every_physics_step_of_a_job():
     assert mujoco.mj_step is mj_step
     assert r["env_steps"] == 2 * 25 and r["physics_steps"] == 2 * r["env_steps"]
     assert 0 < r["physics_s"] < r["total_s"]
+
+
+def test_tape_of_every_model_keeps_one_segment_per_episode_with_its_model():
+    """PhysicsTape() (bench_leaderboard_bound's): a segment per episode (time going back),
+    each on a copy of the model as it was then; a replayed segment costs > 0 s."""
+    import gymnasium as gym
+    import mujoco
+    import numpy as np
+
+    sys.path.insert(0, str(BENCH_STEP.parent))
+    from _tape import PhysicsTape, replay_seconds
+
+    env = gym.make("cir_gym/JointTracking-v1")
+    u = env.unwrapped
+    zero = np.zeros(env.action_space.shape, dtype=np.float32)
+    mj_step = mujoco.mj_step
+    with PhysicsTape() as tape:
+        for seed in (0, 1):
+            env.reset(seed=seed)
+            for _ in range(3):
+                env.step(zero)
+    assert mujoco.mj_step is mj_step
+    assert [len(s.states) for s in tape.segments] == [3, 3]
+    assert tape.physics_steps() == 2 * 3 * u.frame_skip
+    assert all(s.model is not u.model for s in tape.segments)  # copies
+    assert replay_seconds(tape.segments[0]) >= 0.0
+    env.close()
