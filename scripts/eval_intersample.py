@@ -1,6 +1,7 @@
 """A policy's joint tracking error between its samples: JointTracking at every 1-ms physics step.
 
-    python scripts/eval_intersample.py --agent ppo_100hz [--seed-agent 0] [--controller pd_gravity]
+    python scripts/eval_intersample.py --agent ppo_100hz [--seed-agent 0]
+    python scripts/eval_intersample.py --controller pd_gravity [--gain omega=53.4 ...]
         [--control-freq 100] [--episodes 10] [--seed 1000] [--set payload_mass=3.0]
 
 JointTracking's metrics read the error at the control instants only. A policy that acts at
@@ -95,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="environment argument (e.g. payload_mass=3.0)")
+    ap.add_argument("--gain", action="append", default=[], metavar="KEY=VALUE",
+                    help="a controller gain (e.g. omega=53.4; tuned gains: results/tuning/)")
     args = ap.parse_args(argv)
     env_kwargs = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
     if args.agent:
@@ -108,8 +111,9 @@ def main(argv: list[str] | None = None) -> int:
 
         if args.control_freq is not None:
             env_kwargs["control_freq"] = args.control_freq
-        policy = baselines.make(args.controller, ENV_ID, env_kwargs=env_kwargs)
-        label = f"controller {args.controller}"
+        gains = {k: float(v) for k, v in (g.split("=", 1) for g in args.gain)}
+        policy = baselines.make(args.controller, ENV_ID, env_kwargs=env_kwargs, **gains)
+        label = f"controller {args.controller} {gains or '(default gains)'}"
     print(f"{label}, env arguments {env_kwargs}")
     print("| seed | rms_error at control instants (rad) | RMS error at every 1-ms step (rad) "
           "| ratio | physics steps |")
