@@ -8,6 +8,7 @@ frequency ω_n and damping ζ gives K_P = ω_n² I, K_D = 2ζω_n I.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -427,7 +428,10 @@ class RobustControl(_InverseDynamicsLaw):
         if e.ndim == 2:
             return np.array([self.robust_term(*row) for row in zip(e, ed, strict=True)])
         z = self.DtQ @ np.concatenate((e, ed))
-        return self.rho * z / max(float(np.linalg.norm(self.weight * z)), self.epsilon)
+        sz = self.weight * z
+        # ‖S z‖ as np.linalg.norm computes it for a vector (sqrt of the dot product), without
+        # its wrapper
+        return self.rho * z / max(math.sqrt(sz.dot(sz)), self.epsilon)
 
     def outer_loop(self, obs: Observation) -> np.ndarray:
         """y = q̄̈ + K_D q̃̇ + K_P q̃ + w (rad/s²), for one observation or rows of them."""
