@@ -628,8 +628,8 @@ class AdmittanceContactEnv(RobotEnv):
         )
         self._force[k] = force
         e = self._pos_ref[min(k1, self.max_steps)] - self._tcp_views[0]
-        e_t = e - (e @ SURFACE_NORMAL) * SURFACE_NORMAL
-        path_sq = float(e_t @ e_t)
+        e_t = e - e.dot(SURFACE_NORMAL) * SURFACE_NORMAL  # ndarray.dot: @'s BLAS dot, cheaper
+        path_sq = float(e_t.dot(e_t))
         self._path[k] = math.sqrt(path_sq)  # = np.linalg.norm(e_t)
         self._touch[k] = touching
         if self._first_contact is None and touching:
@@ -641,7 +641,7 @@ class AdmittanceContactEnv(RobotEnv):
         r_force = -(1.0 - 0.5 * (math.exp(-((err / s) ** 2)) + math.exp(-((5 * err / s) ** 2))))
         r_path = -self.path_weight * (1.0 - math.exp(-path_sq / self.path_scale**2))
         da = a - self._a_prev
-        r_rate = -self.action_rate_weight * float(da @ da) / a.size
+        r_rate = -self.action_rate_weight * float(da.dot(da)) / a.size
         # a stop also costs the rest of the horizon at the worst per-step reward (as the metrics
         # score it): ending the episode early never pays
         rest = (self.max_steps - self._k) * (1.0 + self.path_weight)
@@ -716,7 +716,7 @@ class AdmittanceContactEnv(RobotEnv):
         self.sensor.advance_many(hist[index[0]].tolist())
         # the sensor's net force is the one the plate exerts (−surface_force): n̂ · it = the
         # push along the inward normal
-        return float(self._normal @ _SUM(hist[index[1]], 0))  # = .sum(axis=0)
+        return float(self._normal.dot(_SUM(hist[index[1]], 0)))  # = .sum(axis=0)
 
     def _refresh_views(self, d: mujoco.MjData) -> None:
         """RobotEnv's views, and those of ``d`` that step and _obs read: the sensor history,

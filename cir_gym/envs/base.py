@@ -419,7 +419,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                 f"action must be a numeric array of shape {shape} with values in [-1, 1], "
                 f"got {action!r} (dtype {raw.dtype})"
             )
-        a = raw.astype(np.float64)
+        a = raw.astype(float)  # float64, a new array
         if a.shape != shape:
             if a.size == int(np.prod(shape)) and a.ndim <= 1:
                 a = a.reshape(shape)
@@ -428,7 +428,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                     f"action has shape {a.shape}; this environment expects shape {shape} "
                     f"(values in [-1, 1])"
                 )
-        values = a.ravel().tolist()
+        values = a.tolist() if a.ndim == 1 else a.ravel().tolist()
         # the common case, finite and in range: a finite sum means no NaN/inf (an overflow
         # of finite values only takes the exact path below)
         if values and _isfinite(sum(values)):
@@ -458,6 +458,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         if self._warn_data is not d:  # views of MuJoCo's arrays, rebuilt if data changed
             self._refresh_views(d)
         d_ctrl, d_qpos, d_qvel = self._views
+        warn = self._warn_view
         scratch = self._scratch_state
         mujoco.mj_getState(m, d, scratch, _STATE)
         if _isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
@@ -465,14 +466,12 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         d_ctrl[:] = ctrl
         if qfrc is not None:
             d.qfrc_applied[:] = qfrc
-        warnings_before = (
-            self._warn_view.tobytes() if _UNSTABLE_CONTIGUOUS else self._instability_warnings()
-        )
+        warnings_before = warn.tobytes() if _UNSTABLE_CONTIGUOUS else self._instability_warnings()
         mujoco.mj_step(m, d, self.frame_skip)
         # MuJoCo resets a bad state or zeroes a huge control and counts a warning (the
         # counters only grow, so changed bytes mean a new warning)
         diverged = (
-            self._warn_view.tobytes() != warnings_before
+            warn.tobytes() != warnings_before
             if _UNSTABLE_CONTIGUOUS
             else self._instability_warnings() > warnings_before
         )

@@ -572,9 +572,9 @@ class CartesianTrackingEnv(RobotEnv):
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
         kernel = _EXP(-e_sq / self._scales_sq)
         r_track = -(1.0 - float(_SUM(kernel)) / kernel.size)  # = np.mean, one reduction
-        r_torque = -self.torque_weight * float(a @ a) / self.n
+        r_torque = -self.torque_weight * float(a.dot(a)) / self.n
         da = a - self._a_prev
-        r_rate = -self.action_rate_weight * float(da @ da) / self.n
+        r_rate = -self.action_rate_weight * float(da.dot(da)) / self.n
         r_div = -self.divergence_penalty if diverged else 0.0
         stopped = bool(not diverged and (e_pos > self._limits[0] or e_ang > self._limits[1]))
         r_follow = -self.following_error_penalty if stopped else 0.0

@@ -481,8 +481,8 @@ class JointTrackingEnv(RobotEnv):
         if k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, _, peak = self._check_action_peak(action)
-        tau = a * self.torque_limit  # commanded (the metrics' τ; drive and noise act on it)
-        self._tau[k] = tau
+        # commanded (the metrics' τ; drive and noise act on it), into its row of the record
+        tau = np.multiply(a, self.torque_limit, out=self._tau[k])
         if self._drive_state is not None:  # one period late, with the motor's ripple
             tau = self._drive_state.actuate(tau)
             tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
@@ -492,8 +492,8 @@ class JointTrackingEnv(RobotEnv):
             self._q_meas_prev = self._quantize(self.data.qpos[self._q_at])
         diverged = self._simulate(tau)
         self._k = k1 = k + 1
-        q_err = self._ref[0, k1] - self._views[1][self._q_at]  # views: set by _simulate
-        self._err[k] = q_err
+        # q̄ − q into its row of the record (views: set by _simulate)
+        q_err = np.subtract(self._ref[0, k1], self._views[1][self._q_at], out=self._err[k])
         self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
 
         err_sq = float(q_err.dot(q_err))
