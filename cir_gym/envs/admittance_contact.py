@@ -19,6 +19,9 @@ from cir_gym.envs.base import (
     TaskContext,
     check_number,
     index_view,
+    max_of,
+    mean_of,
+    rms_of,
 )
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
@@ -802,20 +805,20 @@ class AdmittanceContactEnv(RobotEnv):
         f_ref = self._f_ref
         played = self._force[: self._k]
         if self._first_contact is None:
-            rms, loss, path_rms, overshoot = f_ref, 1.0, float(np.sqrt(np.mean(path**2))), 0.0
+            rms, loss, path_rms, overshoot = f_ref, 1.0, rms_of(path), 0.0
         else:
             start = min(self._first_contact + round(self.settle_time / self.dt), end - 1)
             window = force[start:end]
-            rms = float(np.sqrt(np.mean((window - f_ref) ** 2)))
-            loss = float(1.0 - np.mean(touch[start:end]))
-            path_rms = float(np.sqrt(np.mean(path[start:end] ** 2)))
-            overshoot = float(max(np.max(played[self._first_contact :]) - f_ref, 0.0))
+            rms = rms_of(window - f_ref)
+            loss = 1.0 - mean_of(touch[start:end])
+            path_rms = rms_of(path[start:end])
+            overshoot = max(max_of(played[self._first_contact :]) - f_ref, 0.0)
         return {
             "force_rms_error": rms,
             "peak_overshoot": overshoot,
             "contact_loss": loss,
             "path_error": path_rms,
-            "max_force": float(np.max(played)) if played.size else 0.0,
+            "max_force": max_of(played) if played.size else 0.0,
         }
 
     def _obs(self) -> dict[str, np.ndarray]:

@@ -94,6 +94,25 @@ _UNSTABLE_FIRST, _UNSTABLE_LAST = _UNSTABLE_WARNINGS[0], _UNSTABLE_WARNINGS[-1]
 _UNSTABLE_CONTIGUOUS = _UNSTABLE_LAST - _UNSTABLE_FIRST + 1 == len(_UNSTABLE_WARNINGS)
 
 
+def mean_of(x: np.ndarray) -> float:
+    """``float(np.mean(x))`` of a float or bool array of any shape, bit for bit: numpy's own
+    reduction (np.mean sums with ``np.add.reduce`` and divides by the count) without
+    np.mean's Python layers; the episode metrics' hot path."""
+    if x.size == 0 or x.dtype.kind != "f":
+        return float(np.mean(x))
+    return float(_SUM(x, None)) / x.size
+
+
+def rms_of(x: np.ndarray) -> float:
+    """``float(np.sqrt(np.mean(x**2)))``, bit for bit (IEEE sqrt: math's is numpy's)."""
+    return math.sqrt(mean_of(x**2))
+
+
+def max_of(x: np.ndarray) -> float:
+    """``float(np.max(x))`` (over every axis), bit for bit."""
+    return float(_MAX(x, None))
+
+
 def index_view(index: np.ndarray) -> slice | np.ndarray:
     """A slice that selects what the integer array ``index`` selects, when its entries are
     evenly spaced (``qpos[s]`` is then a view: no copy, no fancy-indexing cost), else

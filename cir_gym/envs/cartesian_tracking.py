@@ -21,7 +21,10 @@ from cir_gym.envs.base import (
     check_flag,
     check_number,
     index_view,
+    max_of,
+    mean_of,
     model_error_arguments,
+    rms_of,
 )
 from cir_gym.metrics import MetricSpec
 from cir_gym.robot import (
@@ -629,17 +632,17 @@ class CartesianTrackingEnv(RobotEnv):
         drift = osp.null_space_projector(J, np.linalg.pinv(J)) @ (q - self._q_start)
         speed = self._speed[:k]
         return {
-            "position_rms": float(np.sqrt(np.mean(pos**2))),
-            "orientation_rms": float(np.sqrt(np.mean(ang**2))),
-            "max_position_error": float(np.max(pos)),
-            "max_orientation_error": float(np.max(ang)),
+            "position_rms": rms_of(pos),
+            "orientation_rms": rms_of(ang),
+            "max_position_error": max_of(pos),
+            "max_orientation_error": max_of(ang),
             "final_position_error": float(pos[-1]),
             "final_orientation_error": float(ang[-1]),
-            "rms_torque": float(np.sqrt(np.mean(self._tau[:k] ** 2))),
-            "peak_joint_speed": float(np.max(speed)),
-            "peak_speed_ratio": float(np.max(speed / self.robot.velocity_limit)),
+            "rms_torque": rms_of(self._tau[:k]),
+            "peak_joint_speed": max_of(speed),
+            "peak_speed_ratio": max_of(speed / self.robot.velocity_limit),
             "joint_drift": float(np.linalg.norm(drift)),
-            "saturation": float(np.mean(self._sat[:k])),
+            "saturation": mean_of(self._sat[:k]),
         }
 
     # ------------------------------------------------------------------ observation

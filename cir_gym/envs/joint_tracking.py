@@ -23,7 +23,10 @@ from cir_gym.envs.base import (
     check_flag,
     check_number,
     index_view,
+    max_of,
+    mean_of,
     model_error_arguments,
+    rms_of,
 )
 from cir_gym.metrics import MetricSpec
 from cir_gym.robot import (
@@ -534,9 +537,7 @@ class JointTrackingEnv(RobotEnv):
             info["episode_metrics"] = metrics
             settled = self._err[self._judged_from : max(self._k, self._k_scored)]
             info["is_success"] = bool(
-                not diverged
-                and not stopped
-                and float(np.max(np.abs(settled))) < self.success_threshold
+                not diverged and not stopped and max_of(np.abs(settled)) < self.success_threshold
             )
         return self._obs(), reward, terminated, truncated, info
 
@@ -546,11 +547,11 @@ class JointTrackingEnv(RobotEnv):
         err = self._err[: max(k, self._k_scored)]  # a stopped episode: the whole horizon
         tau = self._tau[:k]
         return {
-            "rms_error": float(np.sqrt(np.mean(err**2))),
-            "max_error": float(np.max(np.abs(err))),
+            "rms_error": rms_of(err),
+            "max_error": max_of(np.abs(err)),
             "final_error": float(np.linalg.norm(err[-1])),
-            "rms_torque": float(np.sqrt(np.mean(tau**2))),
-            "saturation": float(np.mean(self._sat[:k])),
+            "rms_torque": rms_of(tau),
+            "saturation": mean_of(self._sat[:k]),
         }
 
     def draw_task(self, scene: Any) -> None:

@@ -20,6 +20,8 @@ from cir_gym.envs.base import (
     TaskContext,
     check_number,
     index_view,
+    max_of,
+    mean_of,
 )
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
@@ -437,9 +439,9 @@ class PegInHoleEnv(RobotEnv):
         done = self._inserted_at
         return {
             "insertion_time": float((done if done is not None else self.max_steps) * self.dt),
-            "peak_force": float(np.max(force)),
-            "mean_force": float(np.mean(force)),
-            "force_impulse": float(np.sum(force) * self.dt),
+            "peak_force": max_of(force),
+            "mean_force": mean_of(force),
+            "force_impulse": float(_SUM(force)) * self.dt,  # = float(np.sum(force) * dt)
             "final_depth": float(self._depth()),
         }
 
