@@ -458,7 +458,9 @@ class PegInHoleEnv(RobotEnv):
             tau = a * self.torque_limit
         skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
         peak, diverged = 0.0, False
-        advance = self.ft_sensor.advance
+        # the true wrench of every physics step, fed to the sensor model after the loop (one
+        # call; nothing else in the loop reads the sensor or draws from its generator)
+        wrenches: list[list[float]] = []
         recent, window, slot = self._recent, self._window, self._slot
         simulate, d = self._simulate, self.data
         try:
@@ -472,7 +474,7 @@ class PegInHoleEnv(RobotEnv):
                 if diverged:
                     break
                 wrench = self._wrench_view  # set by _simulate (None: not contiguous)
-                advance(self._true_wrench() if wrench is None else wrench)
+                wrenches.append((self._true_wrench() if wrench is None else wrench).tolist())
                 slot += 1
                 if slot == window:
                     slot = 0
@@ -487,6 +489,7 @@ class PegInHoleEnv(RobotEnv):
         finally:
             self.frame_skip = skip
             self._slot = slot
+            self.ft_sensor.advance_many(wrenches)
         return diverged, peak
 
     def _refresh_views(self, d: mujoco.MjData) -> None:
