@@ -635,7 +635,6 @@ class PegInHoleEnv(RobotEnv):
         xpos, xmat = self._tip_views
         mujoco.mj_jacSite(self.model, d, self._jacp, self._jacr, self._tip)
         vw = self._jac @ qvel  # [J_p q̇; J_r q̇]
-        v, w = vw[:3], vw[3:]
         R_hole = self._R_hole
         p = R_hole.T @ (xpos - self.hole_pos)
         R = R_hole.T @ xmat.reshape(3, 3) @ ALIGNED.T
@@ -645,12 +644,11 @@ class PegInHoleEnv(RobotEnv):
         obs["qd"][:] = qvel[self._qd_at]
         obs["peg_pos"][:] = p
         quat = obs["peg_quat"]
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())  # as _quat: w >= 0
+        mujoco.mju_mat2Quat(quat, R.ravel())  # as _quat: w >= 0 (R: a new C-ordered array)
         if quat[0] < 0:
             np.negative(quat, out=quat)
-        twist = obs["peg_twist"]
-        twist[:3] = R_hole.T @ v
-        twist[3:] = R_hole.T @ w
+        # [R_holeᵀ v; R_holeᵀ ω] as the rows of [v; ω] (2, 3) times R_hole: one matmul
+        np.matmul(vw.reshape(2, 3), R_hole, out=obs["peg_twist"].reshape(2, 3))
         obs["wrench"][:] = self.ft_sensor.reading
         obs["hole_pos"][:] = self.hole_pos
         obs["hole_quat"][:] = self.hole_quat
