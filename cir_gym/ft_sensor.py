@@ -237,11 +237,17 @@ class WrenchSensor:
 
     def _run(self, rows: Any) -> None:
         """Advance one physics step per row (six floats), oldest first: filter, delay line,
-        sampling (see the module docstring)."""
+        sampling (see the module docstring).
+
+        Only the last sample of the rows is computed: the earlier ones would be replaced
+        before anyone reads :attr:`reading`. Their noise is still drawn, all at once (the
+        generator's stream is the same as sample by sample: nothing else draws in between).
+        """
         f0, f1, f2, f3, f4, f5 = self._f
         alpha, line, nline = self.alpha, self._line, self._nline
         head, count, steps = self._head, self._count, self.sample_steps
         filtering = self._filter
+        samples, held = 0, None
         for w0, w1, w2, w3, w4, w5 in rows:
             if filtering:  # filtered += (w − filtered) α, entry by entry
                 f0 += (w0 - f0) * alpha
@@ -259,18 +265,25 @@ class WrenchSensor:
             count += 1
             if count >= steps:
                 count = 0
-                self._head = head
-                self._sample()
+                samples += 1
+                oldest = head + 1  # the value delay_steps ago
+                held = line[0 if oldest == nline else oldest]
         self._f = [f0, f1, f2, f3, f4, f5]
         self._head, self._count = head, count
+        if held is not None:
+            self._sample(held, samples)
 
-    def _sample(self) -> None:
-        oldest = self._head + 1  # the value delay_steps ago
-        if oldest == self._nline:
-            oldest = 0
-        value = np.array(self._line[oldest]) + self.bias
+    def _sample(self, held: tuple[float, ...] | None = None, draws: int = 1) -> None:
+        """Set :attr:`reading` from the delayed filtered value ``held`` (default: the one
+        ``delay_steps`` ago now), the last of ``draws`` samples (the noise of the others is
+        drawn and discarded, as their readings were overwritten)."""
+        if held is None:
+            oldest = self._head + 1
+            held = self._line[0 if oldest == self._nline else oldest]
+        value = np.array(held) + self.bias
         if self._noisy:
-            value = value + self._std * self._rng.standard_normal(6)
+            noise = self._rng.standard_normal(6 * draws)
+            value = value + self._std * (noise[-6:] if draws > 1 else noise)
         if self._all_quantised:  # the masked rounding below on every entry, without the masks
             res = self._res
             value = _RINT(value / res) * res
