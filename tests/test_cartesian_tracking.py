@@ -325,3 +325,28 @@ def test_the_step_observation_equals_the_reset_path_observation() -> None:
             np.testing.assert_allclose(exact[key], value, rtol=0, atol=1e-12, err_msg=key)
             np.testing.assert_allclose(obs[key], value, rtol=0, atol=1e-12, err_msg=key)
     env.close()
+
+
+@pytest.mark.parametrize("clone", ["pickle", "deepcopy"])
+def test_a_copied_env_resets_and_steps_like_the_original(clone: str) -> None:
+    """The reference lives in one array whose columns _x_ref, _quat_ref, ... are views (the
+    observation copies one row); a pickled or deep-copied env rebuilds those views, so what a
+    reset writes into them is what the next observations read."""
+    import copy
+    import pickle
+
+    env = gym.make("cir_gym/CartesianTracking-v0").unwrapped
+    env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        env.step(rng.uniform(-0.2, 0.2, 7))
+    other = pickle.loads(pickle.dumps(env)) if clone == "pickle" else copy.deepcopy(env)
+    assert np.shares_memory(other._x_ref, other._refs)
+    for e in (env, other):
+        e.reset(seed=7)
+    for _ in range(5):
+        a = rng.uniform(-0.2, 0.2, 7)
+        (o1, r1, *_), (o2, r2, *_) = env.step(a), other.step(a)
+        assert r1 == r2
+        for key in o1:
+            np.testing.assert_array_equal(o1[key], o2[key], err_msg=key)

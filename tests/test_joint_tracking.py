@@ -838,3 +838,19 @@ def test_predict_still_names_a_non_finite_observation_and_command():
     policy.robot.model.opt.gravity[2] = np.inf  # a model that yields an infinite torque
     with pytest.raises(FloatingPointError, match="non-finite command"):
         policy.predict(rows[0])
+
+
+def test_metric_reductions_are_numpys_bit_for_bit() -> None:
+    """base.mean_of / rms_of / max_of (the episode metrics' reductions without numpy's Python
+    wrappers) give exactly float(np.mean), float(np.sqrt(np.mean(x**2))), float(np.max)."""
+    from cir_gym.envs.base import max_of, mean_of, rms_of
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 8, 9, 100, 2001):
+        for shape in ((n,), (n, 7)):
+            x = rng.normal(size=shape) * 10.0 ** rng.uniform(-6, 3)
+            assert mean_of(x) == float(np.mean(x))
+            assert rms_of(x) == float(np.sqrt(np.mean(x**2)))
+            assert max_of(x) == float(np.max(x))
+        flags = rng.uniform(size=n) < 0.3
+        assert mean_of(flags) == float(np.mean(flags))
