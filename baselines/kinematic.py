@@ -524,23 +524,40 @@ class NullSpaceCLIK(CLIK):
             e = (p0 - p)[: self.pos_dim]
             if self.task_dim == 6:
                 e = np.concatenate((e, orientation_error(R0, R)))
-            return x + pseudo_inverse(self.task_jacobian(x)) @ e
+            return x + pseudo_inverse(jacobian(x)) @ e
+
+        # J and the limit margin of a posture, computed once per search: the walk takes J at
+        # each posture it reaches (for the null vector) and the margin of each in its stop
+        # test, and the search asks for both again (the same bytes give the same numbers)
+        jacobians: dict[bytes, np.ndarray] = {}
+        margins: dict[bytes, float] = {}
+
+        def jacobian(x: np.ndarray) -> np.ndarray:
+            key = x.tobytes()
+            J = jacobians.get(key)
+            if J is None:
+                J = jacobians[key] = self.task_jacobian(x)
+            return J
 
         def margin(x: np.ndarray) -> float:
-            return joint_limit_margin(x, lower, upper)
+            key = x.tobytes()
+            m = margins.get(key)
+            if m is None:
+                m = margins[key] = joint_limit_margin(x, lower, upper)
+            return m
 
         def stop(x: np.ndarray, x_next: np.ndarray) -> bool:
             return margin(x_next) < min(g.search_margin, margin(x))
 
-        w_here = self.manipulability(q) if margin(q) >= g.search_margin else -np.inf
+        w_here = manipulability(jacobian(q)) if margin(q) >= g.search_margin else -np.inf
         best, s_best = w_here, 0.0
-        for s, x in walk_self_motion(q, self.task_jacobian, restore_pose, stop,
+        for s, x in walk_self_motion(q, jacobian, restore_pose, stop,
                                      g.search_arc, g.search_step):
-            if margin(x) >= g.search_margin and (w := self.manipulability(x)) > best:
+            if margin(x) >= g.search_margin and (w := manipulability(jacobian(x))) > best:
                 best, s_best = w, s
         if np.isfinite(w_here) and best < (1 + SEARCH_HYSTERESIS) * w_here:
             s_best = 0.0
-        return s_best, null_vector(self.task_jacobian(q))
+        return s_best, null_vector(jacobian(q))
 
     def preferred_velocity(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """q̇₀ (n,), rad/s: the objective's gradient, or the pull k_search s* v towards the
