@@ -461,8 +461,9 @@ def main(argv: list[str] | None = None) -> int:
             "last column is a batched row's cost over a single call's (< 1: batching pays). "
             "The joint-space laws (decentralized, `pd_gravity`, `computed_torque`, `robust`) "
             "set `vectorized`: their law runs on all rows at once, the model calls "
-            "(`baselines.base.RowDynamics`: the calls of `Robot.gravity`/`inertia`/`bias` on "
-            "an own MjData) row by row; the others run `control` row by row.",
+            "(`baselines.base.RowDynamics` on an own MjData: ĝ by `Robot.gravity`'s calls, "
+            "B̂ q̈ + n̂ by `mj_rne` with q̈ plus the armature's term) row by row; the others run "
+            "`control` row by row.",
             "",
             *ctrl_rows,
             "",
