@@ -1,6 +1,6 @@
-"""A policy's joint tracking error between its samples: JointTracking at every 1-ms physics step.
+"""A policy's joint tracking error between its samples: at every physics step (JointTracking).
 
-    python scripts/eval_intersample.py --agent ppo_100hz [--seed-agent 0]
+    python scripts/eval_intersample.py [--env ID] --agent ppo_100hz [--seed-agent 0]
     python scripts/eval_intersample.py --controller pd_gravity [--gain omega=53.4 ...]
         [--control-freq 100] [--episodes 10] [--seed 1000] [--set payload_mass=3.0]
 
@@ -10,15 +10,17 @@ were much larger than at them (a policy that is exact at the samples and swings 
 its RMS error would flatter it against controllers that act at 500 Hz. This script runs the
 policy in its own environment, records the joint positions at the start of every ``mj_step``
 (MuJoCo's control callback, ``mujoco.set_mjcb_control``: the state at t = 0, 1, 2 ... ms) and
-compares them with the same episode's reference evaluated on the 1-ms grid (the reference
-of a ``control_freq=1000`` env reset with the same seed: for ``reference="random"`` the path
-is drawn from the seed independently of the grid). It prints, per episode, the RMS error at
+compares them with the same episode's reference evaluated on the physics grid (the reference
+of an env with ``control_freq`` = 1 / timestep — 1 kHz on JointTracking, 2 kHz on
+ElasticJointTracking — reset with the same seed: for ``reference="random"`` the path is drawn
+from the seed independently of the grid). It prints, per episode, the RMS error at
 the control instants (the env's own ``rms_error``) and at every physics step.
 """
 
 from __future__ import annotations
 
 import argparse
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -29,6 +31,7 @@ import cir_gym  # noqa: F401  (registers the environments)
 from cir_gym.evaluation import interface_env_kwargs
 
 ENV_ID = "cir_gym/JointTracking-v1"
+ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
 
 
 def _value(text: str) -> Any:
@@ -40,15 +43,18 @@ def _value(text: str) -> Any:
     return text
 
 
-def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int
-                        ) -> tuple[float, float, int]:
+def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int,
+                        env_id: str = ENV_ID) -> tuple[float, float, int]:
     """(env rms_error at the control instants, RMS error at every physics step, physics steps).
 
-    The episode is one deterministic rollout of ``policy`` in ``gym.make(ENV_ID, **env_kwargs)``
-    reset with ``seed``; the reference on the 1-ms grid comes from the same seed's reset of a
-    ``control_freq=1000`` env (same other arguments)."""
-    env = gym.make(ENV_ID, **env_kwargs)
-    fine = gym.make(ENV_ID, **{**env_kwargs, "control_freq": 1000.0})
+    The episode is one deterministic rollout of ``policy`` in ``gym.make(env_id, **env_kwargs)``
+    reset with ``seed``; the reference on the physics grid comes from the same seed's reset of
+    an env with ``control_freq`` = 1 / timestep (same other arguments)."""
+    env = gym.make(env_id, **env_kwargs)
+    rate = 1.0 / env.unwrapped.model.opt.timestep
+    with warnings.catch_warnings():  # its episode has more steps than the registered limit
+        warnings.simplefilter("ignore")
+        fine = gym.make(env_id, **{**env_kwargs, "control_freq": rate})
     fine.reset(seed=seed)
     ref_fine = fine.unwrapped._ref[0].copy()
     fine.close()
@@ -64,7 +70,7 @@ def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int
     if hasattr(policy, "reset"):
         policy.reset()
     if not np.array_equal(ref_fine[0], base._ref[0, 0]):
-        raise RuntimeError("the 1-ms reference does not start where the env's does: the "
+        raise RuntimeError("the physics-rate reference does not start where the env's does: the "
                            "reference is not grid-independent for these arguments")
     mujoco.set_mjcb_control(record)
     try:
@@ -86,6 +92,7 @@ def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--env", default=ENV_ID, choices=ENVS)
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--agent", help="a shipped agent's name (agents.available)")
     who.add_argument("--controller", help="a controller's name (baselines.available)")
@@ -103,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.agent:
         import agents
 
-        policy = agents.load(ENV_ID, args.agent, seed=args.seed_agent)
+        policy = agents.load(args.env, args.agent, seed=args.seed_agent)
         env_kwargs = interface_env_kwargs(policy, env_kwargs)
         label = f"agent {args.agent}"
     else:
@@ -112,15 +119,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.control_freq is not None:
             env_kwargs["control_freq"] = args.control_freq
         gains = {k: float(v) for k, v in (g.split("=", 1) for g in args.gain)}
-        policy = baselines.make(args.controller, ENV_ID, env_kwargs=env_kwargs, **gains)
+        policy = baselines.make(args.controller, args.env, env_kwargs=env_kwargs, **gains)
         label = f"controller {args.controller} {gains or '(default gains)'}"
     print(f"{label}, env arguments {env_kwargs}")
-    print("| seed | rms_error at control instants (rad) | RMS error at every 1-ms step (rad) "
+    print("| seed | rms_error at control instants (rad) | RMS error at every physics step (rad) "
           "| ratio | physics steps |")
     print("|---|---:|---:|---:|---:|")
     ratios = []
     for s in range(args.seed, args.seed + args.episodes):
-        at_samples, every_step, n = physics_rate_errors(policy, env_kwargs, s)
+        at_samples, every_step, n = physics_rate_errors(policy, env_kwargs, s, args.env)
         ratios.append(every_step / at_samples)
         print(f"| {s} | {at_samples:.3e} | {every_step:.3e} | {ratios[-1]:.3f} | {n} |")
     print(f"\nratio (every step / control instants): median {np.median(ratios):.3f}, "
