@@ -854,3 +854,26 @@ def test_metric_reductions_are_numpys_bit_for_bit() -> None:
             assert max_of(x) == float(np.max(x))
         flags = rng.uniform(size=n) < 0.3
         assert mean_of(flags) == float(np.mean(flags))
+
+
+def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
+    """scripts/eval_intersample.py: the 1-ms reference grid lines up with the env's (the RMS
+    over joints and steps, as the env's metric): PD + gravity, smooth between its samples at
+    100 Hz, has the same RMS error at every physics step as at its control instants (< 1 %),
+    and a policy that holds a constant zero torque (the arm falls between samples) does not
+    get a ratio of 1 by construction."""
+    import baselines
+    from scripts.eval_intersample import physics_rate_errors
+
+    kwargs = {"control_freq": 100.0, "episode_duration": 1.0}
+    pd = baselines.make("pd_gravity", "cir_gym/JointTracking-v1", env_kwargs=kwargs)
+    sampled, every_step, n = physics_rate_errors(pd, kwargs, 1000)
+    assert n == 1000  # 1 s of 1-ms physics steps
+    assert every_step == pytest.approx(sampled, rel=0.01)
+
+    class Zero:
+        def predict(self, obs, deterministic=True):
+            return np.zeros(7, dtype=np.float32), None
+
+    sampled, every_step, _ = physics_rate_errors(Zero(), kwargs, 1000)
+    assert every_step != pytest.approx(sampled, rel=1e-3)
