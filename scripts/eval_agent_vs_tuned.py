@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+import agents
 import cir_gym
 from agents.report import interval, seed_report
 from cir_gym.evaluation import evaluate
@@ -92,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         "(Optuna on training seeds 0–2, never these), each at the control rate it was tuned at.",
         "",
     ]
+    interface = agents.load(key, args.agent).interface_kwargs  # the same for every seed
     t0 = time.perf_counter()
     for variant, kwargs in variants.items():
         if args.variant and variant not in args.variant:
@@ -101,9 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         succ = float(rep.success.mean())
         ci = ("one seed: none" if len(rep.seeds) < 2
               else f"[{rep.ci_low:.3g}, {rep.ci_high:.3g}]")
-        import agents
-
-        agent_rate = _rate({**kwargs, **agents.load(key, args.agent).interface_kwargs}, key)
+        agent_rate = _rate({**kwargs, **interface}, key)
         rows = [
             f"## {variant} `{kwargs}`",
             "",
