@@ -195,7 +195,8 @@ def export_training_curve(run_dir: Path, dest: Path) -> Path:
 
 def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     """The issue-20 lever runs (``<curves>/*.csv``, copies of their ``learning_curve.csv``)
-    against the shipped JointTracking-v1 ``ppo`` curve, on the same evaluation episodes."""
+    against the first round's JointTracking-v1 ``ppo`` curve (``<curves>/baseline/``; the agent
+    itself was retired in the fifth round), on the same evaluation episodes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -204,7 +205,7 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     env_id = "cir_gym/JointTracking-v1"
     training = sorted((curves / "train").glob("*.csv"))
     fig, axes = plt.subplots(1, 3 if training else 2, figsize=(16 if training else 11, 4.2))
-    runs = [("shipped ppo (baseline)", agents.agent_dir(env_id, "ppo"))]
+    runs = [("ppo, 500 Hz, 5 M (baseline)", curves / "baseline" / "ppo_500hz_5m.csv")]
     runs += [(f.stem, f) for f in sorted(curves.glob("*.csv"))]
     for label, src in runs:
         steps, values = read_curve(src, primary)
@@ -240,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="results/learning_curves")
     p.add_argument("--env", action="append", help="environment id (repeatable; default: all)")
     p.add_argument("--levers", metavar="DIR", help="also plot the lever curves in DIR/*.csv "
-                   "(results/learning_curves/levers) against the shipped JointTracking ppo")
+                   "(results/learning_curves/levers) against the first round's JointTracking ppo")
     p.add_argument("--export-training", nargs=2, metavar=("RUN_DIR", "CSV"),
                    help="write RUN_DIR's training episode length/return (TensorBoard) to CSV")
     args = p.parse_args(argv)

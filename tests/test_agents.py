@@ -639,7 +639,7 @@ def test_cli_train_rejects_an_unknown_residual_controller(tmp_path, capsys):
 # ---------------------------------------------------------------------- shipped agents
 def test_shipped_agents_are_listed_load_and_act():
     shipped = {env_id: agents.available(env_id) for env_id in cir_gym.ENVIRONMENTS}
-    assert {"ppo", "residual_ppo_computed_torque"} <= set(shipped[ENV])
+    assert {"ppo_100hz", "residual_ppo_computed_torque"} <= set(shipped[ENV])
     for env_id, names in shipped.items():
         for name in names:
             policy = agents.load(env_id, name)
