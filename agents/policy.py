@@ -28,7 +28,8 @@ from agents.hyperparameters import algorithm_class, resolve_policy_kwargs
 from agents.observation import ObservationLayout
 from agents.residual import check_scale, combine
 
-__all__ = ["INTERFACE_KEYS", "AgentFileError", "TrainedAgent", "load_agent", "read_config"]
+__all__ = ["INTERFACE_KEYS", "AgentFileError", "TrainedAgent", "interface_defaults", "load_agent",
+           "read_config"]
 
 #: env arguments that set the action interface (what an action means and how often one is
 #: taken): an agent acts only on the interface it was trained on, whatever the task's other
@@ -37,6 +38,23 @@ __all__ = ["INTERFACE_KEYS", "AgentFileError", "TrainedAgent", "load_agent", "re
 INTERFACE_KEYS = ("control", "control_freq")
 
 CONFIG = "config.yml"
+
+
+def interface_defaults(env_id: str) -> dict[str, Any]:
+    """The defaults of ``env_id``'s :data:`INTERFACE_KEYS` arguments (its registered kwargs,
+    else its class's defaults; e.g. ``{"control_freq": 500.0}`` for JointTracking-v1): the
+    interface of an agent whose ``config.yml`` does not record them. Empty for an env id
+    registered without cir_gym's entry point."""
+    import gymnasium as gym
+
+    from cir_gym.envs.base import default_arguments
+
+    spec = gym.spec(env_id)
+    cls = getattr(spec.entry_point, "cls", None)
+    if cls is None:
+        return {}
+    defaults = {**default_arguments(cls), **(spec.kwargs or {})}
+    return {k: defaults[k] for k in INTERFACE_KEYS if defaults.get(k) is not None}
 MODEL = "model.zip"
 NORMALIZATION = "normalization.npz"
 
@@ -53,9 +71,11 @@ class TrainedAgent:
         env_id: the environment id it was trained on.
         config: the agent's ``config.yml`` as a dict.
         controller: the residual's base controller, or None.
-        interface_kwargs: the env arguments of its action interface recorded at training
+        interface_kwargs: the env arguments of its action interface at training
             (:data:`INTERFACE_KEYS`, e.g. PegInHole's ``{"control": "position",
-            "control_freq": 100.0}``; empty for the default interface): evaluate it on
+            "control_freq": 100.0}``): the recorded ones, and for an argument not recorded
+            the env's default that training then used (:func:`interface_defaults`), so an
+            agent trained at the default 500 Hz refuses a 100-Hz env too. Evaluate it on
             ``gym.make(env_id, **task_kwargs, **agent.interface_kwargs)``.
     """
 
@@ -73,7 +93,8 @@ class TrainedAgent:
         self.scale = scale
         self.flatten = flatten or layout.flatten  # layout.bind(env) when it has features
         recorded = config.get("env_kwargs") or {}
-        self.interface_kwargs = {k: recorded[k] for k in INTERFACE_KEYS if k in recorded}
+        self.interface_kwargs = {**interface_defaults(env_id),
+                                 **{k: recorded[k] for k in INTERFACE_KEYS if k in recorded}}
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
         """VecNormalize's observation transform with the frozen training statistics."""

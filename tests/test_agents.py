@@ -484,13 +484,27 @@ def test_interface_kwargs_keep_only_the_action_interface(tiny_runs):
     conditions it was trained under (payload_mass, episode_duration) do not."""
     from agents.policy import TrainedAgent
 
-    for key in ("scratch", "residual"):
-        assert agents.load(ENV, "tiny", path=tiny_runs[key]).interface_kwargs == {}
+    for key in ("scratch", "residual"):  # trained at the default rate, which is recorded
+        assert agents.load(ENV, "tiny", path=tiny_runs[key]).interface_kwargs == {
+            "control_freq": 500.0}
     loaded = agents.load(ENV, "tiny", path=tiny_runs["residual"])
     config = {**loaded.config, "env_kwargs": {"control": "position", "control_freq": 100.0,
                                               "chamfer": 0.003, "payload_mass": 3.0}}
     agent = TrainedAgent("p", ENV, config, loaded.policy, loaded.layout, loaded.norm)
     assert agent.interface_kwargs == {"control": "position", "control_freq": 100.0}
+
+
+def test_agent_of_the_default_rate_refuses_another_rate(tiny_runs):
+    """An agent whose config.yml records no control_freq was trained at the env's default
+    (500 Hz): given a ready 100-Hz env of the same action shape, the evaluator refuses it
+    instead of scoring its actions at a rate it never saw."""
+    from cir_gym.evaluation import evaluate
+
+    agent = agents.load(ENV, "tiny", path=tiny_runs["scratch"])
+    assert "control_freq" not in (agent.config.get("env_kwargs") or {})
+    env = gym.make(ENV, control_freq=100.0, episode_duration=0.1)
+    with pytest.raises(ValueError, match=r"control_freq=100.0.*control_freq=500.0"):
+        evaluate(agent, ENV, n_episodes=1, seed=0, env=env)
 
 
 def test_residual_agent_starts_at_the_controller(tiny_runs, tmp_path):
