@@ -65,6 +65,24 @@ def test_exact_interaction_matrix_gives_exponential_decay_and_straight_feature_p
     assert np.min(cos[t < 3.0]) > 0.999
 
 
+def test_convergence_time_of_a_failed_episode_is_the_duration_and_flagged_censored() -> None:
+    """A camera that never moves does not converge: its convergence_time is the episode's
+    duration (a limit, not a measurement), and the metric's spec says so, so the leaderboard
+    prints no factor of it between policies that fail (MetricSpec.failure_scores_limit)."""
+    env = gym.make(EYE_IN_HAND, episode_duration=1.0)
+    env.reset(seed=0)
+    while True:
+        _, _, terminated, truncated, info = env.step(np.zeros(env.action_space.shape))
+        if terminated or truncated:
+            break
+    assert not info["is_success"]
+    base = env.unwrapped
+    assert info["episode_metrics"]["convergence_time"] == pytest.approx(base.max_steps * base.dt)
+    specs = {s.name: s for s in base.metric_specs}
+    assert specs["convergence_time"].failure_scores_limit
+    assert not specs["final_feature_error"].failure_scores_limit  # measured in every episode
+
+
 def test_visp_tutorial_ibvs_4pts_configuration_converges() -> None:
     """ViSP tutorial-ibvs-4pts: a 0.2 m square, desired camera 0.75 m in front, start at
     (0.15, −0.1, 1.0) m and θu = (10°, −10°, 50°), λ = 0.5, L at the current features: the

@@ -136,6 +136,7 @@ class _VisualServoBase(RobotEnv):
             "s",
             "lower",
             "first time after which the feature error stays < 1 px (duration if never)",
+            failure_scores_limit=True,
         ),
         MetricSpec("path_length", "m", "lower", "length of the moving frame's path"),
         MetricSpec(
