@@ -197,20 +197,20 @@ def main() -> None:
             ("position_only", args.sweep_episodes, {"chamfer": 0.003}, None),
         ):
             results["main"].append(run_once(name, n, gains, **kwargs))
-            _write(args.out, results)
+            _write(args.out, results, ("main",))
     if args.stage in ("sweeps", "all"):
         results["clearance"], results["uncertainty"] = [], []
         for name in SWEPT:
             for c in CLEARANCES:
                 results["clearance"].append(run_once(name, args.sweep_episodes, clearance=c))
-                _write(args.out, results)
+                _write(args.out, results, SWEEP_PARTS)
             for p, t in UNCERTAINTIES:
                 results["uncertainty"].append(
                     run_once(name, args.sweep_episodes, position_uncertainty=p, tilt_uncertainty=t)
                 )
-                _write(args.out, results)
+                _write(args.out, results, SWEEP_PARTS)
         _figures(results, args.out)
-    print(_write(args.out, results))
+    print(_write(args.out, results, ()))
 
 
 def summarise_sweep(directory: Path) -> str:
@@ -252,8 +252,29 @@ def _key(r: dict[str, Any]) -> str:
     return json.dumps([r["controller"], r["episodes"], r["env_kwargs"], gains], sort_keys=True)
 
 
-def _write(out: Path, results: dict[str, Any]) -> str:
-    """Write the raw results and the markdown built from all of them; return its text."""
+#: the parts of results.json that ``--stage sweeps`` replaces (``--stage main``: "main")
+SWEEP_PARTS = ("clearance", "uncertainty")
+
+
+def _write(out: Path, results: dict[str, Any], parts: tuple[str, ...]) -> str:
+    """Replace ``parts`` of ``<out>/results.json`` with this process's ``results[part]`` and
+    rebuild ``peg_in_hole.md`` from the whole file; return its text.
+
+    The read, the merge and the writes hold :func:`locked` on ``out`` and replace each file at
+    once (:func:`_replace`): a ``--stage main`` and a ``--stage sweeps`` run side by side keep
+    each other's parts, which a write of the whole dict loaded at start-up would erase."""
+    with locked(out):
+        path = out / "results.json"
+        results = {**(json.loads(path.read_text()) if path.exists() else {}),
+                   **{part: results[part] for part in parts}}
+        _replace(path, json.dumps(results, indent=1))
+        text = _markdown(results)
+        _replace(out / "peg_in_hole.md", text)
+    return text
+
+
+def _markdown(results: dict[str, Any]) -> str:
+    """peg_in_hole.md from the raw results of every stage."""
     main_runs = results.get("main", [])
     seeds = max([r["episodes"] for r in main_runs], default=0)
     lines = [
@@ -286,10 +307,7 @@ def _write(out: Path, results: dict[str, Any]) -> str:
             f"{np.median(cost):.2f} ms of CPU time (median over the runs) on this "
             "shared 2-core machine; wall times depend on the machine's load.",
         ]
-    text = "\n".join(lines) + "\n"
-    (out / "peg_in_hole.md").write_text(text)
-    (out / "results.json").write_text(json.dumps(results, indent=1))
-    return text
+    return "\n".join(lines) + "\n"
 
 
 def evaluate_agents(

@@ -201,3 +201,27 @@ def test_parallel_runs_keep_every_row_of_agents_json(tmp_path):
     assert set(rows) == {"old"} | {f"{w}/{i}" for w in range(4) for i in range(25)}
     assert sorted(f.name for f in tmp_path.iterdir()) == ["agents.json"]
     assert store.stat().st_mode & 0o777 == 0o644
+
+
+def test_a_stage_replaces_only_its_part_of_results_json(tmp_path):
+    """eval_peg_in_hole: a --stage main run keeps the sweeps another run wrote to results.json
+    since it started (it replaces only its own part, under the lock), and the markdown built
+    from the committed results is the committed peg_in_hole.md."""
+    import json
+    from pathlib import Path
+
+    from scripts.eval_peg_in_hole import SWEEP_PARTS, _write
+
+    committed = Path(__file__).resolve().parents[1] / "results" / "peg_in_hole"
+    stored = json.loads((committed / "results.json").read_text())
+    assert stored["main"] and all(stored[p] for p in SWEEP_PARTS)
+    text = _write(tmp_path, stored, ())  # nothing stored yet: the file is empty of parts
+    assert "## Against clearance" not in text
+    (tmp_path / "results.json").write_text(json.dumps(stored))  # another run's sweeps
+    stale = {"main": stored["main"][:1], "clearance": [], "uncertainty": []}  # loaded earlier
+    text = _write(tmp_path, stale, ("main",))
+    merged = json.loads((tmp_path / "results.json").read_text())
+    assert merged["main"] == stored["main"][:1]
+    assert all(merged[p] == stored[p] for p in SWEEP_PARTS)
+    assert "## Against clearance" in text
+    assert _write(tmp_path, stored, ("main",)) == (committed / "peg_in_hole.md").read_text()
