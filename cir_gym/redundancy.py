@@ -23,10 +23,12 @@ __all__ = [
     "joint_limit_margin",
     "joint_limit_objective",
     "joint_limit_objective_gradient",
+    "lap_steps",
     "lap_witness",
     "manipulability",
     "null_vector",
     "orientation_error",
+    "orientation_errors",
     "point_segment_distance",
     "quat_orientation_error",
     "walk_self_motion",
@@ -97,8 +99,31 @@ def walk_self_motion(
     return points
 
 
+def lap_steps(q: np.ndarray, bound: np.ndarray, window: int = LAP_WINDOW) -> np.ndarray:
+    """Which moves between consecutive samples of :func:`lap_witness` stay within ``bound``.
+
+    Returns booleans (K, 2 ``window`` + 1, N): [k, o, i] is True when node i at sample k is
+    reached from node j = i − (o − ``window``) at sample k − 1 with |q[k, i] − q[k − 1, j]| ≤
+    ``bound`` (n,) per joint, and j exists (row k = 0 is unused). It does not depend on which
+    nodes are usable, so a lap computes it once for all the obstacles it is searched with.
+    """
+    K, N, _ = q.shape
+    j = np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None]  # (2 window + 1, N)
+    inside = (j >= 0) & (j < N)
+    j = np.clip(j, 0, N - 1)
+    steps = np.zeros((K, 2 * window + 1, N), dtype=bool)
+    for k in range(1, K):
+        steps[k] = inside & np.all(np.abs(q[k] - q[k - 1, j]) <= bound, axis=2)
+    return steps
+
+
 def lap_witness(
-    q: np.ndarray, usable: np.ndarray, bound: np.ndarray, start: int, window: int = LAP_WINDOW
+    q: np.ndarray,
+    usable: np.ndarray,
+    bound: np.ndarray,
+    start: int,
+    window: int = LAP_WINDOW,
+    steps: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """A motion through sampled configurations, or None when none exists.
 
@@ -107,24 +132,24 @@ def lap_witness(
     node indices (K,) starting at ``start`` with every node usable and every step between
     consecutive samples within ``bound`` (n,) per joint (|Δq_j| ≤ bound_j), moving at most
     ``window`` nodes along the ordering per sample. Forward reachability with parent
-    pointers (dynamic programming), O(K N window).
+    pointers (dynamic programming), O(K N window); a node's parent is the first reachable
+    node in the order i + ``window``, ..., i − ``window``. ``steps``: :func:`lap_steps` of
+    (q, bound, window), when the caller has it already.
     """
     K, N, _ = q.shape
     if not usable[0, start]:
         return None
+    if steps is None:
+        steps = lap_steps(q, bound, window)
+    j = np.clip(np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None], 0, N - 1)
+    nodes = np.arange(N)
     reach = np.zeros(N, dtype=bool)
     reach[start] = True
     parent = np.full((K, N), -1)
-    nodes = np.arange(N)
     for k in range(1, K):
-        new = np.zeros(N, dtype=bool)
-        for offset in range(-window, window + 1):
-            j = nodes - offset
-            inside = (j >= 0) & (j < N)
-            j = np.clip(j, 0, N - 1)
-            ok = inside & reach[j] & ~new & np.all(np.abs(q[k] - q[k - 1, j]) <= bound, axis=1)
-            parent[k, ok] = j[ok]
-            new |= ok
+        ok = steps[k] & reach[j]  # (2 window + 1, N): reachable from that neighbour
+        new = ok.any(axis=0)
+        parent[k, new] = j[ok.argmax(axis=0), nodes][new]  # the first neighbour in order
         reach = new & usable[k]
         if not reach.any():
             return None
@@ -145,6 +170,20 @@ def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
     mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
     return quat_orientation_error(quat_ref, quat)
+
+
+def orientation_errors(R_ref: np.ndarray, R: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`orientation_error` of one reference R_ref (3, 3) against each rotation of R
+    (N, 9) (rows of MuJoCo's ``xmat``), into ``out`` (N, 3), which it returns: the same C
+    helpers on each row, without the per-call arrays."""
+    quat_ref, quat, conj, err = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
+    mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
+    for i in range(len(R)):
+        mujoco.mju_mat2Quat(quat, R[i])
+        mujoco.mju_negQuat(conj, quat)
+        mujoco.mju_mulQuat(err, quat_ref, conj)
+        mujoco.mju_quat2Vel(out[i], err, 1.0)
+    return out
 
 
 def quat_orientation_error(quat_ref: np.ndarray, quat: np.ndarray) -> np.ndarray:
@@ -189,8 +228,12 @@ class LinkCapsules:
 
     def segments(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """End points a, b (k, 3) in the world frame (after ``mj_kinematics``)."""
-        centre = data.geom_xpos[self.geom_ids]
-        half = self._half_column * data.geom_xmat[self.geom_ids, 6:9]  # along the geom z axis
+        return self.ends(data.geom_xpos[self.geom_ids], data.geom_xmat[self.geom_ids])
+
+    def ends(self, centre: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End points a, b (..., k, 3) of the capsules with centres (..., k, 3) and rotations
+        (..., k, 9) (MuJoCo's ``geom_xpos`` and ``geom_xmat`` of ``geom_ids``)."""
+        half = self._half_column * xmat[..., 6:9]  # along the geom z axis
         return centre - half, centre + half
 
     def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:

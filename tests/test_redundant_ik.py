@@ -572,3 +572,36 @@ def test_orientation_error_is_the_rotation_vector():
     axis = np.array([0.0, 0.6, 0.8])
     R_ref = matrix_from_axis_angle(axis, 2.9) @ R
     np.testing.assert_allclose(redundancy.orientation_error(R_ref, R), 2.9 * axis, atol=1e-12)
+
+
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_row_kinematics_equal_the_robots_row_by_row(env_id):
+    """The episode set-up's batched kinematics (mujoco.batch) give Robot.site_pose,
+    Robot.jacobian and LinkCapsules.segments bit for bit, whatever rows a call has."""
+    base = gym.make(env_id).unwrapped
+    rows = env_module.RowKinematics(base.model, base.robot, base._site_id, base.capsules.geom_ids)
+    rng = np.random.default_rng(0)
+    for count in (9, 1, 12):
+        q = base.home + rng.uniform(-1.0, 1.0, (count, base.n))
+        p, R, jacp, jacr, centre, xmat = rows.evaluate(q)
+        for i, qi in enumerate(q):
+            p_i, R_i = base.robot.site_pose(base._site_id, qi)
+            J = base.robot.jacobian(base._site_id, qi)
+            assert np.array_equal(p[i], p_i) and np.array_equal(R[i], R_i.ravel())
+            assert np.array_equal(jacp[i], J[:3]) and np.array_equal(jacr[i], J[3:])
+            mine = base.capsules.ends(centre[i], xmat[i])
+            robots = base.capsules.segments(base.data)
+            assert all(map(np.array_equal, mine, robots))
+
+
+def test_lap_witness_with_precomputed_steps_is_the_same():
+    rng = np.random.default_rng(1)
+    q = np.cumsum(rng.normal(0.0, 0.05, (40, 30, 2)), axis=0)
+    usable = rng.random((40, 30)) < 0.8
+    usable[0, 15] = True
+    bound = np.array([0.12, 0.12])
+    steps = redundancy.lap_steps(q, bound)
+    assert np.array_equal(
+        redundancy.lap_witness(q, usable, bound, 15, steps=steps),
+        redundancy.lap_witness(q, usable, bound, 15),
+    )

@@ -12,12 +12,14 @@ clearance, the lap-witness search) is :mod:`cir_gym.redundancy`, shared with the
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import mujoco
+import mujoco.batch
 import numpy as np
 from gymnasium import spaces
 
@@ -30,10 +32,12 @@ from cir_gym.redundancy import (
     LinkCapsules,
     joint_limit_margin,
     joint_limit_objective,
+    lap_steps,
     lap_witness,
     manipulability,
     null_vector,
     orientation_error,
+    orientation_errors,
     walk_self_motion,
 )
 from cir_gym.robot import Robot, robot_path
@@ -67,6 +71,17 @@ def _all_numbers(action: Any) -> bool:
     )
 
 
+def _norms_below(d: np.ndarray, tolerance: float) -> np.ndarray:
+    """‖d_i‖ < tolerance for each row of d (N, m), decided as ``np.linalg.norm(d_i)`` would:
+    rows whose squared norm is within 1e-9 (relative) of tolerance² are recomputed with it
+    (its BLAS dot may round differently from the vectorised sum, never by that much)."""
+    square = np.einsum("ij,ij->i", d, d)
+    below = np.sqrt(square) < tolerance
+    for i in np.flatnonzero(np.abs(square - tolerance**2) <= 1e-9 * tolerance**2):
+        below[i] = np.linalg.norm(d[i]) < tolerance
+    return below
+
+
 @dataclass(frozen=True)
 class SelfMotionLap:
     """Configurations of the self-motion through q(0), each carried along the reference.
@@ -78,6 +93,8 @@ class SelfMotionLap:
         usable: (K, N) inside the joint limits and on the task.
         start: the node that is q(0).
         bound: (n,) rad, the most each joint moves between samples at its velocity limit.
+        steps: (K, 2 LAP_WINDOW + 1, N) the moves between samples within ``bound``
+            (:func:`cir_gym.redundancy.lap_steps`), shared by every obstacle tried on the lap.
     """
 
     q: np.ndarray
@@ -86,6 +103,72 @@ class SelfMotionLap:
     usable: np.ndarray
     start: int
     bound: np.ndarray
+    steps: np.ndarray
+
+
+class RowKinematics:
+    """Forward kinematics of many configurations at once, for an episode's set-up.
+
+    One persistent ``mujoco.batch.Batch`` on a copy of the model (contacts and constraints
+    off: only the kinematics are read) runs, in C, MuJoCo's position stage on every row and
+    then ``mj_jac`` at the site's position: the values of ``Robot.site_pose`` and
+    ``Robot.jacobian`` (``mj_kinematics``, ``mj_comPos``, ``mj_jacSite``) row by row, bit for
+    bit (tested), without a Python round trip per configuration. Grows to the rows asked.
+
+    Args:
+        model: the environment's model (its kinematic tree is copied once).
+        robot: the robot (joint addresses).
+        site: the task site's id.
+        geom_ids: the capsule geoms whose poses :meth:`evaluate` also returns.
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, robot: Robot, site: int, geom_ids: np.ndarray
+    ) -> None:
+        self.model = copy.copy(model)
+        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(
+            mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+        )
+        self.site = site
+        self.body = int(model.site_bodyid[site])
+        self.geom_ids = geom_ids
+        self.qpos_adr = robot.qpos_adr
+        self.dof_adr = robot.dof_adr
+        self.rows = 0
+        self._batch: mujoco.batch.Batch | None = None
+
+    def _grow(self, rows: int) -> None:
+        self._batch = mujoco.batch.Batch(self.model, rows, nthread=1, persistent=True)
+        self.rows = rows
+        self._qpos = self._batch.bind("qpos")
+        self._site_xpos = self._batch.bind("site_xpos")
+        self._site_xmat = self._batch.bind("site_xmat")
+        self._geom_xpos = self._batch.bind("geom_xpos")
+        self._geom_xmat = self._batch.bind("geom_xmat")
+
+    def evaluate(
+        self, q: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Kinematics of the rows of ``q`` (N, n): site position (N, 3), rotation (N, 9),
+        positional and rotational Jacobians (N, 3, n) each, capsule centres (N, c, 3) and
+        rotations (N, c, 9), all new arrays."""
+        N = len(q)
+        if N > self.rows:
+            self._grow(N)
+        assert self._batch is not None
+        ids = np.arange(N)
+        self._qpos[:N, self.qpos_adr] = q
+        self._batch.forward(ids, stage=int(mujoco.mjtStage.mjSTAGE_POS))
+        p = self._site_xpos[:N, self.site]  # a view, copied below
+        jacp, jacr = self._batch.jac(self.body, p, ids)
+        return (
+            p.copy(),
+            self._site_xmat[:N, self.site].copy(),
+            np.ascontiguousarray(jacp[:, :, self.dof_adr]),
+            np.ascontiguousarray(jacr[:, :, self.dof_adr]),
+            self._geom_xpos[:N, self.geom_ids],
+            self._geom_xmat[:N, self.geom_ids],
+        )
 
 
 # ---------------------------------------------------------------------- environment base
@@ -223,6 +306,7 @@ class _RedundantIKBase(RobotEnv):
         self._q = self.home.copy()
         self._q0 = self.home.copy()
         self._witness: np.ndarray | None = None
+        self._rows: RowKinematics | None = None
         self._k = 0
         self._k_scored = 0
         self._done = False
@@ -277,17 +361,33 @@ class _RedundantIKBase(RobotEnv):
             q = q + (dq * (0.2 / step) if step > 0.2 else dq)
         return q
 
+    def _row_kinematics(self) -> RowKinematics:
+        """The batched kinematics of the episode set-up (made at first use, not pickled)."""
+        if self._rows is None:
+            self._rows = RowKinematics(
+                self.model, self.robot, self._site_id, self.capsules.geom_ids
+            )
+        return self._rows
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state["_rows"] = None  # a mujoco.batch.Batch: made again at first use
+        return state
+
     def _min_norm_motion(
         self,
         q0: np.ndarray,
         stride: int = 5,
-        visit: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None,
+        visit: Callable[[int, int, np.ndarray, tuple[np.ndarray, ...]], None] | None = None,
+        with_manipulability: bool = True,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Minimum-norm CLIK along the reference from each row of ``q0`` (N, n), every
         ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods. Returns
         the joint paths (k + 1, N, n) and the manipulability at each of their first k points
-        (k, N). ``visit(sample, path, p, R)``, when given, is called at every point of every
-        path (the last included) with the forward kinematics done there (site pose p, R).
+        (k, N; empty without ``with_manipulability``). ``visit(sample, step, e, kinematics)``,
+        when given, is called at every sample of the paths (the last included, at step
+        ``max_steps``) with the task errors e (N, task_dim) against the reference of that
+        control step and the paths' :meth:`RowKinematics.evaluate` there (all rows at once).
 
         Used only to set up an episode (where the obstacle goes and which motions avoid it,
         which posture starts "manipulability"); the joint limits are not enforced.
@@ -295,26 +395,33 @@ class _RedundantIKBase(RobotEnv):
         q = np.array(q0, dtype=float)
         paths, w = [q.copy()], []
         dt = self.dt * stride
-        J = np.empty((len(q), self.task_dim, self.n))
+        pos = self.pos_dim
         e = np.empty((len(q), self.task_dim))
-        for sample, k in enumerate(range(0, self.max_steps, stride)):
-            for i, qi in enumerate(q):
-                J[i] = self._task_jacobian(qi)
-                p, R = self._forward(qi)
-                if visit is not None:
-                    visit(sample, i, p, R)
-                e[i, : self.pos_dim] = self._x_ref[k] - p
-                if self.task_dim == 6:
-                    e[i, 3:] = orientation_error(self._R_ref[k], R)
-            v = self._xd_ref[k]
+        rows = self._row_kinematics()
+
+        def errors(k: int) -> tuple[np.ndarray, ...]:
+            kinematics = rows.evaluate(q)
+            e[:, :pos] = self._x_ref[k] - kinematics[0][:, :pos]
             if self.task_dim == 6:
-                v = np.concatenate((v, self._omega_ref[k]))
-            w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
+                orientation_errors(self._R_ref[k], kinematics[1], e[:, 3:])
+            return kinematics
+
+        for sample, k in enumerate(range(0, self.max_steps, stride)):
+            kinematics = errors(k)
+            if visit is not None:
+                visit(sample, k, e, kinematics)
+            if self.task_dim == 6:
+                J = np.concatenate(kinematics[2:4], axis=1)
+                v = np.concatenate((self._xd_ref[k], self._omega_ref[k]))
+            else:
+                J = np.ascontiguousarray(kinematics[2][:, :2])
+                v = self._xd_ref[k]
+            if with_manipulability:
+                w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
             q = q + dt * np.einsum("nij,nj->ni", np.linalg.pinv(J), v + e / dt)
             paths.append(q.copy())
         if visit is not None:
-            for i, qi in enumerate(q):
-                visit(len(paths) - 1, i, *self._forward(qi))
+            visit(len(paths) - 1, self.max_steps, e, errors(self.max_steps))
         return np.array(paths), np.array(w)
 
     def _self_motion_lap(self, q0: np.ndarray) -> SelfMotionLap:
@@ -342,20 +449,19 @@ class _RedundantIKBase(RobotEnv):
         c = len(self.capsules.radius)
         a, b = np.empty((K, N, c, 3)), np.empty((K, N, c, 3))
         on_task = np.empty((K, N), dtype=bool)
+        pos = self.pos_dim
 
-        def visit(sample: int, i: int, p: np.ndarray, R: np.ndarray) -> None:
-            k = min(sample * LAP_STRIDE, self.max_steps)
-            a[sample, i], b[sample, i] = self.capsules.segments(self.data)
-            ok = np.linalg.norm(self._x_ref[k] - p) < LAP_TASK_TOLERANCE
+        def visit(sample: int, k: int, e: np.ndarray, kinematics: tuple[np.ndarray, ...]) -> None:
+            a[sample], b[sample] = self.capsules.ends(kinematics[4], kinematics[5])
+            on_task[sample] = _norms_below(e[:, :pos], LAP_TASK_TOLERANCE)
             if self.task_dim == 6:
-                ok = ok and (
-                    np.linalg.norm(orientation_error(self._R_ref[k], R)) < 10.0 * LAP_TASK_TOLERANCE
-                )
-            on_task[sample, i] = ok
+                on_task[sample] &= _norms_below(e[:, 3:], 10.0 * LAP_TASK_TOLERANCE)
 
-        q, _ = self._min_norm_motion(np.array([x for _, x in points]), LAP_STRIDE, visit)
+        q, _ = self._min_norm_motion(
+            np.array([x for _, x in points]), LAP_STRIDE, visit, with_manipulability=False
+        )
         inside = np.all((q > self.file_lower) & (q < self.file_upper), axis=2)
-        return SelfMotionLap(q, a, b, inside & on_task, start, bound)
+        return SelfMotionLap(q, a, b, inside & on_task, start, bound, lap_steps(q, bound))
 
     def _clearing_motion(
         self, lap: SelfMotionLap, centre: np.ndarray, radius: float
@@ -363,7 +469,8 @@ class _RedundantIKBase(RobotEnv):
         """A joint path (K, n) through ``lap`` that clears the obstacle by ``LAP_CLEARANCE``
         at every sample, within the joint and velocity limits; None when the lap has none."""
         clear = self.capsules.segment_clearance(lap.a, lap.b, centre, radius)
-        path = lap_witness(lap.q, lap.usable & (clear > LAP_CLEARANCE), lap.bound, lap.start)
+        usable = lap.usable & (clear > LAP_CLEARANCE)
+        path = lap_witness(lap.q, usable, lap.bound, lap.start, steps=lap.steps)
         return None if path is None else lap.q[np.arange(len(path)), path]
 
     # ------------------------------------------------------------------ episode setup
@@ -481,8 +588,9 @@ class _RedundantIKBase(RobotEnv):
         """
         sols = self._self_motion(q_home_ik, margin=START_MARGIN)
         best, start = np.inf, q_home_ik
-        for q in sols:
-            motion, w = self._min_norm_motion(q[None], stride=10)
+        motions, ws = self._min_norm_motion(np.array(sols), stride=10)  # all at once, row-wise
+        for i, q in enumerate(sols):
+            motion, w = motions[:, i], ws[:, i]
             if np.any(motion < self.file_lower) or np.any(motion > self.file_upper):
                 continue
             w_lap = float(np.min(w[int(MANIPULABILITY_WINDOW * len(w)) :]))
