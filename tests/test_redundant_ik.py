@@ -605,3 +605,21 @@ def test_lap_witness_with_precomputed_steps_is_the_same():
         redundancy.lap_witness(q, usable, bound, 15, steps=steps),
         redundancy.lap_witness(q, usable, bound, 15),
     )
+
+
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_clearance_in_floats_equals_the_vectorised_segment_clearance(env_id):
+    """LinkCapsules.clearance (Python floats, per step) and segment_clearance (numpy, the
+    episode set-up) agree bit for bit, near the links and for the far dummy obstacle."""
+    base = gym.make(env_id).unwrapped
+    caps = base.capsules
+    rng = np.random.default_rng(0)
+    for i in range(300):
+        base._forward(base.home + rng.uniform(-2.0, 2.0, base.n))
+        a, b = caps.segments(base.data)
+        centre = a[rng.integers(len(a))] + rng.normal(0.0, 0.1, 3)
+        radius = float(rng.uniform(0.0, 0.07))
+        if i % 5 == 0:
+            centre, radius = np.full(3, env_module.DUMMY_OBSTACLE_CENTRE), 0.0
+        expected = float(caps.segment_clearance(a, b, centre, radius))
+        assert caps.clearance(base.data, centre, radius) == expected

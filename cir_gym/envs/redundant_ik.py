@@ -730,7 +730,7 @@ class _RedundantIKBase(RobotEnv):
             if self.task_dim == 6:
                 ok = ok and metrics["max_orientation_error"] < 10.0 * self.success_threshold
             info["is_success"] = bool(not terminated and ok)
-        return self._obs(), reward, terminated, truncated, info
+        return self._obs(p, R), reward, terminated, truncated, info
 
     def _score_stopped_arm(self, k: int, p: np.ndarray, R: np.ndarray) -> None:
         """Fill the trace after control step ``k`` as if the arm stayed at the pose (p, R) where
@@ -807,11 +807,15 @@ class _RedundantIKBase(RobotEnv):
         return rendering.redundant_ik_caption(self)
 
     # ------------------------------------------------------------------ observation
-    def _obs(self) -> dict[str, np.ndarray]:
+    def _obs(
+        self, p: np.ndarray | None = None, R: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
         """The observation: one new flat buffer, filled, clipped to the bounds once, handed
-        out as views (each step's arrays are new; nothing is shared with the env's state)."""
+        out as views (each step's arrays are new; nothing is shared with the env's state).
+        ``p``, ``R``: the site pose at the current q when the caller has it (``step``)."""
         k = self._k
-        p, R = self._forward(self._q)
+        if p is None or R is None:
+            p, R = self._forward(self._q)
         buf = np.empty(self._obs_high.size)
         v = {key: buf[sl] for key, sl in self._obs_slices.items()}
         v["q"][:] = self._q
