@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+import operator
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -26,7 +27,7 @@ from gymnasium import spaces
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, check_number
 from cir_gym.metrics import MetricSpec
-from cir_gym.operational_space import align_quat
+from cir_gym.operational_space import align_quat, quat_dot
 from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,
@@ -266,6 +267,7 @@ class _RedundantIKBase(RobotEnv):
         self.home = model.key("home").qpos[self.robot.qpos_adr].copy()
         # quaternions are observed on the hemisphere ⟨Q, Q_home⟩ ≥ 0 of the home orientation
         self._quat_home = traj.quat_from_matrix(self._forward(self.home)[1])
+        self._quat_home_floats = self._quat_home.tolist()
 
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         p = self.pos_dim
@@ -671,7 +673,10 @@ class _RedundantIKBase(RobotEnv):
         a, _ = self._check_action(action)
         qd = a * self.velocity_limit  # q̇ (rad/s), clipped to the velocity limits
         q = self._q + self.dt * qd  # exact integration of a constant q̇ over Δt
-        violation = bool((q < self.lower).any() or (q > self.upper).any())
+        values = q.tolist()  # the limit test on Python floats: exact, cheaper than 4 numpy calls
+        violation = any(map(operator.lt, values, self.lower.tolist())) or any(
+            map(operator.gt, values, self.upper.tolist())
+        )
         if violation:
             q = np.clip(q, self.lower, self.upper)  # stops at the limit
         self._q = q
@@ -823,7 +828,13 @@ class _RedundantIKBase(RobotEnv):
         v["x_ref"][:] = self._x_ref[k]
         v["xd_ref"][:] = self._xd_ref[k]
         if self.task_dim == 6:
-            v["quat"][:] = align_quat(traj.quat_from_matrix(R), self._quat_home)
+            # align_quat(quat_from_matrix(R), Q_home) on Python floats, its one-matrix path
+            quat = traj._quat_from_matrix_floats(R.ravel().tolist())
+            if quat is None:  # not a rotation: the array path (its NaN)
+                v["quat"][:] = align_quat(traj.quat_from_matrix(R), self._quat_home)
+            else:
+                home = self._quat_home_floats
+                v["quat"][:] = quat if quat_dot(quat, home) >= 0.0 else [-x for x in quat]
             v["quat_ref"][:] = self._quat_ref[k]
             v["omega_ref"][:] = self._omega_ref[k]
         v["q_lower"][:] = self.lower
