@@ -23,6 +23,7 @@ __all__ = [
     "joint_limit_margin",
     "joint_limit_objective",
     "joint_limit_objective_gradient",
+    "lap_moves",
     "lap_steps",
     "lap_witness",
     "manipulability",
@@ -32,6 +33,7 @@ __all__ = [
     "point_segment_distance",
     "quat_orientation_error",
     "walk_self_motion",
+    "witness_path",
 ]
 
 OBJECTIVES = ("manipulability", "joint_limits", "obstacle")  # what the self-motion serves
@@ -99,21 +101,29 @@ def walk_self_motion(
     return points
 
 
-def lap_steps(q: np.ndarray, bound: np.ndarray, window: int = LAP_WINDOW) -> np.ndarray:
-    """Which moves between consecutive samples of :func:`lap_witness` stay within ``bound``.
-
-    Returns booleans (K, 2 ``window`` + 1, N): [k, o, i] is True when node i at sample k is
-    reached from node j = i − (o − ``window``) at sample k − 1 with |q[k, i] − q[k − 1, j]| ≤
-    ``bound`` (n,) per joint, and j exists (row k = 0 is unused). It does not depend on which
-    nodes are usable, so a lap computes it once for all the obstacles it is searched with.
-    """
-    K, N, _ = q.shape
+def lap_moves(
+    q_prev: np.ndarray, q_next: np.ndarray, bound: np.ndarray, window: int = LAP_WINDOW
+) -> np.ndarray:
+    """Which moves from the N nodes ``q_prev`` (N, n) of one sample to ``q_next`` (N, n) of the
+    next stay within ``bound`` (n,) per joint: booleans (2 ``window`` + 1, N), [o, i] for node i
+    reached from node j = i − (o − ``window``) with |q_next[i] − q_prev[j]| ≤ ``bound`` (False
+    where j does not exist)."""
+    N = len(q_next)
     j = np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None]  # (2 window + 1, N)
     inside = (j >= 0) & (j < N)
     j = np.clip(j, 0, N - 1)
+    return inside & np.all(np.abs(q_next - q_prev[j]) <= bound, axis=2)
+
+
+def lap_steps(q: np.ndarray, bound: np.ndarray, window: int = LAP_WINDOW) -> np.ndarray:
+    """:func:`lap_moves` between every two consecutive samples of ``q`` (K, N, n): booleans
+    (K, 2 ``window`` + 1, N), row k the moves from sample k − 1 to k (row 0 unused). It does
+    not depend on which nodes are usable, so a lap computes it once for every obstacle tried.
+    """
+    K, N, _ = q.shape
     steps = np.zeros((K, 2 * window + 1, N), dtype=bool)
     for k in range(1, K):
-        steps[k] = inside & np.all(np.abs(q[k] - q[k - 1, j]) <= bound, axis=2)
+        steps[k] = lap_moves(q[k - 1], q[k], bound, window)
     return steps
 
 
@@ -131,26 +141,42 @@ def lap_witness(
     self-motion, ordered along it), ``usable`` (K, N) which of them may be visited. Returns
     node indices (K,) starting at ``start`` with every node usable and every step between
     consecutive samples within ``bound`` (n,) per joint (|Δq_j| ≤ bound_j), moving at most
-    ``window`` nodes along the ordering per sample. Forward reachability with parent
-    pointers (dynamic programming), O(K N window); a node's parent is the first reachable
-    node in the order i + ``window``, ..., i − ``window``. ``steps``: :func:`lap_steps` of
-    (q, bound, window), when the caller has it already.
+    ``window`` nodes along the ordering per sample (:func:`witness_path`). ``steps``:
+    :func:`lap_steps` of (q, bound, window), when the caller has it already.
     """
     K, N, _ = q.shape
-    if not usable[0, start]:
-        return None
     if steps is None:
         steps = lap_steps(q, bound, window)
+    return witness_path(K, N, start, usable.__getitem__, steps.__getitem__, window)
+
+
+def witness_path(
+    K: int,
+    N: int,
+    start: int,
+    usable: Callable[[int], np.ndarray],
+    moves: Callable[[int], np.ndarray],
+    window: int = LAP_WINDOW,
+) -> np.ndarray | None:
+    """:func:`lap_witness` on samples asked for one at a time, in order: ``usable(k)`` (N,)
+    and ``moves(k)`` (:func:`lap_moves` into sample k, k ≥ 1), so a caller can compute a
+    sample only when the search gets there (it stops at the first sample nothing reaches).
+
+    Forward reachability with parent pointers (dynamic programming), O(K N window); a node's
+    parent is the first reachable node in the order i + ``window``, ..., i − ``window``.
+    """
+    if not usable(0)[start]:
+        return None
     j = np.clip(np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None], 0, N - 1)
     nodes = np.arange(N)
     reach = np.zeros(N, dtype=bool)
     reach[start] = True
     parent = np.full((K, N), -1)
     for k in range(1, K):
-        ok = steps[k] & reach[j]  # (2 window + 1, N): reachable from that neighbour
+        ok = moves(k) & reach[j]  # (2 window + 1, N): reachable from that neighbour
         new = ok.any(axis=0)
         parent[k, new] = j[ok.argmax(axis=0), nodes][new]  # the first neighbour in order
-        reach = new & usable[k]
+        reach = new & usable(k)
         if not reach.any():
             return None
     path = np.empty(K, dtype=int)

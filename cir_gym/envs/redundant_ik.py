@@ -15,8 +15,7 @@ from __future__ import annotations
 import copy
 import math
 import operator
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
 import mujoco
@@ -29,17 +28,18 @@ from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, chec
 from cir_gym.metrics import MetricSpec
 from cir_gym.operational_space import align_quat, quat_dot
 from cir_gym.redundancy import (
+    LAP_WINDOW,
     OBJECTIVES,
     LinkCapsules,
     joint_limit_margin,
     joint_limit_objective,
-    lap_steps,
-    lap_witness,
+    lap_moves,
     manipulability,
     null_vector,
     orientation_error,
     orientation_errors,
     walk_self_motion,
+    witness_path,
 )
 from cir_gym.robot import Robot, robot_path
 
@@ -61,6 +61,7 @@ CONTROL_TIMESTEP = 1e-4  # s, model timestep: only the unit of the control perio
 LAP_STRIDE = 5  # control steps between the samples of the self-motion lap (obstacle placement)
 LAP_CLEARANCE = 0.005  # m, clearance the witness motion keeps at every sample
 LAP_TASK_TOLERANCE = 1e-3  # m, task error above which a transported configuration is unusable
+LAP_CHUNK = 4  # samples of the lap computed at a time as an obstacle's search advances
 
 
 def _all_numbers(action: Any) -> bool:
@@ -83,28 +84,80 @@ def _norms_below(d: np.ndarray, tolerance: float) -> np.ndarray:
     return below
 
 
-@dataclass(frozen=True)
 class SelfMotionLap:
-    """Configurations of the self-motion through q(0), each carried along the reference.
+    """Configurations of the self-motion through q(0), each carried along the reference,
+    computed sample by sample only as far as asked (:meth:`extend`).
 
-    Attributes:
+    Nodes are taken along the self-motion (:func:`walk_self_motion`, spaced 0.9 of what the
+    slowest joint moves in ``LAP_STRIDE`` control periods, up to π rad each way and inside the
+    joint limits) and each is moved along the reference by minimum-norm CLIK
+    (:meth:`_RedundantIKBase._min_norm_samples`). A configuration is usable inside the limits
+    and on the task (error < ``LAP_TASK_TOLERANCE``; orientation ten times that in rad). An
+    obstacle's search (:meth:`_RedundantIKBase._clearing_motion`) stops at the first sample it
+    cannot reach, so a lap whose obstacles all fail early is never computed to its end, and
+    a path whose obstacles fail the cheap tests never walks its self-motion.
+
+    Attributes (rows ``[:filled]`` computed):
         q: (K, N, n) rad, N nodes ordered along the self-motion at x̄(0), sampled every
             ``LAP_STRIDE`` control steps (K samples).
         a, b: (K, N, c, 3) m, end points of the c link capsules at each configuration.
         usable: (K, N) inside the joint limits and on the task.
-        start: the node that is q(0).
-        bound: (n,) rad, the most each joint moves between samples at its velocity limit.
-        steps: (K, 2 LAP_WINDOW + 1, N) the moves between samples within ``bound``
-            (:func:`cir_gym.redundancy.lap_steps`), shared by every obstacle tried on the lap.
+        steps: (K, 2 LAP_WINDOW + 1, N) the moves into each sample within ``bound``
+            (:func:`cir_gym.redundancy.lap_moves`), shared by every obstacle tried.
+        start: the node that is q(0); bound: (n,) rad, the most each joint moves between
+            samples at its velocity limit.
     """
 
-    q: np.ndarray
-    a: np.ndarray
-    b: np.ndarray
-    usable: np.ndarray
-    start: int
-    bound: np.ndarray
-    steps: np.ndarray
+    def __init__(self, env: _RedundantIKBase, q0: np.ndarray) -> None:
+        self._env = env
+        self._q0 = q0.copy()
+        self.bound = env.velocity_limit * env.dt * LAP_STRIDE
+        self.K = len(range(0, env.max_steps, LAP_STRIDE)) + 1
+        self.filled = 0
+        self._samples: Iterator[tuple[np.ndarray, ...]] | None = None
+
+    def _walk(self) -> None:
+        """The nodes, the arrays, and the CLIK run (nothing along the reference yet)."""
+        env, q0 = self._env, self._q0
+        points = walk_self_motion(
+            q0,
+            env._task_jacobian,
+            lambda x: env._solve_ik(x, env._x_ref[0], env._R_ref[0], iterations=20),
+            lambda _, x: joint_limit_margin(x, env.file_lower, env.file_upper) <= 0.0,
+            np.pi,
+            0.9 * float(np.min(self.bound)),
+        )
+        points.append((0.0, q0.copy()))
+        points.sort(key=lambda point: point[0])
+        self.start = next(i for i, (arc, _) in enumerate(points) if arc == 0.0)
+        nodes = np.array([x for _, x in points])
+        K, N, c = self.K, len(nodes), len(env.capsules.radius)
+        self.N = N
+        self.q = np.empty((K, N, env.n))
+        self.a, self.b = np.empty((K, N, c, 3)), np.empty((K, N, c, 3))
+        self.usable = np.empty((K, N), dtype=bool)
+        self.steps = np.zeros((K, 2 * LAP_WINDOW + 1, N), dtype=bool)
+        self._samples = env._min_norm_samples(nodes, LAP_STRIDE, final_kinematics=True)
+
+    def extend(self, k: int) -> None:
+        """Compute the samples up to k (included)."""
+        if self._samples is None:
+            self._walk()
+        env, pos = self._env, self._env.pos_dim
+        while self.filled <= k:
+            assert self._samples is not None
+            q, e, kinematics, _ = next(self._samples)
+            s = self.filled
+            self.q[s] = q
+            self.a[s], self.b[s] = env.capsules.ends(kinematics[4], kinematics[5])
+            on_task = _norms_below(e[:, :pos], LAP_TASK_TOLERANCE)
+            if env.task_dim == 6:
+                on_task &= _norms_below(e[:, 3:], 10.0 * LAP_TASK_TOLERANCE)
+            inside = np.all((q > env.file_lower) & (q < env.file_upper), axis=1)
+            self.usable[s] = inside & on_task
+            if s:
+                self.steps[s] = lap_moves(self.q[s - 1], q, self.bound)
+            self.filled += 1
 
 
 class RowKinematics:
@@ -376,26 +429,20 @@ class _RedundantIKBase(RobotEnv):
         state["_rows"] = None  # a mujoco.batch.Batch: made again at first use
         return state
 
-    def _min_norm_motion(
-        self,
-        q0: np.ndarray,
-        stride: int = 5,
-        visit: Callable[[int, int, np.ndarray, tuple[np.ndarray, ...]], None] | None = None,
-        with_manipulability: bool = True,
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _min_norm_samples(
+        self, q0: np.ndarray, stride: int, final_kinematics: bool = False
+    ) -> Iterator[tuple[np.ndarray, ...]]:
         """Minimum-norm CLIK along the reference from each row of ``q0`` (N, n), every
-        ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods. Returns
-        the joint paths (k + 1, N, n) and the manipulability at each of their first k points
-        (k, N; empty without ``with_manipulability``). ``visit(sample, step, e, kinematics)``,
-        when given, is called at every sample of the paths (the last included, at step
-        ``max_steps``) with the task errors e (N, task_dim) against the reference of that
-        control step and the paths' :meth:`RowKinematics.evaluate` there (all rows at once).
+        ``stride`` steps: q ← q + J†(x̄̇ Δt + e) with Δt = ``stride`` control periods.
 
-        Used only to set up an episode (where the obstacle goes and which motions avoid it,
-        which posture starts "manipulability"); the joint limits are not enforced.
+        Yields, at each sample k = 0, ``stride``, ... < ``max_steps``, (q (N, n), e (N,
+        task_dim) the task errors against the reference there, the rows'
+        :meth:`RowKinematics.evaluate`, J (N, task_dim, n)), then at the end of the lap
+        (``max_steps``) the last q with, when ``final_kinematics``, its errors and kinematics
+        (else None) and J None. e is one array overwritten at every sample. All rows at once,
+        each row as it would be alone.
         """
         q = np.array(q0, dtype=float)
-        paths, w = [q.copy()], []
         dt = self.dt * stride
         pos = self.pos_dim
         e = np.empty((len(q), self.task_dim))
@@ -408,71 +455,64 @@ class _RedundantIKBase(RobotEnv):
                 orientation_errors(self._R_ref[k], kinematics[1], e[:, 3:])
             return kinematics
 
-        for sample, k in enumerate(range(0, self.max_steps, stride)):
+        for k in range(0, self.max_steps, stride):
             kinematics = errors(k)
-            if visit is not None:
-                visit(sample, k, e, kinematics)
             if self.task_dim == 6:
                 J = np.concatenate(kinematics[2:4], axis=1)
                 v = np.concatenate((self._xd_ref[k], self._omega_ref[k]))
             else:
                 J = np.ascontiguousarray(kinematics[2][:, :2])
                 v = self._xd_ref[k]
-            if with_manipulability:
-                w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
+            yield q, e, kinematics, J
             q = q + dt * np.einsum("nij,nj->ni", np.linalg.pinv(J), v + e / dt)
-            paths.append(q.copy())
-        if visit is not None:
-            visit(len(paths) - 1, self.max_steps, e, errors(self.max_steps))
-        return np.array(paths), np.array(w)
+        if final_kinematics:
+            yield q, e, errors(self.max_steps), None
+        else:
+            yield q, None, None, None
 
-    def _self_motion_lap(self, q0: np.ndarray) -> SelfMotionLap:
-        """The self-motion through q(0) at x̄(0), carried along the whole reference.
+    def _min_norm_motion(
+        self, q0: np.ndarray, stride: int = 5, with_manipulability: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_min_norm_samples` run to the end: the joint paths (k + 1, N, n) and the
+        manipulability at each of their first k points (k, N; empty without
+        ``with_manipulability``).
 
-        Nodes are taken along the self-motion (:func:`walk_self_motion`, spaced 0.9 of what
-        the slowest joint moves in ``LAP_STRIDE`` control periods, up to π rad each way and
-        inside the joint limits) and each is moved along the reference by minimum-norm CLIK
-        (:meth:`_min_norm_motion`). A configuration is usable inside the limits and on the task
-        (error < ``LAP_TASK_TOLERANCE``; orientation ten times that in rad).
+        Used only to set up an episode (where the obstacle goes and which motions avoid it,
+        which posture starts "manipulability"); the joint limits are not enforced.
         """
-        bound = self.velocity_limit * self.dt * LAP_STRIDE
-        points = walk_self_motion(
-            q0,
-            self._task_jacobian,
-            lambda x: self._solve_ik(x, self._x_ref[0], self._R_ref[0], iterations=20),
-            lambda _, x: joint_limit_margin(x, self.file_lower, self.file_upper) <= 0.0,
-            np.pi,
-            0.9 * float(np.min(bound)),
-        )
-        points.append((0.0, q0.copy()))
-        points.sort(key=lambda point: point[0])
-        start = next(i for i, (arc, _) in enumerate(points) if arc == 0.0)
-        K, N = len(range(0, self.max_steps, LAP_STRIDE)) + 1, len(points)
-        c = len(self.capsules.radius)
-        a, b = np.empty((K, N, c, 3)), np.empty((K, N, c, 3))
-        on_task = np.empty((K, N), dtype=bool)
-        pos = self.pos_dim
-
-        def visit(sample: int, k: int, e: np.ndarray, kinematics: tuple[np.ndarray, ...]) -> None:
-            a[sample], b[sample] = self.capsules.ends(kinematics[4], kinematics[5])
-            on_task[sample] = _norms_below(e[:, :pos], LAP_TASK_TOLERANCE)
-            if self.task_dim == 6:
-                on_task[sample] &= _norms_below(e[:, 3:], 10.0 * LAP_TASK_TOLERANCE)
-
-        q, _ = self._min_norm_motion(
-            np.array([x for _, x in points]), LAP_STRIDE, visit, with_manipulability=False
-        )
-        inside = np.all((q > self.file_lower) & (q < self.file_upper), axis=2)
-        return SelfMotionLap(q, a, b, inside & on_task, start, bound, lap_steps(q, bound))
+        paths, w = [], []
+        for q, _, _, J in self._min_norm_samples(q0, stride):
+            paths.append(q.copy())
+            if J is not None and with_manipulability:
+                w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
+        return np.array(paths), np.array(w)
 
     def _clearing_motion(
         self, lap: SelfMotionLap, centre: np.ndarray, radius: float
     ) -> np.ndarray | None:
         """A joint path (K, n) through ``lap`` that clears the obstacle by ``LAP_CLEARANCE``
-        at every sample, within the joint and velocity limits; None when the lap has none."""
-        clear = self.capsules.segment_clearance(lap.a, lap.b, centre, radius)
-        usable = lap.usable & (clear > LAP_CLEARANCE)
-        path = lap_witness(lap.q, usable, lap.bound, lap.start, steps=lap.steps)
+        at every sample, within the joint and velocity limits; None when the lap has none.
+        The lap is computed only as far as the search gets."""
+
+        lap.extend(0)
+        free = np.empty((lap.K, lap.N), dtype=bool)  # usable and clear, rows [:known]
+        known = 0
+
+        def usable(k: int) -> np.ndarray:
+            nonlocal known
+            if k >= known:  # a few samples ahead, their clearances at once
+                lap.extend(min(k + LAP_CHUNK - 1, lap.K - 1))
+                new = slice(known, lap.filled)
+                clear = self.capsules.segment_clearance(lap.a[new], lap.b[new], centre, radius)
+                free[new] = lap.usable[new] & (clear > LAP_CLEARANCE)
+                known = lap.filled
+            return free[k]
+
+        def moves(k: int) -> np.ndarray:
+            lap.extend(min(k + LAP_CHUNK - 1, lap.K - 1))
+            return lap.steps[k]
+
+        path = witness_path(lap.K, lap.N, lap.start, usable, moves)
         return None if path is None else lap.q[np.arange(len(path)), path]
 
     # ------------------------------------------------------------------ episode setup
@@ -492,8 +532,10 @@ class _RedundantIKBase(RobotEnv):
         The clearing motion found is kept (:meth:`clearing_motion`).
         """
         rng = self.np_random
-        lap = self._self_motion_lap(q0)
-        motion = lap.q[:, lap.start]  # the minimum-norm motion from q(0)
+        lap = SelfMotionLap(self, q0)  # computed only as far as an obstacle's search needs
+        # the minimum-norm motion from q(0) (the lap's row of q(0), alone), as far as drawn
+        samples = self._min_norm_samples(q0[None], LAP_STRIDE)
+        motion: list[np.ndarray] = []
         bodies = [
             mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in self.obstacle_links
         ]
@@ -503,7 +545,9 @@ class _RedundantIKBase(RobotEnv):
         path_pts = self._x_ref
         best = np.array([DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
         for _ in range(30):
-            k = int(rng.integers(int(0.3 * len(motion)), int(0.8 * len(motion))))
+            k = int(rng.integers(int(0.3 * lap.K), int(0.8 * lap.K)))
+            while len(motion) <= k:
+                motion.append(next(samples)[0][0].copy())
             self._forward(motion[k])
             a, b = self.capsules.segments(self.data)
             i = int(rng.choice(pick))
