@@ -11,6 +11,7 @@ the environment draws references and scores episodes, the controllers choose q̇
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -108,11 +109,19 @@ def lap_moves(
     next stay within ``bound`` (n,) per joint: booleans (2 ``window`` + 1, N), [o, i] for node i
     reached from node j = i − (o − ``window``) with |q_next[i] − q_prev[j]| ≤ ``bound`` (False
     where j does not exist)."""
-    N = len(q_next)
-    j = np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None]  # (2 window + 1, N)
+    j, inside = _neighbours(len(q_next), window)
+    return inside & (np.abs(q_next - q_prev[j]) <= bound).all(axis=2)
+
+
+@functools.lru_cache(maxsize=8)
+def _neighbours(N: int, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Node j = i − (o − window) (clipped into [0, N)) for each offset o and node i, and
+    whether it exists: (2 window + 1, N) each, read-only (cached)."""
+    j = np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None]
     inside = (j >= 0) & (j < N)
     j = np.clip(j, 0, N - 1)
-    return inside & np.all(np.abs(q_next - q_prev[j]) <= bound, axis=2)
+    j.flags.writeable = inside.flags.writeable = False
+    return j, inside
 
 
 def lap_steps(q: np.ndarray, bound: np.ndarray, window: int = LAP_WINDOW) -> np.ndarray:
@@ -167,7 +176,7 @@ def witness_path(
     """
     if not usable(0)[start]:
         return None
-    j = np.clip(np.arange(N)[None, :] - np.arange(-window, window + 1)[:, None], 0, N - 1)
+    j = _neighbours(N, window)[0]
     nodes = np.arange(N)
     reach = np.zeros(N, dtype=bool)
     reach[start] = True
