@@ -289,6 +289,9 @@ class _RedundantIKBase(RobotEnv):
             )
         self.error_scales = scales
         self.orientation_scales = scales * 10.0  # rad: 1 mm ↔ 0.01 rad
+        self._error_scales_sq = self.error_scales**2  # the rewards' kernel widths², per step
+        self._orientation_scales_sq = self.orientation_scales**2
+        self._quats = tuple(np.empty(4) for _ in range(4))  # step's orientation_error scratch
         self.secondary_weight = check_number("secondary_weight", secondary_weight, 0.0, 10.0)
         self.velocity_weight = check_number("velocity_weight", velocity_weight, 0.0, 10.0)
         self.termination_penalty = check_number(
@@ -729,8 +732,14 @@ class _RedundantIKBase(RobotEnv):
         p, R = self._forward(q)
         d = self._x_ref[self._k] - p
         e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
-        if self.task_dim == 6:
-            phi = orientation_error(self._R_ref[self._k], R)
+        if self.task_dim == 6:  # orientation_error(R̄, R) in the env's quaternion buffers
+            quat_ref, quat, conj, err = self._quats
+            mujoco.mju_mat2Quat(quat_ref, self._R_ref[self._k].ravel())
+            mujoco.mju_mat2Quat(quat, R.ravel())
+            mujoco.mju_negQuat(conj, quat)
+            mujoco.mju_mulQuat(err, quat_ref, conj)
+            phi = np.empty(3)
+            mujoco.mju_quat2Vel(phi, err, 1.0)
             e_rot = math.sqrt(float(phi.dot(phi)))
         else:
             e_rot = 0.0
@@ -740,10 +749,10 @@ class _RedundantIKBase(RobotEnv):
         collision = clear < 0.0
         self._trace[:, k] = (e_pos, e_rot, w, margin, clear, 0.0)
 
-        kernel = np.exp(-(e_pos**2) / self.error_scales**2)
+        kernel = np.exp(-(e_pos**2) / self._error_scales_sq)
         r_track = -(1.0 - float(kernel.sum()) / kernel.size)  # = np.mean, one reduction
         if self.task_dim == 6:
-            kernel = np.exp(-(e_rot**2) / self.orientation_scales**2)
+            kernel = np.exp(-(e_rot**2) / self._orientation_scales_sq)
             r_orient = -(1.0 - float(kernel.sum()) / kernel.size)
         else:
             r_orient = 0.0
@@ -799,7 +808,10 @@ class _RedundantIKBase(RobotEnv):
 
     def _check_action(self, action: Any) -> tuple[np.ndarray, bool]:
         """The base class's check, plus: strings or objects are not actions (even "0.1")."""
-        kind = np.asarray(action, dtype=object if isinstance(action, list) else None).dtype.kind
+        if isinstance(action, np.ndarray):  # np.asarray(action) would be action itself
+            kind = action.dtype.kind
+        else:
+            kind = np.asarray(action, dtype=object if isinstance(action, list) else None).dtype.kind
         if kind in "USO" and not (kind == "O" and _all_numbers(action)):
             raise ValueError(
                 f"action must be numbers of shape {self.action_space.shape} in "
