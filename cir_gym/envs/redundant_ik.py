@@ -427,6 +427,21 @@ class _RedundantIKBase(RobotEnv):
             )
         return self._rows
 
+    def _row_kinematics_one(self, q: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`RowKinematics.evaluate` of one row, through the env's own Robot: the same
+        values (tested), without a batch call's cost (q(0)'s own motion, in ``reset``)."""
+        p, R = self.robot.site_pose(self._site_id, q)
+        J = self.robot.jacobian(self._site_id, q)
+        ids = self.capsules.geom_ids
+        return (
+            p[None],
+            R.reshape(1, 9),
+            J[None, :3],
+            J[None, 3:],
+            self.data.geom_xpos[ids][None],
+            self.data.geom_xmat[ids][None],
+        )
+
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         state["_rows"] = None  # a mujoco.batch.Batch: made again at first use
@@ -452,7 +467,7 @@ class _RedundantIKBase(RobotEnv):
         rows = self._row_kinematics()
 
         def errors(k: int) -> tuple[np.ndarray, ...]:
-            kinematics = rows.evaluate(q)
+            kinematics = rows.evaluate(q) if len(q) > 1 else self._row_kinematics_one(q[0])
             e[:, :pos] = self._x_ref[k] - kinematics[0][:, :pos]
             if self.task_dim == 6:
                 orientation_errors(self._R_ref[k], kinematics[1], e[:, 3:])
