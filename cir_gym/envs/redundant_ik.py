@@ -163,11 +163,12 @@ class SelfMotionLap:
 class RowKinematics:
     """Forward kinematics of many configurations at once, for an episode's set-up.
 
-    One persistent ``mujoco.batch.Batch`` on a copy of the model (contacts and constraints
-    off: only the kinematics are read) runs, in C, MuJoCo's position stage on every row and
-    then ``mj_jac`` at the site's position: the values of ``Robot.site_pose`` and
-    ``Robot.jacobian`` (``mj_kinematics``, ``mj_comPos``, ``mj_jacSite``) row by row, bit for
-    bit (tested), without a Python round trip per configuration. Grows to the rows asked.
+    One ``mujoco.batch.Batch`` on a copy of the model (contacts and constraints off: only the
+    kinematics are read; not persistent: no MjData per row, ~5 MB instead of ~20) runs, in C,
+    MuJoCo's position stage on every row and then ``mj_jac`` at the site's position: the
+    values of ``Robot.site_pose`` and ``Robot.jacobian`` (``mj_kinematics``, ``mj_comPos``,
+    ``mj_jacSite``) row by row, bit for bit (tested), without a Python round trip per
+    configuration. Grows to the rows asked.
 
     Args:
         model: the environment's model (its kinematic tree is copied once).
@@ -192,7 +193,7 @@ class RowKinematics:
         self._batch: mujoco.batch.Batch | None = None
 
     def _grow(self, rows: int) -> None:
-        self._batch = mujoco.batch.Batch(self.model, rows, nthread=1, persistent=True)
+        self._batch = mujoco.batch.Batch(self.model, rows, nthread=1, persistent=False)
         self.rows = rows
         self._qpos = self._batch.bind("qpos")
         self._site_xpos = self._batch.bind("site_xpos")
