@@ -114,6 +114,8 @@ def load_zoo_run(run: Path, env_id: str = ENV_ID) -> tuple[ZooAgent, dict[str, A
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+    import cir_gym  # noqa: F401  (registers the env ids)
+
     run = Path(run)
     name = env_id.replace("/", "-")
     sub = run / name
@@ -160,8 +162,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     import baselines
     from cir_gym.evaluation import evaluate
 
-    print("| policy | observation wrapper | RMS error (rad), mean | median | success |")
-    print("|---|---|---:|---:|---:|")
+    print("| policy | observation wrapper | RMS error (rad), mean | median | success | "
+          "mean return |")
+    print("|---|---|---:|---:|---:|---:|")
     env_kwargs: dict[str, Any] = {}
     for run in args.runs:
         agent, env_kwargs, wrapper = load_zoo_run(Path(run), args.env)
@@ -169,15 +172,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                        **env_kwargs)
         x = np.array([ep.metrics["rms_error"] for ep in res.episodes])
         w = f"{wrapper.__module__}.{wrapper.__qualname__}" if wrapper else "none"
-        print(f"| {run} | {w} | {x.mean():.4g} | {np.median(x):.4g} | {res.success_rate:.0%} |",
-              flush=True)
+        print(f"| {run} | {w} | {x.mean():.4g} | {np.median(x):.4g} | {res.success_rate:.0%} | "
+              f"{res.returns.mean():.4g} |", flush=True)
     if args.controller:
         policy = baselines.make(args.controller, args.env, env_kwargs=env_kwargs)
         res = evaluate(policy, args.env, args.episodes, args.seed, policy_name=args.controller,
                        **env_kwargs)
         x = np.array([ep.metrics["rms_error"] for ep in res.episodes])
         print(f"| {args.controller} (default gains, {env_kwargs}) | — | {x.mean():.4g} | "
-              f"{np.median(x):.4g} | {res.success_rate:.0%} |")
+              f"{np.median(x):.4g} | {res.success_rate:.0%} | {res.returns.mean():.4g} |")
     return 0
 
 

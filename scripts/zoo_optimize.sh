@@ -7,8 +7,9 @@
 #
 # The fixed part of every trial is agents/hyperparams/zoo/ppo_100hz.yml (it says why not
 # ppo.yml). Sized for the 2-core machine with two other trainings beside it: 100k steps per
-# trial (one trial took 1-6 min there), 12 trials, the first 5 random (TPE's and the pruner's
-# startup), 4 evaluations of 3 episodes per trial (the pruner sees evaluations 2-4).
+# trial (a trial took 0.4-16 min there: mostly gradient steps, 100k x n_epochs / batch_size),
+# 12 trials, the first 5 random (TPE's and the pruner's startup), 4 evaluations of 3 episodes
+# per trial. In 40 min it finished 7 (results/tuning/zoo_optuna/README.md).
 # WALL_SECONDS (default 2400) stops the search with SIGINT: rl-zoo3 then marks the running trial
 # FAIL, keeps the finished ones and still writes its report. Re-running with the same name
 # resumes the study (load_if_exists) and adds --n-trials more.
