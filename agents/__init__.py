@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-__all__ = ["TRAINED_DIR", "agent_dir", "available", "env_dir_name", "load", "seeds"]
+__all__ = ["TRAINED_DIR", "agent_dir", "available", "env_dir_name", "load", "seeds", "trained_for"]
 
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
@@ -83,6 +83,29 @@ def agent_dir(env_id: str, name: str, seed: int | None = None) -> Path:
     if seed not in found:
         raise ValueError(f"agent {name!r} for {env_id} has seeds {list(found)}, not {seed}")
     return found[seed]
+
+
+def trained_for(env_id: str, name: str, env_kwargs: dict[str, Any]) -> bool:
+    """Whether shipped agent ``name`` was trained on the task that ``env_kwargs`` asks for.
+
+    An env class may name ``agent_task_keys``: arguments that set what the task asks
+    (RedundantIK's ``objective``), not a condition it is asked under (a payload, a drive,
+    which an agent may meet unseen). The agent's recorded env arguments, completed with the
+    class's defaults, must then agree with ``env_kwargs`` (completed the same way) on those
+    keys, so no variant is scored with an agent trained for another. True for an env without
+    such keys."""
+    import gymnasium as gym
+
+    from agents.policy import read_config
+    from cir_gym.envs.base import default_arguments
+
+    cls = getattr(gym.spec(env_id).entry_point, "cls", None)
+    keys = getattr(cls, "agent_task_keys", ())
+    if not keys:
+        return True
+    defaults = default_arguments(cls)
+    recorded = read_config(agent_dir(env_id, name)).get("env_kwargs") or {}
+    return all({**defaults, **recorded}.get(k) == {**defaults, **env_kwargs}.get(k) for k in keys)
 
 
 def load(env_id: str, name: str, *, path: str | Path | None = None,

@@ -162,12 +162,15 @@ def _fmt(x: float) -> str:
 
 def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
                seed: int = 1000, names: list[str] | None = None) -> str:
-    """Markdown table: every shipped agent of ``env_id`` (or ``names``) over its training seeds
-    on one variant (``env_kwargs``): seeds, IQM of the primary metric [95 % CI], success IQM
-    [CI], each seed's mean. The leaderboard's one call per variant."""
+    """Markdown table: every shipped agent of ``env_id`` trained for the variant's task (or
+    ``names``) over its training seeds on one variant (``env_kwargs``): seeds, IQM of the
+    primary metric [95 % CI], success IQM [CI], each seed's mean. The leaderboard's one call
+    per variant."""
     import agents
 
-    names = agents.available(env_id) if names is None else names
+    if names is None:  # every agent trained for this variant's task (agents.trained_for)
+        names = [n for n in agents.available(env_id)
+                 if agents.trained_for(env_id, n, env_kwargs or {})]
     if not names:
         return ""
     reports = [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed) for n in names]

@@ -30,15 +30,24 @@ from scripts.leaderboard_page import write_page
 def jobs_for(
     env_id: str, overrides: dict[str, Any] | None = None
 ) -> list[tuple[str, str, dict[str, Any], str]]:
-    """(env_id, variant name, env kwargs, policy name) for every pair to evaluate."""
-    from scripts.cli import policy_names
+    """(env_id, variant name, env kwargs, policy name) for every pair to evaluate: every
+    controller on every variant, a shipped agent only on the variants of the task it was
+    trained for (:func:`agents.trained_for`: RedundantIK's objective)."""
+    from scripts.cli import _agents_module, policy_names
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
+    ag = _agents_module()
+
+    def applies(policy: str, kwargs: dict[str, Any]) -> bool:
+        return not policy.startswith("agent:") or ag is None or ag.trained_for(
+            env_id, policy.removeprefix("agent:"), kwargs)
+
     return [
         (env_id, v, {**kw, **(overrides or {})}, p)
         for v, kw in variants.items()
         for p in policy_names(env_id)
+        if applies(p, {**kw, **(overrides or {})})
     ]
 
 
@@ -162,7 +171,8 @@ def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, see
     ag = _agents_module()
     if ag is None:
         return ""
-    names = [n for n in ag.available(env_id) if len(ag.seeds(env_id, n)) >= 2]
+    names = [n for n in ag.available(env_id)
+             if len(ag.seeds(env_id, n)) >= 2 and ag.trained_for(env_id, n, env_kwargs)]
     if not names:
         return ""
     from agents.report import seed_table

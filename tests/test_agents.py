@@ -769,3 +769,28 @@ def test_tune_gains_smoke(tmp_path):
     assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
     assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
     assert (tmp_path / "studies.db").is_file()
+
+
+def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
+    """Issue 20: no variant is scored with an agent trained for another. RedundantIK's
+    objective is a task key (its agents record it, or train on the default), so the
+    leaderboard pairs each shipped agent with its own objective's variant only; a condition
+    such as JointTracking's payload is not (an agent may meet it unseen)."""
+    from scripts.leaderboard import jobs_for
+
+    rik = "cir_gym/RedundantIK-v3"
+    assert agents.trained_for(rik, "ppo", {"objective": "manipulability"})
+    assert agents.trained_for(rik, "ppo", {})  # the default objective is manipulability
+    assert not agents.trained_for(rik, "ppo", {"objective": "obstacle"})
+    assert agents.trained_for(rik, "ppo_joint_limits", {"objective": "joint_limits"})
+    assert not agents.trained_for(rik, "ppo_joint_limits", {"objective": "manipulability"})
+    variants_of = {}
+    for _, variant, _, policy in jobs_for(rik):
+        variants_of.setdefault(policy, set()).add(variant)
+    assert variants_of["agent:ppo"] == {"manipulability"}
+    assert variants_of["agent:ppo_joint_limits"] == {"joint limits"}
+    assert variants_of["clik_nullspace"] == {"manipulability", "obstacle", "joint limits"}
+    # JointTracking has no task key: the residual trained under the payload runs everywhere
+    assert agents.trained_for(ENV, "residual_ppo_computed_torque", {})
+    assert {v for _, v, _, p in jobs_for(ENV) if p == "agent:residual_ppo_computed_torque"} == \
+        set(gym.spec(ENV).entry_point.cls.leaderboard_variants)

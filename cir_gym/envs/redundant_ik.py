@@ -241,6 +241,9 @@ class _RedundantIKBase(RobotEnv):
     obstacle_type: ClassVar[int] = int(mujoco.mjtGeom.mjGEOM_SPHERE)
     manipulability_scale: ClassVar[float] = 0.1  # scale of the manipulability cost (task units)
     obstacle_links: ClassVar[tuple[str, ...]] = ()  # bodies whose capsules the obstacle targets
+    #: arguments that set what the task asks, not a condition it is asked under: an agent
+    #: trained for one objective is not scored on another's variant (agents.trained_for)
+    agent_task_keys: ClassVar[tuple[str, ...]] = ("objective",)
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "manipulability": {"objective": "manipulability"},
         "obstacle": {"objective": "obstacle"},
