@@ -99,13 +99,19 @@ def trained_for(env_id: str, name: str, env_kwargs: dict[str, Any]) -> bool:
     from agents.policy import read_config
     from cir_gym.envs.base import default_arguments
 
-    cls = getattr(gym.spec(env_id).entry_point, "cls", None)
+    spec = gym.spec(env_id)
+    cls = getattr(spec.entry_point, "cls", None)
     keys = getattr(cls, "agent_task_keys", ())
     if not keys:
         return True
-    defaults = default_arguments(cls)
-    recorded = read_config(agent_dir(env_id, name)).get("env_kwargs") or {}
-    return all({**defaults, **recorded}.get(k) == {**defaults, **env_kwargs}.get(k) for k in keys)
+    defaults = {**default_arguments(cls), **(spec.kwargs or {})}
+    asked = {**defaults, **env_kwargs}
+    return all(
+        {**defaults, **(read_config(agent_dir(env_id, name, k)).get("env_kwargs") or {})}.get(key)
+        == asked.get(key)
+        for k in seeds(env_id, name)  # every training seed's task
+        for key in keys
+    )
 
 
 def load(env_id: str, name: str, *, path: str | Path | None = None,

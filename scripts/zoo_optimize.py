@@ -94,8 +94,11 @@ class ZooAgent:
         self.transform = transform
         self.vecnormalize = vecnormalize
         self.name = name
-        self.interface_kwargs = {k: env_kwargs[k] for k in ("control", "control_freq")
-                                 if k in env_kwargs}
+        from agents.policy import INTERFACE_KEYS, interface_defaults
+
+        # as a shipped agent's: the recorded interface, else the env's default (500 Hz)
+        self.interface_kwargs = {**interface_defaults(ENV_ID),
+                                 **{k: env_kwargs[k] for k in INTERFACE_KEYS if k in env_kwargs}}
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
