@@ -3,7 +3,7 @@
 >>> import agents
 >>> agents.available("cir_gym/JointTracking-v1")          # doctest: +SKIP
 ['ppo', 'residual_ppo_computed_torque']
->>> policy = agents.load("cir_gym/JointTracking-v1", "ppo")  # doctest: +SKIP
+>>> policy = agents.load("cir_gym/JointTracking-v1", "ppo_100hz")  # doctest: +SKIP
 >>> action, state = policy.predict(obs)                      # doctest: +SKIP
 
 Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``: either one agent

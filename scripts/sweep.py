@@ -30,7 +30,8 @@ Grid file::
 
     evaluate:                       # a block, or a list of blocks
       envs: [cir_gym/JointTracking-v1]
-      policies: [computed_torque, pd_gravity, "agent:ppo"]   # or "all"; or "module:factory"
+      policies: [computed_torque, pd_gravity, "agent:ppo_100hz"]  # or "all" (agents only on
+                                    # their own task); or "module:factory"
       seed: 1000                    # first episode seed
       episodes: 20                  # episodes per (env, policy, arguments, gains)
       episodes_per_task: 5          # default 1: one task per episode
@@ -249,6 +250,16 @@ def _policies(where: str, env_id: str, spec: Any) -> list[str]:
     return names
 
 
+def _trained_for(env_id: str, policy: str, kwargs: dict[str, Any]) -> bool:
+    """False for a shipped agent (``agent:<name>``) trained for another task than ``kwargs``
+    asks (:func:`agents.trained_for`: RedundantIK's objective); True for anything else."""
+    if not policy.startswith("agent:"):
+        return True
+    import agents
+
+    return agents.trained_for(env_id, policy.removeprefix("agent:"), kwargs)
+
+
 def _is_factory(policy: str) -> bool:
     return ":" in policy and not policy.startswith("agent:")
 
@@ -322,9 +333,12 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
         per_task = _positive_int(where, "episodes_per_task", block.get("episodes_per_task", 1))
         for env_id in _env_ids(where, block):
             variants = _variants(where, env_id, block.get("env_kwargs"), block.get("env_overrides"))
+            every = block.get("policies") in (None, "all")
             for policy in _policies(where, env_id, block.get("policies")):
                 for gains in _gain_sets(where, env_id, policy, block.get("gains") or {}):
                     for variant, kwargs in variants:
+                        if every and not _trained_for(env_id, policy, kwargs):
+                            continue  # "all": an agent only on its own task, as the leaderboard
                         for first in range(seed, seed + episodes, per_task):
                             tasks.append(
                                 {

@@ -79,6 +79,21 @@ def test_expand_makes_one_task_per_combination_and_seed_chunk():
     assert task_id({"a": 1, "b": 2}) == task_id({"b": 2, "a": 1})
 
 
+def test_all_policies_pair_an_agent_with_its_own_objective_only():
+    """policies: all on RedundantIK's leaderboard variants: every controller on every
+    objective, a shipped agent only on the objective it was trained for (as the leaderboard);
+    an agent named explicitly runs where it is asked to."""
+    rik = "cir_gym/RedundantIK-v3"
+    grid = {"evaluate": {"envs": [rik], "policies": "all", "episodes": 1,
+                         "env_kwargs": "leaderboard"}}
+    pairs = {(t["policy"], t["variant"]) for t in expand(grid)}
+    assert {("clik", v) for v in ("manipulability", "obstacle", "joint limits")} <= pairs
+    assert {v for p, v in pairs if p == "agent:ppo"} == {"manipulability"}
+    assert {v for p, v in pairs if p == "agent:ppo_obstacle"} == {"obstacle"}
+    grid["evaluate"]["policies"] = ["agent:ppo"]
+    assert len(expand(grid)) == 3
+
+
 def test_expand_leaderboard_variants_and_explicit_kwargs():
     import cir_gym
 
