@@ -2,7 +2,7 @@
 
 >>> import agents
 >>> agents.available("cir_gym/JointTracking-v1")          # doctest: +SKIP
-['ppo', 'residual_ppo_computed_torque']
+['ppo_100hz', 'ppo_100hz_industrial', 'ppo_batched', 'residual_ppo_computed_torque']
 >>> policy = agents.load("cir_gym/JointTracking-v1", "ppo_100hz")  # doctest: +SKIP
 >>> action, state = policy.predict(obs)                      # doctest: +SKIP
 
