@@ -207,11 +207,13 @@ def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
     return quat_orientation_error(quat_ref, quat)
 
 
-def orientation_errors(R_ref: np.ndarray, R: np.ndarray, out: np.ndarray) -> np.ndarray:
+def orientation_errors(R_ref: np.ndarray, R: np.ndarray, out: np.ndarray,
+                       scratch: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
     """:func:`orientation_error` of one reference R_ref (3, 3) against each rotation of R
     (N, 9) (rows of MuJoCo's ``xmat``), into ``out`` (N, 3), which it returns: the same C
-    helpers on each row, without the per-call arrays."""
-    quat_ref, quat, conj, err = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
+    helpers on each row, without the per-call arrays. ``scratch``: four (4,) quaternion
+    buffers to work in (a caller on a hot path keeps them), else made here."""
+    quat_ref, quat, conj, err = scratch or (np.empty(4), np.empty(4), np.empty(4), np.empty(4))
     mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
     for i in range(len(R)):
         mujoco.mju_mat2Quat(quat, R[i])

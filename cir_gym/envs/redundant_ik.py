@@ -295,7 +295,8 @@ class _RedundantIKBase(RobotEnv):
         self.orientation_scales = scales * 10.0  # rad: 1 mm ↔ 0.01 rad
         self._error_scales_sq = self.error_scales**2  # the rewards' kernel widths², per step
         self._orientation_scales_sq = self.orientation_scales**2
-        self._quats = tuple(np.empty(4) for _ in range(4))  # step's orientation_error scratch
+        self._quats = tuple(np.empty(4) for _ in range(4))  # step's orientation_errors scratch
+        self._phi = np.empty((1, 3))  # and its output
         self.secondary_weight = check_number("secondary_weight", secondary_weight, 0.0, 10.0)
         self.velocity_weight = check_number("velocity_weight", velocity_weight, 0.0, 10.0)
         self.termination_penalty = check_number(
@@ -493,11 +494,10 @@ class _RedundantIKBase(RobotEnv):
             yield q, None, None, None
 
     def _min_norm_motion(
-        self, q0: np.ndarray, stride: int = 5, with_manipulability: bool = True
+        self, q0: np.ndarray, stride: int = 5
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_min_norm_samples` run to the end: the joint paths (k + 1, N, n) and the
-        manipulability at each of their first k points (k, N; empty without
-        ``with_manipulability``).
+        manipulability at each of their first k points (k, N).
 
         Used only to set up an episode (where the obstacle goes and which motions avoid it,
         which posture starts "manipulability"); the joint limits are not enforced.
@@ -505,7 +505,7 @@ class _RedundantIKBase(RobotEnv):
         paths, w = [], []
         for q, _, _, J in self._min_norm_samples(q0, stride):
             paths.append(q.copy())
-            if J is not None and with_manipulability:
+            if J is not None:
                 w.append(np.sqrt(np.maximum(np.linalg.det(J @ J.transpose(0, 2, 1)), 0.0)))
         return np.array(paths), np.array(w)
 
@@ -751,14 +751,9 @@ class _RedundantIKBase(RobotEnv):
         p, R = self._forward(q)
         d = self._x_ref[self._k] - p
         e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
-        if self.task_dim == 6:  # orientation_error(R̄, R) in the env's quaternion buffers
-            quat_ref, quat, conj, err = self._quats
-            mujoco.mju_mat2Quat(quat_ref, self._R_ref[self._k].ravel())
-            mujoco.mju_mat2Quat(quat, R.ravel())
-            mujoco.mju_negQuat(conj, quat)
-            mujoco.mju_mulQuat(err, quat_ref, conj)
-            phi = np.empty(3)
-            mujoco.mju_quat2Vel(phi, err, 1.0)
+        if self.task_dim == 6:  # orientation_error(R̄, R) in the env's buffers
+            phi = orientation_errors(self._R_ref[self._k], R.reshape(1, 9), self._phi,
+                                     self._quats)[0]
             e_rot = math.sqrt(float(phi.dot(phi)))
         else:
             e_rot = 0.0
