@@ -94,17 +94,12 @@ def trained_for(env_id: str, name: str, env_kwargs: dict[str, Any]) -> bool:
     class's defaults, must then agree with ``env_kwargs`` (completed the same way) on those
     keys, so no variant is scored with an agent trained for another. True for an env without
     such keys."""
-    import gymnasium as gym
+    from agents.policy import read_config, registered_defaults
 
-    from agents.policy import read_config
-    from cir_gym.envs.base import default_arguments
-
-    spec = gym.spec(env_id)
-    cls = getattr(spec.entry_point, "cls", None)
+    cls, defaults = registered_defaults(env_id)
     keys = getattr(cls, "agent_task_keys", ())
     if not keys:
         return True
-    defaults = {**default_arguments(cls), **(spec.kwargs or {})}
     asked = {**defaults, **env_kwargs}
     return all(
         {**defaults, **(read_config(agent_dir(env_id, name, k)).get("env_kwargs") or {})}.get(key)

@@ -40,11 +40,10 @@ INTERFACE_KEYS = ("control", "control_freq")
 CONFIG = "config.yml"
 
 
-def interface_defaults(env_id: str) -> dict[str, Any]:
-    """The defaults of ``env_id``'s :data:`INTERFACE_KEYS` arguments (its registered kwargs,
-    else its class's defaults; e.g. ``{"control_freq": 500.0}`` for JointTracking-v1): the
-    interface of an agent whose ``config.yml`` does not record them. Empty for an env id
-    registered without cir_gym's entry point."""
+def registered_defaults(env_id: str) -> tuple[type | None, dict[str, Any]]:
+    """``env_id``'s cir_gym env class and the defaults of its arguments (the class's,
+    overridden by the registered kwargs); ``(None, {})`` for an env id registered without
+    cir_gym's entry point."""
     import gymnasium as gym
 
     from cir_gym.envs.base import default_arguments
@@ -52,9 +51,19 @@ def interface_defaults(env_id: str) -> dict[str, Any]:
     spec = gym.spec(env_id)
     cls = getattr(spec.entry_point, "cls", None)
     if cls is None:
-        return {}
-    defaults = {**default_arguments(cls), **(spec.kwargs or {})}
+        return None, {}
+    return cls, {**default_arguments(cls), **(spec.kwargs or {})}
+
+
+def interface_defaults(env_id: str) -> dict[str, Any]:
+    """The defaults of ``env_id``'s :data:`INTERFACE_KEYS` arguments
+    (:func:`registered_defaults`; e.g. ``{"control_freq": 500.0}`` for JointTracking-v1): the
+    interface of an agent whose ``config.yml`` does not record them. Empty for an env id
+    registered without cir_gym's entry point."""
+    defaults = registered_defaults(env_id)[1]
     return {k: defaults[k] for k in INTERFACE_KEYS if defaults.get(k) is not None}
+
+
 MODEL = "model.zip"
 NORMALIZATION = "normalization.npz"
 

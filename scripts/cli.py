@@ -72,6 +72,16 @@ def policy_names(env_id: str) -> list[str]:
     return names
 
 
+def trained_for(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
+    """False for a shipped agent (``agent:<name>``) trained for another task than
+    ``env_kwargs`` asks (:func:`agents.trained_for`: RedundantIK's objective); True for a
+    controller or a factory."""
+    if not policy.startswith("agent:"):
+        return True
+    ag = _agents_module()
+    return ag is None or ag.trained_for(env_id, policy.removeprefix("agent:"), env_kwargs)
+
+
 def split_settings(
     env_id: str, policy: str, settings: list[str]
 ) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -33,21 +33,15 @@ def jobs_for(
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate: every
     controller on every variant, a shipped agent only on the variants of the task it was
     trained for (:func:`agents.trained_for`: RedundantIK's objective)."""
-    from scripts.cli import _agents_module, policy_names
+    from scripts.cli import policy_names, trained_for
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
-    ag = _agents_module()
-
-    def applies(policy: str, kwargs: dict[str, Any]) -> bool:
-        return not policy.startswith("agent:") or ag is None or ag.trained_for(
-            env_id, policy.removeprefix("agent:"), kwargs)
-
     return [
         (env_id, v, {**kw, **(overrides or {})}, p)
         for v, kw in variants.items()
         for p in policy_names(env_id)
-        if applies(p, {**kw, **(overrides or {})})
+        if trained_for(env_id, p, {**kw, **(overrides or {})})
     ]
 
 

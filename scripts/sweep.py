@@ -250,16 +250,6 @@ def _policies(where: str, env_id: str, spec: Any) -> list[str]:
     return names
 
 
-def _trained_for(env_id: str, policy: str, kwargs: dict[str, Any]) -> bool:
-    """False for a shipped agent (``agent:<name>``) trained for another task than ``kwargs``
-    asks (:func:`agents.trained_for`: RedundantIK's objective); True for anything else."""
-    if not policy.startswith("agent:"):
-        return True
-    import agents
-
-    return agents.trained_for(env_id, policy.removeprefix("agent:"), kwargs)
-
-
 def _is_factory(policy: str) -> bool:
     return ":" in policy and not policy.startswith("agent:")
 
@@ -321,6 +311,8 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
         GridError: unknown keys, environments, policies, arguments or gains; bad counts;
             two training tasks that would write the same run directory.
     """
+    from scripts.cli import trained_for
+
     _check_keys("grid", grid, ("name", "evaluate", "train"))
     tasks: list[dict[str, Any]] = []
     for n, block in enumerate(_blocks(grid, "evaluate")):
@@ -337,7 +329,7 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
             for policy in _policies(where, env_id, block.get("policies")):
                 for gains in _gain_sets(where, env_id, policy, block.get("gains") or {}):
                     for variant, kwargs in variants:
-                        if every and not _trained_for(env_id, policy, kwargs):
+                        if every and not trained_for(env_id, policy, kwargs):
                             continue  # "all": an agent only on its own task, as the leaderboard
                         for first in range(seed, seed + episodes, per_task):
                             tasks.append(
