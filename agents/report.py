@@ -41,7 +41,9 @@ import numpy as np
 __all__ = [
     "SeedReport",
     "curve_band",
+    "interval",
     "iqm",
+    "mean",
     "read_curve",
     "seed_report",
     "seed_table",
@@ -86,23 +88,38 @@ def stratified_bootstrap_ci(scores: np.ndarray, statistic: Callable[[np.ndarray]
     return float(lo), float(hi)
 
 
-def interval(scores: np.ndarray, reps: int = REPS, seed: int = 0) -> tuple[float, float, float]:
-    """(IQM, CI low, CI high) of a (runs × tasks) score matrix, with rliable when installed."""
+def mean(scores: np.ndarray) -> float:
+    """Mean of all entries: the statistic for a 0/1 outcome such as success, whose IQM is 0
+    or 1 whenever the rate is below 25 % or above 75 % (rliable's ``aggregate_mean``)."""
+    x = np.asarray(scores, dtype=np.float64)
+    if x.size == 0:
+        raise ValueError("mean of an empty score array")
+    return float(np.mean(x))
+
+
+def interval(scores: np.ndarray, reps: int = REPS, seed: int = 0, *,
+             statistic: str = "iqm") -> tuple[float, float, float]:
+    """(statistic, CI low, CI high) of a (runs × tasks) score matrix, with rliable when
+    installed; ``statistic`` is ``"iqm"`` (a metric) or ``"mean"`` (a 0/1 success rate)."""
+    functions = {"iqm": iqm, "mean": mean}
+    if statistic not in functions:
+        raise ValueError(f"statistic {statistic!r}: allowed {sorted(functions)}")
     x = np.asarray(scores, dtype=np.float64)
     x = x[:, None] if x.ndim == 1 else x
-    point = iqm(x)
+    point = functions[statistic](x)
     if x.shape[0] < 2:
         return point, float("nan"), float("nan")
     try:
         from rliable import library as rly
         from rliable import metrics
     except ImportError:
-        lo, hi = stratified_bootstrap_ci(x, iqm, reps, seed=seed)
+        lo, hi = stratified_bootstrap_ci(x, functions[statistic], reps, seed=seed)
         return point, lo, hi
+    aggregate = {"iqm": metrics.aggregate_iqm, "mean": metrics.aggregate_mean}[statistic]
     with warnings.catch_warnings():  # arch: "random_state is deprecated" (rliable's call)
         warnings.simplefilter("ignore", FutureWarning)
         _, cis = rly.get_interval_estimates(
-            {"agent": x}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps,
+            {"agent": x}, lambda s: np.array([aggregate(s)]), reps=reps,
             random_state=np.random.RandomState(seed))  # rliable takes a RandomState
     return point, float(cis["agent"][0, 0]), float(cis["agent"][1, 0])
 
@@ -164,7 +181,7 @@ def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episode
                seed: int = 1000, names: list[str] | None = None) -> str:
     """Markdown table: every shipped agent of ``env_id`` trained for the variant's task (or
     ``names``) over its training seeds on one variant (``env_kwargs``): seeds, IQM of the
-    primary metric [95 % CI], success IQM [CI], each seed's mean. The leaderboard's one call
+    primary metric [95 % CI], mean success rate [CI], each seed's mean. The leaderboard's one call
     per variant."""
     import agents
 
@@ -177,13 +194,15 @@ def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episode
     primary = reports[0].primary
     lines = [
         f"Agents over training seeds: IQM of `{primary}` over (seeds × {episodes} episodes), "
-        f"95 % stratified-bootstrap CI over seeds ({REPS} replicates; agents/report.py).",
+        f"95 % stratified-bootstrap CI over seeds ({REPS} replicates; agents/report.py); "
+        "success: the mean rate over (seeds × episodes), same CI (an IQM of a 0/1 outcome "
+        "trims any rate below 25 % to 0).",
         "",
-        f"| agent | seeds | IQM {primary} | 95 % CI | success (IQM) | success CI | per seed |",
+        f"| agent | seeds | IQM {primary} | 95 % CI | success (mean) | success CI | per seed |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in reports:
-        s_point, s_lo, s_hi = interval(r.success)
+        s_point, s_lo, s_hi = interval(r.success, statistic="mean")
         per_seed = ", ".join(f"{m:.3g}" for m in r.seed_means)
         ci = "one seed: none" if len(r.seeds) < 2 else f"[{_fmt(r.ci_low)}, {_fmt(r.ci_high)}]"
         s_ci = "—" if len(r.seeds) < 2 else f"[{_fmt(s_lo)}, {_fmt(s_hi)}]"

@@ -338,7 +338,7 @@ def sweep_results(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str,
 def training_seed_table(results: dict[str, EvaluationResult]) -> str:
     """Training runs of one variant with >= 2 seeds: IQM of the primary metric over (seeds ×
     episodes) with its 95 % stratified-bootstrap CI (:func:`agents.report.interval`, the
-    statistics of :func:`agents.report.seed_table`), success IQM, each seed's mean."""
+    statistics of :func:`agents.report.seed_table`), mean success rate, each seed's mean."""
     from agents.report import interval
 
     runs: dict[str, list[EvaluationResult]] = {}
@@ -353,7 +353,7 @@ def training_seed_table(results: dict[str, EvaluationResult]) -> str:
         f"Training runs over seeds: IQM of `{primary}` over (seeds × episodes), 95 % "
         "stratified-bootstrap CI over seeds (agents/report.py).",
         "",
-        f"| run | seeds | IQM {primary} | 95 % CI | success (IQM) | per seed |",
+        f"| run | seeds | IQM {primary} | 95 % CI | success (mean) | per seed |",
         "|---|---|---|---|---|---|",
     ]
     for name, group in sorted(runs.items()):
@@ -377,7 +377,7 @@ def training_seed_table(results: dict[str, EvaluationResult]) -> str:
         per_seed = ", ".join(f"{m:.3g}" for m in scores.mean(axis=1))
         lines.append(
             f"| {name} | {len(group)} | {point:.3g} | [{lo:.3g}, {hi:.3g}] | "
-            f"{interval(success)[0]:.3g} | {per_seed} |"
+            f"{interval(success, statistic='mean')[0]:.3g} | {per_seed} |"
         )
     return "\n".join(lines)
 

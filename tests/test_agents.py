@@ -690,6 +690,21 @@ def test_iqm_and_stratified_bootstrap():
     assert lo2 == pytest.approx(lo, abs=0.03) and hi2 == pytest.approx(hi, abs=0.03)
 
 
+def test_success_rate_is_a_mean_not_an_iqm():
+    """A 0/1 success at a 20 % rate: its IQM trims every success away (0), its mean is 0.2,
+    with a bootstrap CI over seeds that brackets the per-seed rates' mean."""
+    from agents.report import interval
+
+    success = np.zeros((3, 10))
+    success[0, :3] = success[1, :2] = success[2, :1] = 1.0  # 30 %, 20 %, 10 %
+    assert interval(success)[0] == 0.0  # the IQM hides them
+    point, lo, hi = interval(success, reps=500, statistic="mean")
+    assert point == pytest.approx(0.2)
+    assert 0.1 <= lo <= 0.2 <= hi <= 0.3 and hi > lo
+    with pytest.raises(ValueError, match="allowed"):
+        interval(success, statistic="median")
+
+
 def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkeypatch):
     from agents.report import curve_band, read_curve, seed_table
 
