@@ -40,6 +40,47 @@ _MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their 
 _MINR, _FMINR = np.minimum.reduce, np.fmin.reduce  # np.min; a min that skips NaN
 _ADDR = np.add.reduce  # ndarray.sum without its wrapper
 _ANY = np.logical_or.reduce  # ndarray.any without its wrapper
+_ADD, _SUB, _MUL, _DIV, _EXP = np.add, np.subtract, np.multiply, np.divide, np.exp
+_MATMUL, _CONCAT = np.matmul, np.concatenate
+
+
+def _numpy_fp_state() -> tuple[Any, Any, Any, Any]:
+    """(the context variable holding numpy's floating-point error state, np.linalg.solve's
+    state, the all-ignoring state, numpy's one-vector solve gufunc): the states made once, so
+    the step sets one with a context-variable token instead of building an ``np.errstate``
+    (~1 µs) per call. All None where numpy's private layout differs (then the public calls)."""
+    try:
+        from numpy._core._ufunc_config import _extobj_contextvar
+        from numpy._core.umath import _make_extobj
+        from numpy.linalg import _umath_linalg
+        from numpy.linalg._linalg import _raise_linalgerror_singular
+
+        solve_state = _make_extobj(  # np.linalg.solve's own errstate
+            call=_raise_linalgerror_singular,
+            invalid="call",
+            over="ignore",
+            divide="ignore",
+            under="ignore",
+        )
+        return _extobj_contextvar, solve_state, _make_extobj(all="ignore"), _umath_linalg.solve1
+    except (ImportError, AttributeError, TypeError):  # pragma: no cover - another numpy
+        return None, None, None, None
+
+
+_FP_STATE, _SOLVE_STATE, _QUIET_STATE, _SOLVE1 = _numpy_fp_state()
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` of a float64 (n, n) matrix and (n,) vector, bit for bit and
+    with its errors (LinAlgError on a singular matrix): numpy's own LAPACK gufunc under the
+    floating-point state np.linalg.solve sets, without its Python layers (~6 µs less)."""
+    if _FP_STATE is None:  # pragma: no cover - another numpy
+        return np.linalg.solve(a, b)
+    token = _FP_STATE.set(_SOLVE_STATE)
+    try:
+        return _SOLVE1(a, b, signature="dd->d")
+    finally:
+        _FP_STATE.reset(token)
 
 __all__ = [
     "VISUAL_SERVO_ENVIRONMENTS",
@@ -244,7 +285,23 @@ class _VisualServoBase(RobotEnv):
         first = int(self._marker_ids[0])
         consecutive = np.array_equal(self._marker_ids, np.arange(first, first + 4))
         self._marker_rows = slice(first, first + 4) if consecutive else self._marker_ids
-        self._data_vs: tuple = ()  # views of self.data's arrays, see _camera_views
+        self._hot_data: mujoco.MjData | None = None  # the MjData of the views, _hot_views
+        # the step's fast path: self.data's own position stage (kinematics and com positions,
+        # the Robot's calls) at the joints' current bytes _kin_key gives the Jacobian and the
+        # flange pose, when the joints are the whole state (as the Robot's: the same numbers)
+        self._fast = bool(self.robot._whole)
+        self._kin_key: bytes | None = None
+        nv = model.nv
+        self._jac = np.zeros((8, nv))  # [J_P; J_O; J_O's rows 0, 1 again] (the offset's ω × r)
+        self._r5 = np.zeros(5)  # (r0, r1, r2, r0, r1): r = offset · z_flange
+        self._scratch = np.zeros((2, 3, nv))
+        self._twists = np.zeros((2, 6))  # V, V_world
+        self._jjt = np.zeros((6, 6))
+        self._qd = np.zeros(nv)
+        self._rc = np.zeros((3, 3))  # the true camera's optical frame → world
+        self._points = np.zeros((2, 4, 3))  # markers − camera (world), then (optical frame)
+        self._p3 = np.zeros(3)
+        self._kernel = np.zeros(len(REWARD_SCALES_SQ))
         self._projection: tuple = (None, None, None)  # (camera, (f_u, f_v), (c_u, c_v))
         self.model_points = self._model_points()
         self.nominal_camera = Camera.from_fovy(FOVY, IMAGE_WIDTH, IMAGE_HEIGHT)
@@ -279,6 +336,9 @@ class _VisualServoBase(RobotEnv):
         self._s_ref = np.zeros((4, 2))
         self._s_obs = np.zeros((4, 2))
         self._s_true = np.zeros((4, 2))
+        # (array, its .tolist()): the step's Python-float copies, valid while the array is
+        self._s_true_list: tuple[Any, list] = (None, [])
+        self._s_ref_list: tuple[Any, list] = (None, [])
         self._image = np.zeros((IMAGE_HEIGHT, IMAGE_WIDTH, 3), dtype=np.uint8)
         self._detect_failures = 0
         self._k = 0
@@ -358,6 +418,7 @@ class _VisualServoBase(RobotEnv):
         # the joint-limit test's thresholds (step)
         self._low_stop = self.lower + JOINT_MARGIN
         self._high_stop = self.upper - JOINT_MARGIN
+        self._low_list, self._high_list = self._low_stop.tolist(), self._high_stop.tolist()
 
     # ------------------------------------------------------------------ geometry
     def _moving_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -397,47 +458,74 @@ class _VisualServoBase(RobotEnv):
         """Pixel features (4, 2) of the true camera, or None if a point is behind it.
 
         :func:`~cir_gym.vision.optical_pose` and :func:`~cir_gym.vision.project` inlined
-        (the same operations: the step's hot path)."""
-        cam_xmat, cam_xpos, markers = self._camera_views()
-        R_c = cam_xmat @ MUJOCO_TO_OPTICAL
-        points = (markers - cam_xpos) @ R_c
-        Z = points[:, 2:]  # (k, 1)
-        if _FMINR(Z, axis=None) <= 1e-6:  # = (Z <= 1e-6).any(): NaN skipped by both
-            return None
+        (the same operations: the step's hot path), into scratch buffers; a new array."""
+        if self._hot_data is not self.data:
+            self._hot_views()
+        R_c, shifted, points = self._rc, self._v_shifted, self._v_points
+        _MATMUL(self._v_cam_xmat, MUJOCO_TO_OPTICAL, out=R_c)
+        markers = self._v_markers
+        if markers is None:  # marker rows not consecutive: a copy
+            markers = self._v_geom_xpos[self._marker_rows]
+        _SUB(markers, self._v_cam_xpos, out=shifted)
+        _MATMUL(shifted, R_c, out=points)
+        for z in self._v_depth.tolist():  # = (Z <= 1e-6).any(): NaN fails every comparison
+            if z <= 1e-6:
+                return None
         cam = self.true_camera
         if self._projection[0] is not cam:  # the episode's true camera, as (2,) arrays
             self._projection = (cam, np.array([cam.fu, cam.fv]), np.array([cam.cu, cam.cv]))
         _, f, c = self._projection
-        return c + f * points[:, :2] / Z  # c + f X / Z per column, in project's order
+        s = _MUL(f, self._v_plane)  # c + f X / Z per column, in project's order
+        _DIV(s, self._v_depth_col, out=s)
+        return _ADD(c, s, out=s)
 
-    def _camera_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(cam_xmat (3, 3), cam_xpos (3,)) of the servo camera and the markers' geom_xpos
-        (4, 3) of ``self.data``: views built once per MjData (a pybind property builds a new
-        array on every access), the markers' a copy when their rows are not consecutive."""
-        views = self._data_vs
-        d = self.data
-        if not views or views[0] is not d:
-            cid = self._cam_id
-            views = self._data_vs = (
-                d,
-                d.cam_xmat[cid].reshape(3, 3),
-                d.cam_xpos[cid],
-                d.geom_xpos,
-            )
-        markers = views[3][self._marker_rows]
-        return views[1], views[2], markers
+    def _hot_views(self) -> None:
+        """Views of ``self.data``'s arrays (a pybind property builds a new array on every
+        access) and of the step's scratch buffers, built once per MjData (and after
+        unpickling, which copies views)."""
+        d, cid, fl = self.data, self._cam_id, self._flange
+        self._v_cam_xmat = d.cam_xmat[cid].reshape(3, 3)
+        self._v_cam_xpos = d.cam_xpos[cid]
+        self._v_geom_xpos = d.geom_xpos
+        rows = self._marker_rows
+        self._v_markers = d.geom_xpos[rows] if isinstance(rows, slice) else None
+        self._v_q = d.qpos[self._q_rows] if isinstance(self._q_rows, slice) else None
+        self._v_flange_p = d.site_xpos[fl]
+        self._v_flange_R = d.site_xmat[fl].reshape(3, 3)
+        self._v_flange_z = d.site_xmat[fl][2::3]
+        shifted, points = self._points
+        self._v_shifted, self._v_points = shifted, points
+        self._v_depth, self._v_depth_col = points[:, 2], points[:, 2:]
+        self._v_plane = points[:, :2]
+        jac = self._jac
+        self._v_J, self._v_JT = jac[:6], jac[:6].T
+        self._v_Jp, self._v_Jr = jac[0:3], jac[3:6]
+        self._v_w_head, self._v_w_tail = jac[3:5], jac[6:8]
+        self._v_w_a, self._v_w_b = jac[5:8], jac[4:7]  # (w2, w0, w1), (w1, w2, w0)
+        r5 = self._r5
+        self._v_r, self._v_r_head, self._v_r_tail = r5[:3], r5[:2], r5[3:]
+        self._v_r_a, self._v_r_b = r5[1:4, None], r5[2:5, None]  # (r1, r2, r0), (r2, r0, r1)
+        V, V_world = self._twists
+        self._v_V, self._v_Vw = V, V_world
+        self._v_V_parts = (V[:3], V[3:], V_world[:3], V_world[3:])
+        self._v_ctrl_limit = (
+            self.model.actuator_ctrlrange[:, 1] if self._act_all else None
+        )  # the model's, live (tests scale it in place)
+        self._hot_data = d
 
     def _in_image(self, s: np.ndarray) -> bool:
         """Every feature (k, 2) inside the true image (``Camera.inside`` of all, one pass;
         NaN is outside)."""
-        lo, hi = _MINR(s, axis=0), _MAXR(s, axis=0)
         cam = self.true_camera
-        return bool(
-            lo[0] >= -0.5
-            and lo[1] >= -0.5
-            and hi[0] <= cam.width - 0.5
-            and hi[1] <= cam.height - 0.5
-        )
+        return self._inside(s.tolist(), cam.width - 0.5, cam.height - 0.5)
+
+    @staticmethod
+    def _inside(s: list, high_u: float, high_v: float) -> bool:
+        """Every feature [u, v] of ``s`` in [−0.5, high_u] × [−0.5, high_v] (NaN is not)."""
+        for u, v in s:
+            if not (u >= -0.5 and v >= -0.5 and u <= high_u and v <= high_v):
+                return False
+        return True
 
     def _kinematics(self) -> None:
         mujoco.mj_kinematics(self.model, self.data)
@@ -545,6 +633,7 @@ class _VisualServoBase(RobotEnv):
         self._detect_failures = 0
         self._err[:] = 0.0
         self._pos[:] = 0.0
+        self._kin_key = None  # the first step runs the position stage (once per episode)
         self._s_true = self._true_features()
         self._s_obs = self._s_true.copy()
         self._observe()
@@ -553,42 +642,56 @@ class _VisualServoBase(RobotEnv):
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a, _ = self._check_action(action)
-        qpos, rows = self._data_views()[1], self._q_rows
-        q = qpos[rows].copy()
-        qd = self._joint_command(a, q)
+        m, d = self.model, self.data
+        if self._hot_data is not d:
+            self._hot_views()
+        qd = self._joint_command(a)
         diverged = self._simulate(self._ctrl(qd))
-        self._kinematics()
-        k = min(self._k, self.max_steps - 1)
-        self._k = k + 1
-        q = qpos[rows].copy()
+        mujoco.mj_kinematics(m, d)
+        if self._fast:  # self.data's position stage serves _record and the next Jacobian
+            mujoco.mj_comPos(m, d)
+            q = self._v_q
+            self._kin_key = q.tobytes()
+        else:
+            q = d.qpos[self._q_rows].copy()
+        mujoco.mj_camlight(m, d)
+        k = min(self._k, self.max_steps - 1) + 1
+        self._k = k
+        at_limit = False  # = any(q < low stop) or any(q > high stop), on Python floats
+        for x, low, high in zip(q.tolist(), self._low_list, self._high_list, strict=True):
+            if x < low or x > high:
+                at_limit = True
+                break
         s = None if diverged else self._true_features()
-        lost = s is None or not self._in_image(s)
-        at_limit = bool(_ANY(q < self._low_stop) or _ANY(q > self._high_stop))
-        if s is not None:
-            self._s_true = s
+        if s is None:
+            lost = True
+        else:
+            s_list = s.tolist()
+            cam = self.true_camera
+            lost = not self._inside(s_list, cam.width - 0.5, cam.height - 0.5)
+            self._s_true, self._s_true_list = s, (s, s_list)
         detection_failure = self._observe()
-        self._record(self._k, q)
+        e = self._record(k, None if self._fast else q)
         terminated = diverged or lost or at_limit
-        e = float(self._err[self._k])
-        kernel = np.exp(-(e**2) / REWARD_SCALES_SQ)
+        kernel = self._kernel
+        _DIV(-(e**2), REWARD_SCALES_SQ, out=kernel)
+        _EXP(kernel, out=kernel)
         r_features = -(1.0 - float(_ADDR(kernel)) / kernel.size)  # = np.mean, one reduction
         r_action = -self.action_weight * float(a @ a) / a.size
         # a failure is charged the rest of the episode at the worst feature reward (−1 per
         # step) on top of the penalty, so that ending an episode early never pays
-        r_term = (
-            (-self.termination_penalty - float(self.max_steps - self._k)) if terminated else 0.0
-        )
+        r_term = (-self.termination_penalty - float(self.max_steps - k)) if terminated else 0.0
         reward = r_features + r_action + r_term
-        truncated = self._k >= self.max_steps and not terminated
+        truncated = k >= self.max_steps and not terminated
         if not self._done:
-            self._k_end = self._k
+            self._k_end = k
         self._done = self._done or terminated or truncated
         info: dict[str, Any] = {
             "reward_features": r_features,
             "reward_action": r_action,
             "reward_termination": r_term,
             "feature_error": e,
-            "feature_lost": bool(lost),
+            "feature_lost": lost,
             "joint_limit": at_limit,
             "detection_failure": detection_failure,
             "diverged": bool(diverged),
@@ -599,10 +702,50 @@ class _VisualServoBase(RobotEnv):
             info["is_success"] = bool(not terminated and metrics["final_feature_error"] < CONVERGED)
         return self._obs(), reward, terminated, truncated, info
 
-    def _joint_command(self, a: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """q̇ (7,) from the action: a ⊙ q̇_max, or J⁺ V for a twist V = a ⊙ twist limits."""
+    def _joint_command(self, a: np.ndarray) -> np.ndarray:
+        """q̇ (7,) from the action: a ⊙ q̇_max, or J⁺ V for a twist V = a ⊙ twist limits.
+
+        The twist's Jacobian and flange pose come from ``self.data``'s position stage at the
+        current joints (the fast path: run again only if the joints changed since the last
+        step's), else from the Robot's own MjData; the same numbers."""
         if self.action_kind == "joint_velocity":
             return a * self.velocity_limit
+        if not self._fast:
+            return self._joint_command_robot(a, self.data.qpos[self._q_rows].copy())
+        q = self._v_q
+        if not math.isfinite(q.dot(q)) and not np.all(np.isfinite(q)):  # a corrupted state:
+            return np.zeros(self.n)  # the physics step reports it
+        m, d = self.model, self.data
+        key = q.tobytes()
+        if key != self._kin_key:  # a reset, or the state was set from outside
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            self._kin_key = key
+        _MUL(a, self.twist_limit, out=self._v_V)
+        Jp = self._v_Jp
+        mujoco.mj_jacSite(m, d, Jp, self._v_Jr, self._flange)
+        if self.moving_offset:  # v_o = v_f + ω × r = v_f − r × ω, _moving_jacobian's operations
+            _MUL(self._v_flange_z, self.moving_offset, out=self._v_r)
+            self._v_r_tail[:] = self._v_r_head
+            self._v_w_tail[:] = self._v_w_head
+            t1, t2 = self._scratch
+            _MUL(self._v_w_a, self._v_r_a, out=t1)  # (r1 w2, r2 w0, r0 w1)
+            _MUL(self._v_w_b, self._v_r_b, out=t2)  # (r2 w1, r0 w2, r1 w0)
+            _SUB(t1, t2, out=t1)
+            _SUB(Jp, t1, out=Jp)
+        R = self._twist_rotation()
+        Va, Vb, Wa, Wb = self._v_V_parts
+        _MATMUL(R, Va, out=Wa)
+        _MATMUL(R, Vb, out=Wb)
+        V_world, J, JT = self._v_Vw, self._v_J, self._v_JT
+        JJT = _MATMUL(J, JT, out=self._jjt)
+        try:
+            return _MATMUL(JT, _solve(JJT, V_world), out=self._qd)  # J⁺ V
+        except np.linalg.LinAlgError:  # exactly singular: the least-squares solution
+            return np.linalg.lstsq(J, V_world, rcond=None)[0]
+
+    def _joint_command_robot(self, a: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """:meth:`_joint_command` through the Robot (joints that are not the whole state)."""
         if not math.isfinite(q.dot(q)) and not np.all(np.isfinite(q)):  # a corrupted state:
             return np.zeros(self.n)  # the physics step reports it
         V = a * self.twist_limit
@@ -616,15 +759,31 @@ class _VisualServoBase(RobotEnv):
     def _world_twist(self, V: np.ndarray, q: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def _twist_rotation(self) -> np.ndarray:
+        """R (3, 3) of the twist's frame → world now (fast path: ``self.data``'s)."""
+        raise NotImplementedError
+
     def _ctrl(self, qd: np.ndarray) -> np.ndarray:
-        """Velocity-servo commands: q̇ scaled down uniformly to the actuators' ctrlrange."""
-        limit = self.model.actuator_ctrlrange[self._act, 1]  # the model's now (tests scale it)
-        with np.errstate(all="ignore"):
-            ratio = float(_MAXR(_ABS(qd) / limit))  # = np.max(np.abs(qd) / limit)
+        """Velocity-servo commands: q̇ scaled down uniformly to the actuators' ctrlrange (an
+        array the caller may not keep: _simulate copies it)."""
+        if self._hot_data is not self.data:
+            self._hot_views()
+        limit = self._v_ctrl_limit  # the model's now (tests scale it)
+        if limit is None:
+            limit = self.model.actuator_ctrlrange[self._act, 1]
+        if _FP_STATE is None:  # pragma: no cover - another numpy
+            with np.errstate(all="ignore"):
+                ratio = float(_MAXR(_ABS(qd) / limit))
+        else:
+            token = _FP_STATE.set(_QUIET_STATE)  # np.errstate(all="ignore")
+            try:
+                ratio = float(_MAXR(_ABS(qd) / limit))  # = np.max(np.abs(qd) / limit)
+            finally:
+                _FP_STATE.reset(token)
         if math.isfinite(ratio) and ratio > 1.0:
             qd = qd / ratio
         if self._act_all:  # every actuator, in order
-            return qd.copy()
+            return qd
         ctrl = np.zeros(self.model.nu)
         ctrl[self._act] = qd
         return ctrl
@@ -634,8 +793,9 @@ class _VisualServoBase(RobotEnv):
         """Update the observed features (and the image); True if a marker was not found."""
         failure = False
         if self.features == "projected":
-            noise = self.np_random.normal(0.0, 1.0, (4, 2)) * self.pixel_noise
-            self._s_obs = self._s_true + noise
+            noise = self.np_random.normal(0.0, 1.0, (4, 2))
+            _MUL(noise, self.pixel_noise, out=noise)
+            self._s_obs = _ADD(self._s_true, noise, out=noise)
         else:
             self._render_camera()
             s, found = detect_markers(self._image)
@@ -686,24 +846,50 @@ class _VisualServoBase(RobotEnv):
         return renderer
 
     def _obs(self) -> dict[str, np.ndarray]:
-        buf = np.empty(23)  # one new buffer, views handed out
-        out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
-        out["features"][:] = self._s_obs.ravel()
-        out["features_ref"][:] = self._s_ref.ravel()
-        out["q"][:] = self._data_views()[1][self._q_rows]
+        q = self._v_q if self._hot_data is self.data else None
+        if q is None:
+            q = self.data.qpos[self._q_rows]
+        buf = _CONCAT((self._s_obs, self._s_ref, q), axis=None)  # one new buffer, views out
         CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
+        out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
         if self.obs_image:
             out["image"] = self._image.copy()
         return out
 
-    def _record(self, k: int, q: np.ndarray | None = None) -> None:
-        """The true feature error (px) and the moving frame's position (goal frame) at step k;
-        ``q``: the joint positions now, if the caller has them."""
-        d = ((self._s_true - self._s_ref) ** 2).tolist()  # summed in numpy's order
-        self._err[k] = math.sqrt((0.0 + sum(0.0 + u + v for u, v in d)) / len(d))
-        p = self._moving_pose(self._data_views()[1][self._q_rows].copy() if q is None else q)[0]
+    def _record(self, k: int, q: np.ndarray | None = None) -> float:
+        """The true feature error (px, returned) and the moving frame's position (goal frame)
+        at step k. ``q``: the joint positions now, for the Robot's kinematics; None: those of
+        ``self.data`` (its position stage is current), or the Robot's at ``self.data``'s
+        joints when the joints are not the whole state."""
+        s, s_list = self._s_true_list
+        if s is not self._s_true:
+            s, s_list = self._s_true, self._s_true.tolist()
+            self._s_true_list = (s, s_list)
+        ref, ref_list = self._s_ref_list
+        if ref is not self._s_ref:
+            ref, ref_list = self._s_ref, self._s_ref.tolist()
+            self._s_ref_list = (ref, ref_list)
+        # ((s − s*)²).tolist() summed in numpy's order: 0.0 + u² + v² per point
+        total = sum(
+            [
+                0.0 + (u - ur) * (u - ur) + (v - vr) * (v - vr)
+                for (u, v), (ur, vr) in zip(s_list, ref_list, strict=True)
+            ]
+        )
+        e = math.sqrt((0.0 + total) / len(s_list))
+        self._err[k] = e
         p_g, R_g = self._goal_pose
-        self._pos[k] = R_g.T @ (p - p_g)
+        if q is None and self._fast:
+            if self._hot_data is not self.data:
+                self._hot_views()
+            p = _MUL(self._v_flange_z, self.moving_offset, out=self._p3)  # _moving_pose's
+            _ADD(self._v_flange_p, p, out=p)
+        else:
+            if q is None:
+                q = self.data.qpos[self._q_rows].copy()
+            p = self._moving_pose(q)[0]
+        _MATMUL(R_g.T, _SUB(p, p_g, out=p), out=self._pos[k])
+        return e
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs``)."""
@@ -796,7 +982,9 @@ class _VisualServoBase(RobotEnv):
         state = super().__getstate__()
         state["_eye"] = None
         state["_eye_small"] = None
-        state["_data_vs"] = ()  # views would come back as copies, detached from the MjData
+        state["_hot_data"] = None  # views would come back as copies, detached from the MjData
+        for name in [k for k in state if k.startswith("_v_")]:
+            del state[name]
         return state
 
     def controller_context(self) -> TaskContext:
@@ -967,6 +1155,9 @@ class VisualServoEnv(_VisualServoBase):
         R = self.robot.site_pose(self._flange, q)[1]
         return np.concatenate((R @ V[:3], R @ V[3:]))
 
+    def _twist_rotation(self) -> np.ndarray:
+        return self._v_flange_R  # the flange's (nominal camera's) rotation, self.data's
+
     def draw_task(self, scene: mujoco.MjvScene) -> None:
         super().draw_task(scene)
         rendering.place_world_geoms(scene, self.model)  # the target, moved per episode
@@ -1091,6 +1282,9 @@ class VisualServoEyeToHandEnv(_VisualServoBase):
         """Plate twist in the nominal camera frame → world (6,)."""
         R = self._CAMERA_R
         return np.concatenate((R @ V[:3], R @ V[3:]))
+
+    def _twist_rotation(self) -> np.ndarray:
+        return self._CAMERA_R
 
 
 VISUAL_SERVO_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
