@@ -55,6 +55,9 @@ NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-epi
 _ABS, _MAX = np.abs, np.max
 # hot-path ufuncs called directly (np.clip/np.sum add a Python layer over the same loops)
 _EXP, _SUM = np.exp, np.add.reduce
+_MUL, _DIV, _NEG, _MATMUL, _ARCTAN2 = np.multiply, np.divide, np.negative, np.matmul, np.arctan2
+_EMPTY = np.empty
+_sqrt = math.sqrt
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -339,14 +342,16 @@ class CartesianTrackingEnv(RobotEnv):
         self._obs_high = np.concatenate([np.full(size, b) for size, b in self._obs_bounds.values()])
         self._obs_low = -self._obs_high
         self._obs_size = self._obs_high.size
-        self._obs_keys = tuple(self._obs_slices)
-        self._obs_slice_list = list(self._obs_slices.values())
-        self._obs_items = tuple(self._obs_slices.items())
         at = self._obs_slices
         self._refs_at = slice(at["x_ref"].start, at["acc_ref"].stop)  # x_ref ... acc_ref
         self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
         self._scales_sq = self.error_scales**2  # the reward's s²
         self._jac = np.zeros((6, self.model.nv))  # mj_jacSite's [J_P; J_O] on self.data
+        self._jac_rows = (self._jac[:3], self._jac[3:])  # its outputs (views of _jac)
+        self._kernels = np.zeros(self._scales_sq.size)  # the reward's exp(−e² / s²)
+        # numpy's arctan2 (not libm's: they differ in the last bit) on 0-d arrays: the
+        # ufunc's cheapest call (no conversion of Python floats)
+        self._atan2_args = (np.zeros(()), np.zeros(()), np.zeros(()))
         self._whole = self.model.nv == n and np.array_equal(self._da, np.arange(n))
         self._site_views: tuple[np.ndarray, ...] = ()
         steps = self.max_steps
@@ -355,6 +360,12 @@ class CartesianTrackingEnv(RobotEnv):
         # _quat_ref, _twist_ref and _acc_ref are views of its columns
         self._refs = np.zeros((steps + 1, 19))
         self._ref_views()
+        # the observation's views in the key order above (step builds its dict from these)
+        self._obs_slice_tuple = tuple(self._obs_slices.values())
+        # qpos/qvel are the robot's joints (the iiwa's model): copied without an index view
+        self._joints_whole = (
+            self.model.nq == n and self._whole and np.array_equal(self._qa, np.arange(n))
+        )
         self._pos_err = np.zeros(steps)  # ‖p̄ − p‖ per step (m)
         self._ang_err = np.zeros(steps)  # θ̃ per step (rad)
         self._tau = np.zeros((steps, n))
@@ -446,6 +457,7 @@ class CartesianTrackingEnv(RobotEnv):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._ref_views()  # pickled views come back as copies
+        self._jac_rows = (self._jac[:3], self._jac[3:])
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -471,7 +483,7 @@ class CartesianTrackingEnv(RobotEnv):
         self._q_start[:] = q0
         self._k = 0
         self._k_scored = 0
-        self._a_prev[:] = 0.0
+        self._a_prev = np.zeros(self.n)  # step keeps the action array itself (its own copy)
         self._q_meas_prev[:] = self._quantize(q0)
         e_pos, e_ang = self._errors(0)
         follow = self.max_following_error
@@ -523,17 +535,6 @@ class CartesianTrackingEnv(RobotEnv):
         e_ang = osp.quat_angle(self._quat_ref[k].tolist(), _quat(R).tolist())
         return e_pos, e_ang
 
-    def _flange_now(self) -> tuple[np.ndarray, np.ndarray]:
-        """The flange's position (3,) and rotation (9,, row-major) at the simulator's q now,
-        as views of ``self.data``: its kinematics (mj_kinematics, mj_comPos: what
-        ``Robot.site_pose``/``jacobian`` run on the robot's own MjData for the same q, so the
-        same numbers) recomputed in place. The next ``mj_step`` recomputes every such field
-        from qpos and qvel, so the physics is untouched."""
-        m, d = self.model, self.data
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        return self._site_views
-
     def _refresh_views(self, d: mujoco.MjData) -> None:
         """RobotEnv's views, and the flange site's rows of ``d.site_xpos``/``site_xmat``."""
         super()._refresh_views(d)
@@ -545,47 +546,54 @@ class CartesianTrackingEnv(RobotEnv):
         return state
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        if self._k >= self.max_steps:
+        k = self._k
+        if k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, _, peak = self._check_action_peak(action)
-        k = self._k
-        tau = a * self.torque_limit
-        self._tau[k] = tau  # recorded without the noise
+        tau = _MUL(a, self.torque_limit, self._tau[k])  # recorded without the noise
         if self.torque_noise > 0:
             tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-        if self.encoder_resolution > 0:  # the previous measurement, for the velocity estimate
+        exact = self.encoder_resolution <= 0  # measured q = true q: one kinematics for both
+        if not exact:  # the previous measurement, for the velocity estimate
             self._q_meas_prev[:] = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
         self._k = k1 = k + 1
-        exact = self.encoder_resolution <= 0  # measured q = true q: one kinematics for both
-        if exact:  # _errors_at on the flange pose now, its quaternion kept for _obs_exact
-            p, R = self._flange_now()
-            buf = np.empty(self._obs_size)
-            quat = buf[self._obs_slices["quat"]]
-            mujoco.mju_mat2Quat(quat, R)
-            d = self._x_ref[k1] - p
-            e_pos = math.sqrt(float(d.dot(d)))  # = np.linalg.norm(d): the same BLAS dot
-            e_ang = osp.quat_angle(self._quat_ref[k1].tolist(), quat.tolist())
+        if exact:  # _flange_now inlined: the kinematics of self.data now
+            m, d = self.model, self.data
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            obs, buf, qd, e_pos, e_ang = self._obs_errors(k1, *self._site_views)
+            _ABS(qd, self._speed[k])  # |q̇| (obs["qd"] before its clip)
         else:
             e_pos, e_ang = self._errors(k1)
-        self._pos_err[k], self._ang_err[k] = e_pos, e_ang
-        _ABS(self._views[2][self._qd_at], out=self._speed[k])  # views: set by _simulate
+            _ABS(self._views[2][self._qd_at], out=self._speed[k])  # views: set by _simulate
+        self._pos_err[k] = e_pos
+        self._ang_err[k] = e_ang
         self._sat[k] = peak >= 1.0  # clipped (peak 1), or an entry at ±1
 
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
-        kernel = _EXP(-e_sq / self._scales_sq)
-        r_track = -(1.0 - float(_SUM(kernel)) / kernel.size)  # = np.mean, one reduction
-        r_torque = -self.torque_weight * float(a.dot(a)) / self.n
+        kernel = _EXP(_DIV(-e_sq, self._scales_sq, self._kernels), self._kernels)
+        size = kernel.size
+        if size < 8:  # = np.mean: below 8 terms numpy's sum adds from left to right
+            total = 0.0
+            for term in kernel.tolist():
+                total += term
+        else:
+            total = float(_SUM(kernel))
+        r_track = -(1.0 - total / size)
+        n = self.n
+        r_torque = -self.torque_weight * float(a.dot(a)) / n
         da = a - self._a_prev
-        r_rate = -self.action_rate_weight * float(da.dot(da)) / self.n
+        r_rate = -self.action_rate_weight * float(da.dot(da)) / n
         r_div = -self.divergence_penalty if diverged else 0.0
-        stopped = bool(not diverged and (e_pos > self._limits[0] or e_ang > self._limits[1]))
+        limit_pos, limit_ang = self._limits
+        stopped = not diverged and (e_pos > limit_pos or e_ang > limit_ang)
         r_follow = -self.following_error_penalty if stopped else 0.0
-        self._a_prev[:] = a
+        self._a_prev = a  # a new array of _check_action_peak's, never the caller's
         reward = r_track + r_torque + r_rate + r_follow + r_div
 
         terminated = diverged or stopped
-        truncated = self._k >= self.max_steps and not terminated
+        truncated = k1 >= self.max_steps and not terminated
         info: dict[str, Any] = {
             "reward_tracking": r_track,
             "reward_torque": r_torque,
@@ -598,20 +606,101 @@ class CartesianTrackingEnv(RobotEnv):
             "diverged": diverged,
         }
         if stopped:  # scored over the whole horizon: the last errors held
-            self._pos_err[self._k :] = e_pos
-            self._ang_err[self._k :] = e_ang
+            self._pos_err[k1:] = e_pos
+            self._ang_err[k1:] = e_ang
             self._k_scored = self.max_steps
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
             info["is_success"] = bool(not terminated and self._settled())
-        return (
-            (self._obs_exact(p, R, buf) if exact else self._obs()),
-            reward,
-            terminated,
-            truncated,
-            info,
+        if exact:
+            CLIP(buf, self._obs_low, self._obs_high, buf)
+        else:
+            obs = self._obs()
+        return obs, reward, terminated, truncated, info
+
+    def _flange_now(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flange's position (3,) and rotation (9,, row-major) at the simulator's q now,
+        as views of ``self.data``: its kinematics (mj_kinematics, mj_comPos: what
+        ``Robot.site_pose``/``jacobian`` run on the robot's own MjData for the same q, so the
+        same numbers) recomputed in place. The next ``mj_step`` recomputes every such field
+        from qpos and qvel, so the physics is untouched. (``step`` runs these two calls
+        inline.)"""
+        m, d = self.model, self.data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        return self._site_views
+
+    def _obs_exact(self, x: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`_obs` without encoder quantisation, from the flange pose ``x``, ``R`` (flat)
+        that :meth:`_flange_now` computed on ``self.data``: the observation ``step`` returns."""
+        obs, buf, *_ = self._obs_errors(min(self._k, self.max_steps), x, R)
+        CLIP(buf, self._obs_low, self._obs_high, buf)
+        return obs
+
+    def _obs_errors(
+        self, k: int, p: np.ndarray, R: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float, float]:
+        """Without encoder quantisation: the observation at control instant ``k`` (its flat
+        buffer still to be clipped), that buffer, its ``qd`` view, and the errors
+        ‖p̄_k − p‖ and θ̃ (:meth:`_errors`), from the flange pose ``p``, ``R`` (flat) that
+        :meth:`_flange_now` computed on ``self.data``.
+
+        The Jacobian is mj_jacSite's on ``self.data``, the call ``Robot.jacobian`` makes. The
+        errors are those of :meth:`_errors_at`, operation for operation: ``np.linalg.norm``'s
+        BLAS dot, and :func:`~cir_gym.operational_space.quat_angle` in Python floats (the
+        sign flip of Q_e and its scalar part do not enter the angle: only ε_e's squares and
+        |Q̄·Q| do) with numpy's arctan2.
+        """
+        m, d = self.model, self.data
+        buf = _EMPTY(self._obs_size)
+        s_q, s_qd, s_x, s_quat, s_twist, s_xr, s_qr, s_tr, s_ar = self._obs_slice_tuple
+        q, qd, x, quat = buf[s_q], buf[s_qd], buf[s_x], buf[s_quat]
+        twist, x_ref, quat_ref = buf[s_twist], buf[s_xr], buf[s_qr]
+        obs = {
+            "q": q,
+            "qd": qd,
+            "x": x,
+            "quat": quat,
+            "twist": twist,
+            "x_ref": x_ref,
+            "quat_ref": quat_ref,
+            "twist_ref": buf[s_tr],
+            "acc_ref": buf[s_ar],
+        }
+        _, qpos, qvel = self._views
+        if self._joints_whole:
+            q[:] = qpos
+            qd[:] = qvel
+        else:
+            q[:] = qpos[self._q_at]
+            qd[:] = qvel[self._qd_at]
+        x[:] = p
+        mujoco.mju_mat2Quat(quat, R)
+        buf[self._refs_at] = self._refs[k]  # x_ref, quat_ref, twist_ref, acc_ref
+        jac = self._jac
+        jac_p, jac_r = self._jac_rows
+        mujoco.mj_jacSite(m, d, jac_p, jac_r, self._site)
+        _MATMUL(jac if self._whole else jac[:, self._da], qd, twist)
+        diff = x_ref - x
+        e_pos = _sqrt(float(diff.dot(diff)))  # = np.linalg.norm(d): the same BLAS dot
+        q0, q1, q2, q3 = quat.tolist()
+        r0, r1, r2, r3 = quat_ref.tolist()
+        dot = 0.0 + r0 * q0 + r1 * q1 + r2 * q2 + r3 * q3  # osp.quat_dot(Q̄, Q) = Q·Q̄
+        if dot < 0.0:  # align_quat: Q·Q̄ ≥ 0 (the error above is the same for ±Q)
+            _NEG(quat, quat)
+        # ε_e of Q_e = Q̄ ⊗ Q⁻¹ (trajectories.quat_mul with the conjugate's negated entries)
+        ex = r0 * -q1 + r1 * q0 + r2 * -q3 - r3 * -q2
+        ey = r0 * -q2 - r1 * -q3 + r2 * q0 + r3 * -q1
+        ez = r0 * -q3 + r1 * -q2 - r2 * -q1 + r3 * q0
+        norms = _sqrt(0.0 + r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3) * _sqrt(
+            0.0 + q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
         )
+        eps_arr, dot_arr, angle = self._atan2_args
+        eps_arr[()] = _sqrt(0.0 + ex * ex + ey * ey + ez * ez) / norms
+        dot_arr[()] = abs(dot) / norms
+        e_ang = 2.0 * float(_ARCTAN2(eps_arr, dot_arr, angle))
+        return obs, buf, qd, e_pos, e_ang
 
     def _settled(self) -> bool:
         """Both errors below their thresholds at every step with t ≥ settling_time."""
@@ -649,33 +738,6 @@ class CartesianTrackingEnv(RobotEnv):
     def _quantize(self, q: np.ndarray) -> np.ndarray:
         res = self.encoder_resolution
         return np.round(q / res) * res if res > 0 else q.copy()
-
-    def _obs_exact(
-        self, x: np.ndarray, R: np.ndarray, buf: np.ndarray | None = None
-    ) -> dict[str, np.ndarray]:
-        """:meth:`_obs` without encoder quantisation, from the flange pose ``x``, ``R`` (flat)
-        that :meth:`_flange_now` computed on ``self.data`` (its Jacobian: mj_jacSite there, the
-        call ``Robot.jacobian`` makes). ``buf``: a new observation buffer whose ``quat``
-        entries already hold ``mju_mat2Quat`` of ``R`` (step computed it for the error)."""
-        k = min(self._k, self.max_steps)
-        if buf is None:
-            buf = np.empty(self._obs_size)
-            mujoco.mju_mat2Quat(buf[self._obs_slices["quat"]], R)
-        v = {key: buf[sl] for key, sl in self._obs_items}
-        _, qpos, qvel = self._views
-        qd = v["qd"]
-        v["q"][:] = qpos[self._q_at]
-        qd[:] = qvel[self._qd_at]
-        jac = self._jac
-        mujoco.mj_jacSite(self.model, self.data, jac[:3], jac[3:], self._site)
-        np.matmul(jac if self._whole else jac[:, self._da], qd, out=v["twist"])
-        v["x"][:] = x
-        quat = v["quat"]
-        if osp.quat_dot(quat.tolist(), self._quat_ref[k].tolist()) < 0.0:  # align_quat
-            np.negative(quat, out=quat)
-        buf[self._refs_at] = self._refs[k]  # x_ref, quat_ref, twist_ref, acc_ref
-        CLIP(buf, self._obs_low, self._obs_high, out=buf)
-        return v
 
     def _obs(self) -> dict[str, np.ndarray]:
         """The observation: one new flat buffer, filled, clipped to the bounds once, handed
