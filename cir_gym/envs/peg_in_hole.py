@@ -14,7 +14,11 @@ from gymnasium import spaces
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
 from cir_gym.envs.base import (
+    _MAX_SPEED_SQ,
+    _STATE,
+    _UNSTABLE_CONTIGUOUS,
     CLIP,
+    MAX_JOINT_SPEED,
     InvalidArgument,
     RobotEnv,
     TaskContext,
@@ -49,6 +53,7 @@ PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
 STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact counts as stuck
 # hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
 _SUM = np.add.reduce
+_isfinite = math.isfinite
 _NO_FRAMES = np.zeros((0, 9))
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
@@ -341,6 +346,10 @@ class PegInHoleEnv(RobotEnv):
             (k, slice(int(e - b.size), int(e)))
             for (k, b), e in zip(self._obs_bounds.items(), ends, strict=True)
         )
+        self._obs_at = tuple(sl for _, sl in self._obs_slices)  # _obs's order
+        self._rot = np.zeros((3, 3))  # _obs's scratch: the peg's rotation, hole frame
+        self._rot_flat = self._rot.reshape(9)
+        self._rot_tmp = np.zeros((3, 3))
         steps = self.max_steps
         self._force = np.zeros(steps)
         self._k = 0
@@ -394,10 +403,10 @@ class PegInHoleEnv(RobotEnv):
         diverged, f = self._advance(a)
         k = self._k
         self._k += 1
-        contact = self._contact_state()
+        depth, tip, two_point, wedged, jammed = self._contact_flags()
         self._force[k] = f
-        depth = contact["depth"]
-        inserted = bool(not diverged and depth >= self.goal_depth and contact["in_bore"])
+        # in_bore only where it decides (the radial distance of _contact_state)
+        inserted = bool(not diverged and depth >= self.goal_depth and self._in_bore(tip))
         if inserted and self._inserted_at is None:
             self._inserted_at = self._k
         over = bool(not diverged and f > self.force_limit)
@@ -421,9 +430,9 @@ class PegInHoleEnv(RobotEnv):
             "reward_diverged": r_div,
             "contact_force": f,
             "depth": depth,
-            "two_point_contact": contact["two_point"],
-            "wedged": contact["wedged"],
-            "jammed": contact["jammed"],
+            "two_point_contact": two_point,
+            "wedged": wedged,
+            "jammed": jammed,
             "force_limit_exceeded": over,
             "diverged": diverged,
         }
@@ -448,7 +457,14 @@ class PegInHoleEnv(RobotEnv):
     def _advance(self, a: np.ndarray) -> tuple[bool, float]:
         """One control period, physics step by physics step (the sensor, the position
         interface and the force monitor run at the physics rate); return (diverged, peak of
-        the windowed contact force over the period)."""
+        the windowed contact force over the period).
+
+        :meth:`RobotEnv._simulate` of one physics step, inline (its call, view and argument
+        handling cost more than a physics step's checks): the same state saved before each
+        step, the same warning, speed and finite tests after it, the same restore on
+        divergence. The state before steps 2.. is the one read by the previous step's finite
+        test (one ``mj_getState`` serves both); the warning counters are read once per
+        period (they only grow, and a change ends the period)."""
         if self.control == "position":
             R_h = self._R_hole  # the action is in the nominal hole frame
             dx = a * self.increment_scale
@@ -456,10 +472,89 @@ class PegInHoleEnv(RobotEnv):
             tau = None
         else:
             tau = a * self.torque_limit
-        skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
-        peak, diverged = 0.0, False
+        m, d = self.model, self.data
+        if self._warn_data is not d:
+            self._refresh_views(d)
+        wrench = self._wrench_view  # None: the force and torque sensors are not neighbours
+        if not _UNSTABLE_CONTIGUOUS or wrench is None:
+            return self._advance_simulate(tau)
+        d_ctrl, d_qpos, d_qvel = self._views
+        warn = self._warn_view
+        skip = self.frame_skip
+        last = skip - 1
+        step, get_state = mujoco.mj_step, mujoco.mj_getState
         # the true wrench of every physics step, fed to the sensor model after the loop (one
         # call; nothing else in the loop reads the sensor or draws from its generator)
+        wrenches: list[list[float]] = []
+        recent, window, slot = self._recent, self._window, self._slot
+        peak, diverged = 0.0, False
+        scratch = self._scratch_state
+        get_state(m, d, scratch, _STATE)
+        if _isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
+            self._scratch_state, self._safe_state = self._safe_state, scratch
+        if tau is not None:  # held over the period (MuJoCo changes ctrl only on a warning)
+            d_ctrl[:] = tau
+        else:
+            motion, limit, q_at, qd_at = self.motion, self.torque_limit, self._q_at, self._qd_at
+        before = warn.tobytes()
+        try:
+            for i in range(skip):
+                if tau is None:
+                    ctrl = motion.torque(d_qpos[q_at], d_qvel[qd_at], (i + 1) / skip)
+                    d_ctrl[:] = CLIP(ctrl, -limit, limit)
+                step(m, d)
+                if warn.tobytes() != before:
+                    diverged = True
+                elif not d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ:
+                    diverged = self._state_diverged()
+                elif i < last:  # the next step's saved state, and the finite test of q
+                    scratch = self._scratch_state
+                    get_state(m, d, scratch, _STATE)
+                    if _isfinite(scratch.dot(scratch)):
+                        self._scratch_state, self._safe_state = self._safe_state, scratch
+                    else:
+                        diverged = self._state_diverged()
+                elif not _isfinite(d_qpos.dot(d_qpos)):
+                    diverged = self._state_diverged()
+                if diverged:
+                    mujoco.mj_resetData(m, d)
+                    mujoco.mj_setState(m, d, self._safe_state, _STATE)
+                    mujoco.mj_forward(m, d)
+                    break
+                wrenches.append(wrench.tolist())
+                slot += 1
+                if slot == window:
+                    slot = 0
+                if d.ncon:
+                    f = self._net_contact_force()
+                    recent[slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
+                else:  # no contact: the net force is zero
+                    recent[slot] = 0.0
+                # = np.mean: numpy sums fewer than 8 terms from left to right, as sum() does
+                total = sum(recent) if window < 8 else float(_SUM(np.array(recent)))
+                if total / window > peak:  # = max(peak, total / window)
+                    peak = total / window
+        finally:
+            self._slot = slot
+            self.ft_sensor.advance_many(wrenches)
+        return diverged, peak
+
+    def _state_diverged(self) -> bool:
+        """RobotEnv._simulate's exact test of the state after a step that failed its quick
+        ones: a non-finite q or q̇, or a joint speed above MAX_JOINT_SPEED."""
+        d = self.data
+        with np.errstate(all="ignore"):
+            return bool(
+                not np.all(np.isfinite(d.qpos))
+                or not np.all(np.isfinite(d.qvel))
+                or np.max(np.abs(d.qvel), initial=0.0) > MAX_JOINT_SPEED
+            )
+
+    def _advance_simulate(self, tau: np.ndarray | None) -> tuple[bool, float]:
+        """:meth:`_advance`'s loop through :meth:`RobotEnv._simulate`, one physics step per
+        call (where its inline form does not apply)."""
+        skip, self.frame_skip = self.frame_skip, 1  # _simulate: one physics step per call
+        peak, diverged = 0.0, False
         wrenches: list[list[float]] = []
         recent, window, slot = self._recent, self._window, self._slot
         simulate, d = self._simulate, self.data
@@ -483,7 +578,6 @@ class PegInHoleEnv(RobotEnv):
                     recent[slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
                 else:  # no contact: the net force is zero
                     recent[slot] = 0.0
-                # = np.mean: numpy sums fewer than 8 terms from left to right, as sum() does
                 total = sum(recent) if window < 8 else float(_SUM(np.array(recent)))
                 peak = max(peak, total / window)
         finally:
@@ -505,11 +599,13 @@ class PegInHoleEnv(RobotEnv):
         state["_wrench_view"] = None  # rebuilt on the new MjData by _simulate
         state.pop("_tip_views", None)
         state["_jacp"] = state["_jacr"] = None  # views of _jac, rebuilt by __setstate__
+        state["_rot_flat"] = None  # a view of _rot
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._jacp, self._jacr = self._jac[:3], self._jac[3:]
+        self._rot_flat = self._rot.reshape(9)
 
     def _true_wrench(self) -> np.ndarray:
         d = self.data
@@ -553,39 +649,47 @@ class PegInHoleEnv(RobotEnv):
 
     def _contact_state(self) -> dict[str, Any]:
         """Insertion depth and the two-point/jamming/wedging flags (see Episode End)."""
-        m, d = self.model, self.data
-        axis = self.true_hole_R[:, 2]
-        side: list[np.ndarray] = []
-        hits, first, frames = self._peg_contacts() if d.ncon else ([], None, _NO_FRAMES)
-        for i in hits:
-            mujoco.mj_contactForce(m, d, i, self._cforce)
-            sign = -1.0 if first[i] == self._peg_geom else 1.0  # frame[0] points geom1 → geom2
-            n = sign * frames[i][:3]  # normal pushing the peg
-            along = float(n @ axis)
-            if abs(along) < SIDE_NORMAL and self._cforce[0] > 0:
-                lateral = n - along * axis
-                # ‖lateral‖ as np.linalg.norm computes it: sqrt of the same dot product
-                side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
-        tip = self._tip_in_hole()
-        depth = float(-tip[2])
-        two_point = len(side) > 1 and any(
-            float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :]
-        )
-        mu_d = geo.FRICTION * 2 * self.geometry.hole_radius
-        v_axis = 0.0
-        if two_point:
-            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._tip)
-            v_axis = float(axis @ (self._jacp @ d.qvel))
-        wedged = bool(two_point and depth < mu_d)
-        jammed = bool(two_point and not wedged and abs(v_axis) < STALL_SPEED)
-        radial = float(np.hypot(tip[0], tip[1]))
+        depth, tip, two_point, wedged, jammed = self._contact_flags()
         return {
             "depth": depth,
-            "two_point": bool(two_point),
+            "two_point": two_point,
             "wedged": wedged,
             "jammed": jammed,
-            "in_bore": radial < self.geometry.hole_radius + self.geometry.chamfer,
+            "in_bore": self._in_bore(tip),
         }
+
+    def _in_bore(self, tip: np.ndarray) -> bool:
+        """The tip (in the true hole frame) within the bore's radius plus the chamfer."""
+        radial = float(np.hypot(tip[0], tip[1]))
+        return radial < self.geometry.hole_radius + self.geometry.chamfer
+
+    def _contact_flags(self) -> tuple[float, np.ndarray, bool, bool, bool]:
+        """(depth, tip in the true hole frame, two_point, wedged, jammed): _contact_state's
+        values, the radial test left to the caller (step needs it only at the goal depth)."""
+        m, d = self.model, self.data
+        side: list[np.ndarray] = []
+        if d.ncon:
+            axis = self.true_hole_R[:, 2]
+            hits, first, frames = self._peg_contacts()
+            for i in hits:
+                mujoco.mj_contactForce(m, d, i, self._cforce)
+                sign = -1.0 if first[i] == self._peg_geom else 1.0  # frame[0]: geom1 → geom2
+                n = sign * frames[i][:3]  # normal pushing the peg
+                along = float(n @ axis)
+                if abs(along) < SIDE_NORMAL and self._cforce[0] > 0:
+                    lateral = n - along * axis
+                    # ‖lateral‖ as np.linalg.norm computes it: sqrt of the same dot product
+                    side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
+        tip = self._tip_in_hole()
+        depth = float(-tip[2])
+        if len(side) > 1 and any(
+            float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :]
+        ):
+            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._tip)
+            v_axis = float(self.true_hole_R[:, 2] @ (self._jacp @ d.qvel))
+            wedged = depth < geo.FRICTION * 2 * self.geometry.hole_radius  # μ D
+            return depth, tip, True, wedged, bool(not wedged and abs(v_axis) < STALL_SPEED)
+        return depth, tip, False, False, False
 
     # ------------------------------------------------------------------ pictures
     def draw_task(self, scene: mujoco.MjvScene) -> None:
@@ -630,31 +734,34 @@ class PegInHoleEnv(RobotEnv):
         return self.ft_sensor.reading.copy()
 
     def _obs(self) -> dict[str, np.ndarray]:
+        """One new flat buffer in the layout of ``_obs_bounds``, filled through precomputed
+        slices (the products into their places with ``out=``: the same matmuls), clipped
+        once, handed out as views (each step's arrays are new)."""
         d = self.data
         _, qpos, qvel = self._data_views()
         xpos, xmat = self._tip_views
         mujoco.mj_jacSite(self.model, d, self._jacp, self._jacr, self._tip)
         vw = self._jac @ qvel  # [J_p q̇; J_r q̇]
         R_hole = self._R_hole
-        p = R_hole.T @ (xpos - self.hole_pos)
-        R = R_hole.T @ xmat.reshape(3, 3) @ ALIGNED.T
         buf = np.empty(self._obs_size)  # one new buffer per step; the entries are its views
-        obs = {key: buf[sl] for key, sl in self._obs_slices}
-        obs["q"][:] = qpos[self._q_at]
-        obs["qd"][:] = qvel[self._qd_at]
-        obs["peg_pos"][:] = p
-        quat = obs["peg_quat"]
-        mujoco.mju_mat2Quat(quat, R.ravel())  # as _quat: w >= 0 (R: a new C-ordered array)
+        q_at, qd_at, pos_at, quat_at, twist_at, wrench_at, hpos_at, hquat_at = self._obs_at
+        buf[q_at] = qpos[self._q_at]
+        buf[qd_at] = qvel[self._qd_at]
+        np.matmul(R_hole.T, xpos - self.hole_pos, out=buf[pos_at])
+        R = self._rot  # R_holeᵀ R_tip ALIGNEDᵀ, in two scratch matrices
+        np.matmul(np.matmul(R_hole.T, xmat.reshape(3, 3), out=self._rot_tmp), ALIGNED.T, out=R)
+        quat = buf[quat_at]
+        mujoco.mju_mat2Quat(quat, self._rot_flat)  # as _quat: w >= 0
         if quat[0] < 0:
             np.negative(quat, out=quat)
         # [R_holeᵀ v; R_holeᵀ ω] as the rows of [v; ω] (2, 3) times R_hole: one matmul
-        np.matmul(vw.reshape(2, 3), R_hole, out=obs["peg_twist"].reshape(2, 3))
-        obs["wrench"][:] = self.ft_sensor.reading
-        obs["hole_pos"][:] = self.hole_pos
-        obs["hole_quat"][:] = self.hole_quat
+        np.matmul(vw.reshape(2, 3), R_hole, out=buf[twist_at].reshape(2, 3))
+        buf[wrench_at] = self.ft_sensor.reading
+        buf[hpos_at] = self.hole_pos
+        buf[hquat_at] = self.hole_quat
         # np.minimum(np.maximum(·, −b), b) of every entry: the clip ufunc (bounds ≠ 0)
         CLIP(buf, self._obs_low, self._obs_high, out=buf)
-        return obs
+        return {key: buf[sl] for key, sl in self._obs_slices}
 
     @staticmethod
     def _quat(R: np.ndarray) -> np.ndarray:
