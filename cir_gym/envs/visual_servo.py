@@ -36,6 +36,8 @@ from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
+as_strided = np.lib.stride_tricks.as_strided
+
 _MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their wrappers
 _MINR, _FMINR = np.minimum.reduce, np.fmin.reduce  # np.min; a min that skips NaN
 _ADDR = np.add.reduce  # ndarray.sum without its wrapper
@@ -299,6 +301,13 @@ class _VisualServoBase(RobotEnv):
         self._jjt = np.zeros((6, 6))
         self._qd = np.zeros(nv)
         self._rc = np.zeros((3, 3))  # the true camera's optical frame → world
+        self._rc_key: bytes | None = None  # cam_xmat's bytes behind _rc (a world-fixed camera)
+        # a camera fixed in the world: mj_step's own mj_camlight leaves its pose current
+        self._camera_fixed = bool(
+            model.cam_bodyid[self._cam_id] == 0
+            and model.cam_mode[self._cam_id] == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
+        )
+        self._goal_lists: tuple[Any, list, np.ndarray | None] = (None, [], None)
         self._points = np.zeros((2, 4, 3))  # markers − camera (world), then (optical frame)
         self._p3 = np.zeros(3)
         self._kernel = np.zeros(len(REWARD_SCALES_SQ))
@@ -462,7 +471,13 @@ class _VisualServoBase(RobotEnv):
         if self._hot_data is not self.data:
             self._hot_views()
         R_c, shifted, points = self._rc, self._v_shifted, self._v_points
-        _MATMUL(self._v_cam_xmat, MUJOCO_TO_OPTICAL, out=R_c)
+        if self._camera_fixed:  # R_c changes only with the model (the episode's camera)
+            key = self._v_cam_xmat.tobytes()
+            if key != self._rc_key:
+                _MATMUL(self._v_cam_xmat, MUJOCO_TO_OPTICAL, out=R_c)
+                self._rc_key = key
+        else:
+            _MATMUL(self._v_cam_xmat, MUJOCO_TO_OPTICAL, out=R_c)
         markers = self._v_markers
         if markers is None:  # marker rows not consecutive: a copy
             markers = self._v_geom_xpos[self._marker_rows]
@@ -501,10 +516,15 @@ class _VisualServoBase(RobotEnv):
         self._v_J, self._v_JT = jac[:6], jac[:6].T
         self._v_Jp, self._v_Jr = jac[0:3], jac[3:6]
         self._v_w_head, self._v_w_tail = jac[3:5], jac[6:8]
-        self._v_w_a, self._v_w_b = jac[5:8], jac[4:7]  # (w2, w0, w1), (w1, w2, w0)
+        row, col = jac.strides
+        # [(w2, w0, w1), (w1, w2, w0)]: rows 5-7 and 4-6 of jac as one (2, 3, nv) view
+        self._v_w_ab = as_strided(jac[5:], (2, 3, jac.shape[1]), (-row, row, col))
         r5 = self._r5
         self._v_r, self._v_r_head, self._v_r_tail = r5[:3], r5[:2], r5[3:]
-        self._v_r_a, self._v_r_b = r5[1:4, None], r5[2:5, None]  # (r1, r2, r0), (r2, r0, r1)
+        # [(r1, r2, r0), (r2, r0, r1)] as a (2, 3, 1) view of r5[1:5]
+        self._v_r_ab = as_strided(r5[1:], (2, 3, 1), (r5.strides[0], r5.strides[0], 0))
+        self._v_cross = self._scratch, self._scratch[0], self._scratch[1]
+        self._v_twist_R = self._twist_rotation()
         V, V_world = self._twists
         self._v_V, self._v_Vw = V, V_world
         self._v_V_parts = (V[:3], V[3:], V_world[:3], V_world[3:])
@@ -654,7 +674,8 @@ class _VisualServoBase(RobotEnv):
             self._kin_key = q.tobytes()
         else:
             q = d.qpos[self._q_rows].copy()
-        mujoco.mj_camlight(m, d)
+        if not self._camera_fixed:  # else mj_step's mj_camlight left its pose current
+            mujoco.mj_camlight(m, d)
         k = min(self._k, self.max_steps - 1) + 1
         self._k = k
         at_limit = False  # = any(q < low stop) or any(q > high stop), on Python floats
@@ -713,11 +734,12 @@ class _VisualServoBase(RobotEnv):
         if not self._fast:
             return self._joint_command_robot(a, self.data.qpos[self._q_rows].copy())
         q = self._v_q
-        if not math.isfinite(q.dot(q)) and not np.all(np.isfinite(q)):  # a corrupted state:
-            return np.zeros(self.n)  # the physics step reports it
         m, d = self.model, self.data
         key = q.tobytes()
-        if key != self._kin_key:  # a reset, or the state was set from outside
+        if key != self._kin_key:  # a reset, or the state was set from outside (the last
+            # step's state is finite: _simulate restores a diverged one)
+            if not math.isfinite(q.dot(q)) and not np.all(np.isfinite(q)):  # corrupted:
+                return np.zeros(self.n)  # the physics step reports it
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             self._kin_key = key
@@ -728,12 +750,11 @@ class _VisualServoBase(RobotEnv):
             _MUL(self._v_flange_z, self.moving_offset, out=self._v_r)
             self._v_r_tail[:] = self._v_r_head
             self._v_w_tail[:] = self._v_w_head
-            t1, t2 = self._scratch
-            _MUL(self._v_w_a, self._v_r_a, out=t1)  # (r1 w2, r2 w0, r0 w1)
-            _MUL(self._v_w_b, self._v_r_b, out=t2)  # (r2 w1, r0 w2, r1 w0)
+            t, t1, t2 = self._v_cross
+            _MUL(self._v_w_ab, self._v_r_ab, out=t)  # (r1 w2, r2 w0, r0 w1), (r2 w1, r0 w2, r1 w0)
             _SUB(t1, t2, out=t1)
             _SUB(Jp, t1, out=Jp)
-        R = self._twist_rotation()
+        R = self._v_twist_R
         Va, Vb, Wa, Wb = self._v_V_parts
         _MATMUL(R, Va, out=Wa)
         _MATMUL(R, Vb, out=Wb)
@@ -878,17 +899,29 @@ class _VisualServoBase(RobotEnv):
         )
         e = math.sqrt((0.0 + total) / len(s_list))
         self._err[k] = e
-        p_g, R_g = self._goal_pose
+        goal, p_g, R_gT = self._goal_lists
+        if goal is not self._goal_pose:
+            goal = self._goal_pose
+            p_g, R_gT = goal[0].tolist(), goal[1].T
+            self._goal_lists = (goal, p_g, R_gT)
         if q is None and self._fast:
             if self._hot_data is not self.data:
                 self._hot_views()
-            p = _MUL(self._v_flange_z, self.moving_offset, out=self._p3)  # _moving_pose's
-            _ADD(self._v_flange_p, p, out=p)
+            # _moving_pose's p + offset z, then − p_g, on Python floats
+            (x, y, z), (zx, zy, zz), off = (
+                self._v_flange_p.tolist(),
+                self._v_flange_z.tolist(),
+                self.moving_offset,
+            )
+            p = self._p3
+            p[0] = x + off * zx - p_g[0]
+            p[1] = y + off * zy - p_g[1]
+            p[2] = z + off * zz - p_g[2]
         else:
             if q is None:
                 q = self.data.qpos[self._q_rows].copy()
-            p = self._moving_pose(q)[0]
-        _MATMUL(R_g.T, _SUB(p, p_g, out=p), out=self._pos[k])
+            p = self._moving_pose(q)[0] - goal[0]
+        _MATMUL(R_gT, p, out=self._pos[k])
         return e
 
     def episode_metrics(self) -> dict[str, float]:
