@@ -55,7 +55,7 @@ NEAR_SINGULAR_Q6 = 0.3  # rad: q6 goes from +0.3 to −0.3 (through 0 at mid-epi
 _ABS, _MAX = np.abs, np.max
 # hot-path ufuncs called directly (np.clip/np.sum add a Python layer over the same loops)
 _EXP, _SUM = np.exp, np.add.reduce
-_MUL, _DIV, _NEG, _MATMUL, _ARCTAN2 = np.multiply, np.divide, np.negative, np.matmul, np.arctan2
+_MUL, _NEG, _ARCTAN2 = np.multiply, np.negative, np.arctan2
 _EMPTY = np.empty
 _sqrt = math.sqrt
 
@@ -349,6 +349,8 @@ class CartesianTrackingEnv(RobotEnv):
         self._jac = np.zeros((6, self.model.nv))  # mj_jacSite's [J_P; J_O] on self.data
         self._jac_rows = (self._jac[:3], self._jac[3:])  # its outputs (views of _jac)
         self._kernels = np.zeros(self._scales_sq.size)  # the reward's exp(−e² / s²)
+        # (index, s²) pairs: −e² / s² divided in Python floats (IEEE, as numpy's divide)
+        self._scales_sq_items = tuple(enumerate(self._scales_sq.tolist()))
         # numpy's arctan2 (not libm's: they differ in the last bit) on 0-d arrays: the
         # ufunc's cheapest call (no conversion of Python floats)
         self._atan2_args = (np.zeros(()), np.zeros(()), np.zeros(()))
@@ -369,7 +371,7 @@ class CartesianTrackingEnv(RobotEnv):
         self._pos_err = np.zeros(steps)  # ‖p̄ − p‖ per step (m)
         self._ang_err = np.zeros(steps)  # θ̃ per step (rad)
         self._tau = np.zeros((steps, n))
-        self._speed = np.zeros((steps, n))  # |q̇| per step
+        self._qd_true = np.zeros((steps, n))  # the true q̇ per step (|q̇|: at the metrics)
         self._sat = np.zeros(steps, dtype=bool)
         self._k = 0
         self._k_scored = 0
@@ -563,16 +565,19 @@ class CartesianTrackingEnv(RobotEnv):
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             obs, buf, qd, e_pos, e_ang = self._obs_errors(k1, *self._site_views)
-            _ABS(qd, self._speed[k])  # |q̇| (obs["qd"] before its clip)
+            self._qd_true[k] = qd  # (obs["qd"] before its clip)
         else:
             e_pos, e_ang = self._errors(k1)
-            _ABS(self._views[2][self._qd_at], out=self._speed[k])  # views: set by _simulate
+            self._qd_true[k] = self._views[2][self._qd_at]  # views: set by _simulate
         self._pos_err[k] = e_pos
         self._ang_err[k] = e_ang
         self._sat[k] = peak >= 1.0  # clipped (peak 1), or an entry at ±1
 
         e_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2
-        kernel = _EXP(_DIV(-e_sq, self._scales_sq, self._kernels), self._kernels)
+        kernel = self._kernels
+        for i, s_sq in self._scales_sq_items:
+            kernel[i] = -e_sq / s_sq
+        _EXP(kernel, kernel)
         size = kernel.size
         if size < 8:  # = np.mean: below 8 terms numpy's sum adds from left to right
             total = 0.0
@@ -681,7 +686,7 @@ class CartesianTrackingEnv(RobotEnv):
         jac = self._jac
         jac_p, jac_r = self._jac_rows
         mujoco.mj_jacSite(m, d, jac_p, jac_r, self._site)
-        _MATMUL(jac if self._whole else jac[:, self._da], qd, twist)
+        (jac if self._whole else jac[:, self._da]).dot(qd, twist)  # = np.matmul: BLAS gemv
         diff = x_ref - x
         e_pos = _sqrt(float(diff.dot(diff)))  # = np.linalg.norm(d): the same BLAS dot
         q0, q1, q2, q3 = quat.tolist()
@@ -719,7 +724,7 @@ class CartesianTrackingEnv(RobotEnv):
         q = self.data.qpos[self._qa]
         J = self.robot.jacobian(self._site, q)
         drift = osp.null_space_projector(J, np.linalg.pinv(J)) @ (q - self._q_start)
-        speed = self._speed[:k]
+        speed = _ABS(self._qd_true[:k])
         return {
             "position_rms": rms_of(pos),
             "orientation_rms": rms_of(ang),
