@@ -39,11 +39,8 @@ from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 as_strided = np.lib.stride_tricks.as_strided
 
 _MAXR, _ABS = np.maximum.reduce, np.absolute  # np.max and np.abs without their wrappers
-_MINR, _FMINR = np.minimum.reduce, np.fmin.reduce  # np.min; a min that skips NaN
 _ADDR = np.add.reduce  # ndarray.sum without its wrapper
-_ANY = np.logical_or.reduce  # ndarray.any without its wrapper
-_ADD, _SUB, _MUL, _DIV, _EXP = np.add, np.subtract, np.multiply, np.divide, np.exp
-_CONCAT = np.concatenate
+_SUB, _MUL, _DIV, _EXP = np.subtract, np.multiply, np.divide, np.exp
 #: the products A @ B as np.dot with an output: the very BLAS calls of np.matmul (gemv, gemm,
 #: syrk for J Jᵀ) with less dispatch (~0.2 µs a call on these 3- to 7-element operands)
 _DOT = np.dot
@@ -314,7 +311,7 @@ class _VisualServoBase(RobotEnv):
         self._points = np.zeros((2, 4, 3))  # markers − camera (world), then (optical frame)
         self._p3 = np.zeros(3)
         self._kernel = np.zeros(len(REWARD_SCALES_SQ))
-        self._projection: tuple = (None, None, None)  # (camera, (f_u, f_v), (c_u, c_v))
+        self._projection: tuple = (None, 0.0, 0.0, 0.0, 0.0)  # (camera, f_u, f_v, c_u, c_v)
         self.model_points = self._model_points()
         self.nominal_camera = Camera.from_fovy(FOVY, IMAGE_WIDTH, IMAGE_HEIGHT)
         self.true_camera = self.nominal_camera
@@ -346,11 +343,9 @@ class _VisualServoBase(RobotEnv):
         self._err = np.zeros(steps + 1)  # true feature error (px) at each step
         self._pos = np.zeros((steps + 1, 3))  # moving frame position in the goal frame
         self._s_ref = np.zeros((4, 2))
+        self._s_ref_list: tuple[Any, list] = (None, [])  # (_s_ref, its flat list)
         self._s_obs = np.zeros((4, 2))
         self._s_true = np.zeros((4, 2))
-        # (array, its .tolist()): the step's Python-float copies, valid while the array is
-        self._s_true_list: tuple[Any, list] = (None, [])
-        self._s_ref_list: tuple[Any, list] = (None, [])
         self._image = np.zeros((IMAGE_HEIGHT, IMAGE_WIDTH, 3), dtype=np.uint8)
         self._detect_failures = 0
         self._k = 0
@@ -467,10 +462,16 @@ class _VisualServoBase(RobotEnv):
         return J
 
     def _true_features(self) -> np.ndarray | None:
-        """Pixel features (4, 2) of the true camera, or None if a point is behind it.
+        """Pixel features (4, 2) of the true camera, or None if a point is behind it."""
+        s = self._true_feature_list()
+        return None if s is None else np.array(s).reshape(-1, 2)
+
+    def _true_feature_list(self) -> list[float] | None:
+        """:meth:`_true_features` as a flat list (u₁, v₁, …, u₄, v₄) of Python floats.
 
         :func:`~cir_gym.vision.optical_pose` and :func:`~cir_gym.vision.project` inlined
-        (the same operations: the step's hot path), into scratch buffers; a new array."""
+        (the same operations: the step's hot path): the frames in scratch buffers, the
+        pinhole's few divisions on Python floats."""
         if self._hot_data is not self.data:
             self._hot_views()
         R_c, shifted, points = self._rc, self._v_shifted, self._v_points
@@ -486,16 +487,18 @@ class _VisualServoBase(RobotEnv):
             markers = self._v_geom_xpos[self._marker_rows]
         _SUB(markers, self._v_cam_xpos, out=shifted)
         _DOT(shifted, R_c, out=points)
-        for z in self._v_depth.tolist():  # = (Z <= 1e-6).any(): NaN fails every comparison
-            if z <= 1e-6:
+        rows = points.tolist()
+        for row in rows:  # = (Z <= 1e-6).any(): NaN fails every comparison
+            if row[2] <= 1e-6:
                 return None
         cam = self.true_camera
-        if self._projection[0] is not cam:  # the episode's true camera, as (2,) arrays
-            self._projection = (cam, np.array([cam.fu, cam.fv]), np.array([cam.cu, cam.cv]))
-        _, f, c = self._projection
-        s = _MUL(f, self._v_plane)  # c + f X / Z per column, in project's order
-        _DIV(s, self._v_depth_col, out=s)
-        return _ADD(c, s, out=s)
+        projection = self._projection
+        if projection[0] is not cam:  # the episode's true camera, as Python floats
+            projection = (cam, float(cam.fu), float(cam.fv), float(cam.cu), float(cam.cv))
+            self._projection = projection
+        _, fu, fv, cu, cv = projection
+        # c + f X / Z per coordinate, in project's order
+        return [s for X, Y, Z in rows for s in (cu + fu * X / Z, cv + fv * Y / Z)]
 
     def _hot_views(self) -> None:
         """Views of ``self.data``'s arrays (a pybind property builds a new array on every
@@ -513,8 +516,6 @@ class _VisualServoBase(RobotEnv):
         self._v_flange_z = d.site_xmat[fl][2::3]
         shifted, points = self._points
         self._v_shifted, self._v_points = shifted, points
-        self._v_depth, self._v_depth_col = points[:, 2], points[:, 2:]
-        self._v_plane = points[:, :2]
         jac = self._jac
         self._v_J, self._v_JT = jac[:6], jac[:6].T
         self._v_Jp, self._v_Jr = jac[0:3], jac[3:6]
@@ -540,15 +541,64 @@ class _VisualServoBase(RobotEnv):
         """Every feature (k, 2) inside the true image (``Camera.inside`` of all, one pass;
         NaN is outside)."""
         cam = self.true_camera
-        return self._inside(s.tolist(), cam.width - 0.5, cam.height - 0.5)
+        return self._inside(s.ravel().tolist(), cam.width - 0.5, cam.height - 0.5)
 
     @staticmethod
-    def _inside(s: list, high_u: float, high_v: float) -> bool:
-        """Every feature [u, v] of ``s`` in [−0.5, high_u] × [−0.5, high_v] (NaN is not)."""
-        for u, v in s:
+    def _inside(s: list[float], high_u: float, high_v: float) -> bool:
+        """Every feature of the flat (u₁, v₁, …) ``s`` in [−0.5, high_u] × [−0.5, high_v]
+        (NaN is not)."""
+        pairs = iter(s)
+        for u, v in zip(pairs, pairs, strict=True):
             if not (u >= -0.5 and v >= -0.5 and u <= high_u and v <= high_v):
                 return False
         return True
+
+    # The true and the observed features: (array or None, flat list or None), each made from
+    # the other on demand (the step computes Python floats, other callers read arrays).
+    @property
+    def _s_true(self) -> np.ndarray:
+        arr, flat = self._s_true_pair
+        if arr is None:
+            arr = np.array(flat).reshape(-1, 2)
+            self._s_true_pair = (arr, flat)
+        return arr
+
+    @_s_true.setter
+    def _s_true(self, value: np.ndarray) -> None:
+        self._s_true_pair = (value, None)
+
+    def _s_true_flat(self) -> list[float]:
+        arr, flat = self._s_true_pair
+        if flat is None:
+            flat = arr.ravel().tolist()
+            self._s_true_pair = (arr, flat)
+        return flat
+
+    @property
+    def _s_obs(self) -> np.ndarray:
+        arr, flat = self._s_obs_pair
+        if arr is None:
+            arr = np.array(flat).reshape(-1, 2)
+            self._s_obs_pair = (arr, flat)
+        return arr
+
+    @_s_obs.setter
+    def _s_obs(self, value: np.ndarray) -> None:
+        self._s_obs_pair = (value, None)
+
+    def _s_obs_flat(self) -> list[float]:
+        arr, flat = self._s_obs_pair
+        if flat is None:
+            flat = arr.ravel().tolist()
+            self._s_obs_pair = (arr, flat)
+        return flat
+
+    def _s_ref_flat(self) -> list[float]:
+        ref, flat = self._s_ref_list
+        if ref is not self._s_ref:
+            ref, flat = self._s_ref, self._s_ref.ravel().tolist()
+            self._s_ref_list = (ref, flat)
+        return flat
 
     def _kinematics(self) -> None:
         mujoco.mj_kinematics(self.model, self.data)
@@ -681,19 +731,19 @@ class _VisualServoBase(RobotEnv):
             mujoco.mj_camlight(m, d)
         k = min(self._k, self.max_steps - 1) + 1
         self._k = k
+        q_list = q.tolist()
         at_limit = False  # = any(q < low stop) or any(q > high stop), on Python floats
-        for x, low, high in zip(q.tolist(), self._low_list, self._high_list, strict=True):
+        for x, low, high in zip(q_list, self._low_list, self._high_list, strict=True):
             if x < low or x > high:
                 at_limit = True
                 break
-        s = None if diverged else self._true_features()
+        s = None if diverged else self._true_feature_list()
         if s is None:
             lost = True
         else:
-            s_list = s.tolist()
             cam = self.true_camera
-            lost = not self._inside(s_list, cam.width - 0.5, cam.height - 0.5)
-            self._s_true, self._s_true_list = s, (s, s_list)
+            lost = not self._inside(s, cam.width - 0.5, cam.height - 0.5)
+            self._s_true_pair = (None, s)
         detection_failure = self._observe()
         e = self._record(k, None if self._fast else q)
         terminated = diverged or lost or at_limit
@@ -724,7 +774,7 @@ class _VisualServoBase(RobotEnv):
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
             info["is_success"] = bool(not terminated and metrics["final_feature_error"] < CONVERGED)
-        return self._obs(), reward, terminated, truncated, info
+        return self._obs(q_list), reward, terminated, truncated, info
 
     def _joint_command(self, a: np.ndarray) -> np.ndarray:
         """q̇ (7,) from the action: a ⊙ q̇_max, or J⁺ V for a twist V = a ⊙ twist limits.
@@ -820,9 +870,10 @@ class _VisualServoBase(RobotEnv):
         """Update the observed features (and the image); True if a marker was not found."""
         failure = False
         if self.features == "projected":
-            noise = self.np_random.normal(0.0, 1.0, (4, 2))
-            _MUL(noise, self.pixel_noise, out=noise)
-            self._s_obs = _ADD(self._s_true, noise, out=noise)
+            noise = self.np_random.normal(0.0, 1.0, (4, 2)).ravel().tolist()
+            scale = self.pixel_noise  # s + noise · σ, on Python floats
+            s = self._s_true_flat()
+            self._s_obs_pair = (None, [u + n * scale for u, n in zip(s, noise, strict=True)])
         else:
             self._render_camera()
             s, found = detect_markers(self._image)
@@ -872,11 +923,12 @@ class _VisualServoBase(RobotEnv):
             renderer.scene.flags[flag] = False
         return renderer
 
-    def _obs(self) -> dict[str, np.ndarray]:
-        q = self._v_q if self._hot_data is self.data else None
+    def _obs(self, q: list[float] | None = None) -> dict[str, np.ndarray]:
+        """The observation; ``q``: the joint positions as Python floats, if the caller has
+        them."""
         if q is None:
-            q = self.data.qpos[self._q_rows]
-        buf = _CONCAT((self._s_obs, self._s_ref, q), axis=None)  # one new buffer, views out
+            q = self.data.qpos[self._q_rows].tolist()
+        buf = np.array(self._s_obs_flat() + self._s_ref_flat() + q)  # one new buffer, views
         CLIP(buf, self._obs_low, self._obs_high, out=buf)  # ±bound (px), ±2π (rad): one call
         out = {"features": buf[:8], "features_ref": buf[8:16], "q": buf[16:]}
         if self.obs_image:
@@ -888,22 +940,16 @@ class _VisualServoBase(RobotEnv):
         at step k. ``q``: the joint positions now, for the Robot's kinematics; None: those of
         ``self.data`` (its position stage is current), or the Robot's at ``self.data``'s
         joints when the joints are not the whole state."""
-        s, s_list = self._s_true_list
-        if s is not self._s_true:
-            s, s_list = self._s_true, self._s_true.tolist()
-            self._s_true_list = (s, s_list)
-        ref, ref_list = self._s_ref_list
-        if ref is not self._s_ref:
-            ref, ref_list = self._s_ref, self._s_ref.tolist()
-            self._s_ref_list = (ref, ref_list)
+        s, ref = self._s_true_flat(), self._s_ref_flat()
+        a, b = iter(s), iter(ref)
         # ((s − s*)²).tolist() summed in numpy's order: 0.0 + u² + v² per point
         total = sum(
             [
                 0.0 + (u - ur) * (u - ur) + (v - vr) * (v - vr)
-                for (u, v), (ur, vr) in zip(s_list, ref_list, strict=True)
+                for u, v, ur, vr in zip(a, a, b, b, strict=True)
             ]
         )
-        e = math.sqrt((0.0 + total) / len(s_list))
+        e = math.sqrt((0.0 + total) / (len(s) // 2))
         self._err[k] = e
         goal, p_g, R_gT = self._goal_lists
         if goal is not self._goal_pose:
