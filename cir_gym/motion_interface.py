@@ -31,11 +31,25 @@ as stiff as the stiffest surface of AdmittanceContact: "stiff" but not rigid, li
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
+import mujoco
 import numpy as np
 
-from cir_gym.envs.base import InvalidArgument, check_number
+from cir_gym.envs.base import CLIP, InvalidArgument, check_number
 from cir_gym.operational_space import damped_least_squares
 from cir_gym.robot import Robot
+
+try:  # np.linalg.solve's own gufunc (the LAPACK call), without its Python checks
+    from numpy.linalg import _umath_linalg
+
+    _SOLVE = _umath_linalg.solve
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
+    _SOLVE = None
+
+_F64 = np.dtype(np.float64)
+_isfinite = math.isfinite
 
 __all__ = ["MEASURED_BANDWIDTH_HZ", "CartesianMotionInterface"]
 
@@ -77,6 +91,11 @@ class CartesianMotionInterface:
         self._q_start = np.zeros(robot.n)
         self._dq = np.zeros(robot.n)
         self._period = 1.0
+        self._dls_k: float | None = None  # the damping of _dls_diag (command)
+        self._dls_diag = np.zeros((6, 6))
+        # torque's model calls on an own MjData (Robot.inertia's and Robot.bias's MuJoCo
+        # calls, in their order, without their per-call validation); built lazily
+        self._fast: tuple[Any, ...] | None = None
 
     def reset(self, q: np.ndarray) -> None:
         """Hold the measured configuration ``q`` (n,)."""
@@ -87,14 +106,22 @@ class CartesianMotionInterface:
     def command(self, increment: np.ndarray, period: float) -> None:
         """Start a control period of ``period`` s moving the setpoint by ``increment`` (6,)."""
         dx = np.asarray(increment, dtype=float)
-        if dx.shape != (6,) or not np.all(np.isfinite(dx)):
+        # all(map(isfinite, ...)): np.all(np.isfinite(dx)) on six numbers, exactly
+        if dx.shape != (6,) or not all(map(_isfinite, dx.tolist())):
             raise InvalidArgument(f"increment must be 6 finite numbers [δp; δφ], got {increment!r}")
         J = self.robot.jacobian(self.site, self.q_c)
-        q_new = np.clip(
-            self.q_c + damped_least_squares(J, self.damping) @ dx,
-            self.robot.lower,
-            self.robot.upper,
-        )
+        k = self.damping
+        if _SOLVE is None or J.shape[0] != 6 or not k > 0:
+            J_star = damped_least_squares(J, k)
+        else:  # damped_least_squares(J, k), operation for operation: J Jᵀ + k² I is positive
+            # definite (k > 0), so LAPACK's solve neither fails nor raises a flag there
+            if k != self._dls_k:
+                self._dls_diag = (np.asarray(k, dtype=float) ** 2)[..., None, None] * np.eye(6)
+                self._dls_k = k
+            JJt = J @ np.swapaxes(J, -1, -2) + self._dls_diag
+            J_star = np.swapaxes(_SOLVE(JJt, J, signature="dd->d"), -1, -2)
+        # the clip ufunc (np.clip's values without its Python wrapper)
+        q_new = CLIP(self.q_c + J_star @ dx, self.robot.lower, self.robot.upper)
         self._q_start[:] = self.q_c
         self._dq = q_new - self.q_c
         self.q_c[:] = q_new
@@ -105,7 +132,43 @@ class CartesianMotionInterface:
         q_r = self._q_start + min(fraction, 1.0) * self._dq
         qd_r = self._dq / self._period
         y = self.kp * (q_r - q) + self.kd * (qd_r - qd)
-        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+        robot = self.robot
+        if (
+            q.__class__ is np.ndarray
+            and qd.__class__ is np.ndarray
+            and q.dtype is _F64
+            and qd.dtype is _F64
+            and q.shape == qd.shape == (robot.n,)
+            and robot._whole
+            and _isfinite(y.dot(y))  # q and q̇ finite (Robot's checks; else its errors)
+        ):
+            fast = self._fast
+            if fast is None:
+                fast = self._fast = self._model_calls()
+            m, d, qpos, qvel, M, vec = fast
+            # Robot.inertia(q): qpos, kinematics, com positions, CRB, the full matrix
+            qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_crb(m, d)
+            mujoco.mj_fullM(m, d, M)
+            # Robot.bias(q, q̇): qvel, com velocities, RNE without acceleration
+            qvel[:] = qd
+            mujoco.mj_comVel(m, d)
+            mujoco.mj_rne(m, d, 0, vec)
+            return M @ y + vec
+        return robot.inertia(q) @ y + robot.bias(q, qd)
+
+    def _model_calls(self) -> tuple[Any, ...]:
+        """(model, an own MjData, its qpos and qvel, the inertia and bias buffers)."""
+        m = self.robot.model
+        d = mujoco.MjData(m)
+        return m, d, d.qpos, d.qvel, np.zeros((m.nv, m.nv)), np.zeros(m.nv)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_fast"] = None  # views of an MjData: rebuilt on first use
+        return state
 
     def setpoint_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """The Cartesian setpoint x_c = k(q_c): position (3,) and rotation (3, 3)."""
