@@ -499,10 +499,12 @@ class AdmittanceContactEnv(RobotEnv):
         # the tool's pose is)
         self._pose_at = slice(at["tool_pos"].start, at["tool_quat"].stop)
         self._setpoint_at = slice(at["setpoint_pos"].start, at["setpoint_quat"].stop)
+        self._refs_at = slice(at["f_ref"].start, at["tool_vel_ref"].stop)
         self._vel_buf = np.zeros(6)  # mj_objectVelocity's [ω; v] of the tcp
         steps = self.max_steps
         self._pos_ref = np.zeros((steps + 1, 3))
         self._vel_ref = np.zeros((steps + 1, 3))
+        self._ref_rows = np.zeros((steps + 1, 7))  # [f_ref, pos_ref, vel_ref] (reset)
         self._force = np.zeros(steps)  # true normal force after each step
         self._path = np.zeros(steps)  # tangential path error (m)
         self._touch = np.zeros(steps, dtype=bool)  # tool-plate contact during the period
@@ -584,6 +586,11 @@ class AdmittanceContactEnv(RobotEnv):
         self._apply_surface(s)
         self._make_reference(s)
         self._f_ref = s["force_ref"]
+        # _obs's f_ref, tool_pos_ref, tool_vel_ref (neighbours) of every step, one row each
+        refs = self._ref_rows = np.empty((len(self._pos_ref), 7))
+        refs[:, 0] = self._f_ref
+        refs[:, 1:4] = self._pos_ref
+        refs[:, 4:7] = self._vel_ref
         qpos = self.model.qpos0.copy()
         qpos[self._qa] = START_Q
         self._reset_physics(qpos, np.zeros(self.model.nv))
@@ -622,17 +629,19 @@ class AdmittanceContactEnv(RobotEnv):
         k = self._k
         self._k = k1 = k + 1
         touching = contact / self._substeps > CONTACT_THRESHOLD
-        # normal_force() and _path_error_vector() on the views _simulate refreshed
+        # normal_force() and _path_error_vector() on the views _simulate refreshed, in Python
+        # floats (the same IEEE operations as numpy's scalars)
         _, qpos, qvel = self._views
         stiffness, damping = self._spring_views
-        x = -qpos[self._slide_qpos]  # compression (m)
-        force = float(
-            stiffness[self._slide_jnt] * x - damping[self._slide_dof] * qvel[self._slide_dof]
-        )
+        dof = self._slide_dof
+        x = -qpos.item(self._slide_qpos)  # compression (m)
+        force = stiffness.item(self._slide_jnt) * x - damping.item(dof) * qvel.item(dof)
         self._force[k] = force
         e = self._pos_ref[min(k1, self.max_steps)] - self._tcp_views[0]
-        e_t = e - e.dot(SURFACE_NORMAL) * SURFACE_NORMAL  # ndarray.dot: @'s BLAS dot, cheaper
-        path_sq = float(e_t.dot(e_t))
+        # e_t = e − (e·n̂) n̂ with n̂ = SURFACE_NORMAL = e_z: e·n̂ is e_z (the other products
+        # are zeros), so e_t = (e_x, e_y, ±0) and ‖e_t‖² the same dot of (e_x, e_y, 0)
+        e[2] = 0.0
+        path_sq = float(e.dot(e))
         self._path[k] = math.sqrt(path_sq)  # = np.linalg.norm(e_t)
         self._touch[k] = touching
         if self._first_contact is None and touching:
@@ -843,9 +852,7 @@ class AdmittanceContactEnv(RobotEnv):
         buf[sl[4]] = vel[3:]
         buf[sl[5]] = vel[:3]
         buf[sl[6]] = self.sensor.reading
-        buf[sl[7]] = self._f_ref
-        buf[sl[8]] = self._pos_ref[k]
-        buf[sl[9]] = self._vel_ref[k]
+        buf[self._refs_at] = self._ref_rows[k]  # f_ref, tool_pos_ref, tool_vel_ref
         if self.interface is not None:
             sp, sR = self.interface.setpoint_pose()
             buf[sl[10]] = sp
