@@ -311,6 +311,7 @@ class _VisualServoBase(RobotEnv):
         self._points = np.zeros((2, 4, 3))  # markers − camera (world), then (optical frame)
         self._p3 = np.zeros(3)
         self._kernel = np.zeros(len(REWARD_SCALES_SQ))
+        self._noise = np.zeros(8)  # the projected features' noise (u₁, v₁, …), in px / σ
         self._projection: tuple = (None, 0.0, 0.0, 0.0, 0.0)  # (camera, f_u, f_v, c_u, c_v)
         self.model_points = self._model_points()
         self.nominal_camera = Camera.from_fovy(FOVY, IMAGE_WIDTH, IMAGE_HEIGHT)
@@ -487,18 +488,18 @@ class _VisualServoBase(RobotEnv):
             markers = self._v_geom_xpos[self._marker_rows]
         _SUB(markers, self._v_cam_xpos, out=shifted)
         _DOT(shifted, R_c, out=points)
-        rows = points.tolist()
-        for row in rows:  # = (Z <= 1e-6).any(): NaN fails every comparison
-            if row[2] <= 1e-6:
-                return None
         cam = self.true_camera
         projection = self._projection
         if projection[0] is not cam:  # the episode's true camera, as Python floats
             projection = (cam, float(cam.fu), float(cam.fv), float(cam.cu), float(cam.cv))
             self._projection = projection
         _, fu, fv, cu, cv = projection
-        # c + f X / Z per coordinate, in project's order
-        return [s for X, Y, Z in rows for s in (cu + fu * X / Z, cv + fv * Y / Z)]
+        s = []
+        for X, Y, Z in points.tolist():
+            if Z <= 1e-6:  # = (Z <= 1e-6).any(): NaN fails every comparison (and goes on)
+                return None
+            s += (cu + fu * X / Z, cv + fv * Y / Z)  # c + f X / Z, in project's order
+        return s
 
     def _hot_views(self) -> None:
         """Views of ``self.data``'s arrays (a pybind property builds a new array on every
@@ -729,7 +730,7 @@ class _VisualServoBase(RobotEnv):
             q = d.qpos[self._q_rows].copy()
         if not self._camera_fixed:  # else mj_step's mj_camlight left its pose current
             mujoco.mj_camlight(m, d)
-        k = min(self._k, self.max_steps - 1) + 1
+        k = self._k + 1 if self._k < self.max_steps else self.max_steps  # min(k, N − 1) + 1
         self._k = k
         q_list = q.tolist()
         at_limit = False  # = any(q < low stop) or any(q > high stop), on Python floats
@@ -740,12 +741,13 @@ class _VisualServoBase(RobotEnv):
         s = None if diverged else self._true_feature_list()
         if s is None:
             lost = True
+            s = self._s_true_flat()  # the last seen
         else:
             cam = self.true_camera
             lost = not self._inside(s, cam.width - 0.5, cam.height - 0.5)
             self._s_true_pair = (None, s)
-        detection_failure = self._observe()
-        e = self._record(k, None if self._fast else q)
+        detection_failure = self._observe(s)
+        e = self._record(k, None if self._fast else q, s)
         terminated = diverged or lost or at_limit
         kernel = self._kernel
         _DIV(-(e**2), REWARD_SCALES_SQ, out=kernel)
@@ -866,13 +868,18 @@ class _VisualServoBase(RobotEnv):
         return ctrl
 
     # ------------------------------------------------------------------ observation
-    def _observe(self) -> bool:
-        """Update the observed features (and the image); True if a marker was not found."""
+    def _observe(self, s: list[float] | None = None) -> bool:
+        """Update the observed features (and the image); True if a marker was not found.
+        ``s``: the true features as a flat list, if the caller has it."""
         failure = False
         if self.features == "projected":
-            noise = self.np_random.normal(0.0, 1.0, (4, 2)).ravel().tolist()
+            # normal(0, 1, (4, 2)) draws 0.0 + 1.0 z from the same z in the same order: z
+            # itself, but +0.0 for z = −0.0, and u + (±0.0 σ) differs only for u = −0.0, which
+            # no pixel coordinate c + f X / Z (c ≠ −0.0) is
+            noise = self.np_random.standard_normal(out=self._noise).tolist()
             scale = self.pixel_noise  # s + noise · σ, on Python floats
-            s = self._s_true_flat()
+            if s is None:
+                s = self._s_true_flat()
             self._s_obs_pair = (None, [u + n * scale for u, n in zip(s, noise, strict=True)])
         else:
             self._render_camera()
@@ -935,13 +942,16 @@ class _VisualServoBase(RobotEnv):
             out["image"] = self._image.copy()
         return out
 
-    def _record(self, k: int, q: np.ndarray | None = None) -> float:
+    def _record(self, k: int, q: np.ndarray | None = None, s: list[float] | None = None
+                ) -> float:
         """The true feature error (px, returned) and the moving frame's position (goal frame)
         at step k. ``q``: the joint positions now, for the Robot's kinematics; None: those of
         ``self.data`` (its position stage is current), or the Robot's at ``self.data``'s
-        joints when the joints are not the whole state."""
-        s, ref = self._s_true_flat(), self._s_ref_flat()
-        a, b = iter(s), iter(ref)
+        joints when the joints are not the whole state. ``s``: the true features' flat list,
+        if the caller has it."""
+        if s is None:
+            s = self._s_true_flat()
+        a, b = iter(s), iter(self._s_ref_flat())
         # ((s − s*)²).tolist() summed in numpy's order: 0.0 + u² + v² per point
         total = sum(
             [
