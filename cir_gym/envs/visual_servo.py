@@ -1080,6 +1080,7 @@ class _VisualServoBase(RobotEnv):
         state["_hot_data"] = None  # views would come back as copies, detached from the MjData
         for name in [k for k in state if k.startswith("_v_")]:
             del state[name]
+        state["_goal_lists"] = (None, [], None)  # holds a view of the goal rotation
         return state
 
     def controller_context(self) -> TaskContext:
