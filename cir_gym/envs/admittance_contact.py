@@ -747,26 +747,35 @@ class AdmittanceContactEnv(RobotEnv):
 
     def _motion_period(self) -> tuple[bool, float]:
         """The position interface: one _simulate call per physics step, the motion controller's
-        torque recomputed at each; return (diverged, Σ of the tool-plate normal force)."""
+        torque recomputed at each; return (diverged, Σ of the tool-plate normal force).
+
+        The period's true wrenches are fed to the sensor model in one call after the loop
+        (nothing in the loop reads the sensor or draws from its generator: the same rows in
+        the same order, the same noise stream); the joint state goes to the motion controller
+        as views of MuJoCo's arrays (read before the step)."""
         d, n = self.data, self._substeps
+        _, qpos, qvel = self._data_views()
         sd = d.sensordata
         f0, t0, c0 = self._sensor_adr[0], self._sensor_adr[3], self._contact_adr
-        wrench = np.empty(6)
+        both = t0 == f0 + 3  # force and torque side by side: one slice
+        torque, limit = self.interface.torque, self.torque_limit
+        q_at, qd_at, normal = self._q_at, self._qd_at, self._normal
+        rows: list[list[float]] = []
         contact = 0.0
         skip, self.frame_skip = self.frame_skip, 1
         try:
             for i in range(n):
-                tau = self.interface.torque(
-                    d.qpos[self._qa].copy(), d.qvel[self._da].copy(), (i + 1) / n
-                )
-                if self._simulate(CLIP(tau, -self.torque_limit, self.torque_limit)):
+                tau = torque(qpos[q_at], qvel[qd_at], (i + 1) / n)
+                if self._simulate(CLIP(tau, -limit, limit)):
                     return True, contact
-                wrench[:3] = sd[f0 : f0 + 3]
-                wrench[3:] = sd[t0 : t0 + 3]
-                self.sensor.update_many(wrench[None])
-                contact += float(self._normal @ sd[c0 : c0 + 3])
+                if both:
+                    rows.append(sd[f0 : f0 + 6].tolist())
+                else:
+                    rows.append(sd[f0 : f0 + 3].tolist() + sd[t0 : t0 + 3].tolist())
+                contact += float(normal @ sd[c0 : c0 + 3])
         finally:
             self.frame_skip = skip
+            self.sensor.advance_many(rows)
         return False, contact
 
     # ------------------------------------------------------------------ measurements
