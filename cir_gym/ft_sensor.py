@@ -59,6 +59,7 @@ __all__ = [
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s², the robots' <option gravity>
 _RINT = np.rint  # np.round(x) with decimals=0 (half to even), without its Python wrapper
+_ADD, _MUL, _DIV = np.add, np.multiply, np.divide
 
 
 @dataclass(frozen=True)
@@ -280,13 +281,16 @@ class WrenchSensor:
         if held is None:
             oldest = self._head + 1
             held = self._line[0 if oldest == self._nline else oldest]
-        value = np.array(held) + self.bias
+        # in place on one new array: the same operations as value = held + bias, value =
+        # value + std · noise, value = rint(value / res) · res
+        value = np.array(held)
+        _ADD(value, self.bias, out=value)
         if self._noisy:
             noise = self._rng.standard_normal(6 * draws)
-            value = value + self._std * (noise[-6:] if draws > 1 else noise)
+            _ADD(value, _MUL(self._std, noise[-6:] if draws > 1 else noise), out=value)
         if self._all_quantised:  # the masked rounding below on every entry, without the masks
             res = self._res
-            value = _RINT(value / res) * res
+            _MUL(_RINT(_DIV(value, res, out=value), out=value), res, out=value)
         elif self._any_quantised:
             q, res = self._quantised, self._res
             value[q] = np.round(value[q] / res[q]) * res[q]

@@ -667,6 +667,8 @@ class PegInHoleEnv(RobotEnv):
         """(depth, tip in the true hole frame, two_point, wedged, jammed): _contact_state's
         values, the radial test left to the caller (step needs it only at the goal depth)."""
         m, d = self.model, self.data
+        if self._warn_data is not d:  # the views of a new MjData
+            self._refresh_views(d)
         side: list[np.ndarray] = []
         if d.ncon:
             axis = self.true_hole_R[:, 2]
@@ -680,7 +682,8 @@ class PegInHoleEnv(RobotEnv):
                     lateral = n - along * axis
                     # ‖lateral‖ as np.linalg.norm computes it: sqrt of the same dot product
                     side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
-        tip = self._tip_in_hole()
+        # _tip_in_hole() on the views step's physics refreshed
+        tip = self.true_hole_R.T @ (self._tip_views[0] - self.true_hole_pos)
         depth = float(-tip[2])
         if len(side) > 1 and any(
             float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :]
