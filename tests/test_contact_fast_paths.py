@@ -1,0 +1,155 @@
+"""The contact envs' step fast paths give the numbers of their plain paths, bit for bit.
+
+PegInHole runs RobotEnv._simulate's per-physics-step checks inline (``_advance``; the loop
+through ``_simulate`` is kept as ``_advance_simulate``), the position interface computes
+B(q) and n(q, q̇) with Robot's MuJoCo calls on an own MjData and its damped least squares
+through numpy's solve gufunc. Each must equal its plain path: observations, rewards, flags and
+infos, including a divergence (restored state) and states set from outside between steps.
+"""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import cir_gym  # noqa: F401
+from cir_gym import motion_interface as mi
+from cir_gym.envs import peg_in_hole
+from cir_gym.envs.admittance_contact import AdmittanceContactEnv
+
+PEG = "cir_gym/PegInHole-v0"
+ADMITTANCE = "cir_gym/AdmittanceContact-v0"
+
+
+def _rollout(env: gym.Env, seed: int, steps: int, diverge_at: int | None = None) -> list:
+    """Observations, rewards, flags and infos of steps with small random actions pushing
+    down (``diverge_at``: the joint speeds set absurd before that step)."""
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed)
+    out = [obs, info]
+    down = np.zeros(env.action_space.shape)
+    if env.unwrapped.control == "position":
+        down[2] = -0.5
+    for k in range(steps):
+        if k == diverge_at:
+            env.unwrapped.data.qvel[:] = 5e3
+        action = (down + rng.uniform(-0.3, 0.3, env.action_space.shape)).astype(np.float32)
+        out.append(env.step(action))
+        if out[-1][2] or out[-1][3]:
+            break
+    return out
+
+
+def _assert_same(a: object, b: object) -> None:
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b)
+        for key in a:
+            _assert_same(a[key], b[key])
+    elif isinstance(a, (list, tuple)):
+        assert isinstance(b, (list, tuple)) and len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    else:
+        assert type(a) is type(b)
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("control", ["torque", "position"])
+@pytest.mark.parametrize("diverge_at", [None, 3])
+def test_peg_inline_physics_equals_the_simulate_loop(
+    control: str, diverge_at: int | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    kwargs = {"control": control, "episode_duration": 0.1, "sensor": "robotiq_ft300"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fast = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at)
+        monkeypatch.setattr(peg_in_hole, "_UNSTABLE_CONTIGUOUS", False)  # _advance_simulate
+        plain = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at)
+    _assert_same(fast, plain)
+    if diverge_at is not None:
+        assert fast[-1][4]["diverged"]
+
+
+def test_peg_contact_flags_are_the_contact_state() -> None:
+    env = gym.make(PEG, episode_duration=0.2, control="position")
+    _rollout(env, 1, 40)
+    u = env.unwrapped
+    depth, tip, two_point, wedged, jammed = u._contact_flags()
+    state = u._contact_state()
+    assert (state["depth"], state["two_point"], state["wedged"], state["jammed"]) == (
+        depth,
+        two_point,
+        wedged,
+        jammed,
+    )
+    np.testing.assert_array_equal(tip, u._tip_in_hole())
+
+
+@pytest.mark.parametrize("env_id", [PEG, ADMITTANCE])
+def test_motion_interface_fast_torque_equals_robot_calls(env_id: str) -> None:
+    env = gym.make(env_id, control="position")
+    env.reset(seed=0)
+    u = env.unwrapped
+    interface = u.motion if env_id == PEG else u.interface
+    interface.command(np.array([1e-4, -2e-4, -3e-4, 1e-3, 0.0, -1e-3]), u.dt)
+    rng = np.random.default_rng(0)
+    q0 = interface.q_c.copy()
+    for _ in range(20):
+        q = q0 + 0.05 * rng.standard_normal(q0.size)
+        qd = rng.standard_normal(q0.size)
+        fast = interface.torque(q, qd, 0.5)
+        robot = interface.robot
+        q_r = interface._q_start + 0.5 * interface._dq
+        y = interface.kp * (q_r - q) + interface.kd * (interface._dq / interface._period - qd)
+        np.testing.assert_array_equal(fast, robot.inertia(q) @ y + robot.bias(q, qd))
+        # a list takes Robot's path (its validation): the same numbers
+        np.testing.assert_array_equal(fast, interface.torque(q.tolist(), qd.tolist(), 0.5))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        interface.torque(np.full(q0.size, np.nan), np.zeros(q0.size), 0.5)
+
+
+def test_motion_interface_command_equals_damped_least_squares(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    env = gym.make(ADMITTANCE, control="position")
+    env.reset(seed=0)
+    interface = env.unwrapped.interface
+    rng = np.random.default_rng(1)
+    increments = 1e-3 * rng.standard_normal((10, 6))
+    q_start = interface.q_c.copy()
+    fast = []
+    for dx in increments:
+        interface.command(dx, 0.002)
+        fast.append(interface.q_c.copy())
+    interface.reset(q_start)
+    monkeypatch.setattr(mi, "_SOLVE", None)  # operational_space.damped_least_squares
+    for dx, want in zip(increments, fast, strict=True):
+        interface.command(dx, 0.002)
+        np.testing.assert_array_equal(interface.q_c, want)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs"),
+    [(PEG, {"control": "position"}), (ADMITTANCE, {"control": "position"}), (PEG, {})],
+)
+def test_a_pickled_contact_env_continues_the_same_episode(env_id: str, kwargs: dict) -> None:
+    env = gym.make(env_id, episode_duration=0.2, **kwargs)
+    _rollout(env, 2, 10)
+    twin = pickle.loads(pickle.dumps(env))
+    rng = np.random.default_rng(5)
+    for _ in range(15):
+        action = rng.uniform(-0.2, 0.2, env.action_space.shape).astype(np.float32)
+        _assert_same(env.step(action), twin.step(action))
+
+
+def test_admittance_reference_rows_are_the_reference() -> None:
+    env = AdmittanceContactEnv(episode_duration=0.2)
+    env.reset(seed=4)
+    rows = env._ref_rows
+    np.testing.assert_array_equal(rows[:, 0], env._f_ref)
+    np.testing.assert_array_equal(rows[:, 1:4], env._pos_ref)
+    np.testing.assert_array_equal(rows[:, 4:7], env._vel_ref)
