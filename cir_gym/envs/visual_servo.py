@@ -753,7 +753,7 @@ class _VisualServoBase(RobotEnv):
         _DIV(-(e**2), REWARD_SCALES_SQ, out=kernel)
         _EXP(kernel, out=kernel)
         r_features = -(1.0 - float(_ADDR(kernel)) / kernel.size)  # = np.mean, one reduction
-        r_action = -self.action_weight * float(a @ a) / a.size
+        r_action = -self.action_weight * float(a.dot(a)) / a.size  # a @ a's BLAS ddot
         # a failure is charged the rest of the episode at the worst feature reward (−1 per
         # step) on top of the penalty, so that ending an episode early never pays
         r_term = (-self.termination_penalty - float(self.max_steps - k)) if terminated else 0.0
