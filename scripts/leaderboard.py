@@ -261,9 +261,19 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
         )
     notes = []
+    if any(r.policy_name.startswith("agent:residual") for rows in by_variant.values()
+           for r in rows):
+        notes += [
+            "",
+            "A residual agent carries its base controller as designed from the context of the "
+            "env it was trained on (`agents.load`), on every variant: where a variant tells the "
+            "controllers more than training did (AdmittanceContact's fixed stiffnesses, against "
+            "an agent trained on `randomize=True`, whose `admittance` designs for the worst "
+            "case), the gap to the best controller includes that information (docs/agents.md).",
+        ]
     if censored:
         names = ", ".join(f"`{m}`" for m in sorted(censored))
-        notes = [
+        notes += [
             "",
             f"{NO_FACTOR[-1]} No factor to the best controller: a failed episode scores {names} "
             "at a fixed limit (a time: the time limit), not a measured value, and a mean here "
