@@ -153,3 +153,27 @@ def test_admittance_reference_rows_are_the_reference() -> None:
     np.testing.assert_array_equal(rows[:, 0], env._f_ref)
     np.testing.assert_array_equal(rows[:, 1:4], env._pos_ref)
     np.testing.assert_array_equal(rows[:, 4:7], env._vel_ref)
+
+
+def test_peg_observation_products_by_the_identity_are_the_matmuls() -> None:
+    """PegInHole's _obs replaces its products by R_hole = I and ALIGNED = diag(−1, 1, −1)
+    with "+ 0.0" (an exact zero as +0, as numpy's BLAS products give it): the same bytes as
+    the matmuls, −0 and tiny numbers included."""
+    from cir_gym.envs.peg_in_hole import _ALIGNED_COLUMNS, ALIGNED
+
+    env = gym.make(PEG)
+    env.reset(seed=0)
+    R_hole = env.unwrapped._R_hole
+    assert env.unwrapped._hole_is_identity
+    rng = np.random.default_rng(0)
+    values = np.array([0.0, -0.0, 1.5, -2.25, 1e-300, -1e-300, 0.3, -7.0])
+    for _ in range(2000):
+        X = rng.choice(values, size=(3, 3))
+        v = rng.choice(values, size=3)
+        w = rng.choice(values, size=6)
+        want = R_hole.T @ X @ ALIGNED.T
+        assert (X * _ALIGNED_COLUMNS + 0.0).tobytes() == want.tobytes()
+        assert (v + 0.0).tobytes() == (R_hole.T @ v).tobytes()
+        twist = np.empty(6)
+        np.matmul(w.reshape(2, 3), R_hole, out=twist.reshape(2, 3))
+        assert (w + 0.0).tobytes() == twist.tobytes()

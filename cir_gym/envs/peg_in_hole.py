@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from functools import lru_cache
 from typing import Any, ClassVar
 
@@ -47,6 +48,8 @@ TOOL_COM = np.array([0.0, 0.0, geo.PEG_OFFSET + geo.PEG_LENGTH / 2])  # in the s
 #: (peg z pointing into the hole: a half turn about y).
 ALIGNED = np.diag([-1.0, 1.0, -1.0])
 ALIGNED_QUAT = traj.quat_from_matrix(ALIGNED)
+#: ALIGNEDᵀ's diagonal: X @ ALIGNED.T multiplies the columns of X by it
+_ALIGNED_COLUMNS = np.diag(ALIGNED.T).copy()
 #: Posture the start is pulled toward (the robot file's home): elbow bent, wrist off its
 #: singularity.
 PREFERRED_POSTURE = np.array([0.0, 0.6, 0.0, -1.4, 0.0, 0.9, 0.0])
@@ -54,6 +57,7 @@ STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact co
 # hot-path ufuncs, called directly (np.mean/np.clip wrappers cost more than the work)
 _SUM = np.add.reduce
 _isfinite = math.isfinite
+_ADD, _SUB, _MUL = np.add, np.subtract, np.multiply
 _NO_FRAMES = np.zeros((0, 9))
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
@@ -267,6 +271,11 @@ class PegInHoleEnv(RobotEnv):
         self.sensor = sensor
         self.clearance = check_number("clearance", clearance, *geo.CLEARANCE_RANGE)
         self.chamfer = check_number("chamfer", chamfer, *geo.CHAMFER_RANGE)
+        if 0.0 < self.chamfer < sys.float_info.min:  # half of it, a box's size, would be 0
+            raise InvalidArgument(
+                f"chamfer must be 0 or at least {sys.float_info.min:g} m (a normal float), "
+                f"got {chamfer!r}"
+            )
         self.position_uncertainty = check_number(
             "position_uncertainty", position_uncertainty, 0.0, 0.01
         )
@@ -350,6 +359,11 @@ class PegInHoleEnv(RobotEnv):
         self._rot = np.zeros((3, 3))  # _obs's scratch: the peg's rotation, hole frame
         self._rot_flat = self._rot.reshape(9)
         self._rot_tmp = np.zeros((3, 3))
+        self._pos_tmp = np.zeros(3)
+        # the nominal hole frame is the world's (hole_quat): _obs's products by it are exact
+        self._hole_is_identity = bool(
+            np.array_equal(self._R_hole, np.eye(3)) and not np.signbit(self._R_hole).any()
+        )
         steps = self.max_steps
         self._force = np.zeros(steps)
         self._k = 0
@@ -750,15 +764,24 @@ class PegInHoleEnv(RobotEnv):
         q_at, qd_at, pos_at, quat_at, twist_at, wrench_at, hpos_at, hquat_at = self._obs_at
         buf[q_at] = qpos[self._q_at]
         buf[qd_at] = qvel[self._qd_at]
-        np.matmul(R_hole.T, xpos - self.hole_pos, out=buf[pos_at])
-        R = self._rot  # R_holeᵀ R_tip ALIGNEDᵀ, in two scratch matrices
-        np.matmul(np.matmul(R_hole.T, xmat.reshape(3, 3), out=self._rot_tmp), ALIGNED.T, out=R)
+        R = self._rot  # R_holeᵀ R_tip ALIGNEDᵀ
+        if self._hole_is_identity:
+            # the products below with R_hole = I and ALIGNED = diag(−1, 1, −1): every entry is
+            # one exact product (by 1 or −1) plus exact zeros, and numpy's BLAS products give
+            # an exact zero as +0; "+ 0.0" does the same (tests/test_contact_fast_paths.py
+            # checks these against the matmuls, −0 included)
+            _ADD(_SUB(xpos, self.hole_pos, out=self._pos_tmp), 0.0, out=buf[pos_at])
+            _ADD(_MUL(xmat.reshape(3, 3), _ALIGNED_COLUMNS, out=R), 0.0, out=R)
+            _ADD(vw, 0.0, out=buf[twist_at])
+        else:
+            np.matmul(R_hole.T, xpos - self.hole_pos, out=buf[pos_at])
+            np.matmul(np.matmul(R_hole.T, xmat.reshape(3, 3), out=self._rot_tmp), ALIGNED.T, out=R)
+            # [R_holeᵀ v; R_holeᵀ ω] as the rows of [v; ω] (2, 3) times R_hole: one matmul
+            np.matmul(vw.reshape(2, 3), R_hole, out=buf[twist_at].reshape(2, 3))
         quat = buf[quat_at]
         mujoco.mju_mat2Quat(quat, self._rot_flat)  # as _quat: w >= 0
         if quat[0] < 0:
             np.negative(quat, out=quat)
-        # [R_holeᵀ v; R_holeᵀ ω] as the rows of [v; ω] (2, 3) times R_hole: one matmul
-        np.matmul(vw.reshape(2, 3), R_hole, out=buf[twist_at].reshape(2, 3))
         buf[wrench_at] = self.ft_sensor.reading
         buf[hpos_at] = self.hole_pos
         buf[hquat_at] = self.hole_quat
