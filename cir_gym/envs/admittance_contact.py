@@ -88,6 +88,7 @@ CONTROLS = ("torque", "position")
 #: 0.67 N at 0.25 ms; frictionless, 0.46 N at 1 ms): a discretisation error, not physics, so the
 #: step is refined until it is small (scripts/eval_contact.py, "physics step").
 TIMESTEP = 0.00025
+_SITE_OBJ = mujoco.mjtObj.mjOBJ_SITE  # _obs's mj_objectVelocity (an attribute lookup less)
 
 
 def build_model(
@@ -716,7 +717,7 @@ class AdmittanceContactEnv(RobotEnv):
         wrenches (n, 6) as :meth:`_history`'s force and torque rows side by side, and the
         contact forces (n, 3), the very array :meth:`_history` gives for sensor 2."""
         hist = self._hist
-        newest = int(hist[self._history_adr[0] + 1])
+        newest = int(hist.item(self._history_adr[0] + 1))
         index = self._period_index.get(newest)
         if index is None:
             rows = self._history_index.get(newest)
@@ -847,7 +848,7 @@ class AdmittanceContactEnv(RobotEnv):
         pos, xmat = self._tcp_views
         k = min(self._k, self.max_steps)
         vel = self._vel_buf
-        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
+        mujoco.mj_objectVelocity(m, d, _SITE_OBJ, self._site, vel, 0)
         buf = np.empty(self._obs_size)
         sl = self._obs_slices  # q, qd, tool_pos, tool_quat, tool_vel, tool_angvel, wrench,
         # f_ref, tool_pos_ref, tool_vel_ref, setpoint_pos, setpoint_quat
