@@ -25,9 +25,12 @@ PEG = "cir_gym/PegInHole-v0"
 ADMITTANCE = "cir_gym/AdmittanceContact-v0"
 
 
-def _rollout(env: gym.Env, seed: int, steps: int, diverge_at: int | None = None) -> list:
+def _rollout(
+    env: gym.Env, seed: int, steps: int, diverge_at: int | None = None, nan_at: int | None = None
+) -> list:
     """Observations, rewards, flags and infos of steps with small random actions pushing
-    down (``diverge_at``: the joint speeds set absurd before that step)."""
+    down (``diverge_at``: the joint speeds set absurd before that step; ``nan_at``: a joint
+    position set to NaN before that step, which MuJoCo answers with a warning)."""
     rng = np.random.default_rng(seed)
     obs, info = env.reset(seed=seed)
     out = [obs, info]
@@ -37,6 +40,8 @@ def _rollout(env: gym.Env, seed: int, steps: int, diverge_at: int | None = None)
     for k in range(steps):
         if k == diverge_at:
             env.unwrapped.data.qvel[:] = 5e3
+        if k == nan_at:
+            env.unwrapped.data.qpos[1] = np.nan
         action = (down + rng.uniform(-0.3, 0.3, env.action_space.shape)).astype(np.float32)
         out.append(env.step(action))
         if out[-1][2] or out[-1][3]:
@@ -59,18 +64,27 @@ def _assert_same(a: object, b: object) -> None:
 
 
 @pytest.mark.parametrize("control", ["torque", "position"])
-@pytest.mark.parametrize("diverge_at", [None, 3])
-def test_peg_inline_physics_equals_the_simulate_loop(
-    control: str, diverge_at: int | None, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(("diverge_at", "nan_at"), [(None, None), (3, None), (None, 4)])
+def test_peg_fast_pass_equals_the_simulate_loop(
+    control: str, diverge_at: int | None, nan_at: int | None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """The fast pass, and its undo and rerun on a divergence (a speed test failing inside the
+    period; a NaN state, answered by MuJoCo's warning), give the _simulate loop's numbers."""
     kwargs = {"control": control, "episode_duration": 0.1, "sensor": "robotiq_ft300"}
+    if control == "position" and nan_at is not None:  # the motion controller refuses NaN
+        for plain in (False, True):
+            if plain:
+                monkeypatch.setattr(peg_in_hole, "_UNSTABLE_CONTIGUOUS", False)
+            with pytest.raises(ValueError, match="NaN"):
+                _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at, nan_at)
+        return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fast = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at)
+        fast = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at, nan_at)
         monkeypatch.setattr(peg_in_hole, "_UNSTABLE_CONTIGUOUS", False)  # _advance_simulate
-        plain = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at)
+        plain = _rollout(gym.make(PEG, **kwargs), 3, 60, diverge_at, nan_at)
     _assert_same(fast, plain)
-    if diverge_at is not None:
+    if diverge_at is not None or nan_at is not None:
         assert fast[-1][4]["diverged"]
 
 

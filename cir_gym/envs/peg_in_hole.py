@@ -58,6 +58,8 @@ STALL_SPEED = 1e-3  # m/s: axial speed below which a peg in two-point contact co
 _SUM = np.add.reduce
 _isfinite = math.isfinite
 _ADD, _SUB, _MUL = np.add, np.subtract, np.multiply
+#: MuJoCo's whole integration state (what the next mj_step reads): _advance's undo
+_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _NO_FRAMES = np.zeros((0, 9))
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
@@ -360,6 +362,8 @@ class PegInHoleEnv(RobotEnv):
         self._rot_flat = self._rot.reshape(9)
         self._rot_tmp = np.zeros((3, 3))
         self._pos_tmp = np.zeros(3)
+        self._period_start = np.zeros(mujoco.mj_stateSize(model, _INTEGRATION))  # _advance
+        self._pass_state = np.zeros(mujoco.mj_stateSize(model, _STATE))  # _advance's save
         # the nominal hole frame is the world's (hole_quat): _obs's products by it are exact
         self._hole_is_identity = bool(
             np.array_equal(self._R_hole, np.eye(3)) and not np.signbit(self._R_hole).any()
@@ -473,12 +477,14 @@ class PegInHoleEnv(RobotEnv):
         interface and the force monitor run at the physics rate); return (diverged, peak of
         the windowed contact force over the period).
 
-        :meth:`RobotEnv._simulate` of one physics step, inline (its call, view and argument
-        handling cost more than a physics step's checks): the same state saved before each
-        step, the same warning, speed and finite tests after it, the same restore on
-        divergence. The state before steps 2.. is the one read by the previous step's finite
-        test (one ``mj_getState`` serves both); the warning counters are read once per
-        period (they only grow, and a change ends the period)."""
+        A fast pass runs the period with RobotEnv._simulate's quick test per physics step
+        (‖q̇‖² ≤ MAX_JOINT_SPEED²), its warning test and its finite test of q at the end (a
+        non-finite q inside the period makes MuJoCo warn at the next step) and leaves
+        _simulate's saved state as its loop would (the state before the period's last
+        step). If anything fails, the period is undone (MuJoCo's integration state and
+        warning counters restored, nothing else was changed) and run again through
+        ``_simulate`` one physics step at a time (:meth:`_advance_simulate`), which detects
+        and restores exactly as before."""
         if self.control == "position":
             R_h = self._R_hole  # the action is in the nominal hole frame
             dx = a * self.increment_scale
@@ -497,61 +503,60 @@ class PegInHoleEnv(RobotEnv):
         skip = self.frame_skip
         last = skip - 1
         step, get_state = mujoco.mj_step, mujoco.mj_getState
-        # the true wrench of every physics step, fed to the sensor model after the loop (one
-        # call; nothing else in the loop reads the sensor or draws from its generator)
-        wrenches: list[list[float]] = []
-        recent, window, slot = self._recent, self._window, self._slot
-        peak, diverged = 0.0, False
-        scratch = self._scratch_state
-        get_state(m, d, scratch, _STATE)
-        if _isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
-            self._scratch_state, self._safe_state = self._safe_state, scratch
+        # the period's start, to undo it: MuJoCo's integration state, the warning counters
+        start = self._period_start
+        get_state(m, d, start, _INTEGRATION)
+        before = warn.tobytes()
+        # _simulate's saved state after its loop: the state before the last step (before the
+        # only step, if one), kept aside until the pass succeeds
+        saved = self._pass_state
+        if not last:
+            get_state(m, d, saved, _STATE)
         if tau is not None:  # held over the period (MuJoCo changes ctrl only on a warning)
             d_ctrl[:] = tau
         else:
             motion, limit, q_at, qd_at = self.motion, self.torque_limit, self._q_at, self._qd_at
-        before = warn.tobytes()
-        try:
-            for i in range(skip):
-                if tau is None:
-                    ctrl = motion.torque(d_qpos[q_at], d_qvel[qd_at], (i + 1) / skip)
-                    d_ctrl[:] = CLIP(ctrl, -limit, limit)
-                step(m, d)
-                if warn.tobytes() != before:
-                    diverged = True
-                elif not d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ:
-                    diverged = self._state_diverged()
-                elif i < last:  # the next step's saved state, and the finite test of q
-                    scratch = self._scratch_state
-                    get_state(m, d, scratch, _STATE)
-                    if _isfinite(scratch.dot(scratch)):
-                        self._scratch_state, self._safe_state = self._safe_state, scratch
-                    else:
-                        diverged = self._state_diverged()
-                elif not _isfinite(d_qpos.dot(d_qpos)):
-                    diverged = self._state_diverged()
-                if diverged:
-                    mujoco.mj_resetData(m, d)
-                    mujoco.mj_setState(m, d, self._safe_state, _STATE)
-                    mujoco.mj_forward(m, d)
-                    break
-                wrenches.append(wrench.tolist())
-                slot += 1
-                if slot == window:
-                    slot = 0
-                if d.ncon:
-                    f = self._net_contact_force()
-                    recent[slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
-                else:  # no contact: the net force is zero
-                    recent[slot] = 0.0
-                # = np.mean: numpy sums fewer than 8 terms from left to right, as sum() does
-                total = sum(recent) if window < 8 else float(_SUM(np.array(recent)))
-                if total / window > peak:  # = max(peak, total / window)
-                    peak = total / window
-        finally:
+        # the true wrench of every physics step, fed to the sensor model after the loop (one
+        # call; nothing else in the loop reads the sensor or draws from its generator)
+        wrenches: list[list[float]] = []
+        recent, window, slot = list(self._recent), self._window, self._slot
+        peak, ok = 0.0, True
+        for i in range(skip):
+            if tau is None:
+                ctrl = motion.torque(d_qpos[q_at], d_qvel[qd_at], (i + 1) / skip)
+                d_ctrl[:] = CLIP(ctrl, -limit, limit)
+            if i == last and i:
+                get_state(m, d, saved, _STATE)
+            step(m, d)
+            if not d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ:
+                ok = False
+                break
+            wrenches.append(wrench.tolist())
+            slot += 1
+            if slot == window:
+                slot = 0
+            if d.ncon:
+                f = self._net_contact_force()
+                recent[slot] = math.sqrt(f.dot(f))  # = np.linalg.norm(f)
+            else:  # no contact: the net force is zero
+                recent[slot] = 0.0
+            # = np.mean: numpy sums fewer than 8 terms from left to right, as sum() does
+            total = sum(recent) if window < 8 else float(_SUM(np.array(recent)))
+            if total / window > peak:  # = max(peak, total / window)
+                peak = total / window
+        if ok and warn.tobytes() == before and _isfinite(d_qpos.dot(d_qpos)):
+            # _simulate keeps the last finite state before a step: the one before the last
+            # step (finite whenever MuJoCo did not warn: |q| <= 1e10 then, |q̇| checked)
+            if _isfinite(saved.dot(saved)):  # (an overflow only skips the save, as there)
+                self._safe_state, self._pass_state = saved, self._safe_state
+            self._recent[:] = recent
             self._slot = slot
             self.ft_sensor.advance_many(wrenches)
-        return diverged, peak
+            return False, peak
+        # undo the period and run it through _simulate (its exact tests and restore)
+        mujoco.mj_setState(m, d, start, _INTEGRATION)
+        warn[:] = np.frombuffer(before, dtype=warn.dtype)
+        return self._advance_simulate(tau)
 
     def _state_diverged(self) -> bool:
         """RobotEnv._simulate's exact test of the state after a step that failed its quick
