@@ -18,7 +18,7 @@ import pytest
 
 import cir_gym  # noqa: F401
 from cir_gym import motion_interface as mi
-from cir_gym.envs import peg_in_hole
+from cir_gym.envs import admittance_contact, peg_in_hole
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
 
 PEG = "cir_gym/PegInHole-v0"
@@ -86,6 +86,28 @@ def test_peg_fast_pass_equals_the_simulate_loop(
     _assert_same(fast, plain)
     if diverge_at is not None or nan_at is not None:
         assert fast[-1][4]["diverged"]
+
+
+@pytest.mark.parametrize("diverge_at", [None, 3])
+@pytest.mark.parametrize("sensor", ["robotiq_ft300", "ati_gamma"])
+def test_admittance_motion_fast_pass_equals_the_simulate_loop(
+    diverge_at: int | None, sensor: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """AdmittanceContact's position interface: the fast pass (and its undo and rerun on a
+    divergence) gives the _simulate loop's numbers, the sensor history included."""
+    kwargs = {"control": "position", "episode_duration": 0.1, "sensor": sensor}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env = gym.make(ADMITTANCE, **kwargs)
+        fast = _rollout(env, 4, 50, diverge_at)
+        fast.append(env.unwrapped.sensor_history(0))
+        monkeypatch.setattr(admittance_contact, "_UNSTABLE_CONTIGUOUS", False)
+        env = gym.make(ADMITTANCE, **kwargs)
+        plain = _rollout(env, 4, 50, diverge_at)
+        plain.append(env.unwrapped.sensor_history(0))
+    _assert_same(fast, plain)
+    if diverge_at is not None:
+        assert fast[-2][4]["diverged"]
 
 
 def test_peg_contact_flags_are_the_contact_state() -> None:

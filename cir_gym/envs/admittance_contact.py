@@ -11,7 +11,10 @@ from gymnasium import spaces
 
 from cir_gym import rendering
 from cir_gym.envs.base import (
+    _MAX_SPEED_SQ,
+    _STATE,
     _SUM,
+    _UNSTABLE_CONTIGUOUS,
     CLIP,
     MIN_CONTROL_FREQ,
     InvalidArgument,
@@ -89,6 +92,9 @@ CONTROLS = ("torque", "position")
 #: step is refined until it is small (scripts/eval_contact.py, "physics step").
 TIMESTEP = 0.00025
 _SITE_OBJ = mujoco.mjtObj.mjOBJ_SITE  # _obs's mj_objectVelocity (an attribute lookup less)
+#: what the next mj_step reads, and the sensors' history: _motion_period's undo
+_UNDO_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION | mujoco.mjtState.mjSTATE_HISTORY)
+_isfinite = math.isfinite
 
 
 def build_model(
@@ -502,6 +508,8 @@ class AdmittanceContactEnv(RobotEnv):
         self._setpoint_at = slice(at["setpoint_pos"].start, at["setpoint_quat"].stop)
         self._refs_at = slice(at["f_ref"].start, at["tool_vel_ref"].stop)
         self._vel_buf = np.zeros(6)  # mj_objectVelocity's [ω; v] of the tcp
+        self._period_start = np.zeros(mujoco.mj_stateSize(model, _UNDO_STATE))
+        self._pass_state = np.zeros(mujoco.mj_stateSize(model, _STATE))
         steps = self.max_steps
         self._pos_ref = np.zeros((steps + 1, 3))
         self._vel_ref = np.zeros((steps + 1, 3))
@@ -747,8 +755,60 @@ class AdmittanceContactEnv(RobotEnv):
         return state
 
     def _motion_period(self) -> tuple[bool, float]:
-        """The position interface: one _simulate call per physics step, the motion controller's
-        torque recomputed at each; return (diverged, Σ of the tool-plate normal force).
+        """The position interface: the motion controller's torque recomputed at every physics
+        step; return (diverged, Σ of the tool-plate normal force).
+
+        A fast pass as PegInHole's (``_advance``): _simulate's speed test per physics step,
+        its warning and finite-q tests at the end, its saved state set only on success; on
+        any failure the period is undone (MuJoCo's integration state, sensor history and
+        warning counters) and run again through _simulate (:meth:`_motion_period_simulate`)."""
+        m, d = self.model, self.data
+        if self._warn_data is not d:
+            self._refresh_views(d)
+        if not _UNSTABLE_CONTIGUOUS:
+            return self._motion_period_simulate()
+        n = self._substeps
+        _, qpos, qvel = self._views
+        warn = self._warn_view
+        sd = d.sensordata
+        f0, t0, c0 = self._sensor_adr[0], self._sensor_adr[3], self._contact_adr
+        both = t0 == f0 + 3  # force and torque side by side: one slice
+        torque, limit = self.interface.torque, self.torque_limit
+        q_at, qd_at, normal = self._q_at, self._qd_at, self._normal
+        step, get_state = mujoco.mj_step, mujoco.mj_getState
+        start, saved, last = self._period_start, self._pass_state, n - 1
+        get_state(m, d, start, _UNDO_STATE)
+        before = warn.tobytes()
+        if not last:
+            get_state(m, d, saved, _STATE)
+        rows: list[list[float]] = []
+        contact, ok = 0.0, True
+        d_ctrl = self._views[0]
+        for i in range(n):
+            tau = torque(qpos[q_at], qvel[qd_at], (i + 1) / n)
+            d_ctrl[:] = CLIP(tau, -limit, limit)
+            if i == last and i:
+                get_state(m, d, saved, _STATE)
+            step(m, d)
+            if not qvel.dot(qvel) <= _MAX_SPEED_SQ:
+                ok = False
+                break
+            if both:
+                rows.append(sd[f0 : f0 + 6].tolist())
+            else:
+                rows.append(sd[f0 : f0 + 3].tolist() + sd[t0 : t0 + 3].tolist())
+            contact += float(normal @ sd[c0 : c0 + 3])
+        if ok and warn.tobytes() == before and _isfinite(qpos.dot(qpos)):
+            if _isfinite(saved.dot(saved)):  # _simulate's last save (an overflow skips it)
+                self._safe_state, self._pass_state = saved, self._safe_state
+            self.sensor.advance_many(rows)
+            return False, contact
+        mujoco.mj_setState(m, d, start, _UNDO_STATE)
+        warn[:] = np.frombuffer(before, dtype=warn.dtype)
+        return self._motion_period_simulate()
+
+    def _motion_period_simulate(self) -> tuple[bool, float]:
+        """:meth:`_motion_period` through _simulate, one physics step per call.
 
         The period's true wrenches are fed to the sensor model in one call after the loop
         (nothing in the loop reads the sensor or draws from its generator: the same rows in
