@@ -19,7 +19,6 @@ from cir_gym.envs.base import (
     _STATE,
     _UNSTABLE_CONTIGUOUS,
     CLIP,
-    MAX_JOINT_SPEED,
     InvalidArgument,
     RobotEnv,
     TaskContext,
@@ -557,17 +556,6 @@ class PegInHoleEnv(RobotEnv):
         mujoco.mj_setState(m, d, start, _INTEGRATION)
         warn[:] = np.frombuffer(before, dtype=warn.dtype)
         return self._advance_simulate(tau)
-
-    def _state_diverged(self) -> bool:
-        """RobotEnv._simulate's exact test of the state after a step that failed its quick
-        ones: a non-finite q or q̇, or a joint speed above MAX_JOINT_SPEED."""
-        d = self.data
-        with np.errstate(all="ignore"):
-            return bool(
-                not np.all(np.isfinite(d.qpos))
-                or not np.all(np.isfinite(d.qvel))
-                or np.max(np.abs(d.qvel), initial=0.0) > MAX_JOINT_SPEED
-            )
 
     def _advance_simulate(self, tau: np.ndarray | None) -> tuple[bool, float]:
         """:meth:`_advance`'s loop through :meth:`RobotEnv._simulate`, one physics step per
