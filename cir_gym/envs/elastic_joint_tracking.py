@@ -231,11 +231,25 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         qvel[self._md] = qd0
         self._reset_physics(qpos, qvel)
 
+    def _refresh_views(self, d: Any) -> None:
+        """JointTracking's views, then the motors' θ and θ̇ in ``d`` (views where the
+        addresses are a slice; None: index per call)."""
+        super()._refresh_views(d)
+        self._motor_views = (
+            (d.qpos[self._ma_at], d.qvel[self._md_at])
+            if isinstance(self._ma_at, slice) and isinstance(self._md_at, slice)
+            else None
+        )
+
     def _measure(self, out: np.ndarray) -> None:
         """The link rows as JointTracking, then the motor encoders θ, θ̇ (link units)."""
-        super()._measure(out)
-        _, qpos, qvel = self._data_views()
-        theta, theta_d = qpos[self._ma_at], qvel[self._md_at]
+        JointTrackingEnv._measure(self, out)  # (builds the views on a new MjData)
+        views = self._motor_views
+        if views is not None:
+            theta, theta_d = views
+        else:
+            _, qpos, qvel = self._data_views()
+            theta, theta_d = qpos[self._ma_at], qvel[self._md_at]
         if self._motor_drive is not None:  # once per control instant
             theta, theta_d = self._motor_drive.measure(theta, theta_d, self.dt)
         row = self._motor_row
