@@ -29,6 +29,7 @@ Observation = dict[str, np.ndarray]
 
 _isfinite = math.isfinite
 _F64 = np.dtype(np.float64)
+_NDARRAY = np.ndarray
 _MUL, _ADD = np.multiply, np.add
 
 
@@ -43,10 +44,10 @@ def _float_observation(observation: Observation) -> Observation:
     and concatenated.
     """
     base = getattr(observation.get("q"), "base", None)
-    shared = type(base) is np.ndarray and base.dtype == _F64
+    shared = type(base) is _NDARRAY and base.dtype == _F64
     if shared:
         for v in observation.values():
-            if type(v) is not np.ndarray or v.base is not base:
+            if type(v) is not _NDARRAY or v.base is not base:
                 shared = False
                 break
     if shared:
@@ -230,6 +231,8 @@ class RowDynamics:
         # writes into the model) is seen at the next call
         self._armature = self.model.dof_armature
         self._M = np.zeros((self.model.nv, self.model.nv))
+        self._rne = np.zeros(self.model.nv)  # mj_rne's output of a single row (a buffer)
+        self._g = np.zeros(self.model.nv)  # gravity_buffer's
         # gravity's own data: q̇ = 0 for good, so the body velocities and ċdof that
         # mj_comVel computes here stay zero at every q (kinematics does not touch them):
         # one call now is Robot.gravity's call at every q
@@ -264,6 +267,16 @@ class RowDynamics:
         n = q.shape[-1]
         for q_i, g_i in zip(q.reshape(-1, n), out.reshape(-1, n), strict=False):
             self._gravity_row(q_i, g_i)
+        return out
+
+    def gravity_buffer(self, q: np.ndarray) -> np.ndarray:
+        """ĝ(q) (n,) for one q (n,), as :meth:`gravity`, in a buffer of this object that the
+        next call overwrites (for a caller that only reads it before then)."""
+        m, d, out = self.model, self._gravity_data, self._g
+        self._gravity_qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_rne(m, d, 0, out)
         return out
 
     def _gravity_row(self, q: np.ndarray, out: np.ndarray) -> None:
@@ -305,19 +318,28 @@ class RowDynamics:
         matrix-vector product). No passive or constraint forces (``mj_inverse`` would add
         them, and run collision detection to find the constraints).
         """
+        if q.ndim == 1:  # one row, inline: the rigid bodies' τ into a buffer, + diag(I_a) q̈
+            m, d = self.model, self.data
+            self._qpos[:] = q
+            self._qvel[:] = qd
+            self._qacc[:] = qdd
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            rigid = self._rne
+            mujoco.mj_rne(m, d, 1, rigid)
+            tau = _MUL(self._armature, qdd)
+            return _ADD(rigid, tau, out=tau)
         tau = np.empty(q.shape)
-        if q.ndim == 1:  # one row, without the row loop
-            self._newton_euler_row(q, qd, qdd, tau)
-        else:
-            n = q.shape[-1]
-            for q_i, qd_i, qdd_i, t_i in zip(
-                q.reshape(-1, n),
-                qd.reshape(-1, n),
-                qdd.reshape(-1, n),
-                tau.reshape(-1, n),
-                strict=False,  # (equal lengths)
-            ):
-                self._newton_euler_row(q_i, qd_i, qdd_i, t_i)
+        n = q.shape[-1]
+        for q_i, qd_i, qdd_i, t_i in zip(
+            q.reshape(-1, n),
+            qd.reshape(-1, n),
+            qdd.reshape(-1, n),
+            tau.reshape(-1, n),
+            strict=False,  # (equal lengths)
+        ):
+            self._newton_euler_row(q_i, qd_i, qdd_i, t_i)
         return _ADD(tau, _MUL(self._armature, qdd), out=tau)
 
     def _newton_euler_row(
