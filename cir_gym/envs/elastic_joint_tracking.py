@@ -243,7 +243,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
 
     def _measure(self, out: np.ndarray) -> None:
         """The link rows as JointTracking, then the motor encoders θ, θ̇ (link units)."""
-        JointTrackingEnv._measure(self, out)  # (builds the views on a new MjData)
+        super()._measure(out)  # (builds the views on a new MjData)
         views = self._motor_views
         if views is not None:
             theta, theta_d = views

@@ -65,10 +65,8 @@ _DIV = np.true_divide
 
 def row_dict(keys: tuple[str, ...], rows: np.ndarray) -> dict[str, np.ndarray]:
     """``dict(zip(keys, rows))``: key i → ``rows[i]`` (a view), by indexing, which costs
-    about half of iterating the array (5 and 7 rows: JointTracking's and the elastic's)."""
-    if len(keys) == 5:
-        k0, k1, k2, k3, k4 = keys
-        return {k0: rows[0], k1: rows[1], k2: rows[2], k3: rows[3], k4: rows[4]}
+    about half of iterating the array (7 rows: the elastic env's; JointTracking's ``_obs``
+    indexes its 5 rows inline)."""
     if len(keys) == 7:
         k0, k1, k2, k3, k4, k5, k6 = keys
         return {

@@ -506,6 +506,7 @@ class _VisualServoBase(RobotEnv):
         access) and of the step's scratch buffers, built once per MjData (and after
         unpickling, which copies views)."""
         d, cid, fl = self.data, self._cam_id, self._flange
+        self._kin_key = None  # a new MjData: its position stage is not known to be current
         self._v_cam_xmat = d.cam_xmat[cid].reshape(3, 3)
         self._v_cam_xpos = d.cam_xpos[cid]
         self._v_geom_xpos = d.geom_xpos
