@@ -168,6 +168,52 @@ def test_motion_interface_command_equals_damped_least_squares(
         np.testing.assert_array_equal(interface.q_c, want)
 
 
+def _command_outcome(interface: mi.CartesianMotionInterface, q: np.ndarray) -> tuple:
+    """(new setpoint or the exception's type and text, the warnings' texts) of one command
+    from ``q``."""
+    interface.reset(q)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            interface.command(np.array([1e-3, 0.0, 0.0, 0.0, 0.0, 1e-3]), 0.002)
+            result: object = interface.q_c.copy()
+        except Exception as exc:  # the outcome compared, whatever it is
+            result = (type(exc), str(exc))
+    return result, [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize(
+    ("damping", "singular"), [(1e-170, False), (1e-160, False), (1e-10, True), (1e-3, True)]
+)
+def test_motion_interface_tiny_damping_behaves_as_the_plain_solve(
+    damping: float, singular: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A damping whose square rounds to 0 (1e-170) at q = 0 (a singular Jacobian), a
+    subnormal square (1e-160), and a k² lost in rounding against J Jᵀ at a Jacobian with two
+    equal rows (an exactly zero pivot): the fast path raises, warns and returns what
+    np.linalg.solve's path does."""
+    env = gym.make(ADMITTANCE, control="position")
+    env.reset(seed=0)
+    interface = env.unwrapped.interface
+    interface.damping = damping
+    if singular:
+        J = np.zeros((6, interface.robot.n))
+        J[0] = J[1] = np.linspace(0.1, 0.9, J.shape[1])
+        J[2:, 2:6] = 0.5 * np.eye(4)
+        monkeypatch.setattr(interface.robot, "jacobian", lambda site, q: J.copy())
+    q = np.zeros(interface.robot.n)
+    fast = _command_outcome(interface, q)
+    monkeypatch.setattr(mi, "_SOLVE", None)  # operational_space.damped_least_squares
+    plain = _command_outcome(interface, q)
+    assert fast[1] == plain[1]
+    if isinstance(plain[0], tuple):
+        assert fast[0] == plain[0]
+    else:
+        np.testing.assert_array_equal(fast[0], plain[0])
+    if damping == 1e-170 or (singular and damping == 1e-10):  # the cases the fix is about
+        assert plain[0] == (np.linalg.LinAlgError, "Singular matrix")
+
+
 @pytest.mark.parametrize(
     ("env_id", "kwargs"),
     [(PEG, {"control": "position"}), (ADMITTANCE, {"control": "position"}), (PEG, {})],
