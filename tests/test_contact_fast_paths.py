@@ -110,6 +110,50 @@ def test_admittance_motion_fast_pass_equals_the_simulate_loop(
         assert fast[-2][4]["diverged"]
 
 
+@pytest.mark.parametrize(
+    ("env_id", "control", "module"),
+    [
+        (PEG, "torque", peg_in_hole),
+        (PEG, "position", peg_in_hole),
+        (ADMITTANCE, "position", admittance_contact),
+    ],
+)
+def test_an_undone_fast_pass_leaves_no_warning_counted(
+    env_id: str, control: str, module: object, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A warning other than the instability ones (here CONTACTFULL, raised at every physics
+    step by a wrapped mj_step) met in a fast pass that is then undone (every pass, by a speed
+    bound of -1 in the fast test only; _simulate reruns the period without diverging):
+    MuJoCo's whole warning state (counters and last infos) is the _simulate loop's."""
+    import mujoco
+
+    mj_step, full = mujoco.mj_step, int(mujoco.mjtWarning.mjWARN_CONTACTFULL)
+
+    def step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
+        for _ in range(nstep):
+            mj_step(m, d)
+            d.warning.number[full] += 1
+            d.warning.lastinfo[full] = d.warning.number[full] % 7
+
+    monkeypatch.setattr(mujoco, "mj_step", step)
+    ends = []
+    for plain in (False, True):
+        with monkeypatch.context() as patch:
+            if plain:
+                patch.setattr(module, "_UNSTABLE_CONTIGUOUS", False)
+            else:
+                patch.setattr(module, "_MAX_SPEED_SQ", -1.0)  # every fast pass undone
+            env = gym.make(env_id, control=control, episode_duration=0.1)
+            out = _rollout(env, 3, 5)
+        w = env.unwrapped.data.warning
+        ends.append((out, w.number.copy(), w.lastinfo.copy()))
+    (fast, number, lastinfo), (plain_out, plain_number, plain_lastinfo) = ends
+    _assert_same(fast, plain_out)
+    assert not fast[-1][4]["diverged"] and number[full] > 0
+    np.testing.assert_array_equal(number, plain_number)
+    np.testing.assert_array_equal(lastinfo, plain_lastinfo)
+
+
 def test_peg_contact_flags_are_the_contact_state() -> None:
     env = gym.make(PEG, episode_duration=0.2, control="position")
     _rollout(env, 1, 40)

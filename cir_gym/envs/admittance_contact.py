@@ -747,10 +747,16 @@ class AdmittanceContactEnv(RobotEnv):
         self._tcp_views = (d.site_xpos[self._site], d.site_xmat[self._site])
         m = self.model
         self._spring_views = (m.jnt_stiffness, m.dof_damping)
+        self._warn_all = (d.warning.number, d.warning.lastinfo)  # _motion_period's undo
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        for name in ("_hist", "_tcp_views", "_spring_views"):  # rebuilt on the new MjData
+        for name in (
+            "_hist",
+            "_tcp_views",
+            "_spring_views",
+            "_warn_all",
+        ):  # rebuilt on the new MjData
             state.pop(name, None)
         return state
 
@@ -760,8 +766,11 @@ class AdmittanceContactEnv(RobotEnv):
 
         A fast pass as PegInHole's (``_advance``): _simulate's speed test per physics step,
         its warning and finite-q tests at the end, its saved state set only on success; on
-        any failure the period is undone (MuJoCo's integration state, sensor history and
-        warning counters) and run again through _simulate (:meth:`_motion_period_simulate`)."""
+        any failure the period is undone (MuJoCo's integration state, sensor history and whole
+        warning state, every counter and last info) and run again through _simulate
+        (:meth:`_motion_period_simulate`). MuJoCo logs a warning's text when its counter leaves
+        0, so a warning met in the undone pass is logged again by the rerun (a repeated line
+        in MuJoCo's log, not in any value)."""
         m, d = self.model, self.data
         if self._warn_data is not d:
             self._refresh_views(d)
@@ -779,6 +788,9 @@ class AdmittanceContactEnv(RobotEnv):
         start, saved, last = self._period_start, self._pass_state, n - 1
         get_state(m, d, start, _UNDO_STATE)
         before = warn.tobytes()
+        # MuJoCo's whole warning state, to undo (a pass may also count e.g. CONTACTFULL)
+        number, lastinfo = self._warn_all
+        warnings_before = (number.tobytes(), lastinfo.tobytes())
         if not last:
             get_state(m, d, saved, _STATE)
         rows: list[list[float]] = []
@@ -804,7 +816,8 @@ class AdmittanceContactEnv(RobotEnv):
             self.sensor.advance_many(rows)
             return False, contact
         mujoco.mj_setState(m, d, start, _UNDO_STATE)
-        warn[:] = np.frombuffer(before, dtype=warn.dtype)
+        number[:] = np.frombuffer(warnings_before[0], dtype=number.dtype)
+        lastinfo[:] = np.frombuffer(warnings_before[1], dtype=lastinfo.dtype)
         return self._motion_period_simulate()
 
     def _motion_period_simulate(self) -> tuple[bool, float]:

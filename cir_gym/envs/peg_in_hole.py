@@ -480,10 +480,13 @@ class PegInHoleEnv(RobotEnv):
         (‖q̇‖² ≤ MAX_JOINT_SPEED²), its warning test and its finite test of q at the end (a
         non-finite q inside the period makes MuJoCo warn at the next step) and leaves
         _simulate's saved state as its loop would (the state before the period's last
-        step). If anything fails, the period is undone (MuJoCo's integration state and
-        warning counters restored, nothing else was changed) and run again through
-        ``_simulate`` one physics step at a time (:meth:`_advance_simulate`), which detects
-        and restores exactly as before."""
+        step). If anything fails, the period is undone (MuJoCo's integration state and its
+        whole warning state, every counter and last info, restored; nothing else was changed)
+        and run again through ``_simulate`` one physics step at a time
+        (:meth:`_advance_simulate`), which detects and restores exactly as before. MuJoCo logs
+        a warning's text when its counter leaves 0, so a warning met in the undone pass is
+        logged again by the rerun (the one difference from the plain loop: a repeated line in
+        MuJoCo's log, not in any value)."""
         if self.control == "position":
             R_h = self._R_hole  # the action is in the nominal hole frame
             dx = a * self.increment_scale
@@ -502,10 +505,13 @@ class PegInHoleEnv(RobotEnv):
         skip = self.frame_skip
         last = skip - 1
         step, get_state = mujoco.mj_step, mujoco.mj_getState
-        # the period's start, to undo it: MuJoCo's integration state, the warning counters
+        # the period's start, to undo it: MuJoCo's integration state, its warning state (every
+        # counter and last info: a pass may also count e.g. CONTACTFULL, the rerun again)
         start = self._period_start
         get_state(m, d, start, _INTEGRATION)
         before = warn.tobytes()
+        number, lastinfo = self._warn_all
+        warnings_before = (number.tobytes(), lastinfo.tobytes())
         # _simulate's saved state after its loop: the state before the last step (before the
         # only step, if one), kept aside until the pass succeeds
         saved = self._pass_state
@@ -554,7 +560,8 @@ class PegInHoleEnv(RobotEnv):
             return False, peak
         # undo the period and run it through _simulate (its exact tests and restore)
         mujoco.mj_setState(m, d, start, _INTEGRATION)
-        warn[:] = np.frombuffer(before, dtype=warn.dtype)
+        number[:] = np.frombuffer(warnings_before[0], dtype=number.dtype)
+        lastinfo[:] = np.frombuffer(warnings_before[1], dtype=lastinfo.dtype)
         return self._advance_simulate(tau)
 
     def _advance_simulate(self, tau: np.ndarray | None) -> tuple[bool, float]:
@@ -600,11 +607,13 @@ class PegInHoleEnv(RobotEnv):
         adr = self._force_adr
         self._wrench_view = d.sensordata[adr : adr + 6] if self._torque_adr == adr + 3 else None
         self._tip_views = (d.site_xpos[self._tip], d.site_xmat[self._tip])
+        self._warn_all = (d.warning.number, d.warning.lastinfo)  # _advance's undo
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         state["_wrench_view"] = None  # rebuilt on the new MjData by _simulate
         state.pop("_tip_views", None)
+        state.pop("_warn_all", None)  # views of MjData's, rebuilt with the others
         state["_jacp"] = state["_jacr"] = None  # views of _jac, rebuilt by __setstate__
         state["_rot_flat"] = None  # a view of _rot
         return state
