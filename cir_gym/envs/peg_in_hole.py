@@ -359,14 +359,9 @@ class PegInHoleEnv(RobotEnv):
         self._obs_at = tuple(sl for _, sl in self._obs_slices)  # _obs's order
         self._rot = np.zeros((3, 3))  # _obs's scratch: the peg's rotation, hole frame
         self._rot_flat = self._rot.reshape(9)
-        self._rot_tmp = np.zeros((3, 3))
         self._pos_tmp = np.zeros(3)
         self._period_start = np.zeros(mujoco.mj_stateSize(model, _INTEGRATION))  # _advance
         self._pass_state = np.zeros(mujoco.mj_stateSize(model, _STATE))  # _advance's save
-        # the nominal hole frame is the world's (hole_quat): _obs's products by it are exact
-        self._hole_is_identity = bool(
-            np.array_equal(self._R_hole, np.eye(3)) and not np.signbit(self._R_hole).any()
-        )
         steps = self.max_steps
         self._force = np.zeros(steps)
         self._k = 0
@@ -754,32 +749,25 @@ class PegInHoleEnv(RobotEnv):
 
     def _obs(self) -> dict[str, np.ndarray]:
         """One new flat buffer in the layout of ``_obs_bounds``, filled through precomputed
-        slices (the products into their places with ``out=``: the same matmuls), clipped
+        slices (the products by the hole frame into their places with ``out=``), clipped
         once, handed out as views (each step's arrays are new)."""
         d = self.data
         _, qpos, qvel = self._data_views()
         xpos, xmat = self._tip_views
         mujoco.mj_jacSite(self.model, d, self._jacp, self._jacr, self._tip)
         vw = self._jac @ qvel  # [J_p q̇; J_r q̇]
-        R_hole = self._R_hole
         buf = np.empty(self._obs_size)  # one new buffer per step; the entries are its views
         q_at, qd_at, pos_at, quat_at, twist_at, wrench_at, hpos_at, hquat_at = self._obs_at
         buf[q_at] = qpos[self._q_at]
         buf[qd_at] = qvel[self._qd_at]
         R = self._rot  # R_holeᵀ R_tip ALIGNEDᵀ
-        if self._hole_is_identity:
-            # the products below with R_hole = I and ALIGNED = diag(−1, 1, −1): every entry is
-            # one exact product (by 1 or −1) plus exact zeros, and numpy's BLAS products give
-            # an exact zero as +0; "+ 0.0" does the same (tests/test_contact_fast_paths.py
-            # checks these against the matmuls, −0 included)
-            _ADD(_SUB(xpos, self.hole_pos, out=self._pos_tmp), 0.0, out=buf[pos_at])
-            _ADD(_MUL(xmat.reshape(3, 3), _ALIGNED_COLUMNS, out=R), 0.0, out=R)
-            _ADD(vw, 0.0, out=buf[twist_at])
-        else:
-            np.matmul(R_hole.T, xpos - self.hole_pos, out=buf[pos_at])
-            np.matmul(np.matmul(R_hole.T, xmat.reshape(3, 3), out=self._rot_tmp), ALIGNED.T, out=R)
-            # [R_holeᵀ v; R_holeᵀ ω] as the rows of [v; ω] (2, 3) times R_hole: one matmul
-            np.matmul(vw.reshape(2, 3), R_hole, out=buf[twist_at].reshape(2, 3))
+        # R_holeᵀ (·) with R_hole = I (the nominal hole frame is the world's: hole_quat is
+        # fixed at (1, 0, 0, 0)) and ALIGNED = diag(−1, 1, −1): every entry of the products is
+        # one exact product (by 1 or −1) plus exact zeros, given as "+ 0.0" (an exact zero as
+        # +0; tests/test_contact_fast_paths.py checks the explicit formula, −0 included)
+        _ADD(_SUB(xpos, self.hole_pos, out=self._pos_tmp), 0.0, out=buf[pos_at])
+        _ADD(_MUL(xmat.reshape(3, 3), _ALIGNED_COLUMNS, out=R), 0.0, out=R)
+        _ADD(vw, 0.0, out=buf[twist_at])
         quat = buf[quat_at]
         mujoco.mju_mat2Quat(quat, self._rot_flat)  # as _quat: w >= 0
         if quat[0] < 0:
