@@ -281,10 +281,11 @@ def test_admittance_reference_rows_are_the_reference() -> None:
     np.testing.assert_array_equal(rows[:, 4:7], env._vel_ref)
 
 
-def test_peg_observation_products_by_the_identity_are_the_matmuls() -> None:
+def test_peg_observation_products_by_the_identity_are_the_explicit_products() -> None:
     """PegInHole's _obs replaces its products by R_hole = I and ALIGNED = diag(−1, 1, −1)
-    with "+ 0.0" (an exact zero as +0, as numpy's BLAS products give it): the same bytes as
-    the matmuls, −0 and tiny numbers included."""
+    with the explicit products "+ 0.0" (an exact zero as +0): the same bytes as that formula
+    written entry by entry, −0 and tiny numbers included, and the matmuls' values (their
+    zeros' signs depend on the BLAS, so only the values are compared)."""
     from cir_gym.envs.peg_in_hole import _ALIGNED_COLUMNS, ALIGNED
 
     env = gym.make(PEG)
@@ -293,13 +294,29 @@ def test_peg_observation_products_by_the_identity_are_the_matmuls() -> None:
     assert np.array_equal(R_hole, np.eye(3)) and not np.signbit(R_hole).any()
     rng = np.random.default_rng(0)
     values = np.array([0.0, -0.0, 1.5, -2.25, 1e-300, -1e-300, 0.3, -7.0])
-    for _ in range(2000):
+    for _ in range(500):
         X = rng.choice(values, size=(3, 3))
         v = rng.choice(values, size=3)
         w = rng.choice(values, size=6)
-        want = R_hole.T @ X @ ALIGNED.T
-        assert (X * _ALIGNED_COLUMNS + 0.0).tobytes() == want.tobytes()
-        assert (v + 0.0).tobytes() == (R_hole.T @ v).tobytes()
-        twist = np.empty(6)
-        np.matmul(w.reshape(2, 3), R_hole, out=twist.reshape(2, 3))
-        assert (w + 0.0).tobytes() == twist.tobytes()
+        # Σ_k R_hole[k, i] X[k, l] ALIGNED[j, l] with exact zeros summed as +0
+        explicit = np.array(
+            [[float(X[i, j] * ALIGNED[j, j]) + 0.0 for j in range(3)] for i in range(3)]
+        )
+        assert (X * _ALIGNED_COLUMNS + 0.0).tobytes() == explicit.tobytes()
+        assert (v + 0.0).tobytes() == np.array([float(x) + 0.0 for x in v]).tobytes()
+        assert (w + 0.0).tobytes() == np.array([float(x) + 0.0 for x in w]).tobytes()
+        np.testing.assert_array_equal(X * _ALIGNED_COLUMNS + 0.0, R_hole.T @ X @ ALIGNED.T)
+        np.testing.assert_array_equal(v + 0.0, R_hole.T @ v)
+        np.testing.assert_array_equal(w + 0.0, (w.reshape(2, 3) @ R_hole).reshape(6))
+    # the observation is that formula on the simulated state
+    u = env.unwrapped
+    obs = u._obs()
+    xpos, xmat = u._tip_views
+    pos = np.clip(
+        np.array([float(a - b) + 0.0 for a, b in zip(xpos, u.hole_pos, strict=True)]), -2.0, 2.0
+    )
+    assert obs["peg_pos"].tobytes() == pos.tobytes()
+    R = np.array(
+        [[float(xmat[3 * i + j] * ALIGNED[j, j]) + 0.0 for j in range(3)] for i in range(3)]
+    )
+    np.testing.assert_array_equal(obs["peg_quat"], u._quat(R))
