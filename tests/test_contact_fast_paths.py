@@ -154,19 +154,86 @@ def test_an_undone_fast_pass_leaves_no_warning_counted(
     np.testing.assert_array_equal(lastinfo, plain_lastinfo)
 
 
-def test_peg_contact_flags_are_the_contact_state() -> None:
-    env = gym.make(PEG, episode_duration=0.2, control="position")
-    _rollout(env, 1, 40)
-    u = env.unwrapped
-    depth, tip, two_point, wedged, jammed = u._contact_flags()
-    state = u._contact_state()
-    assert (state["depth"], state["two_point"], state["wedged"], state["jammed"]) == (
-        depth,
-        two_point,
-        wedged,
-        jammed,
+def _reference_contact_state(env: object) -> dict:
+    """PegInHole._contact_state as of 4038a6b (before _contact_flags), the reference."""
+    import math
+
+    import mujoco
+
+    from cir_gym import peg_hole_geometry as geo
+    from cir_gym.envs.peg_in_hole import SIDE_NORMAL, STALL_SPEED
+
+    m, d = env.model, env.data
+    axis = env.true_hole_R[:, 2]
+    side: list[np.ndarray] = []
+    hits, first, frames = env._peg_contacts() if d.ncon else ([], None, None)
+    for i in hits:
+        mujoco.mj_contactForce(m, d, i, env._cforce)
+        sign = -1.0 if first[i] == env._peg_geom else 1.0  # frame[0] points geom1 → geom2
+        n = sign * frames[i][:3]  # normal pushing the peg
+        along = float(n @ axis)
+        if abs(along) < SIDE_NORMAL and env._cforce[0] > 0:
+            lateral = n - along * axis
+            side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
+    tip = env._tip_in_hole()
+    depth = float(-tip[2])
+    two_point = len(side) > 1 and any(
+        float(a @ b) < -0.5 for i, a in enumerate(side) for b in side[i + 1 :]
     )
+    mu_d = geo.FRICTION * 2 * env.geometry.hole_radius
+    v_axis = 0.0
+    if two_point:
+        mujoco.mj_jacSite(m, d, env._jacp, env._jacr, env._tip)
+        v_axis = float(axis @ (env._jacp @ d.qvel))
+    wedged = bool(two_point and depth < mu_d)
+    jammed = bool(two_point and not wedged and abs(v_axis) < STALL_SPEED)
+    radial = float(np.hypot(tip[0], tip[1]))
+    return {
+        "depth": depth,
+        "two_point": bool(two_point),
+        "wedged": wedged,
+        "jammed": jammed,
+        "in_bore": radial < env.geometry.hole_radius + env.geometry.chamfer,
+    }
+
+
+def _assert_contact_state_is_the_reference(u: object) -> None:
+    want = _reference_contact_state(u)
+    _assert_same(u._contact_state(), want)
+    depth, tip, two_point, wedged, jammed = u._contact_flags()
+    _assert_same([depth, two_point, wedged, jammed], [want[k] for k in list(want)[:4]])
     np.testing.assert_array_equal(tip, u._tip_in_hole())
+
+
+def test_peg_contact_state_is_the_4038a6b_contact_state() -> None:
+    """_contact_state (a wrapper of _contact_flags) and _contact_flags against the former
+    body of _contact_state: along a pushing rollout, and on constructed two-point contacts
+    (jammed, wedged, sliding, one contact; test_peg_in_hole's poses)."""
+    from test_peg_in_hole import _exact_env, _two_point_pose
+
+    env = gym.make(PEG, episode_duration=0.2, control="position")
+    rng = np.random.default_rng(1)
+    env.reset(seed=1)
+    down = np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0])
+    for _ in range(40):
+        _assert_contact_state_is_the_reference(env.unwrapped)
+        action = (down + rng.uniform(-0.3, 0.3, 6)).astype(np.float32)
+        if any(env.step(action)[2:4]):
+            break
+    _assert_contact_state_is_the_reference(env.unwrapped)
+    flags = set()
+    for depth, shift, v_axis in [
+        (0.010, 0.0, 0.0),
+        (0.003, 0.0, 0.0),
+        (0.010, 0.0, 0.005),
+        (0.010, 2e-5, 0.0),
+    ]:
+        u = _exact_env()
+        _two_point_pose(u, depth, shift, v_axis)
+        _assert_contact_state_is_the_reference(u)
+        state = _reference_contact_state(u)
+        flags.add((state["two_point"], state["wedged"], state["jammed"]))
+    assert len(flags) == 4  # jammed, wedged, sliding and one contact all met
 
 
 @pytest.mark.parametrize("env_id", [PEG, ADMITTANCE])
