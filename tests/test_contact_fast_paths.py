@@ -71,7 +71,12 @@ def test_peg_fast_pass_equals_the_simulate_loop(
     """The fast pass, and its undo and rerun on a divergence (a speed test failing inside the
     period; a NaN state, answered by MuJoCo's warning), give the _simulate loop's numbers."""
     kwargs = {"control": control, "episode_duration": 0.1, "sensor": "robotiq_ft300"}
-    if control == "position" and nan_at is not None:  # the motion controller refuses NaN
+    if control == "position" and nan_at is not None:
+        # a NaN written into data.qpos from outside between steps (an externally corrupted
+        # state): the motion controller reads it before MuJoCo steps and refuses it
+        # (ValueError), on both paths. A NaN reached by the physics never gets there: the
+        # fast pass breaks on the speed test, MuJoCo resets a bad state with a warning, and the
+        # step ends with info["diverged"] (the divergence cases here and in the recordings)
         for plain in (False, True):
             if plain:
                 monkeypatch.setattr(peg_in_hole, "_UNSTABLE_CONTIGUOUS", False)
