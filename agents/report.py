@@ -225,13 +225,30 @@ def curve_band(curves: list[tuple[np.ndarray, np.ndarray]], reps: int = REPS
                ) -> dict[str, np.ndarray]:
     """Aggregate seeds' learning curves at the evaluation steps they all have.
 
+    Where the seeds were evaluated at different steps (a run resumed with another evaluation
+    period, say) and share fewer steps than the sparsest seed has inside their common range,
+    each seed is interpolated linearly onto the sparsest seed's steps in that range
+    (``interpolated`` is then True), instead of aggregating the few coinciding points, or
+    none.
+
     Returns ``steps``, ``iqm``, ``low``, ``high`` (the stratified-bootstrap band over seeds,
-    NaN with one seed) and ``seeds`` (n_seeds, n_steps)."""
+    NaN with one seed), ``seeds`` (n_seeds, n_steps) and ``interpolated``."""
     if not curves:
         raise ValueError("no learning curves")
     common = sorted(set.intersection(*(set(t.tolist()) for t, _ in curves)))
-    values = np.array([[v[list(t).index(s)] for s in common] for t, v in curves])
-    out = {"steps": np.array(common), "seeds": values,
+    start = max(int(t[0]) for t, _ in curves)
+    stop = min(int(t[-1]) for t, _ in curves)
+    inside = [t[(t >= start) & (t <= stop)] for t, _ in curves]
+    sparsest = min(inside, key=len)
+    interpolated = len(common) < len(sparsest)
+    if interpolated:
+        common = sparsest.tolist()
+        values = np.array([np.interp(common, t, v) for t, v in curves])
+    else:
+        values = np.array([[v[list(t).index(s)] for s in common] for t, v in curves])
+    if not common:
+        raise ValueError("the learning curves share no range of training steps")
+    out = {"steps": np.array(common), "seeds": values, "interpolated": interpolated,
            "iqm": np.array([iqm(values[:, j]) for j in range(len(common))])}
     bands = [interval(values[:, j], reps=reps)[1:] for j in range(len(common))]
     out["low"] = np.array([b[0] for b in bands])

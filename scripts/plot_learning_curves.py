@@ -113,8 +113,9 @@ def plot_env(env_id: str, out: Path) -> Path | None:
                 ax_r.plot(*read_curve(d, "return"), "o-", ms=3, color=color, label=name)
         else:  # IQM over seeds, 95 % stratified-bootstrap band, each seed thin
             band = curve_band([read_curve(sd, primary) for sd in seed_dirs])
+            how = ", interpolated to common steps" if band["interpolated"] else ""
             ax.plot(band["steps"], band["iqm"], "o-", ms=3, color=color,
-                    label=f"{name} ({label}, IQM of {len(seed_dirs)} seeds, 95 % CI)")
+                    label=f"{name} ({label}, IQM of {len(seed_dirs)} seeds, 95 % CI{how})")
             ax.fill_between(band["steps"], band["low"], band["high"], color=color, alpha=0.2)
             for row in band["seeds"]:
                 ax.plot(band["steps"], row, "-", lw=0.6, alpha=0.5, color=color)

@@ -726,6 +726,28 @@ def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkey
     assert band["seeds"].shape[0] == 2 and np.all(band["low"] <= band["high"])
 
 
+def test_curve_band_interpolates_seeds_evaluated_at_different_steps():
+    """A seed evaluated every 25k steps (24992, 49984, ...) and two every 100k share no step:
+    the band is drawn on the sparse seeds' steps inside the common range, each seed
+    interpolated linearly (a line stays that line), not left empty."""
+    from agents.report import curve_band
+
+    def line(t):
+        return 1.0 - t / 1e7
+
+    dense = np.arange(1, 41) * 24992
+    sparse = np.arange(1, 11) * 100000
+    band = curve_band([(dense, line(dense)), (sparse, line(sparse)), (sparse, line(sparse))],
+                      reps=100)
+    assert band["interpolated"]
+    assert np.array_equal(band["steps"], sparse[sparse <= dense[-1]])
+    assert np.allclose(band["seeds"], line(band["steps"]), rtol=0, atol=1e-12)
+    same = curve_band([(sparse, line(sparse)), (sparse, 2 * line(sparse))], reps=100)
+    assert not same["interpolated"] and np.array_equal(same["steps"], sparse)
+    with pytest.raises(ValueError, match="share no range"):
+        curve_band([(np.array([1, 2]), np.ones(2)), (np.array([5, 6]), np.ones(2))])
+
+
 def test_report_main_writes_one_seed_table_per_leaderboard_variant(tmp_path, monkeypatch):
     import agents.report as report
 
