@@ -38,19 +38,13 @@ import mujoco
 import numpy as np
 
 from cir_gym.envs.base import CLIP, InvalidArgument, check_number
+from cir_gym.fast_solve import solve
 from cir_gym.operational_space import damped_least_squares
 from cir_gym.robot import Robot
 
-try:  # np.linalg.solve's own gufunc (the LAPACK call) and its error handler, without its
-    # Python checks
-    from numpy.linalg import _umath_linalg
-    from numpy.linalg._linalg import _raise_linalgerror_singular
-
-    _SOLVE = _umath_linalg.solve
-except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
-    _SOLVE = None
-    _raise_linalgerror_singular = None
-
+#: command's damped least squares inline (False: operational_space.damped_least_squares
+#: itself, the reference the inline form is tested against)
+_INLINE_DLS = True
 _F64 = np.dtype(np.float64)
 _isfinite = math.isfinite
 
@@ -114,26 +108,19 @@ class CartesianMotionInterface:
             raise InvalidArgument(f"increment must be 6 finite numbers [δp; δφ], got {increment!r}")
         J = self.robot.jacobian(self.site, self.q_c)
         k = self.damping
-        if _SOLVE is None or J.shape[0] != 6 or not k * k > 0:
+        if not _INLINE_DLS or J.shape[0] != 6 or not k * k > 0:
             J_star = damped_least_squares(J, k)
         else:  # damped_least_squares(J, k), operation for operation (k² > 0; a tiny k whose
             # square rounds to 0 takes that plain path). J Jᵀ + k² I is positive definite in
             # exact arithmetic, but rounding can still give LAPACK an exactly zero pivot (k² lost
             # against J Jᵀ at a rank-deficient J, k ≲ 1e-8 here), and the solve can overflow:
-            # the gufunc then sets numpy's floating-point flags, so it runs under
-            # np.linalg.solve's own error state (LinAlgError "Singular matrix", as there)
+            # fast_solve.solve runs numpy's gufunc under np.linalg.solve's own error state
+            # (LinAlgError "Singular matrix", as there)
             if k != self._dls_k:
                 self._dls_diag = (np.asarray(k, dtype=float) ** 2)[..., None, None] * np.eye(6)
                 self._dls_k = k
             JJt = J @ np.swapaxes(J, -1, -2) + self._dls_diag
-            with np.errstate(
-                call=_raise_linalgerror_singular,
-                invalid="call",
-                over="ignore",
-                divide="ignore",
-                under="ignore",
-            ):
-                J_solved = _SOLVE(JJt, J, signature="dd->d")
+            J_solved = solve(JJt, J)
             J_star = np.swapaxes(J_solved, -1, -2)
         # the clip ufunc (np.clip's values without its Python wrapper)
         q_new = CLIP(self.q_c + J_star @ dx, self.robot.lower, self.robot.upper)

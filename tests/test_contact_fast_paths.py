@@ -278,7 +278,7 @@ def test_motion_interface_command_equals_damped_least_squares(
         interface.command(dx, 0.002)
         fast.append(interface.q_c.copy())
     interface.reset(q_start)
-    monkeypatch.setattr(mi, "_SOLVE", None)  # operational_space.damped_least_squares
+    monkeypatch.setattr(mi, "_INLINE_DLS", False)  # operational_space.damped_least_squares
     for dx, want in zip(increments, fast, strict=True):
         interface.command(dx, 0.002)
         np.testing.assert_array_equal(interface.q_c, want)
@@ -319,7 +319,7 @@ def test_motion_interface_tiny_damping_behaves_as_the_plain_solve(
         monkeypatch.setattr(interface.robot, "jacobian", lambda site, q: J.copy())
     q = np.zeros(interface.robot.n)
     fast = _command_outcome(interface, q)
-    monkeypatch.setattr(mi, "_SOLVE", None)  # operational_space.damped_least_squares
+    monkeypatch.setattr(mi, "_INLINE_DLS", False)  # operational_space.damped_least_squares
     plain = _command_outcome(interface, q)
     assert fast[1] == plain[1]
     if isinstance(plain[0], tuple):

@@ -18,7 +18,7 @@ import pytest
 
 import baselines
 import cir_gym  # noqa: F401
-from cir_gym.envs import visual_servo as vs
+from cir_gym.fast_solve import solve
 
 ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")
 
@@ -85,14 +85,27 @@ def test_a_pickled_env_continues_the_same_episode(env_id: str) -> None:
     np.testing.assert_array_equal(env._s_true, copy._s_true)
 
 
-def test_solve_is_numpy_solve_with_its_errors() -> None:
+@pytest.mark.parametrize("numpy_internals", [True, False])
+def test_solve_is_numpy_solve_with_its_errors(numpy_internals, monkeypatch) -> None:
+    """cir_gym.fast_solve.solve (VisualServo's J⁺V, the motion interface's damped least
+    squares) gives np.linalg.solve's bits and errors for vector and matrix right-hand sides,
+    with numpy's internals and in its fallback (another numpy's layout)."""
+    from cir_gym import fast_solve
+
+    if not numpy_internals:
+        monkeypatch.setattr(fast_solve, "_FP_STATE", None)
     rng = np.random.default_rng(0)
     for _ in range(200):
         J = rng.standard_normal((6, 7))
         A, b = J @ J.T, rng.standard_normal(6)
-        np.testing.assert_array_equal(vs._solve(A, b), np.linalg.solve(A, b))
-    with pytest.raises(np.linalg.LinAlgError):
-        vs._solve(np.zeros((6, 6)), np.ones(6))
+        np.testing.assert_array_equal(solve(A, b), np.linalg.solve(A, b))
+        np.testing.assert_array_equal(solve(A + np.eye(6), J), np.linalg.solve(A + np.eye(6), J))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no floating-point warning either
+        with pytest.raises(np.linalg.LinAlgError):
+            solve(np.zeros((6, 6)), np.ones(6))
+        with pytest.raises(np.linalg.LinAlgError):
+            solve(np.zeros((6, 6)), np.ones((6, 7)))
 
 
 def test_servo_scaling_with_a_zero_limit_follows_numpy_without_warnings() -> None:

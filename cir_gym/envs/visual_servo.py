@@ -31,6 +31,7 @@ from cir_gym.envs.base import (
     as_float_array,
     check_number,
 )
+from cir_gym.fast_solve import solve
 from cir_gym.metrics import MetricSpec
 from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
@@ -45,44 +46,6 @@ _SUB, _MUL, _DIV, _EXP = np.subtract, np.multiply, np.divide, np.exp
 #: syrk for J Jᵀ) with less dispatch (~0.2 µs a call on these 3- to 7-element operands)
 _DOT = np.dot
 
-
-def _numpy_fp_state() -> tuple[Any, Any, Any]:
-    """(the context variable holding numpy's floating-point error state, np.linalg.solve's
-    state, numpy's one-vector solve gufunc): the state made once, so that :func:`_solve` sets
-    it with a context-variable token instead of building an ``np.errstate`` (~1 µs) per call.
-    All None where numpy's private layout differs (then np.linalg.solve itself)."""
-    try:
-        from numpy._core._ufunc_config import _extobj_contextvar
-        from numpy._core.umath import _make_extobj
-        from numpy.linalg import _umath_linalg
-        from numpy.linalg._linalg import _raise_linalgerror_singular
-
-        solve_state = _make_extobj(  # np.linalg.solve's own errstate
-            call=_raise_linalgerror_singular,
-            invalid="call",
-            over="ignore",
-            divide="ignore",
-            under="ignore",
-        )
-        return _extobj_contextvar, solve_state, _umath_linalg.solve1
-    except (ImportError, AttributeError, TypeError):  # pragma: no cover - another numpy
-        return None, None, None
-
-
-_FP_STATE, _SOLVE_STATE, _SOLVE1 = _numpy_fp_state()
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(a, b)`` of a float64 (n, n) matrix and (n,) vector, bit for bit and
-    with its errors (LinAlgError on a singular matrix): numpy's own LAPACK gufunc under the
-    floating-point state np.linalg.solve sets, without its Python layers (~6 µs less)."""
-    if _FP_STATE is None:  # pragma: no cover - another numpy
-        return np.linalg.solve(a, b)
-    token = _FP_STATE.set(_SOLVE_STATE)
-    try:
-        return _SOLVE1(a, b, signature="dd->d")
-    finally:
-        _FP_STATE.reset(token)
 
 __all__ = [
     "VISUAL_SERVO_ENVIRONMENTS",
@@ -817,7 +780,7 @@ class _VisualServoBase(RobotEnv):
         V_world, J, JT = self._v_Vw, self._v_J, self._v_JT
         JJT = _DOT(J, JT, out=self._jjt)
         try:
-            return _DOT(JT, _solve(JJT, V_world), out=self._qd)  # J⁺ V
+            return _DOT(JT, solve(JJT, V_world), out=self._qd)  # J⁺ V
         except np.linalg.LinAlgError:  # exactly singular: the least-squares solution
             return np.linalg.lstsq(J, V_world, rcond=None)[0]
 
