@@ -257,12 +257,8 @@ class RowDynamics:
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """ĝ(q) (N, n) for q (N, n) (or (n,) for (n,)), N m."""
         out = np.empty(q.shape)
-        if q.ndim == 1:  # one row, without the row loop (and without _gravity_row's call)
-            m, d = self.model, self._gravity_data
-            self._gravity_qpos[:] = q
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            mujoco.mj_rne(m, d, 0, out)
+        if q.ndim == 1:  # one row, without the row loop
+            self._gravity_row(q, out)
             return out
         n = q.shape[-1]
         for q_i, g_i in zip(q.reshape(-1, n), out.reshape(-1, n), strict=False):
@@ -271,7 +267,8 @@ class RowDynamics:
 
     def gravity_buffer(self, q: np.ndarray) -> np.ndarray:
         """ĝ(q) (n,) for one q (n,), as :meth:`gravity`, in a buffer of this object that the
-        next call overwrites (for a caller that only reads it before then)."""
+        next call overwrites (for a caller that only reads it before then). PD + gravity's
+        one-row hot path: :meth:`_gravity_row` written out (a call less)."""
         m, d, out = self.model, self._gravity_data, self._g
         self._gravity_qpos[:] = q
         mujoco.mj_kinematics(m, d)
@@ -318,7 +315,8 @@ class RowDynamics:
         matrix-vector product). No passive or constraint forces (``mj_inverse`` would add
         them, and run collision detection to find the constraints).
         """
-        if q.ndim == 1:  # one row, inline: the rigid bodies' τ into a buffer, + diag(I_a) q̈
+        if q.ndim == 1:  # one row (computed torque's hot path): _newton_euler_row written out
+            # (a call less), the rigid bodies' τ into a buffer, + diag(I_a) q̈
             m, d = self.model, self.data
             self._qpos[:] = q
             self._qvel[:] = qd

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from baselines.base import Controller, InvalidGain, Observation, RowDynamics
+from baselines.base import Controller, InvalidGain, Observation
 from cir_gym import dynamics
 from cir_gym.envs.base import TaskContext
 from cir_gym.robot import ModelError, Robot
@@ -30,15 +30,6 @@ _MUL, _ADD = np.multiply, np.add  # the ufuncs, called with out= on the hot path
 
 JOINT_TASKS = ("JointTracking",)
 RIGID_MODEL_TASKS = ("JointTracking", "ElasticJointTracking")  # laws that work on link q, q̇
-
-
-def _cached_rows(ctrl: Controller) -> RowDynamics | None:
-    """``ctrl.row_dynamics()``, its cached value read directly when it is current (the
-    laws' hot path; the method otherwise)."""
-    cached = ctrl.__dict__.get("_row_dynamics")
-    if cached is not None and cached[0] is ctrl.robot.model and ctrl.parameters is None:
-        return cached[1]
-    return ctrl.row_dynamics()
 
 
 def _positive(name: str, value: float) -> None:
@@ -150,7 +141,7 @@ class PDGravity(_ModelBased):
 
     def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """:meth:`control` on rows (N, n): ĝ row by row in MuJoCo, the PD on all rows."""
-        rows = _cached_rows(self)
+        rows = self.row_dynamics()
         if rows is None:
             return super().control_batch(obs, state)
         q = obs["q"]
@@ -205,7 +196,7 @@ class _InverseDynamicsLaw(_ModelBased):
 
     def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """:meth:`control` on rows (N, n): y on all rows, B̂ y + n̂ row by row in MuJoCo."""
-        rows = _cached_rows(self)
+        rows = self.row_dynamics()
         if rows is None:
             return super().control_batch(obs, state)
         return rows.newton_euler(obs["q"], obs["qd"], self.outer_loop(obs))
