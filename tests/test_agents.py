@@ -831,3 +831,37 @@ def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
     assert agents.trained_for(ENV, "residual_ppo_computed_torque", {})
     assert {v for _, v, _, p in jobs_for(ENV) if p == "agent:residual_ppo_computed_torque"} == \
         set(gym.spec(ENV).entry_point.cls.leaderboard_variants)
+
+
+def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
+    """scripts/eval_residual_base.py on the shipped AdmittanceContact residual: on the
+    stiffness it was trained on (randomize) its base alone is the leaderboard's admittance
+    bit for bit (the same context, the same design); on 1e3 N/m the variant's admittance,
+    designed for the known stiffness, is far better than that base, and the agent scores what
+    its base scores."""
+    from scripts.eval_residual_base import main as residual_base
+
+    out = tmp_path / "r.md"
+    assert residual_base(["--seed-agent", "1", "--episodes", "1", "--out", str(out)]) == 0
+    rows = {r.split("|")[1].strip(): [float(c) for c in r.split("|")[2:5]]
+            for r in out.read_text().splitlines()
+            if r.startswith("| ") and not r.startswith("| variant")}
+    _, base, variant = rows["unknown stiffness (randomize)"]
+    assert base == variant
+    agent, base, variant = rows["stiffness 1e3 N/m"]
+    assert variant < 0.2 * base and abs(agent - base) < 0.01 * base  # the agent is its base
+
+
+def test_eval_rik_agents_scores_seeds_and_sorts_laps(tmp_path):
+    """scripts/eval_rik_agents.py: a row per training seed with its objective, and every
+    diagnosed lap sorted into exactly one kind."""
+    from scripts.eval_rik_agents import main as rik_agents
+
+    out = tmp_path / "a.md"
+    assert rik_agents(["--agent", "ppo_joint_limits", "--episodes", "1", "--laps", "2",
+                       "--out", str(out)]) == 0
+    text = out.read_text()
+    assert all(f"`ppo_joint_limits` seed {k} | joint_limits |" in text for k in (0, 1, 2))
+    kinds = [r.split("|") for r in text.splitlines()
+             if r.startswith(("| succeeded", "| near miss", "| lost"))]
+    assert sum(int(r[2]) for r in kinds) == 2
