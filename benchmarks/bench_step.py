@@ -21,6 +21,12 @@ not timed):
   fresh ``MjData`` in free space (``_tape.py``, shared with ``bench_leaderboard_bound.py``).
   Gymnasium's ``Reacher-v5`` is measured the same way; the table gives each env's overhead /
   Reacher's overhead.
+- contact envs in contact (:data:`DRIVEN`): the zero action never reaches the surface
+  (PegInHole's zero-action row is free fall), so these envs get a second row whose steps are
+  driven by a controller's actions after an untimed warm-up from the reset: the recording
+  pass calls ``predict`` (its state carried, as the evaluator does) and keeps the actions,
+  the timed loop replays them (the controller's time is not in the step's), and the tape
+  holds the physics of those contact steps only.
 - kinematic envs (RedundantIK, RedundantIK7: no dynamics in ``step``): overhead = time of
   ``env.step`` minus ``mj_kinematics + mj_comPos + mj_jacSite`` (the end-effector site), and
   the ratio of that overhead to the same kinematics.
@@ -61,6 +67,14 @@ import baselines
 import cir_gym
 
 KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
+#: contact envs timed a second time in contact: the controller whose actions drive the steps
+#: and the steps played untimed from the reset first (the zero action never touches the
+#: surface: PegInHole's zero-action row is free fall and one impact; on seed 0 these
+#: controllers touch at step ~700 (PegInHole) and ~870 (AdmittanceContact))
+DRIVEN = {
+    "cir_gym/PegInHole-v0": ("hybrid_force_position", 1000),
+    "cir_gym/AdmittanceContact-v0": ("admittance", 1000),
+}
 REFERENCE = "Reacher-v5"
 
 SECTION = "## env.step and predict"
@@ -83,36 +97,62 @@ def best_pair(
     return min(t_mine), min(t_raw)
 
 
-def step_loop(env: gym.Env, steps: int, count: bool = False) -> Callable[[], float]:
-    """Seconds per ``env.step`` (zero action) over up to ``steps`` steps; resets untimed.
+def step_loop(
+    env: gym.Env,
+    steps: int,
+    count: bool = False,
+    actions: Callable[[Any, bool], np.ndarray] | None = None,
+    warmup: int = 0,
+) -> Callable[[], float]:
+    """Seconds per ``env.step`` over up to ``steps`` steps; resets untimed.
 
     Each call continues the episode of the last (a fresh loop starts with ``reset(seed=0)``)
-    and resets it when fewer than ``steps`` steps are left. ``count``: return the number of
-    steps played instead of a time (the untimed recording pass of :func:`recorded_step_loop`).
+    and resets it when fewer than ``steps`` steps are left. ``actions``: a function of the
+    observation and of whether it is an episode's first giving each action (default: the
+    zero action); ``warmup``: steps played
+    untimed after every reset (a driven row times the contact phase, not the approach).
+    ``count``: return the number of steps played instead of a time (the untimed recording
+    pass of :func:`recorded_step_loop`).
     """
-    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    act = actions if actions is not None else (lambda _obs, _first: zero)
     left = [0]
+    obs: list[Any] = [None]
+    first = [False]
+
+    def prime() -> None:
+        """Reset (and play the warm-up) when fewer than ``steps`` steps are left."""
+        if left[0] < steps + warmup:
+            obs[0], _ = env.reset(seed=0)
+            first[0] = True
+            left[0] = env.spec.max_episode_steps or 10**9
+            for _ in range(warmup):
+                obs[0], *_ = env.step(act(obs[0], first[0]))
+                first[0] = False
+            left[0] -= warmup
 
     def loop() -> float:
-        if left[0] < steps:
-            env.reset(seed=0)
-            left[0] = env.spec.max_episode_steps or 10**9
+        prime()
         n = 0
+        o, f = obs[0], first[0]
         t0 = time.process_time()
         for _ in range(steps):
-            _, _, terminated, truncated, _ = env.step(action)
+            o, _, terminated, truncated, _ = env.step(act(o, f))
+            f = False
             n += 1
             if terminated or truncated:
                 break
         t = time.process_time() - t0
+        obs[0], first[0] = o, False
         left[0] = 0 if (terminated or truncated) else left[0] - n
         return n if count else t / n
 
+    loop.prime = prime  # type: ignore[attr-defined]
     return loop
 
 
 def recorded_step_loop(
-    env: gym.Env, steps: int, trials: int
+    env: gym.Env, steps: int, trials: int, policy: Any = None, warmup: int = 0
 ) -> tuple[Callable[[], float], PhysicsTape]:
     """:func:`step_loop` and the physics of its first ``trials`` calls.
 
@@ -122,13 +162,36 @@ def recorded_step_loop(
     deterministic: same seed, same actions). Every episode starts from ``reset(seed=0)``, so
     a model the env changes at reset (PegInHole's hole pose, a randomized mass) is the same
     in every recorded step and at the replay.
+
+    ``policy`` (a controller): the recording pass takes its actions (``predict`` with its
+    state carried, as the evaluator does) and records them; the returned loop replays them
+    in order (the controller's own time is not in the step's), after ``warmup`` untimed steps
+    from each reset.
     """
     tape = PhysicsTape(env.unwrapped.model)
-    counted = step_loop(env, steps, count=True)
-    with tape:
-        for _ in range(trials):
+    if policy is None:
+        counted = step_loop(env, steps, count=True, warmup=warmup)
+        played = None
+    else:
+        played: list[np.ndarray] = []
+        state: list[Any] = [None]
+
+        def drive(o: Any, first: bool) -> np.ndarray:
+            action, state[0] = policy.predict(
+                o, state=None if first else state[0], episode_start=np.array([first])
+            )
+            played.append(action)
+            return action
+
+        counted = step_loop(env, steps, count=True, actions=drive, warmup=warmup)
+    for _ in range(trials):
+        counted.prime()  # a reset and its warm-up stay off the tape
+        with tape:
             tape.cut(counted())
-    return step_loop(env, steps), tape
+    if played is None:
+        return step_loop(env, steps, warmup=warmup), tape
+    replay = iter(played)
+    return step_loop(env, steps, actions=lambda _o, _f: next(replay), warmup=warmup), tape
 
 
 def replay_loop(tape: PhysicsTape, per_mj_step: bool = False) -> Callable[[], float]:
@@ -185,11 +248,21 @@ def kinematics_loop(model: mujoco.MjModel, site: int, steps: int) -> Callable[[]
 def bench_envs(ids: list[str], steps: int, repeat: int, ratios: dict | None = None) -> list[str]:
     rows = []
     results = {}
-    for env_id in [REFERENCE, *ids]:
+    cases = [(env_id, None) for env_id in [REFERENCE, *ids]]
+    cases += [(env_id, DRIVEN[env_id]) for env_id in ids if env_id in DRIVEN]
+    for env_id, driven in cases:
         env = gym.make(env_id)
         env.reset(seed=0)
         u = env.unwrapped
-        if env_id in KINEMATIC:
+        label = env_id
+        if driven is not None:
+            name, warmup = driven
+            policy = baselines.make(name, env_id)
+            mine, tape = recorded_step_loop(env, steps, repeat + 1, policy, warmup)
+            raw = replay_loop(tape)
+            what = f"{tape.steps_per_env_step():g} × mj_step, replayed"
+            label = f"{env_id}, driven by {name} in contact (steps {warmup}+)"
+        elif env_id in KINEMATIC:
             mine = step_loop(env, steps)
             site = u.model.nsite - 1
             ctx = u.controller_context()
@@ -203,9 +276,9 @@ def bench_envs(ids: list[str], steps: int, repeat: int, ratios: dict | None = No
             per = tape.steps_per_env_step()
             what = f"{per:g} × mj_step, replayed"
         t_step, t_raw = best_pair(mine, raw, repeat)
-        results[env_id] = (t_step, t_raw, what, env_id in KINEMATIC)
+        results[label] = (t_step, t_raw, what, env_id in KINEMATIC)
         env.close()
-        print(f"  {env_id}: step {t_step * 1e6:.1f} µs, {what} {t_raw * 1e6:.1f} µs", flush=True)
+        print(f"  {label}: step {t_step * 1e6:.1f} µs, {what} {t_raw * 1e6:.1f} µs", flush=True)
     ref_over = results[REFERENCE][0] - results[REFERENCE][1]
     rows.append(
         "| env | MuJoCo part | step / MuJoCo part | overhead / Reacher-v5's overhead "
@@ -442,7 +515,10 @@ def main(argv: list[str] | None = None) -> int:
             "calls of those very steps, replayed on the states they visited (each state "
             "restored with `mj_setState`, whose own cost is subtracted), so contacts are "
             "timed as the env meets them; for RedundantIK the kinematics named. Reacher-v5 "
-            "is Gymnasium's, measured the same way.",
+            "is Gymnasium's, measured the same way. The zero action never touches a surface, "
+            "so the contact envs get a second row *in contact*: the steps after an untimed "
+            "warm-up, driven by the named controller's actions (recorded in an untimed pass, "
+            "replayed in the timed one: the controller's own time is not in the step's).",
             "",
             *env_rows,
             "",

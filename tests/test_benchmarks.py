@@ -127,6 +127,49 @@ def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
     env.close()
 
 
+def test_bench_step_driven_row_times_the_contact_phase_it_recorded():
+    """A driven row: the recording pass takes the controller's actions after the untimed
+    warm-up and is in contact (PegInHole's zero-action row never is); the timed loop replays
+    those actions, so its physics is the recorded physics, state for state."""
+    import gymnasium as gym
+    import mujoco
+    import numpy as np
+
+    import baselines
+
+    bench = _load_bench_step()
+    env_id = "cir_gym/PegInHole-v0"
+    name, warmup = bench.DRIVEN[env_id]
+    env = gym.make(env_id)
+    u = env.unwrapped
+    mine, tape = bench.recorded_step_loop(env, 4, 2, baselines.make(name, env_id), warmup)
+    m, data = u.model, mujoco.MjData(u.model)
+    full = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+    touching = []
+    for segment in tape.segments:
+        assert len(segment.states) == 4 * u.frame_skip  # the timed steps only, no warm-up
+        for state in segment.states:
+            mujoco.mj_setState(m, data, state, full)
+            mujoco.mj_forward(m, data)
+            touching.append(data.ncon > 0)
+    assert np.mean(touching) >= 0.75  # the peg on the block (it bounces: some steps lift off)
+    again = bench.PhysicsTape(m)
+    for _ in range(2):
+        mine.prime()  # the replayed warm-up, off the tape as in the recording
+        with again:
+            mine()
+            again.cut(4)
+    for a, b in zip(tape.segments, again.segments, strict=True):
+        assert len(a.states) == len(b.states) == 4 * u.frame_skip
+        for x, y in zip(a.states, b.states, strict=True):
+            np.testing.assert_array_equal(x, y)
+    _, zero_tape = bench.recorded_step_loop(env, 4, 1)
+    mujoco.mj_setState(m, data, zero_tape.segments[0].states[0], full)
+    mujoco.mj_forward(m, data)
+    assert data.ncon == 0  # the zero action from the reset: in the air
+    env.close()
+
+
 BENCH_BOUND = Path(__file__).parents[1] / "benchmarks" / "bench_leaderboard_bound.py"
 
 
