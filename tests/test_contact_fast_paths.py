@@ -171,11 +171,13 @@ def _reference_contact_state(env: object) -> dict:
     m, d = env.model, env.data
     axis = env.true_hole_R[:, 2]
     side: list[np.ndarray] = []
-    hits, first, frames = env._peg_contacts() if d.ncon else ([], None, None)
-    for i in hits:
+    for i in range(d.ncon):
+        contact = d.contact[i]
+        if env._peg_geom not in contact.geom:
+            continue
         mujoco.mj_contactForce(m, d, i, env._cforce)
-        sign = -1.0 if first[i] == env._peg_geom else 1.0  # frame[0] points geom1 → geom2
-        n = sign * frames[i][:3]  # normal pushing the peg
+        sign = -1.0 if contact.geom[0] == env._peg_geom else 1.0  # frame[0]: geom1 → geom2
+        n = sign * contact.frame[:3]  # normal pushing the peg
         along = float(n @ axis)
         if abs(along) < SIDE_NORMAL and env._cforce[0] > 0:
             lateral = n - along * axis
@@ -208,6 +210,52 @@ def _assert_contact_state_is_the_reference(u: object) -> None:
     depth, tip, two_point, wedged, jammed = u._contact_flags()
     _assert_same([depth, two_point, wedged, jammed], [want[k] for k in list(want)[:4]])
     np.testing.assert_array_equal(tip, u._tip_in_hole())
+
+
+def _reference_net_contact_force(env: object) -> np.ndarray:
+    """PegInHole._net_contact_force as of 66ecae3 (mj_contactForce contact by contact)."""
+    import mujoco
+
+    m, d = env.model, env.data
+    total = np.zeros(3)
+    force = np.zeros(6)
+    for i in range(d.ncon):
+        contact = d.contact[i]
+        if env._peg_geom in contact.geom:
+            mujoco.mj_contactForce(m, d, i, force)
+            sign = -1.0 if contact.geom[0] == env._peg_geom else 1.0
+            total += sign * (contact.frame.reshape(3, 3).T @ force[:3])
+    return total
+
+
+@pytest.mark.parametrize("elliptic", [True, False])
+def test_peg_net_contact_force_is_the_sum_of_mj_contact_force(elliptic: bool) -> None:
+    """The contacts' forces read from efc_force at once (elliptic cones) or by mj_contactForce
+    (the other path) and summed as stacked products: the contact-by-contact sum of
+    mj_contactForce, within rounding, with the peg pushed on the rim, on the face and into
+    two-point contacts (one to several peg contacts)."""
+    from test_peg_in_hole import _exact_env, _push, _two_point_pose
+
+    counts = set()
+
+    def check(u: object) -> None:
+        want = _reference_net_contact_force(u)
+        np.testing.assert_allclose(u._net_contact_force(), want, rtol=1e-12, atol=1e-9)
+        counts.add(sum(u._peg_geom in u.data.contact[i].geom for i in range(u.data.ncon)))
+
+    u = _exact_env()
+    u._efc_rows = elliptic and u._efc_rows  # False: the mj_contactForce loop
+    centre = u.true_hole_pos[:2]
+    for k in range(24):
+        offset = 0.0045 * np.array([np.cos(k), np.sin(k)])  # on the rim and the face
+        _push(u, np.array([0.0, 0.0, -15.0]), 40, tip_xy=centre + offset)
+        check(u)
+    for depth, shift in [(0.010, 0.0), (0.003, 0.0), (0.010, 2e-5)]:
+        u = _exact_env()
+        u._efc_rows = elliptic and u._efc_rows
+        _two_point_pose(u, depth, shift)
+        check(u)
+    assert max(counts) >= 2 and len(counts) >= 3, counts
 
 
 def test_peg_contact_state_is_the_4038a6b_contact_state() -> None:

@@ -59,7 +59,8 @@ _isfinite = math.isfinite
 _ADD, _SUB, _MUL = np.add, np.subtract, np.multiply
 #: MuJoCo's whole integration state (what the next mj_step reads): _advance's undo
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
-_NO_FRAMES = np.zeros((0, 9))
+_MATMUL = np.matmul
+_XYZ = np.arange(3)  # a contact's three efc_force rows from its efc_address
 SIDE_NORMAL = 0.7  # |n · axis| below this: a contact on the bore's side (else top or bottom)
 GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
 
@@ -372,6 +373,13 @@ class PegInHoleEnv(RobotEnv):
         self._jac = np.zeros((6, model.nv))  # [J_p; J_r] of the peg tip (mj_jacSite)
         self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._cforce = np.zeros(6)
+        #: every contact's force is its three efc_force rows: elliptic cones, every geom of
+        #: condim 3 (a contact takes its geoms' larger condim) and no explicit pairs
+        self._efc_rows = bool(
+            model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+            and model.npair == 0
+            and np.all(model.geom_condim == 3)
+        )
         self._goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
         self._wrench_view: np.ndarray | None = None
 
@@ -628,26 +636,47 @@ class PegInHoleEnv(RobotEnv):
         )
 
     def _net_contact_force(self) -> np.ndarray:
-        """Net contact force on the peg (3,), world frame (N)."""
-        m, d = self.model, self.data
-        total = np.zeros(3)
-        hits, first, frames = self._peg_contacts()
-        for i in hits:  # in contact order, as a loop over d.contact[i] would add them
-            mujoco.mj_contactForce(m, d, i, self._cforce)
-            sign = -1.0 if first[i] == self._peg_geom else 1.0
-            total += sign * (frames[i].reshape(3, 3).T @ self._cforce[:3])
-        return total
+        """Net contact force on the peg (3,), world frame (N): Σ sign·frameᵀ f over the peg's
+        contacts (:meth:`_peg_contact_forces`), added in MuJoCo's contact order."""
+        got = self._peg_contact_forces()
+        if got is None:
+            return np.zeros(3)
+        sign, frames, forces = got
+        # each contact's frameᵀ f as a stacked product (the bits of frames[i].T @ f one by
+        # one); the rows added in order from 0.0 (an axis-0 sum of rows: no pairwise order)
+        world = _MATMUL(frames.transpose(0, 2, 1), forces[:, :, None])[:, :, 0]
+        _MUL(world, sign, out=world)
+        return world.sum(axis=0, initial=0.0)
 
-    def _peg_contacts(self) -> tuple[list[int], np.ndarray, np.ndarray]:
-        """The indices of the contacts that involve the peg (in MuJoCo's order), every
-        contact's first geom (ncon,) and frame (ncon, 9): MuJoCo's contact arrays read once
-        (a ``d.contact[i]`` struct per contact costs more than its force)."""
+    def _peg_contact_forces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The peg's contacts at once, in MuJoCo's contact order, or None if it touches nothing:
+        sign (k, 1) (−1 where the peg is geom1: frame[0] points from geom1 to geom2, so
+        sign·frame[0] is the normal pushing the peg), frames (k, 3, 3) (rows: normal, two
+        tangents; world frame) and forces (k, 3) (N; normal and friction in the contact frame:
+        what ``mj_contactForce`` returns). With elliptic cones and every contact of dimension
+        3 (:attr:`_efc_rows`) in the constraint set, the forces are the contacts' rows of
+        ``efc_force``, which ``mj_contactForce`` copies; otherwise it is called contact by
+        contact. MuJoCo's contact arrays are read once, the geom pairs as a list (a few
+        contacts: cheaper than numpy's masks)."""
         con = self.data.contact
-        geom = con.geom  # (ncon, 2)
+        pairs = con.geom.tolist()
         peg = self._peg_geom
-        first = geom[:, 0]
-        hits = np.flatnonzero((first == peg) | (geom[:, 1] == peg)).tolist()
-        return hits, first, (con.frame if hits else _NO_FRAMES)
+        idx = [i for i, (g1, g2) in enumerate(pairs) if g1 == peg or g2 == peg]
+        if not idx:
+            return None
+        every = len(idx) == len(pairs)  # the usual case: the peg is in every contact
+        sign = np.array([[-1.0] if pairs[i][0] == peg else [1.0] for i in idx])
+        frames = (con.frame if every else con.frame[idx]).reshape(-1, 3, 3)
+        adr = con.efc_address if every else con.efc_address[idx]
+        if self._efc_rows and adr.min() >= 0:
+            forces = self.data.efc_force[adr[:, None] + _XYZ]
+        else:
+            m, d, out = self.model, self.data, self._cforce
+            forces = np.empty((len(idx), 3))
+            for row, i in enumerate(idx):
+                mujoco.mj_contactForce(m, d, i, out)
+                forces[row] = out[:3]
+        return sign, frames, forces
 
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:
@@ -681,16 +710,17 @@ class PegInHoleEnv(RobotEnv):
         if self._warn_data is not d:  # the views of a new MjData
             self._refresh_views(d)
         side: list[np.ndarray] = []
-        if d.ncon:
+        got = self._peg_contact_forces() if d.ncon else None
+        if got is not None:
             axis = self.true_hole_R[:, 2]
-            hits, first, frames = self._peg_contacts()
-            for i in hits:
-                mujoco.mj_contactForce(m, d, i, self._cforce)
-                sign = -1.0 if first[i] == self._peg_geom else 1.0  # frame[0]: geom1 → geom2
-                n = sign * frames[i][:3]  # normal pushing the peg
-                along = float(n @ axis)
-                if abs(along) < SIDE_NORMAL and self._cforce[0] > 0:
-                    lateral = n - along * axis
+            sign, frames, forces = got
+            normals = frames[:, 0, :] * sign  # normals pushing the peg (k, 3)
+            # n · axis per contact as a stacked (1×3)(3×1) product: the bits of n @ axis
+            along = _MATMUL(normals[:, None, :], axis[:, None])[:, 0, 0].tolist()
+            pressing = forces[:, 0].tolist()
+            for j, a in enumerate(along):
+                if abs(a) < SIDE_NORMAL and pressing[j] > 0:
+                    lateral = normals[j] - a * axis
                     # ‖lateral‖ as np.linalg.norm computes it: sqrt of the same dot product
                     side.append(lateral / max(math.sqrt(float(lateral.dot(lateral))), 1e-12))
         # _tip_in_hole() on the views step's physics refreshed
