@@ -109,11 +109,19 @@ def step_loop(
     Each call continues the episode of the last (a fresh loop starts with ``reset(seed=0)``)
     and resets it when fewer than ``steps`` steps are left. ``actions``: a function of the
     observation and of whether it is an episode's first giving each action (default: the
-    zero action); ``warmup``: steps played
-    untimed after every reset (a driven row times the contact phase, not the approach).
-    ``count``: return the number of steps played instead of a time (the untimed recording
-    pass of :func:`recorded_step_loop`).
+    zero action); ``warmup``: steps played untimed after every reset (a driven row times the
+    contact phase, not the approach). ``count``: return the number of steps played instead
+    of a time (the untimed recording pass of :func:`recorded_step_loop`).
+
+    Raises:
+        ValueError: the episode is shorter than ``warmup + steps``, or it ends in the warm-up.
     """
+    limit = env.spec.max_episode_steps or 10**9
+    if limit - warmup < steps:
+        raise ValueError(
+            f"{env.spec.id}: {limit} steps per episode leave fewer than steps={steps} after "
+            f"a warm-up of {warmup}"
+        )
     zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     act = actions if actions is not None else (lambda _obs, _first: zero)
     left = [0]
@@ -122,14 +130,17 @@ def step_loop(
 
     def prime() -> None:
         """Reset (and play the warm-up) when fewer than ``steps`` steps are left."""
-        if left[0] < steps + warmup:
+        if left[0] < steps:
             obs[0], _ = env.reset(seed=0)
             first[0] = True
-            left[0] = env.spec.max_episode_steps or 10**9
-            for _ in range(warmup):
-                obs[0], *_ = env.step(act(obs[0], first[0]))
+            for k in range(warmup):
+                obs[0], _, terminated, truncated, _ = env.step(act(obs[0], first[0]))
                 first[0] = False
-            left[0] -= warmup
+                if terminated or truncated:
+                    raise ValueError(
+                        f"{env.spec.id}: the episode ended at step {k + 1} of the warm-up"
+                    )
+            left[0] = limit - warmup
 
     def loop() -> float:
         prime()
@@ -191,7 +202,17 @@ def recorded_step_loop(
     if played is None:
         return step_loop(env, steps, warmup=warmup), tape
     replay = iter(played)
-    return step_loop(env, steps, actions=lambda _o, _f: next(replay), warmup=warmup), tape
+
+    def replayed(_obs: Any, _first: bool) -> np.ndarray:
+        action = next(replay, None)
+        if action is None:
+            raise RuntimeError(
+                f"the replay called for more than the {len(played)} recorded actions: time "
+                f"the loop as often as it was recorded ({trials} calls)"
+            )
+        return action
+
+    return step_loop(env, steps, actions=replayed, warmup=warmup), tape
 
 
 def replay_loop(tape: PhysicsTape, per_mj_step: bool = False) -> Callable[[], float]:

@@ -170,6 +170,41 @@ def test_bench_step_driven_row_times_the_contact_phase_it_recorded():
     env.close()
 
 
+def test_bench_step_driven_loop_resets_between_trials_off_the_tape():
+    """Short episodes (100 steps, warm-up 50, trials of 30): the recording resets between
+    trials, each segment holds exactly its 30 timed steps (no reset or warm-up on the tape),
+    the replay plays them state for state, and a call beyond the recorded ones is an error."""
+    import gymnasium as gym
+    import mujoco
+    import numpy as np
+    import pytest
+
+    import baselines
+
+    bench = _load_bench_step()
+    env_id = "cir_gym/AdmittanceContact-v0"
+    env = gym.make(env_id, episode_duration=0.2, max_episode_steps=100)  # 500 Hz
+    u = env.unwrapped
+    policy = baselines.make("admittance", env_id, env_kwargs={"episode_duration": 0.2})
+    mine, tape = bench.recorded_step_loop(env, 30, 3, policy, 50)
+    assert [segment.env_steps for segment in tape.segments] == [30] * 3
+    assert [sum(segment.nsteps) for segment in tape.segments] == [30 * u.frame_skip] * 3
+    again = bench.PhysicsTape(u.model)
+    for _ in range(3):
+        mine.prime()
+        with again:
+            again.cut(30 if mine() > 0 else 0)
+    for a, b in zip(tape.segments, again.segments, strict=True):
+        for x, y in zip(a.states, b.states, strict=True):
+            np.testing.assert_array_equal(x, y)
+    with pytest.raises(RuntimeError, match="recorded actions"):
+        mine()  # a fourth call: its reset's warm-up already runs out
+    with pytest.raises(ValueError, match="fewer than steps=60"):
+        bench.step_loop(env, 60, warmup=50)
+    assert mujoco.mj_step is bench.mujoco.mj_step
+    env.close()
+
+
 BENCH_BOUND = Path(__file__).parents[1] / "benchmarks" / "bench_leaderboard_bound.py"
 
 

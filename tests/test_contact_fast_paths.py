@@ -233,7 +233,9 @@ def test_peg_net_contact_force_is_the_sum_of_mj_contact_force(elliptic: bool) ->
     """The contacts' forces read from efc_force at once (elliptic cones) or by mj_contactForce
     (the other path) and summed as stacked products: the contact-by-contact sum of
     mj_contactForce, within rounding, with the peg pushed on the rim, on the face and into
-    two-point contacts (one to several peg contacts)."""
+    two-point contacts (one to several peg contacts), and with a geom that is in only some of
+    the contacts. (Bit-identity with the former code was checked on recorded rollouts; the
+    test holds the formula within rounding, which does not depend on the BLAS build.)"""
     from test_peg_in_hole import _exact_env, _push, _two_point_pose
 
     counts = set()
@@ -256,6 +258,13 @@ def test_peg_net_contact_force_is_the_sum_of_mj_contact_force(elliptic: bool) ->
         _two_point_pose(u, depth, shift)
         check(u)
     assert max(counts) >= 2 and len(counts) >= 3, counts
+    # a list of contacts of which only some are "the peg's": name one block geom the peg
+    pairs = u.data.contact.geom.tolist()
+    blocks = sorted({g for pair in pairs for g in pair} - {u._peg_geom})
+    assert len(blocks) >= 2, pairs  # the two-point pose touches two of the block's geoms
+    u._peg_geom = blocks[0]
+    check(u)
+    assert 0 < len(u._peg_contact_forces()[0]) < len(pairs)
 
 
 def test_peg_contact_state_is_the_4038a6b_contact_state() -> None:

@@ -374,7 +374,8 @@ class PegInHoleEnv(RobotEnv):
         self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._cforce = np.zeros(6)
         #: every contact's force is its three efc_force rows: elliptic cones, every geom of
-        #: condim 3 (a contact takes its geoms' larger condim) and no explicit pairs
+        #: condim 3 (a contact takes its geoms' larger condim) and no explicit pairs; read
+        #: once from the env's own model (nothing changes these options afterwards)
         self._efc_rows = bool(
             model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
             and model.npair == 0
