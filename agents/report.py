@@ -116,11 +116,19 @@ def interval(scores: np.ndarray, reps: int = REPS, seed: int = 0, *,
         lo, hi = stratified_bootstrap_ci(x, functions[statistic], reps, seed=seed)
         return point, lo, hi
     aggregate = {"iqm": metrics.aggregate_iqm, "mean": metrics.aggregate_mean}[statistic]
-    with warnings.catch_warnings():  # arch: "random_state is deprecated" (rliable's call)
-        warnings.simplefilter("ignore", FutureWarning)
-        _, cis = rly.get_interval_estimates(
-            {"agent": x}, lambda s: np.array([aggregate(s)]), reps=reps,
-            random_state=np.random.RandomState(seed))  # rliable takes a RandomState
+    # rliable's StratifiedBootstrap draws its resamples from numpy's global generator
+    # (np.random.choice in update_indices), not from the random_state it is given: seed the
+    # global one for the call and put its state back, so the same scores give the same CI
+    outer = np.random.get_state()  # noqa: NPY002 (the global generator is rliable's)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        with warnings.catch_warnings():  # arch: "random_state is deprecated" (rliable's call)
+            warnings.simplefilter("ignore", FutureWarning)
+            _, cis = rly.get_interval_estimates(
+                {"agent": x}, lambda s: np.array([aggregate(s)]), reps=reps,
+                random_state=np.random.RandomState(seed))  # rliable takes a RandomState
+    finally:
+        np.random.set_state(outer)  # noqa: NPY002
     return point, float(cis["agent"][0, 0]), float(cis["agent"][1, 0])
 
 

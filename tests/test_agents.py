@@ -690,6 +690,24 @@ def test_iqm_and_stratified_bootstrap():
     assert lo2 == pytest.approx(lo, abs=0.03) and hi2 == pytest.approx(hi, abs=0.03)
 
 
+def test_interval_is_reproducible_and_leaves_numpy_global_generator_alone():
+    """The same scores give the same CI on every call (rliable resamples from numpy's global
+    generator, whatever random_state it is given: the leaderboard's CIs changed from run to
+    run), a different seed a different one, and the caller's global random stream goes on
+    as if interval had not been called."""
+    from agents.report import interval
+
+    scores = np.random.default_rng(0).random((3, 3))
+    first = interval(scores, reps=300)
+    np.random.seed(123)  # noqa: NPY002 (the global generator is the subject)
+    expected = np.random.random(3)  # noqa: NPY002
+    np.random.seed(123)  # noqa: NPY002
+    again = interval(scores, reps=300)
+    assert np.array_equal(np.random.random(3), expected)  # noqa: NPY002
+    assert again == first
+    assert interval(scores, reps=300, seed=1)[1:] != first[1:]
+
+
 def test_success_rate_is_a_mean_not_an_iqm():
     """A 0/1 success at a 20 % rate: its IQM trims every success away (0), its mean is 0.2,
     with a bootstrap CI over seeds that brackets the per-seed rates' mean."""
