@@ -113,11 +113,15 @@ def step_loop(
     contact phase, not the approach). ``count``: return the number of steps played instead
     of a time (the untimed recording pass of :func:`recorded_step_loop`).
 
+    Without a warm-up an episode shorter than ``steps`` just ends a call early (Reacher-v5's
+    50 steps); a driven loop's recorded actions assume whole calls, so there it is an error.
+
     Raises:
-        ValueError: the episode is shorter than ``warmup + steps``, or it ends in the warm-up.
+        ValueError: a warm-up and an episode shorter than ``warmup + steps``, or an episode
+            that ends in the warm-up.
     """
     limit = env.spec.max_episode_steps or 10**9
-    if limit - warmup < steps:
+    if warmup and limit - warmup < steps:
         raise ValueError(
             f"{env.spec.id}: {limit} steps per episode leave fewer than steps={steps} after "
             f"a warm-up of {warmup}"

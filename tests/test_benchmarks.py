@@ -201,6 +201,8 @@ def test_bench_step_driven_loop_resets_between_trials_off_the_tape():
         mine()  # a fourth call: its reset's warm-up already runs out
     with pytest.raises(ValueError, match="fewer than steps=60"):
         bench.step_loop(env, 60, warmup=50)
+    reacher = gym.make("Reacher-v5")  # 50 steps an episode, 100 asked: calls end early
+    assert bench.step_loop(reacher, 100)() > 0 and bench.step_loop(reacher, 100, count=True)() == 50
     assert mujoco.mj_step is bench.mujoco.mj_step
     env.close()
 
