@@ -90,6 +90,8 @@ TRAINING_KEYS = {
     "reward_offset": "training only: added to every step's reward (agents/shaping.py)",
     "log_error_bonus": "training only: {weight, max_error, floor, orientation_scale}: + weight "
                        "* ln(max_error / max(|error|, floor)) per step (agents/shaping.py)",
+    "task_replay": "training only: plays per drawn task (RedundantIK's reset can replay its "
+                   "task; agents/shaping.py TaskReplay), default 1",
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",
@@ -323,6 +325,10 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
         raise HyperparameterError(f"{where}: early_termination must be "
                                   f"{{max_error: <float>, penalty: <float, optional>, "
                                   f"orientation_scale: <float >= 0, optional>}}")
+    replay = entry.get("task_replay", 1)
+    if isinstance(replay, bool) or not isinstance(replay, int) or replay < 1:
+        raise HyperparameterError(f"{where}: task_replay must be an integer >= 1 (plays per "
+                                  f"drawn task), got {replay!r}")
     if entry.get("log_error_bonus") is not None:
         from agents.shaping import check_log_error_bonus
 

@@ -67,7 +67,13 @@ from agents.hyperparameters import (
 )
 from agents.observation import ObservationLayout, TaskObservation
 from agents.residual import ResidualAction, check_scale
-from agents.shaping import EarlyTermination, LogErrorBonus, RewardOffset, check_log_error_bonus
+from agents.shaping import (
+    EarlyTermination,
+    LogErrorBonus,
+    RewardOffset,
+    TaskReplay,
+    check_log_error_bonus,
+)
 
 __all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
 
@@ -84,7 +90,8 @@ class EnvFactory:
                  controller_kwargs: dict[str, Any] | None = None,
                  early_termination: dict[str, float] | None = None,
                  reward_offset: float = 0.0,
-                 log_error: dict[str, float] | None = None) -> None:
+                 log_error: dict[str, float] | None = None,
+                 task_replay: int = 1) -> None:
         self.env_id = env_id if ":" in env_id else f"cir_gym:{env_id}"  # workers must import
         self.env_kwargs = env_kwargs
         self.layout = layout
@@ -94,9 +101,12 @@ class EnvFactory:
         self.early_termination = early_termination  # training envs only
         self.reward_offset = reward_offset  # training envs only
         self.log_error = log_error  # training envs only
+        self.task_replay = task_replay  # training envs only
 
     def __call__(self) -> gym.Env:
         env = gym.make(self.env_id, **self.env_kwargs)
+        if self.task_replay > 1:
+            env = TaskReplay(env, self.task_replay)
         if self.early_termination:
             env = EarlyTermination(env, **self.early_termination)
         if self.reward_offset:
@@ -397,7 +407,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
                          res.get("controller"), res.get("scale"), res.get("controller_kwargs"))
     train_factory = EnvFactory(factory.env_id, factory.env_kwargs, layout, factory.residual,
                                factory.scale, factory.controller_kwargs, early or None,
-                               float(hp.get("reward_offset", 0.0)), log_error)
+                               float(hp.get("reward_offset", 0.0)), log_error,
+                               int(hp.get("task_replay", 1)))
     n_envs = int(hp.get("n_envs", 1))
     seed = int(config["seed"])
     total = int(config["n_timesteps"])
@@ -411,9 +422,9 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
 
     kind = hp.get("vec_env", "dummy")
     if kind == "batched":  # one mujoco.batch for all training copies (agents/batched.py)
-        if early or res:
+        if early or res or int(hp.get("task_replay", 1)) > 1:
             raise HyperparameterError("vec_env 'batched' trains from-scratch agents without "
-                                      "early_termination; use vec_env 'dummy'")
+                                      "early_termination or task_replay; use vec_env 'dummy'")
         venv = make_batched_vec_env(config["env_id"], config.get("env_kwargs") or {}, layout,
                                     n_envs, seed, float(hp.get("reward_offset", 0.0)),
                                     log_error)

@@ -369,6 +369,27 @@ def test_early_termination_ends_a_lost_episode_at_its_full_cost():
         EarlyTermination(gym.make(ENV, **SHORT), max_error=0.1, penalty=5.0)
 
 
+def test_task_replay_plays_each_drawn_task_repeats_times():
+    """TaskReplay draws every ``repeats``-th reset (and on every seeded one) and replays the
+    last task between; the drawn tasks are the unwrapped env's own sequence."""
+    from agents.shaping import TaskReplay
+
+    rik = "cir_gym/RedundantIK-v3"
+    env = TaskReplay(gym.make(rik), repeats=3)
+    plain = gym.make(rik)
+    starts = [env.reset(seed=4)[0]["x_ref"].copy()] + [env.reset()[0]["x_ref"].copy()
+                                                      for _ in range(5)]
+    drawn = [plain.reset(seed=4)[0]["x_ref"], plain.reset()[0]["x_ref"]]
+    for i, x in enumerate(starts):
+        np.testing.assert_array_equal(x, drawn[i // 3])
+    assert not np.array_equal(drawn[0], drawn[1])
+    np.testing.assert_array_equal(env.reset(seed=4)[0]["x_ref"], drawn[0])  # a seed draws
+    with pytest.raises(ValueError, match="integer >= 1"):
+        TaskReplay(gym.make(rik), repeats=0)
+    with pytest.raises(ValueError, match="cannot"):
+        TaskReplay(gym.make(ENV, **SHORT), repeats=2)
+
+
 class _PoseErrorEnv(gym.Env):
     """Steps report a fixed position error (m) and orientation error (rad), as RedundantIK7-v4."""
 

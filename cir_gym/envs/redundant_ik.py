@@ -244,6 +244,8 @@ class _RedundantIKBase(RobotEnv):
     #: arguments that set what the task asks, not a condition it is asked under: an agent
     #: trained for one objective is not scored on another's variant (agents.trained_for)
     agent_task_keys: ClassVar[tuple[str, ...]] = ("objective",)
+    #: reset(options={"replay": True}) starts the last drawn task again (TaskReplay)
+    replayable_tasks: ClassVar[bool] = True
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "manipulability": {"objective": "manipulability"},
         "obstacle": {"objective": "obstacle"},
@@ -369,6 +371,7 @@ class _RedundantIKBase(RobotEnv):
         self._q = self.home.copy()
         self._q0 = self.home.copy()
         self._witness: np.ndarray | None = None
+        self._task: tuple | None = None  # the last drawn task, for reset(options={"replay": True})
         self._rows: RowKinematics | None = None
         self._k = 0
         self._k_scored = 0
@@ -689,6 +692,18 @@ class _RedundantIKBase(RobotEnv):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Draw a new task, or with ``options={"replay": True}`` start the last one again.
+
+        A replay restores the previous reset's reference, obstacle, joint window and q(0)
+        exactly and draws nothing (no seed allowed): it costs a forward-kinematics call where
+        a draw costs up to ~0.2 s ("obstacle" on the iiwa), so a training wrapper can repeat
+        tasks cheaply (:class:`agents.shaping.TaskReplay`). The episode then plays as the
+        first play of that task did, for the same actions.
+        """
+        replay = self._replay_option(seed, options)
+        if replay:
+            super().reset()
+            return self._start(*self._task)
         super().reset(seed=seed)
         rng = self.np_random
         self.lower, self.upper = self.file_lower.copy(), self.file_upper.copy()
@@ -719,6 +734,42 @@ class _RedundantIKBase(RobotEnv):
             q0 = self._solve_ik(q0, self._x_ref[0] + offset, self._R_ref[0])
         if self.objective == "joint_limits":
             self._set_joint_window(q0)
+        refs = (self._x_ref, self._xd_ref, self._R_ref, self._quat_ref, self._omega_ref)
+        self._task = (tuple(r.copy() for r in refs), self._obstacle_box(), self._witness,
+                      self.lower.copy(), self.upper.copy(), q0.copy())
+        return self._start(*self._task)
+
+    def _replay_option(self, seed: int | None, options: dict | None) -> bool:
+        """Validate reset's ``options``: only ``{"replay": bool}``, no seed with a replay."""
+        if not options:
+            return False
+        unknown = set(options) - {"replay"}
+        if unknown:
+            raise InvalidArgument(f"reset options: unknown {sorted(unknown)}; allowed: 'replay'")
+        replay = options.get("replay", False)
+        if not isinstance(replay, bool | np.bool_):
+            raise InvalidArgument(f"reset option 'replay' must be a bool, got {replay!r}")
+        if replay and seed is not None:
+            raise InvalidArgument("reset(seed=..., options={'replay': True}): a replay draws "
+                                  "nothing, so it takes no seed")
+        if replay and getattr(self, "_task", None) is None:
+            raise InvalidArgument("reset(options={'replay': True}) before any task was drawn: "
+                                  "call reset() first")
+        return bool(replay)
+
+    def _obstacle_box(self) -> np.ndarray:
+        """The current obstacle as (centre (3,), radius), as :meth:`_set_obstacle` takes it."""
+        return np.concatenate((self._obstacle_centre, [self._obstacle_radius]))
+
+    def _start(self, refs: tuple[np.ndarray, ...], box: np.ndarray, witness: np.ndarray | None,
+               lower: np.ndarray, upper: np.ndarray, q0: np.ndarray) -> tuple[dict, dict]:
+        """Set up the episode of a drawn task (reference, obstacle, limits, q(0))."""
+        for dst, src in zip((self._x_ref, self._xd_ref, self._R_ref, self._quat_ref,
+                             self._omega_ref), refs, strict=True):
+            dst[:] = src
+        self._set_obstacle(box)
+        self._witness = witness
+        self.lower, self.upper = lower.copy(), upper.copy()
         self.model.jnt_range[self.robot.joint_ids, 0] = self.lower
         self.model.jnt_range[self.robot.joint_ids, 1] = self.upper
         self._q = q0.copy()
