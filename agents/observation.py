@@ -13,6 +13,14 @@ controller may know, :meth:`RobotEnv.controller_context`), appended after the er
   With it, PD + gravity, a = ĝ(q)/τ_max + K_P q̃ + K_D q̃̇, is a *linear* function of the
   agent's observation (issue 20's observation review).
 
+* ``pinv_feedforward``: J†(q) x̄̇ ⊘ q̇_max, the open-loop differential-IK command in action
+  units (joint-velocity tasks: RedundantIK), J the nominal task Jacobian;
+* ``pinv_error``: J†(q) e ⊘ q̇_max, e = [x̄ − x; θr] the task error (m, rad).
+  With both, CLIK's a = J†(x̄̇ + K e) ⊘ q̇_max is the *linear* function f_ff + K f_err of the
+  agent's observation: the features build in the nominal kinematics (J and its pseudo-inverse),
+  as ``gravity`` builds in the nominal gravity model; what is left to learn is the gain and the
+  secondary task in the null space (issue 20's observation review, docs/agents.md).
+
 They are bound to an environment with :meth:`ObservationLayout.bind` (a loaded agent binds to
 the env it is built for); a layout without features needs no binding.
 """
@@ -27,11 +35,14 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["FEATURES", "ObservationLayout", "TaskObservation", "gravity_feature"]
+__all__ = ["FEATURES", "ObservationLayout", "TaskObservation", "gravity_feature",
+           "pseudo_inverse_features"]
 
 #: optional observation features → what they are (see the module docstring)
 FEATURES = {
     "gravity": "nominal gravity torque / tau_max (joint-torque tasks; needs an observation 'q')",
+    "pinv_feedforward": "J^+(q) xd_ref / qd_max, open-loop differential IK (joint-velocity tasks)",
+    "pinv_error": "J^+(q) e / qd_max, e the task error [x_ref - x; theta r] (joint-velocity tasks)",
 }
 
 Feature = Callable[[Any], np.ndarray]
@@ -58,7 +69,58 @@ def gravity_feature(env: gym.Env) -> Feature:
     return gravity
 
 
-FEATURE_FACTORIES: dict[str, Callable[[gym.Env], Feature]] = {"gravity": gravity_feature}
+def pseudo_inverse_features(env: gym.Env) -> tuple[Feature, Feature]:
+    """(obs ↦ J†x̄̇ ⊘ q̇_max, obs ↦ J†e ⊘ q̇_max) with ``env``'s nominal kinematics, through
+    the course's own CLIK plumbing (:class:`baselines.kinematic.CLIK`: the task Jacobian, e and
+    x̄̇ exactly as the controller forms them), single or batched observations. At a singular
+    configuration (σ_min < 1e-9, where J† does not exist) the damped J* with k = 1e-3 is used.
+    """
+    from baselines.kinematic import CLIK, SingularJacobian, damped_pseudo_inverse, pseudo_inverse
+
+    base = env.unwrapped
+    if not hasattr(base, "controller_context"):
+        raise ValueError("the pinv_* features need a cir_gym RobotEnv (controller_context)")
+    ctx = base.controller_context()
+    if ctx.action_kind != "joint_velocity":
+        raise ValueError(f"the pinv_* features need joint-velocity actions, not "
+                         f"{ctx.action_kind!r}")
+    clik = CLIK(ctx)
+    scale = np.asarray(ctx.action_scale, dtype=np.float64)
+
+    last: list[Any] = [None, None]  # (q bytes, J†): both features of one observation share it
+
+    def pinv(q: np.ndarray) -> np.ndarray:
+        key = q.tobytes()
+        if key != last[0]:
+            J = clik.task_jacobian(q)
+            try:
+                last[1] = pseudo_inverse(J)
+            except SingularJacobian:
+                last[1] = damped_pseudo_inverse(J, 1e-3)
+            last[0] = key
+        return last[1]
+
+    def rows(obs: Any) -> list[dict[str, np.ndarray]]:
+        q = np.asarray(obs["q"], dtype=np.float64)
+        if q.ndim == 1:
+            return [obs]
+        return [{k: np.asarray(v)[i] for k, v in obs.items()} for i in range(q.shape[0])]
+
+    def make(term: Callable[[dict], np.ndarray]) -> Feature:
+        def feature(obs: Any) -> np.ndarray:
+            out = np.stack([pinv(np.asarray(o["q"], dtype=np.float64)) @ term(o)
+                            for o in rows(obs)]) / scale
+            return out[0] if np.ndim(obs["q"]) == 1 else out
+        return feature
+
+    return make(clik.reference_velocity), make(clik.task_error)
+
+
+FEATURE_FACTORIES: dict[str, Callable[[gym.Env], Feature]] = {
+    "gravity": gravity_feature,
+    "pinv_feedforward": lambda env: pseudo_inverse_features(env)[0],
+    "pinv_error": lambda env: pseudo_inverse_features(env)[1],
+}
 
 
 @dataclass(frozen=True)

@@ -210,6 +210,41 @@ def test_gravity_feature_is_the_nominal_gravity_in_action_units():
         ObservationLayout(keys=("q",), shapes=((7,),), features=("jacobian",))
 
 
+@pytest.mark.parametrize("env_id", ["cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"])
+def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
+    """f_ff + K f_err is CLIK's action (before its clip) along a noisy episode, and the
+    feed-forward feature, scaled back to rad/s, moves the task at the reference velocity:
+    J (q̇_max ⊙ f_ff) = x̄̇ (the pseudo-inverse is a right inverse)."""
+    import baselines
+    from agents.observation import pseudo_inverse_features
+
+    env = TaskObservation(gym.make(env_id), features=["pinv_feedforward", "pinv_error"])
+    base = env.unwrapped
+    n = base.n
+    plain = ObservationLayout.from_space(base.observation_space)
+    assert env.layout.size == plain.size + 2 * n
+    clik = baselines.make("clik", env_id, env=base)
+    ff, fe = pseudo_inverse_features(env)
+    env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        raw = base._obs()
+        q = raw["q"].astype(np.float64)
+        J = clik.task_jacobian(q)
+        qd_max = base.controller_context().action_scale
+        v_ref = clik.reference_velocity(raw)
+        np.testing.assert_allclose(J @ (qd_max * ff(raw)), v_ref, atol=1e-9)
+        want = clik.control(raw, None) / qd_max
+        np.testing.assert_allclose(ff(raw) + clik.gains.K * fe(raw), want, rtol=1e-9,
+                                   atol=1e-12)
+        flat = env.observation(raw)
+        np.testing.assert_allclose(flat[-2 * n:], np.concatenate((ff(raw), fe(raw))),
+                                   rtol=1e-6, atol=1e-7)
+        env.step(np.clip(want + rng.normal(0.0, 0.05, n), -1.0, 1.0))
+    with pytest.raises(ValueError, match="joint-velocity"):
+        TaskObservation(gym.make(ENV, **SHORT), features=["pinv_error"])
+
+
 def test_reward_offset_shifts_training_rewards_only(tmp_path):
     from agents.shaping import RewardOffset
     from agents.train import EnvFactory

@@ -598,7 +598,7 @@ def test_replay_options_are_checked():
     with pytest.raises(InvalidArgument, match="before any task"):
         env.reset(options={"replay": True})
     env.reset(seed=0)
-    with pytest.raises(InvalidArgument, match="unknown.*'replay'"):
+    with pytest.raises(InvalidArgument, match=r"unknown.*'replay'"):
         env.reset(options={"rewind": True})
     with pytest.raises(InvalidArgument, match="takes no seed"):
         env.reset(seed=1, options={"replay": True})
