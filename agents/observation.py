@@ -48,15 +48,21 @@ FEATURES = {
 Feature = Callable[[Any], np.ndarray]
 
 
-def gravity_feature(env: gym.Env) -> Feature:
-    """obs ↦ ĝ(q) ⊘ τ_max from ``env``'s nominal model (single or batched observation)."""
+def _feature_context(env: gym.Env, action_kind: str, who: str) -> Any:
+    """``env``'s TaskContext, or ValueError unless it is a cir_gym env with ``action_kind``."""
     base = env.unwrapped
     if not hasattr(base, "controller_context"):
-        raise ValueError("the 'gravity' feature needs a cir_gym RobotEnv (controller_context)")
+        raise ValueError(f"the {who} feature needs a cir_gym RobotEnv (controller_context)")
     ctx = base.controller_context()
-    if ctx.action_kind != "joint_torque":
-        raise ValueError(f"the 'gravity' feature needs joint-torque actions, not "
-                         f"{ctx.action_kind!r}")
+    if ctx.action_kind != action_kind:
+        raise ValueError(f"the {who} feature needs {action_kind.replace('_', '-')} actions, "
+                         f"not {ctx.action_kind!r}")
+    return ctx
+
+
+def gravity_feature(env: gym.Env) -> Feature:
+    """obs ↦ ĝ(q) ⊘ τ_max from ``env``'s nominal model (single or batched observation)."""
+    ctx = _feature_context(env, "joint_torque", "'gravity'")
     robot = ctx.nominal_robot()
     scale = np.asarray(ctx.action_scale, dtype=np.float64)
 
@@ -77,13 +83,7 @@ def pseudo_inverse_features(env: gym.Env) -> tuple[Feature, Feature]:
     """
     from baselines.kinematic import CLIK, SingularJacobian, damped_pseudo_inverse, pseudo_inverse
 
-    base = env.unwrapped
-    if not hasattr(base, "controller_context"):
-        raise ValueError("the pinv_* features need a cir_gym RobotEnv (controller_context)")
-    ctx = base.controller_context()
-    if ctx.action_kind != "joint_velocity":
-        raise ValueError(f"the pinv_* features need joint-velocity actions, not "
-                         f"{ctx.action_kind!r}")
+    ctx = _feature_context(env, "joint_velocity", "pinv_*")
     clik = CLIK(ctx)
     scale = np.asarray(ctx.action_scale, dtype=np.float64)
 
