@@ -19,6 +19,9 @@ Bounds (documented, physical):
   500-Hz sampling (ω·dt ≤ 0.3 at dt = 2 ms, so the discrete loop behaves like the continuous
   design the course's gain rules assume); log-uniform.
 * ``zeta`` in [0.3, 3]: from lightly to heavily damped; log-uniform.
+* ``gain`` (visual servoing's λ, 1/s) in [0.05, 7.5]: λ·Δt ≤ 0.3 at the 25-Hz (40 ms) camera
+  rate, the same discrete-loop margin as ω above; log-uniform. The camera-velocity limits are
+  the env's (the command is clipped).
 * Actuator limits are the environment's own (torques clipped at τ_max, counted in
   ``saturation``), and so is whatever sensing/actuation model the variant's arguments set
   (the tuned gains are searched and scored on the same env arguments as the leaderboard).
@@ -48,6 +51,7 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "omega": (1.0, 150.0),
     "omega_n": (1.0, 150.0),
     "zeta": (0.3, 3.0),
+    "gain": (0.05, 7.5),
 }
 DEFAULT_CONTROLLERS = ("pd_gravity", "computed_torque")
 

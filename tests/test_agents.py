@@ -882,6 +882,15 @@ def test_tune_gains_smoke(tmp_path):
     assert (tmp_path / "studies.db").is_file()
 
 
+def test_tune_gains_searches_the_servo_gain_within_the_camera_rate_bound():
+    """Visual servoing's λ is tunable, bounded by λ Δt ≤ 0.3 at the 25-Hz camera rate."""
+    from scripts.tune_gains import BOUNDS, tunable_gains
+
+    assert tunable_gains("ibvs") == {"gain": 0.5} and tunable_gains("pbvs") == {"gain": 0.5}
+    assert BOUNDS["gain"][1] * 0.04 == pytest.approx(0.3)
+    assert tunable_gains("computed_torque") == {"omega_n": 20.0, "zeta": 1.0}
+
+
 def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
     """Issue 20: no variant is scored with an agent trained for another. RedundantIK's
     objective is a task key (its agents record it, or train on the default), so the
