@@ -7,7 +7,8 @@ the episode when the task error exceeds ``max_error`` and charges the reward the
 have collected by staying lost forever, ``penalty = r_lost / (1 − γ)`` (γ the training
 discount), so ending early is never a shortcut. It wraps the *training* environments only:
 evaluation, the learning curve and the shipped agent's scores use the unmodified environment.
-The error is read from ``info["joint_error"]`` or ``info["task_error"]`` (rad or m); with
+The error is read from ``info["joint_error"]``, ``info["task_error"]`` or
+``info["position_error"]`` (CartesianTracking; rad or m); with
 ``orientation_scale`` s > 0 (both wrappers) the error norm is max(‖e‖, s · θ), θ =
 ``info["orientation_error"]`` (rad; RedundantIK7-v4's pose tracking): s = 0.1 m/rad makes
 10 mrad count as 1 mm, the env's success ratio. s = 0 (the default) reads ‖e‖ alone.
@@ -23,7 +24,7 @@ import numpy as np
 __all__ = ["EarlyTermination", "LogErrorBonus", "RewardOffset", "TaskReplay",
            "check_log_error_bonus", "error_norm", "log_error_bonus"]
 
-ERROR_KEYS = ("joint_error", "task_error")
+ERROR_KEYS = ("joint_error", "task_error", "position_error")  # rad or m
 ORIENTATION_KEY = "orientation_error"
 
 
@@ -42,7 +43,8 @@ def error_norm(info: dict, orientation_scale: float = 0.0, who: str = "shaping")
     """
     key = next((k for k in ERROR_KEYS if k in info), None)
     if key is None:
-        raise KeyError(f"{who} needs info[{ERROR_KEYS[0]!r}] or info[{ERROR_KEYS[1]!r}]; got "
+        keys = ", ".join(f"info[{k!r}]" for k in ERROR_KEYS)
+        raise KeyError(f"{who} needs one of {keys}; got "
                        f"{sorted(info)}")
     e = float(np.linalg.norm(info[key]))
     if orientation_scale > 0:
