@@ -454,6 +454,11 @@ def test_shaping_reads_the_orientation_error_with_orientation_scale():
     info = {"task_error": 5e-4, "orientation_error": 0.3}
     assert error_norm(info) == 5e-4 and error_norm(info, 0.1) == pytest.approx(0.03)
     assert error_norm({"task_error": 5e-4, "orientation_error": 2e-3}, 0.1) == 5e-4
+    # CartesianTracking's info: a scalar position error (m) and angle (rad)
+    cartesian = {"position_error": 3e-3, "orientation_error": 0.1}
+    assert error_norm(cartesian, 0.2) == pytest.approx(0.02)
+    with pytest.raises(KeyError, match="position_error"):
+        error_norm({"x_error": 1.0})
     spec = {"weight": 0.5, "max_error": 0.01, "floor": 1e-4}
     for scale, lost, bonus in ((0.0, False, 0.5 * np.log(20.0)),
                                (0.1, True, 0.5 * np.log(1.0 / 3.0))):
