@@ -425,6 +425,25 @@ def test_task_replay_plays_each_drawn_task_repeats_times():
         TaskReplay(gym.make(ENV, **SHORT), repeats=2)
 
 
+def test_task_replay_key_is_checked_and_reaches_the_training_envs(tmp_path):
+    from agents.hyperparameters import HyperparameterError
+    from agents.shaping import TaskReplay
+    from agents.train import EnvFactory
+
+    rik = "cir_gym/RedundantIK-v3"
+    assert load_hyperparams("ppo", rik, path=tiny_hyperparams(tmp_path, task_replay=4))[
+        "task_replay"] == 4
+    for bad in (0, 2.5, True):
+        with pytest.raises(HyperparameterError, match="task_replay"):
+            load_hyperparams("ppo", rik, path=tiny_hyperparams(tmp_path, task_replay=bad))
+    layout = ObservationLayout.from_space(gym.make(rik).observation_space)
+    env = EnvFactory(rik, {}, layout, task_replay=4)()
+    wrapper = env
+    while not isinstance(wrapper, TaskReplay):
+        wrapper = wrapper.env
+    assert wrapper.repeats == 4
+
+
 class _PoseErrorEnv(gym.Env):
     """Steps report a fixed position error (m) and orientation error (rad), as RedundantIK7-v4."""
 
