@@ -116,10 +116,17 @@ def pseudo_inverse_features(env: gym.Env) -> tuple[Feature, Feature]:
     return make(clik.reference_velocity), make(clik.task_error)
 
 
-FEATURE_FACTORIES: dict[str, Callable[[gym.Env], Feature]] = {
-    "gravity": gravity_feature,
-    "pinv_feedforward": lambda env: pseudo_inverse_features(env)[0],
-    "pinv_error": lambda env: pseudo_inverse_features(env)[1],
+def _pinv_features(env: gym.Env) -> dict[str, Feature]:
+    return dict(zip(("pinv_feedforward", "pinv_error"), pseudo_inverse_features(env),
+                    strict=True))
+
+
+#: feature name → ``env ↦ {name: feature}`` (a factory may make several features that share
+#: work: both pinv_* features come from one call, so they share one J† per observation)
+FEATURE_FACTORIES: dict[str, Callable[[gym.Env], dict[str, Feature]]] = {
+    "gravity": lambda env: {"gravity": gravity_feature(env)},
+    "pinv_feedforward": _pinv_features,
+    "pinv_error": _pinv_features,
 }
 
 
@@ -177,7 +184,11 @@ class ObservationLayout:
         model (for a layout without features, just :meth:`flatten`)."""
         if not self.features:
             return self.flatten
-        fns = [FEATURE_FACTORIES[f](env) for f in self.features]
+        made: dict[str, Feature] = {}
+        for f in self.features:
+            if f not in made:
+                made.update(FEATURE_FACTORIES[f](env))
+        fns = [made[f] for f in self.features]
         return lambda obs: self.flatten(obs, fns)
 
     def space(self) -> spaces.Box:
