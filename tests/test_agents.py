@@ -972,3 +972,18 @@ def test_eval_rik_agents_scores_seeds_and_sorts_laps(tmp_path):
     kinds = [r.split("|") for r in text.splitlines()
              if r.startswith(("| succeeded", "| near miss", "| lost"))]
     assert sum(int(r[2]) for r in kinds) == 2
+
+
+def test_eval_failures_reports_how_each_episode_ends(capsys):
+    """scripts/eval_failures.py: one row per episode with how it ended and the played error,
+    and a count of failures that ended by termination."""
+    from scripts.eval_failures import main
+
+    main(["--env", "cir_gym/JointTracking-v1", "--agent", "ppo_100hz", "--seeds", "0",
+          "--episodes", "1", "--metric", "rms_error"])
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| 1000 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1] == "True" and cells[2] == "time limit" and int(cells[3]) == 400
+    assert 0 < float(cells[4]) < 0.01 and 0 < float(cells[5]) < float(cells[4])
+    assert "failed episodes: 0, of which ended by termination: 0" in out
