@@ -13,15 +13,33 @@ episodes diverge scores +inf. The best gains and the defaults are then scored on
 leaderboard's episodes (10, seeds 1000–1009) and written side by side to
 ``<out>/<Env-vN>.md`` and ``.json`` (the Optuna study is saved beside them as SQLite).
 
-Bounds (documented, physical):
+Which gains are searched: a controller's rate gains and damping ratio (below) by default;
+:data:`SEARCHED` names the gains of the controllers whose law has more (the interaction and
+peg-in-hole laws: stiffnesses, force-loop ratios, the insertion speed). A null-space gain
+``k0_<objective>`` is searched only on the RedundantIK variant of that objective (elsewhere it
+does nothing). Gains whose default is not a number (None: the law's own rule) are not searched.
 
-* ``omega``, ``omega_n`` (rad/s) in [1, 150]: the closed loop must stay well inside the
-  500-Hz sampling (ω·dt ≤ 0.3 at dt = 2 ms, so the discrete loop behaves like the continuous
-  design the course's gain rules assume); log-uniform.
-* ``zeta`` in [0.3, 3]: from lightly to heavily damped; log-uniform.
-* ``gain`` (visual servoing's λ, 1/s) in [0.05, 7.5]: λ·Δt ≤ 0.3 at the 25-Hz (40 ms) camera
-  rate, the same discrete-loop margin as ω above; log-uniform. The camera-velocity limits are
-  the env's (the command is clipped).
+What a trial scores: the variant's own primary metric (``variant_primary_metric``, e.g.
+``min_manipulability`` on RedundantIK's manipulability variant), signed by the metric's
+direction; a trial whose success rate on the training episodes is below the default gains'
+scores +inf, like one that diverges or whose gains the controller rejects: the leaderboard
+ranks on success first, so the search may not buy precision with failed episodes.
+
+Bounds (documented, physical), all searched log-uniformly; Δt is the env's control period
+(``1/control_freq`` of the variant's arguments):
+
+* rate gains of a second-order loop, ``omega``, ``omega_n`` (rad/s), and the force loop's
+  ``crossover`` and the motion loop's ``motion_omega`` (rad/s): [1, 0.3/Δt]. The closed loop
+  must stay well inside the sampling (ω·Δt ≤ 0.3: 150 rad/s at 500 Hz), so the discrete loop
+  behaves like the continuous design the course's gain rules assume.
+* visual servoing's λ, ``gain`` (1/s): [0.05, 0.3/Δt] (7.5 at the 25-Hz camera), the same
+  margin; the camera-velocity limits are the env's (the command is clipped).
+* CLIK's ``K`` (1/s): [1, 1/Δt]. The env integrates the commanded q̇ exactly over Δt, so the
+  task error obeys e⁺ = (1 − KΔt) e: KΔt = 1 is dead-beat, beyond it the error overshoots
+  every step (and diverges at KΔt = 2).
+* ``zeta`` in [0.3, 3]: from lightly to heavily damped.
+* every other searched gain (stiffnesses, dampings, ratios, speeds, null-space gains), which
+  has no physical bound of its own: a decade either side of the course's value.
 * Actuator limits are the environment's own (torques clipped at τ_max, counted in
   ``saturation``), and so is whatever sensing/actuation model the variant's arguments set
   (the tuned gains are searched and scored on the same env arguments as the leaderboard).
@@ -41,36 +59,88 @@ import numpy as np
 
 import baselines
 import cir_gym
-from cir_gym.evaluation import evaluate
+from cir_gym.evaluation import evaluate, variant_primary_metric
 
 TRAIN_SEED = 0
 LEADERBOARD_SEED, LEADERBOARD_EPISODES = 1000, 10
 
-#: gain → (low, high), searched log-uniformly; see the module docstring
-BOUNDS: dict[str, tuple[float, float]] = {
-    "omega": (1.0, 150.0),
-    "omega_n": (1.0, 150.0),
-    "zeta": (0.3, 3.0),
-    "gain": (0.05, 7.5),
+#: rate gain → (low, margin): searched in [low, margin/Δt]; see the module docstring
+RATE_BOUNDS: dict[str, tuple[float, float]] = {
+    "omega": (1.0, 0.3),
+    "omega_n": (1.0, 0.3),
+    "crossover": (1.0, 0.3),
+    "motion_omega": (1.0, 0.3),
+    "gain": (0.05, 0.3),
+    "K": (1.0, 1.0),
 }
-DEFAULT_CONTROLLERS = ("pd_gravity", "computed_torque")
+#: gain → (low, high), whatever the control period
+FIXED_BOUNDS: dict[str, tuple[float, float]] = {"zeta": (0.3, 3.0)}
+#: any other searched gain: [default / DECADE, default · DECADE]
+DECADE = 10.0
+#: controller → the gains its search covers, where more than its rate gains and ζ
+SEARCHED: dict[str, tuple[str, ...]] = {
+    "clik_nullspace": ("K", "k0_manipulability", "k0_joint_limits", "k0_obstacle"),
+    "clik_projected_gradient": ("K", "k0_manipulability", "k0_joint_limits", "k0_obstacle"),
+    "impedance": ("normal_stiffness", "zeta"),
+    "admittance": ("crossover", "motion_omega"),
+    "explicit_force": ("crossover_ratio", "zeta"),
+    "implicit_force": ("crossover", "integral_ratio"),
+    "parallel_force_position": ("crossover", "proportional"),
+    "hybrid_force_position": ("omega_n", "zeta", "d_f", "speed"),
+    "hybrid_spiral": ("omega_n", "zeta", "d_f", "speed"),
+    "position_only": ("k_p", "k_d", "speed"),
+}
 
 
-def tunable_gains(controller: str) -> dict[str, float]:
-    """{gain: default} of the controller's Gains fields that have bounds in :data:`BOUNDS`."""
+def tunable_gains(controller: str, env_id: str, objective: str | None = None
+                  ) -> dict[str, float]:
+    """{gain: default} searched for ``controller`` on ``env_id``: the gains of :data:`SEARCHED`
+    (else its rate gains and ζ) whose default is a number; a ``k0_<objective>`` only for that
+    RedundantIK ``objective``."""
     import dataclasses
 
-    gains_cls = baselines.CONTROLLERS[controller].Gains
-    return {f.name: f.default for f in dataclasses.fields(gains_cls) if f.name in BOUNDS}
+    fields = {f.name: f.default
+              for f in dataclasses.fields(baselines.controller_class(controller, env_id).Gains)}
+    names = SEARCHED.get(controller, tuple(n for n in fields
+                                          if n in RATE_BOUNDS or n in FIXED_BOUNDS))
+    return {
+        n: float(fields[n]) for n in names
+        if n in fields and isinstance(fields[n], (int, float)) and not isinstance(fields[n], bool)
+        and (not n.startswith("k0_") or n == f"k0_{objective}")
+    }
 
 
-def score(controller: str, env_id: str, env_kwargs: dict[str, Any], gains: dict[str, float],
-          episodes: int, seed: int) -> dict[str, float]:
-    """Mean primary metric (and success, saturation, divergence) of the controller with gains."""
-    primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
+def bounds(gain: str, default: float, dt: float) -> tuple[float, float]:
+    """(low, high) of ``gain`` (course value ``default``) at control period ``dt`` (s)."""
+    if gain in RATE_BOUNDS:
+        low, margin = RATE_BOUNDS[gain]
+        return low, margin / dt
+    if gain in FIXED_BOUNDS:
+        return FIXED_BOUNDS[gain]
+    return default / DECADE, default * DECADE
+
+
+def variant_setting(env_id: str, env_kwargs: dict[str, Any]) -> tuple[float, str | None]:
+    """(control period Δt in s, RedundantIK's objective or None) of the env with a variant's
+    arguments (made, not reset)."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        return float(env.unwrapped.dt), getattr(env.unwrapped, "objective", None)
+    finally:
+        env.close()
+
+
+def score(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
+          gains: dict[str, float], episodes: int, seed: int) -> dict[str, Any]:
+    """The variant's primary metric (mean over the episodes, with its name and direction),
+    success, divergence and saturation rates of the controller with ``gains``."""
+    metric = variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant)
     policy = baselines.make(controller, env_id, env_kwargs=env_kwargs, **gains)
     result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
-    out = {primary: result.summary[primary]["mean"], "success": result.success_rate,
+    out = {"metric": metric, "better": result.spec(metric).better,
+           "value": result.summary[metric]["mean"], "success": result.success_rate,
            "divergence": result.divergence_rate}
     if "saturation" in result.summary:
         out["saturation"] = result.summary["saturation"]["mean"]
@@ -82,42 +152,50 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
     """One Optuna study: best gains on the training seeds; returns the study summary."""
     import optuna
 
-    primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
-    defaults = tunable_gains(controller)
+    dt, objective_name = variant_setting(env_id, env_kwargs)
+    defaults = tunable_gains(controller, env_id, objective_name)
     if not defaults:
-        raise ValueError(f"{controller} has no gain with documented bounds ({sorted(BOUNDS)})")
+        raise ValueError(f"{controller} has no searchable gain on {env_id} (scripts/tune_gains.py"
+                         f" searches {sorted(RATE_BOUNDS) + sorted(FIXED_BOUNDS)} and SEARCHED)")
+    space = {g: bounds(g, v, dt) for g, v in defaults.items()}
     name = f"{env_id.split('/')[-1]}-{variant.replace(' ', '_')}-{controller}"
     storage = f"sqlite:///{out / 'studies.db'}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(study_name=name, storage=storage, direction="minimize",
                                 sampler=optuna.samplers.TPESampler(seed=sampler_seed),
                                 load_if_exists=False)
-    study.enqueue_trial(defaults)  # the course's gains are trial 0
+    # the course's gains are trial 0 (clamped into the bounds if they lie outside)
+    study.enqueue_trial({g: min(max(v, space[g][0]), space[g][1]) for g, v in defaults.items()})
+    floor: list[float] = []  # trial 0's success rate: no trial may fall below it
 
     def objective(trial: Any) -> float:
-        gains = {g: trial.suggest_float(g, *BOUNDS[g], log=True) for g in defaults}
+        gains = {g: trial.suggest_float(g, *space[g], log=True) for g in defaults}
         try:
-            s = score(controller, env_id, env_kwargs, gains, train_episodes, TRAIN_SEED)
+            s = score(controller, env_id, variant, env_kwargs, gains, train_episodes,
+                      TRAIN_SEED)
         except baselines.InvalidGain:
             return math.inf
-        if s["divergence"] > 0 or not np.isfinite(s[primary]):
-            return math.inf
+        if not floor:
+            floor.append(s["success"])
         trial.set_user_attr("train", s)
-        return s[primary]
+        if s["divergence"] > 0 or not np.isfinite(s["value"]) or s["success"] < floor[0]:
+            return math.inf
+        return s["value"] if s["better"] == "lower" else -s["value"]
 
     t0 = time.perf_counter()
     study.optimize(objective, n_trials=trials)
     return {"study": name, "trials": trials, "train_episodes": train_episodes,
             "train_seed": TRAIN_SEED, "best_train": study.best_value,
             "default_train": study.trials[0].value, "tuned": study.best_params,
-            "default": defaults, "seconds": round(time.perf_counter() - t0, 1)}
+            "default": defaults, "bounds": space, "seconds": round(time.perf_counter() - t0, 1)}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--env", default="cir_gym/JointTracking-v1")
-    p.add_argument("--controller", action="append", help="repeatable (default: pd_gravity, "
-                                                         "computed_torque)")
+    p.add_argument("--controller", action="append",
+                   help="repeatable (default: every controller of the env with a searchable "
+                        "gain)")
     p.add_argument("--trials", type=int, default=24)
     p.add_argument("--train-episodes", type=int, default=3)
     p.add_argument("--episodes", type=int, default=LEADERBOARD_EPISODES,
@@ -136,7 +214,6 @@ def main(argv: list[str] | None = None) -> int:
     if env_id not in cir_gym.ENVIRONMENTS:
         p.error(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
     cls = cir_gym.ENVIRONMENTS[env_id][0]
-    primary = cls.primary_metric
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
     if args.variant:
         unknown = sorted(set(args.variant) - set(variants))
@@ -144,55 +221,77 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"unknown variant(s) {unknown}; valid: {sorted(variants)}")
         variants = {v: variants[v] for v in args.variant}
     variants = {v: {**kw, **extra} for v, kw in variants.items()}
-    controllers = args.controller or [c for c in DEFAULT_CONTROLLERS
-                                      if c in baselines.available(env_id)]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / env_id.split("/")[-1]
     results: list[dict[str, Any]] = []
     for variant, kwargs in variants.items():
-        for c in controllers:
+        objective = variant_setting(env_id, kwargs)[1]
+        for c in args.controller or [c for c in baselines.available(env_id)
+                                     if tunable_gains(c, env_id, objective)]:
             r = tune(c, env_id, variant, kwargs, trials=args.trials,
                      train_episodes=args.train_episodes, out=out)
-            r["leaderboard_default"] = score(c, env_id, kwargs, r["default"], args.episodes,
-                                             LEADERBOARD_SEED)
-            r["leaderboard_tuned"] = score(c, env_id, kwargs, r["tuned"], args.episodes,
-                                           LEADERBOARD_SEED)
+            r["leaderboard_default"] = score(c, env_id, variant, kwargs, r["default"],
+                                             args.episodes, LEADERBOARD_SEED)
+            r["leaderboard_tuned"] = score(c, env_id, variant, kwargs, r["tuned"],
+                                           args.episodes, LEADERBOARD_SEED)
             r.update(variant=variant, env_kwargs=kwargs, controller=c)
             results.append(r)
-            print(f"{variant:24s} {c:18s} default {r['leaderboard_default'][primary]:.3g} "
-                  f"tuned {r['leaderboard_tuned'][primary]:.3g} {r['tuned']}", file=sys.stderr)
+            d, t = r["leaderboard_default"], r["leaderboard_tuned"]
+            print(f"{variant:24s} {c:24s} {d['metric']} default {d['value']:.3g} "
+                  f"({d['success']:.0%}) tuned {t['value']:.3g} ({t['success']:.0%}) "
+                  f"{r['tuned']} [{r['seconds']:.0f} s]", file=sys.stderr, flush=True)
     stem.with_suffix(".json").write_text(json.dumps(results, indent=2) + "\n")
+    stem.with_suffix(".md").write_text(report(env_id, results, args, extra))
+    print(stem.with_suffix(".md").read_text())
+    return 0
+
+
+def _ratio(default: dict[str, Any], tuned: dict[str, Any]) -> str:
+    """How many times better the tuned value is (a direction-aware ratio), or '—'."""
+    a, b = abs(default["value"]), abs(tuned["value"])
+    if default["better"] == "higher":
+        a, b = b, a
+    if not (np.isfinite(a) and np.isfinite(b)) or b == 0.0:
+        return "—"
+    return f"{a / b:.1f}×"
+
+
+def report(env_id: str, results: list[dict[str, Any]], args: argparse.Namespace,
+           extra: dict[str, float]) -> str:
+    """The side-by-side table (markdown) of default and tuned gains on the leaderboard seeds."""
     lines = [
         f"# Controller gains tuned with Optuna: {env_id}",
         "",
         f"Generated by `python scripts/tune_gains.py --env {env_id}"
         + "".join(f" --set {k}={v:g}" for k, v in extra.items())
+        + "".join(f" --controller {c}" for c in args.controller or [])
         + f" --out {args.out}` (TPE, seeded; "
         f"{args.trials} trials of {args.train_episodes} training episodes, seeds "
-        f"{TRAIN_SEED}–{TRAIN_SEED + args.train_episodes - 1}; the default gains are trial 0). "
-        f"Scored on the leaderboard's {args.episodes} episodes (seeds {LEADERBOARD_SEED}–"
-        f"{LEADERBOARD_SEED + args.episodes - 1}). Bounds: "
-        + ", ".join(f"{g} ∈ [{lo:g}, {hi:g}]" for g, (lo, hi) in BOUNDS.items())
-        + " (log-uniform; scripts/tune_gains.py says why).",
+        f"{TRAIN_SEED}–{TRAIN_SEED + args.train_episodes - 1}; the default gains are trial 0; a "
+        "trial below their success rate scores +inf). Scored on the leaderboard's "
+        f"{args.episodes} episodes (seeds {LEADERBOARD_SEED}–"
+        f"{LEADERBOARD_SEED + args.episodes - 1}), on each variant's primary metric. Bounds "
+        "(log-uniform; scripts/tune_gains.py says why): rate gains in [1, 0.3/Δt] (λ: [0.05, "
+        "0.3/Δt], CLIK's K: [1, 1/Δt]), ζ in [0.3, 3], any other gain a decade either side "
+        "of its default; each row lists its own.",
         "",
-        f"| variant | controller | default gains | {primary} | success | tuned gains | "
-        f"{primary} | success | saturation (default → tuned) | factor |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| variant | controller | metric | default gains | value | success | tuned gains "
+        "| value | success | saturation (default → tuned) | factor | bounds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         d, t = r["leaderboard_default"], r["leaderboard_tuned"]
         fmt = ", ".join
         lines.append(
-            f"| {r['variant']} | {r['controller']} | "
-            f"{fmt(f'{k} {v:g}' for k, v in r['default'].items())} | {d[primary]:.3g} | "
+            f"| {r['variant']} | {r['controller']} | {d['metric']} | "
+            f"{fmt(f'{k} {v:g}' for k, v in r['default'].items())} | {d['value']:.3g} | "
             f"{d['success']:.0%} | {fmt(f'{k} {v:.3g}' for k, v in r['tuned'].items())} | "
-            f"{t[primary]:.3g} | {t['success']:.0%} | "
+            f"{t['value']:.3g} | {t['success']:.0%} | "
             f"{d.get('saturation', float('nan')):.2g} → {t.get('saturation', float('nan')):.2g}"
-            f" | {d[primary] / t[primary]:.1f}× |")
-    stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    print(stem.with_suffix(".md").read_text())
-    return 0
+            f" | {_ratio(d, t)} | "
+            + fmt(f"{k} [{lo:.3g}, {hi:.3g}]" for k, (lo, hi) in r["bounds"].items()) + " |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -907,12 +908,67 @@ def test_tune_gains_smoke(tmp_path):
 
 
 def test_tune_gains_searches_the_servo_gain_within_the_camera_rate_bound():
-    """Visual servoing's λ is tunable, bounded by λ Δt ≤ 0.3 at the 25-Hz camera rate."""
-    from scripts.tune_gains import BOUNDS, tunable_gains
+    """Visual servoing's λ is tunable, bounded by λ Δt ≤ 0.3 at the 25-Hz camera rate; the
+    joint-space laws' ω within ω Δt ≤ 0.3 at 500 Hz (150 rad/s)."""
+    from scripts.tune_gains import bounds, tunable_gains
 
-    assert tunable_gains("ibvs") == {"gain": 0.5} and tunable_gains("pbvs") == {"gain": 0.5}
-    assert BOUNDS["gain"][1] * 0.04 == pytest.approx(0.3)
-    assert tunable_gains("computed_torque") == {"omega_n": 20.0, "zeta": 1.0}
+    vs = "cir_gym/VisualServo-v0"
+    assert tunable_gains("ibvs", vs) == {"gain": 0.5} == tunable_gains("pbvs", vs)
+    assert bounds("gain", 0.5, 0.04)[1] * 0.04 == pytest.approx(0.3)
+    assert tunable_gains("computed_torque", ENV) == {"omega_n": 20.0, "zeta": 1.0}
+    assert bounds("omega_n", 20.0, 0.002) == pytest.approx((1.0, 150.0))
+
+
+def test_tune_gains_search_space_follows_the_law_and_the_variant():
+    """CLIK's K is bounded by dead-beat, KΔt ≤ 1 (200 1/s on the planar arm's 200 Hz, 100 on
+    the iiwa's 100 Hz); a null-space gain is searched only on its own objective's variant; the
+    interaction laws search their force-loop gains, a gain without a physical bound a decade
+    either side of the course's value; a gain whose default is the law's rule (None) is not
+    searched."""
+    from scripts.tune_gains import bounds, tunable_gains, variant_setting
+
+    rik, rik7 = "cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"
+    assert variant_setting(rik, {"objective": "obstacle"}) == (pytest.approx(0.005), "obstacle")
+    assert bounds("K", 50.0, variant_setting(rik7, {})[0]) == pytest.approx((1.0, 100.0))
+    assert bounds("K", 50.0, 0.005) == pytest.approx((1.0, 200.0))
+    assert tunable_gains("clik_nullspace", rik, "obstacle") == {"K": 50.0, "k0_obstacle": 5.0}
+    assert tunable_gains("clik_nullspace", rik, "joint_limits") == {"K": 50.0,
+                                                                    "k0_joint_limits": 10.0}
+    assert tunable_gains("clik", rik, "obstacle") == {"K": 50.0}
+    assert tunable_gains("pseudo_inverse", rik, "obstacle") == {}
+    ac = "cir_gym/AdmittanceContact-v0"
+    assert tunable_gains("admittance", ac) == {"crossover": 20.0, "motion_omega": 40.0}
+    assert tunable_gains("explicit_force", ac) == {"crossover_ratio": 0.5, "zeta": 1.0}
+    assert bounds("crossover_ratio", 0.5, 0.002) == pytest.approx((0.05, 5.0))
+    assert tunable_gains("p_pi_cascade", ENV) == {}  # ω_cv, ω_cp: None = the course's rule
+    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v0")) == {
+        "omega_n", "zeta", "d_f", "speed"}
+
+
+def test_tune_gains_ranks_on_the_variants_metric_and_keeps_the_success_rate(tmp_path):
+    """On RedundantIK's manipulability variant a trial scores −min_manipulability (higher is
+    better there); a trial below the default gains' success rate, or diverging, scores +inf."""
+    import optuna
+
+    from scripts.tune_gains import main
+
+    assert main(["--env", "cir_gym/RedundantIK-v3", "--controller", "clik_nullspace",
+                 "--trials", "4", "--train-episodes", "1", "--episodes", "1",
+                 "--variant", "manipulability", "--set", "episode_duration=0.5",
+                 "--out", str(tmp_path)]) == 0
+    row = json.loads((tmp_path / "RedundantIK-v3.json").read_text())[0]
+    assert row["default"] == {"K": 50.0, "k0_manipulability": 20.0}
+    assert row["bounds"]["K"] == pytest.approx([1.0, 200.0])
+    assert row["leaderboard_tuned"]["metric"] == "min_manipulability"
+    assert row["best_train"] <= row["default_train"]
+    study = optuna.load_study(study_name=row["study"], storage=f"sqlite:///{tmp_path}/studies.db")
+    floor = study.trials[0].user_attrs["train"]["success"]
+    for t in study.trials:
+        train = t.user_attrs["train"]
+        feasible = train["success"] >= floor and train["divergence"] == 0
+        assert t.value == (-train["value"] if feasible else math.inf)
+    assert "| manipulability | clik_nullspace | min_manipulability |" in (
+        tmp_path / "RedundantIK-v3.md").read_text()
 
 
 def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
