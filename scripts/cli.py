@@ -64,12 +64,62 @@ def _agents_module() -> Any | None:
 
 
 def policy_names(env_id: str) -> list[str]:
-    """Controllers and shipped agents (``agent:<name>``) that apply to an environment."""
+    """Controllers, controllers at tuned gains (``tuned:<controller>``, :func:`tuned_gains`)
+    and shipped agents (``agent:<name>``) that apply to an environment."""
     names = baselines.available(env_id)
+    names += [f"tuned:{c}" for c in sorted({r["controller"] for r in _tuning_rows(env_id)})]
     ag = _agents_module()
     if ag is not None:
         names += [f"agent:{a}" for a in ag.available(env_id)]
     return names
+
+
+#: ``scripts/tune_gains.py``'s results: ``<Env-vN>.json`` per environment
+TUNING_DIR = Path(__file__).resolve().parent.parent / "results" / "tuning"
+
+
+def _tuning_rows(env_id: str) -> list[dict[str, Any]]:
+    import json
+
+    path = TUNING_DIR / f"{env_id.split('/')[-1]}.json"
+    return json.loads(path.read_text()) if path.is_file() else []
+
+
+def _as_json(value: Any) -> Any:
+    import json
+
+    return json.loads(json.dumps(value))  # tuples as lists, as a JSON file holds them
+
+
+def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, float]:
+    """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with exactly
+    ``env_kwargs`` (a leaderboard variant's arguments), from ``results/tuning/<Env-vN>.json``
+    (Optuna on training seeds 0-2, never the leaderboard's).
+
+    Raises:
+        CliError: no study of that controller with these arguments (the message lists the
+            arguments it was tuned with).
+    """
+    rows = [r for r in _tuning_rows(env_id) if r["controller"] == controller]
+    for r in rows:
+        if r["env_kwargs"] == _as_json(env_kwargs):
+            return dict(r["tuned"])
+    raise CliError(
+        f"{controller} was not tuned for {env_id} with {env_kwargs or 'its default arguments'}; "
+        f"tuned with: {[r['env_kwargs'] for r in rows] or 'nothing'} "
+        f"({TUNING_DIR / (env_id.split('/')[-1] + '.json')}, scripts/tune_gains.py)"
+    )
+
+
+def has_tuned_gains(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
+    """False for ``tuned:<controller>`` without a study for ``env_kwargs``; True otherwise."""
+    if not policy.startswith("tuned:"):
+        return True
+    try:
+        tuned_gains(env_id, policy.removeprefix("tuned:"), env_kwargs)
+    except CliError:
+        return False
+    return True
 
 
 def trained_for(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
@@ -89,11 +139,13 @@ def split_settings(
     env_cls = cir_gym.ENVIRONMENTS[env_id][0]
     env_keys = constructor_arguments(env_cls)
     gain_keys: list[str] = []
-    if policy in baselines.CONTROLLERS:
+    controller = policy.removeprefix("tuned:")
+    if controller in baselines.CONTROLLERS:
         import dataclasses
 
         gain_keys = [
-            f.name for f in dataclasses.fields(baselines.controller_class(policy, env_id).Gains)
+            f.name
+            for f in dataclasses.fields(baselines.controller_class(controller, env_id).Gains)
         ]
     env_kwargs: dict[str, Any] = {}
     gains: dict[str, Any] = {}
@@ -121,6 +173,9 @@ def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dic
         ag = _agents_module()
         assert ag is not None
         return ag.load(env_id, policy.split(":", 1)[1])
+    if policy.startswith("tuned:"):  # the tuned gains, then any --set gain over them
+        policy = policy.removeprefix("tuned:")
+        gains = {**tuned_gains(env_id, policy, env_kwargs), **gains}
     try:
         return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
     except (ValueError, TypeError) as exc:  # bad gain (InvalidGain) or environment argument

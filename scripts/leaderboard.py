@@ -31,9 +31,11 @@ def jobs_for(
     env_id: str, overrides: dict[str, Any] | None = None
 ) -> list[tuple[str, str, dict[str, Any], str]]:
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate: every
-    controller on every variant, a shipped agent only on the variants of the task it was
+    controller on every variant, at its course gains and, where ``scripts/tune_gains.py``
+    tuned it for exactly the variant's arguments, at those gains (``tuned:<controller>``,
+    :func:`scripts.cli.tuned_gains`); a shipped agent only on the variants of the task it was
     trained for (:func:`agents.trained_for`: RedundantIK's objective)."""
-    from scripts.cli import policy_names, trained_for
+    from scripts.cli import has_tuned_gains, policy_names, trained_for
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
@@ -42,6 +44,7 @@ def jobs_for(
         for v, kw in variants.items()
         for p in policy_names(env_id)
         if trained_for(env_id, p, {**kw, **(overrides or {})})
+        and has_tuned_gains(env_id, p, {**kw, **(overrides or {})})
     ]
 
 
@@ -242,14 +245,17 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
     best controller (> 1: worse than it, in the metric's own direction); a footnote under the
     table when a factor is left out (:func:`censored_ratio`)."""
     lines = [
-        "| variant | ranked on | best controller | best from-scratch RL | best residual RL |",
-        "|---|---|---|---|---|",
+        "| variant | ranked on | best controller, course gains | best controller, tuned gains "
+        "| best from-scratch RL | best residual RL |",
+        "|---|---|---|---|---|---|",
     ]
     censored: set[str] = set()
     for variant, rows in by_variant.items():
         if not rows:
             continue
-        ctrl = _best([r for r in rows if not r.policy_name.startswith("agent:")])
+        course = _best([r for r in rows if not r.policy_name.startswith(("agent:", "tuned:"))])
+        tuned = _best([r for r in rows if r.policy_name.startswith("tuned:")])
+        ctrl = _best([r for r in (course, tuned) if r is not None])  # the bar for RL
         agents_ = [r for r in rows if r.policy_name.startswith("agent:")]
         scratch = _best([r for r in agents_ if "residual" not in r.policy_name])
         residual = _best([r for r in agents_ if "residual" in r.policy_name])
@@ -257,7 +263,8 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             if r is not None and ctrl is not None and censored_ratio(r, ctrl):
                 censored.add(r.primary_metric)
         lines.append(
-            f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(ctrl, None)} | "
+            f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(course, None)} | "
+            f"{_summary_cell(tuned, None)} | "
             f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
         )
     notes = []
@@ -283,7 +290,10 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
     return "\n".join(
         [
             "Controllers vs RL on each variant's primary metric (mean over the same "
-            "seeds; best = highest success rate, then the best mean):",
+            "seeds; best = highest success rate, then the best mean). A controller runs at the "
+            "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
+            "found for the variant (Optuna on training seeds 0-2; results/tuning/); an agent's "
+            "factor is to the better of the two best controllers:",
             "",
             *lines,
             *notes,

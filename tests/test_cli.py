@@ -225,3 +225,52 @@ def test_a_stage_replaces_only_its_part_of_results_json(tmp_path):
     assert all(merged[p] == stored[p] for p in SWEEP_PARTS)
     assert "## Against clearance" in text
     assert _write(tmp_path, stored, ("main",)) == (committed / "peg_in_hole.md").read_text()
+
+
+def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(tmp_path,
+                                                                                monkeypatch):
+    """``tuned:<controller>`` is the controller at the gains of results/tuning/<Env>.json's
+    study for exactly the env arguments asked (the payload variant's, not the exact model's);
+    the leaderboard runs it on the variants it was tuned for only, and names a variant without
+    a study instead of guessing."""
+    import json
+
+    from scripts.cli import CliError, make_policy, policy_names
+    from scripts.leaderboard import jobs_for
+
+    rows = [
+        {"variant": "exact model", "env_kwargs": {}, "controller": "pd_gravity",
+         "tuned": {"omega": 50.0, "zeta": 0.7}},
+        {"variant": "unknown 3 kg payload", "env_kwargs": {"payload_mass": 3.0},
+         "controller": "pd_gravity", "tuned": {"omega": 120.0, "zeta": 1.5}},
+    ]
+    (tmp_path / "JointTracking-v1.json").write_text(json.dumps(rows))
+    monkeypatch.setattr(scripts.cli, "TUNING_DIR", tmp_path)
+    assert "tuned:pd_gravity" in policy_names(ENV)
+    assert "tuned:computed_torque" not in policy_names(ENV)
+    exact = make_policy(ENV, "tuned:pd_gravity", {}, {})
+    payload = make_policy(ENV, "tuned:pd_gravity", {"payload_mass": 3.0}, {})
+    assert (exact.gains.omega, exact.gains.zeta) == (50.0, 0.7)
+    assert (payload.gains.omega, payload.gains.zeta) == (120.0, 1.5)
+    assert make_policy(ENV, "tuned:pd_gravity", {}, {"zeta": 2.0}).gains.zeta == 2.0  # --set
+    with pytest.raises(CliError, match=r"not tuned .* with \{'drive': 'industrial'\}"):
+        make_policy(ENV, "tuned:pd_gravity", {"drive": "industrial"}, {})
+    tuned_jobs = {v for _, v, _, p in jobs_for(ENV) if p == "tuned:pd_gravity"}
+    assert tuned_jobs == {"exact model", "unknown 3 kg payload"}
+
+
+def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():
+    """Every study in results/tuning/<Env>.json is found again by its own env arguments (a
+    tuple such as VisualServo's camera_error matches the JSON's list)."""
+    import json
+
+    from scripts.cli import TUNING_DIR, tuned_gains
+
+    for env_id in cir_gym.ENVIRONMENTS:
+        path = TUNING_DIR / f"{env_id.split('/')[-1]}.json"
+        if not path.is_file():
+            continue
+        cls = cir_gym.ENVIRONMENTS[env_id][0]
+        for r in json.loads(path.read_text()):
+            kwargs = cls.leaderboard_variants[r["variant"]]
+            assert tuned_gains(env_id, r["controller"], kwargs) == r["tuned"], (env_id, r)
