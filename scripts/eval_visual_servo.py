@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import baselines
-import cir_gym  # noqa: F401
+import cir_gym
 from cir_gym.evaluation import evaluate
 
 EYE_IN_HAND = "cir_gym/VisualServo-v0"
@@ -252,24 +252,30 @@ def sweep(n: int, out: Path) -> list[str]:
 
 
 def agent(n: int) -> list[str]:
-    """The shipped from-scratch PPO agent, every training seed, against IBVS on the same
-    episodes: seeds ``AGENT_SEED`` … (unseen by training, its evaluations, tuning and the
-    leaderboard)."""
+    """Every shipped agent of the eye-in-hand task, every training seed, against IBVS and PBVS
+    on the same episodes of each leaderboard variant (exact camera, calibration error): seeds
+    ``AGENT_SEED`` … (unseen by training, its evaluations, tuning and the leaderboard)."""
     import agents
 
-    rows = ["| policy | success | final error (px), mean / worst | convergence time (s), median "
-            "| feature lost or joint limit |", "|---|---:|---:|---:|---:|"]
-    policies = [(f"agent:ppo seed {k}", agents.load(EYE_IN_HAND, "ppo", seed=k))
-                for k in agents.seeds(EYE_IN_HAND, "ppo")]
-    for label, policy in [*policies, ("ibvs", baselines.make("ibvs", EYE_IN_HAND))]:
-        res = evaluate(policy, EYE_IN_HAND, n_episodes=n, seed=AGENT_SEED, policy_name=label)
-        s = res.summary
-        ended = sum(ep.terminated for ep in res.episodes)
-        rows.append(f"| {label} | {100 * res.success_rate:.0f} % | "
-                    f"{s['final_feature_error']['mean']:.2f} / "
-                    f"{s['final_feature_error']['worst']:.2f} | "
-                    f"{s['convergence_time']['median']:.2f} | {ended} of {n} |")
-        print(rows[-1], flush=True)
+    rows = ["| variant | policy | success | final error (px), mean / worst | convergence time "
+            "(s), median | feature lost or joint limit |", "|---|---|---:|---:|---:|---:|"]
+    env_cls = cir_gym.ENVIRONMENTS[EYE_IN_HAND][0]
+    policies = [(f"agent:{name} seed {k}", agents.load(EYE_IN_HAND, name, seed=k))
+                for name in agents.available(EYE_IN_HAND)
+                for k in agents.seeds(EYE_IN_HAND, name)]
+    for variant, kwargs in env_cls.leaderboard_variants.items():
+        controllers = [(c, baselines.make(c, EYE_IN_HAND, env_kwargs=kwargs))
+                       for c in ("ibvs", "pbvs")]
+        for label, policy in [*policies, *controllers]:
+            res = evaluate(policy, EYE_IN_HAND, n_episodes=n, seed=AGENT_SEED,
+                           policy_name=label, **kwargs)
+            s = res.summary
+            ended = sum(ep.terminated for ep in res.episodes)
+            rows.append(f"| {variant} | {label} | {100 * res.success_rate:.0f} % | "
+                        f"{s['final_feature_error']['mean']:.2f} / "
+                        f"{s['final_feature_error']['worst']:.2f} | "
+                        f"{s['convergence_time']['median']:.2f} | {ended} of {n} |")
+            print(rows[-1], flush=True)
     return rows
 
 
