@@ -91,35 +91,37 @@ def _as_json(value: Any) -> Any:
     return json.loads(json.dumps(value))  # tuples as lists, as a JSON file holds them
 
 
+def _tuned_row(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, Any] | None:
+    """The study of ``controller`` on ``env_id`` with exactly ``env_kwargs``, or None."""
+    asked = _as_json(env_kwargs)
+    return next((r for r in _tuning_rows(env_id)
+                 if r["controller"] == controller and r["env_kwargs"] == asked), None)
+
+
 def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, float]:
     """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with exactly
     ``env_kwargs`` (a leaderboard variant's arguments), from ``results/tuning/<Env-vN>.json``
-    (Optuna on training seeds 0-2, never the leaderboard's).
+    (Optuna on training seeds, never the leaderboard's; each file's header says which).
 
     Raises:
         CliError: no study of that controller with these arguments (the message lists the
             arguments it was tuned with).
     """
-    rows = [r for r in _tuning_rows(env_id) if r["controller"] == controller]
-    for r in rows:
-        if r["env_kwargs"] == _as_json(env_kwargs):
-            return dict(r["tuned"])
+    row = _tuned_row(env_id, controller, env_kwargs)
+    if row is not None:
+        return dict(row["tuned"])
+    tuned_with = [r["env_kwargs"] for r in _tuning_rows(env_id) if r["controller"] == controller]
     raise CliError(
         f"{controller} was not tuned for {env_id} with {env_kwargs or 'its default arguments'}; "
-        f"tuned with: {[r['env_kwargs'] for r in rows] or 'nothing'} "
+        f"tuned with: {tuned_with or 'nothing'} "
         f"({TUNING_DIR / (env_id.split('/')[-1] + '.json')}, scripts/tune_gains.py)"
     )
 
 
 def has_tuned_gains(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
     """False for ``tuned:<controller>`` without a study for ``env_kwargs``; True otherwise."""
-    if not policy.startswith("tuned:"):
-        return True
-    try:
-        tuned_gains(env_id, policy.removeprefix("tuned:"), env_kwargs)
-    except CliError:
-        return False
-    return True
+    return (not policy.startswith("tuned:")
+            or _tuned_row(env_id, policy.removeprefix("tuned:"), env_kwargs) is not None)
 
 
 def trained_for(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:

@@ -15,7 +15,6 @@ Prints a Markdown table per training seed and a summary line.
 from __future__ import annotations
 
 import argparse
-import ast
 
 import gymnasium as gym
 
@@ -23,6 +22,7 @@ import agents
 import cir_gym  # noqa: F401  (registers the environments)
 from agents.shaping import error_norm
 from cir_gym.evaluation import interface_env_kwargs
+from scripts.cli import _parse_value
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -37,13 +37,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="environment argument (a Python literal or a bare string)")
     args = ap.parse_args(argv)
 
-    kwargs = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        try:
-            kwargs[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            kwargs[key] = value
+    kwargs = {key: _parse_value(value)
+              for key, _, value in (item.partition("=") for item in args.set)}
     failed = ended = 0
     for k in args.seeds if args.seeds is not None else agents.seeds(args.env, args.agent):
         policy = agents.load(args.env, args.agent, seed=k)

@@ -292,7 +292,7 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             "Controllers vs RL on each variant's primary metric (mean over the same "
             "seeds; best = highest success rate, then the best mean). A controller runs at the "
             "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
-            "found for the variant (Optuna on training seeds 0-2; results/tuning/); an agent's "
+            "found for the variant (Optuna on training seeds; results/tuning/); an agent's "
             "factor is to the better of the two best controllers:",
             "",
             *lines,
