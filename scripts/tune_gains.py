@@ -17,7 +17,9 @@ Which gains are searched: a controller's rate gains and damping ratio (below) by
 :data:`SEARCHED` names the gains of the controllers whose law has more (the interaction and
 peg-in-hole laws: stiffnesses, force-loop ratios, the insertion speed). A null-space gain
 ``k0_<objective>`` is searched only on the RedundantIK variant of that objective (elsewhere it
-does nothing). Gains whose default is not a number (None: the law's own rule) are not searched.
+does nothing). A gain whose default is None (the law's own rule) is searched only where that
+rule gives one number for every joint, which is then its default: the decentralized cascades'
+ω_cv and ω_cp on rigid joints (80 and 16 rad/s), not their per-joint design on elastic ones.
 
 What a trial scores: the variant's own primary metric (``variant_primary_metric``, e.g.
 ``min_manipulability`` on RedundantIK's manipulability variant), signed by the metric's
@@ -42,6 +44,11 @@ Bounds (documented, physical), all searched log-uniformly; Δt is the env's cont
 * CLIK's ``K`` (1/s): [1, 1/Δt]. The env integrates the commanded q̇ exactly over Δt, so the
   task error obeys e⁺ = (1 − KΔt) e: KΔt = 1 is dead-beat, beyond it the error overshoots
   every step (and diverges at KΔt = 2).
+* the adaptive law's Λ = λ I, ``lam`` (1/s, the pole of its sliding variable σ = q̃̇ + Λ q̃):
+  [1, 0.3/Δt] too; its ``kd`` and adaptation gain ``gamma`` a decade either side.
+* the cascades' speed-loop bandwidth ``omega_cv`` and position-loop crossover ``omega_cp``
+  (rad/s): [1, 0.3/Δt] like any rate gain, and ω_cp below the ω_cv of its trial (the law
+  rejects ω_cp ≥ ω_cv: the position loop must be the slower one).
 * ``zeta`` in [0.3, 3]: from lightly to heavily damped.
 * every other searched gain (stiffnesses, dampings, ratios, speeds, null-space gains), which
   has no physical bound of its own: a decade either side of the course's value.
@@ -77,7 +84,12 @@ RATE_BOUNDS: dict[str, tuple[float, float]] = {
     "motion_omega": (1.0, 0.3),
     "gain": (0.05, 0.3),
     "K": (1.0, 1.0),
+    "omega_cv": (1.0, 0.3),
+    "omega_cp": (1.0, 0.3),
+    "lam": (1.0, 0.3),
 }
+#: gain → the gain it must stay below (sampled after it, its upper bound capped there)
+BELOW: dict[str, str] = {"omega_cp": "omega_cv"}
 #: gain → (low, high), whatever the control period
 FIXED_BOUNDS: dict[str, tuple[float, float]] = {"zeta": (0.3, 3.0)}
 #: any other searched gain: [default / DECADE, default · DECADE]
@@ -94,24 +106,36 @@ SEARCHED: dict[str, tuple[str, ...]] = {
     "hybrid_force_position": ("omega_n", "zeta", "d_f", "speed"),
     "hybrid_spiral": ("omega_n", "zeta", "d_f", "speed"),
     "position_only": ("k_p", "k_d", "speed"),
+    "adaptive": ("lam", "kd", "gamma"),
 }
 
 
-def tunable_gains(controller: str, env_id: str, objective: str | None = None
-                  ) -> dict[str, float]:
+def tunable_gains(controller: str, env_id: str, objective: str | None = None,
+                  env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
     """{gain: default} searched for ``controller`` on ``env_id``: the gains of :data:`SEARCHED`
     (else its rate gains and ζ) whose default is a number; a ``k0_<objective>`` only for that
-    RedundantIK ``objective``."""
+    RedundantIK ``objective``. A rate gain whose default is None (the law's own rule, e.g. the
+    cascades' ω_cv and ω_cp) is searched when ``env_kwargs`` is given and the law, built for
+    the env with those arguments, sets it to one number for every joint (that number is then
+    its default); a per-joint design (ω_cv = 0.7 ω_z on elastic joints) is left as designed."""
     import dataclasses
 
     fields = {f.name: f.default
               for f in dataclasses.fields(baselines.controller_class(controller, env_id).Gains)}
     names = SEARCHED.get(controller, tuple(n for n in fields
                                           if n in RATE_BOUNDS or n in FIXED_BOUNDS))
+    names = [n for n in names if n in fields
+             and (not n.startswith("k0_") or n == f"k0_{objective}")]
+    ruled = [n for n in names if fields[n] is None and n in RATE_BOUNDS]
+    if ruled and env_kwargs is not None:
+        built = baselines.make(controller, env_id, env_kwargs=env_kwargs)
+        for n in ruled:
+            value = np.unique(np.asarray(getattr(built, n, np.nan), dtype=float))
+            if value.size == 1 and np.isfinite(value[0]):
+                fields[n] = float(value[0])
     return {
         n: float(fields[n]) for n in names
-        if n in fields and isinstance(fields[n], (int, float)) and not isinstance(fields[n], bool)
-        and (not n.startswith("k0_") or n == f"k0_{objective}")
+        if isinstance(fields[n], (int, float)) and not isinstance(fields[n], bool)
     }
 
 
@@ -159,7 +183,7 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
     import optuna
 
     dt, objective_name = variant_setting(env_id, env_kwargs)
-    defaults = tunable_gains(controller, env_id, objective_name)
+    defaults = tunable_gains(controller, env_id, objective_name, env_kwargs)
     if not defaults:
         raise ValueError(f"{controller} has no searchable gain on {env_id} (scripts/tune_gains.py"
                          f" searches {sorted(RATE_BOUNDS) + sorted(FIXED_BOUNDS)} and SEARCHED)")
@@ -177,7 +201,12 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
     floor: dict[str, Any] = {}
 
     def objective(trial: Any) -> float:
-        gains = {g: trial.suggest_float(g, *space[g], log=True) for g in defaults}
+        gains: dict[str, float] = {}
+        for g in defaults:  # a gain of BELOW after the one it must stay below
+            low, high = space[g]
+            if BELOW.get(g) in gains:
+                high = min(high, gains[BELOW[g]] * (1.0 - 1e-9))
+            gains[g] = trial.suggest_float(g, low, high, log=True)
         try:
             s = score(controller, env_id, variant, env_kwargs, gains, train_episodes,
                       TRAIN_SEED)
@@ -240,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     for variant, kwargs in variants.items():
         objective = variant_setting(env_id, kwargs)[1]
         for c in args.controller or [c for c in baselines.available(env_id)
-                                     if tunable_gains(c, env_id, objective)]:
+                                     if tunable_gains(c, env_id, objective, kwargs)]:
             r = tune(c, env_id, variant, kwargs, trials=args.trials,
                      train_episodes=args.train_episodes, out=out)
             r["leaderboard_default"] = score(c, env_id, variant, kwargs, r["default"],
@@ -285,9 +314,10 @@ def report(env_id: str, results: list[dict[str, Any]], args: argparse.Namespace,
         "trial below their success rate scores +inf). Scored on the leaderboard's "
         f"{args.episodes} episodes (seeds {LEADERBOARD_SEED}–"
         f"{LEADERBOARD_SEED + args.episodes - 1}), on each variant's primary metric. Bounds "
-        "(log-uniform; scripts/tune_gains.py says why): rate gains in [1, 0.3/Δt] (λ: [0.05, "
-        "0.3/Δt], CLIK's K: [1, 1/Δt]), ζ in [0.3, 3], any other gain a decade either side "
-        "of its default; each row lists its own. Where the default gains fail every training "
+        "(log-uniform; scripts/tune_gains.py says why): rate gains in [1, 0.3/Δt] (the servo "
+        "gain λ: [0.05, 0.3/Δt], CLIK's K: [1, 1/Δt]; a cascade's ω_cp below its trial's "
+        "ω_cv), ζ in [0.3, 3], any other gain a decade either side of its default; each row "
+        "lists its own. Where the default gains fail every training "
         "episode the search maximised the return (the metric column says so).",
         "",
         "| variant | controller | metric | default gains | value | success | tuned gains "

@@ -923,8 +923,10 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
     """CLIK's K is bounded by dead-beat, KΔt ≤ 1 (200 1/s on the planar arm's 200 Hz, 100 on
     the iiwa's 100 Hz); a null-space gain is searched only on its own objective's variant; the
     interaction laws search their force-loop gains, a gain without a physical bound a decade
-    either side of the course's value; a gain whose default is the law's rule (None) is not
-    searched."""
+    either side of the course's value; a gain whose default is the law's rule (None) is
+    searched from the value the rule gives when it is one number for every joint (the
+    cascades' ω_cv = 80, ω_cp = ω_cv / 5 on rigid joints), not where the rule designs each
+    joint (ω_cv = 0.7 ω_z on elastic joints)."""
     from scripts.tune_gains import bounds, tunable_gains, variant_setting
 
     rik, rik7 = "cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"
@@ -940,9 +942,34 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
     assert tunable_gains("admittance", ac) == {"crossover": 20.0, "motion_omega": 40.0}
     assert tunable_gains("explicit_force", ac) == {"crossover_ratio": 0.5, "zeta": 1.0}
     assert bounds("crossover_ratio", 0.5, 0.002) == pytest.approx((0.05, 5.0))
-    assert tunable_gains("p_pi_cascade", ENV) == {}  # ω_cv, ω_cp: None = the course's rule
+    assert tunable_gains("p_pi_cascade", ENV) == {}  # the rule's value needs the env's arguments
+    assert tunable_gains("p_pi_cascade", ENV, None, {}) == {"omega_cv": 80.0, "omega_cp": 16.0}
+    assert tunable_gains("p_pi_cascade", "cir_gym/ElasticJointTracking-v2", None, {}) == {}
+    assert bounds("omega_cv", 80.0, 0.002) == pytest.approx((1.0, 150.0))
+    assert set(tunable_gains("adaptive", ENV)) == {"lam", "kd", "gamma"}
+    assert bounds("gamma", 100.0, 0.002) == pytest.approx((10.0, 1000.0))
+    assert bounds("lam", 10.0, 0.002) == pytest.approx((1.0, 150.0))
     assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v0")) == {
         "omega_n", "zeta", "d_f", "speed"}
+
+
+def test_tune_gains_keeps_the_cascades_position_loop_below_its_speed_loop(tmp_path):
+    """The cascades' ω_cp is sampled below the ω_cv of its own trial (the law rejects
+    ω_cp ≥ ω_cv), trial 0 is the course's rule (80, 16 rad/s), and the rule's value is what
+    the law builds without the gains: trial 0 scores what the default controller scores."""
+    import optuna
+
+    from scripts.tune_gains import TRAIN_SEED, score, tune
+
+    row = tune("p_pi_cascade", ENV, "exact model", {"episode_duration": 0.5}, trials=4,
+               train_episodes=1, out=tmp_path)
+    assert row["default"] == {"omega_cv": 80.0, "omega_cp": 16.0}
+    study = optuna.load_study(study_name=row["study"], storage=f"sqlite:///{tmp_path}/studies.db")
+    assert study.trials[0].params == row["default"]
+    for t in study.trials:
+        assert t.params["omega_cp"] < t.params["omega_cv"] <= 150.0
+    rule = score("p_pi_cascade", ENV, "exact model", {"episode_duration": 0.5}, {}, 1, TRAIN_SEED)
+    assert study.trials[0].user_attrs["train"]["value"] == rule["value"]
 
 
 def test_tune_gains_ranks_on_the_variants_metric_and_keeps_the_success_rate(tmp_path):
