@@ -11,7 +11,9 @@ and the median RMS task error over ``--episodes`` episodes from ``--seed``
 seed 0 on its first ``--laps`` episodes, each lap is sorted into succeeded (max error < the
 success threshold), near miss (< 10 mm) or lost, with the control step of its largest error and
 its minimum manipulability and joint-limit margin, beside ``clik``'s minimum manipulability on
-the same episodes (does the agent lose its laps where the arm is badly conditioned?).
+the same episodes (does the agent lose its laps where the arm is badly conditioned?), and the
+error at that step split along the reference's direction of motion and across it, with the
+reference speed there (does it lag behind a fast reference, or leave the path sideways?).
 """
 
 from __future__ import annotations
@@ -41,18 +43,24 @@ def _score(policy, env_id: str, objective: str, episodes: int, seed: int) -> tup
 
 
 def _lap(policy, env_id: str, objective: str, seed: int) -> tuple[np.ndarray, dict]:
-    """Task-position error per control step and the episode's metrics."""
+    """Per control step: the task-position error norm, its components along the reference's
+    direction of motion (positive: behind the reference) and across it, and the reference
+    speed (rows of a (steps, 4) array); and the episode's metrics."""
     env = gym.make(env_id, objective=objective)
     obs, _ = env.reset(seed=seed)
-    state, start, errors, done, info = None, True, [], False, {}
+    state, start, rows, done, info = None, True, [], False, {}
     while not done:
         action, state = policy.predict(obs, state, np.array([start]), deterministic=True)
         start = False
         obs, _, terminated, truncated, info = env.step(action)
-        errors.append(float(np.linalg.norm(obs["x_ref"] - obs["x"])))
+        e, v = obs["x_ref"] - obs["x"], obs["xd_ref"]
+        speed = float(np.linalg.norm(v))
+        along = float(e @ v) / speed if speed > 1e-9 else 0.0
+        across = float(np.sqrt(max(e @ e - along**2, 0.0)))
+        rows.append((float(np.linalg.norm(e)), along, across, speed))
         done = terminated or truncated
     env.close()
-    return np.array(errors), info["episode_metrics"]
+    return np.array(rows), info["episode_metrics"]
 
 
 def laps_table(policy, env_id: str, objective: str, laps: int, seed: int) -> list[str]:
@@ -60,22 +68,25 @@ def laps_table(policy, env_id: str, objective: str, laps: int, seed: int) -> lis
     clik = baselines.make("clik", env_id)
     rows: dict[str, list] = {"succeeded": [], "near miss": [], "lost": []}
     for s in range(seed, seed + laps):
-        e, m = _lap(policy, env_id, objective, s)
+        steps, m = _lap(policy, env_id, objective, s)
+        e = steps[:, 0]
+        at = int(np.argmax(e))
         kind = ("succeeded" if e.max() < threshold else
                 "near miss" if e.max() < NEAR_MISS else "lost")
         _, mc = _lap(clik, env_id, objective, s)
-        rows[kind].append((e.max(), int(np.argmax(e)), len(e), m["min_manipulability"],
+        rows[kind].append((e.max(), at, len(e), m["min_manipulability"],
                            m["min_joint_limit_margin"], mc["min_manipulability"],
-                           mc["max_task_error"]))
+                           mc["max_task_error"], *steps[at, 1:]))
     out = [f"Laps of seeds {seed}-{seed + laps - 1} (one episode each):", "",
            "| laps | n | max error median (mm) | step of the max error (median, range) | "
            "min manipulability (agent, median) | joint-limit margin (rad, median) | "
            "clik's min manipulability, same episodes | clik's max error (mm, median / worst) | "
-           "clik's laps under the threshold |",
-           "|---|---|---|---|---|---|---|---|---|"]
+           "clik's laps under the threshold | at the max error: along the path / across it "
+           "(mm, median; along > 0: behind) | reference speed there (m/s, median) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, r in rows.items():
         if not r:
-            out.append(f"| {kind} | 0 | | | | | | | |")
+            out.append(f"| {kind} | 0 | | | | | | | | | |")
             continue
         a = np.array(r, dtype=float)
         out.append(
@@ -83,7 +94,9 @@ def laps_table(policy, env_id: str, objective: str, laps: int, seed: int) -> lis
             f"({a[:, 1].min():.0f}-{a[:, 1].max():.0f} of {a[:, 2].max():.0f}) | "
             f"{np.median(a[:, 3]):.3g} | {np.median(a[:, 4]):.3g} | {np.median(a[:, 5]):.3g} | "
             f"{1e3 * np.median(a[:, 6]):.3g} / {1e3 * a[:, 6].max():.3g} | "
-            f"{int(np.sum(a[:, 6] < threshold))} of {len(r)} |")
+            f"{int(np.sum(a[:, 6] < threshold))} of {len(r)} | "
+            f"{1e3 * np.median(a[:, 7]):.3g} / {1e3 * np.median(a[:, 8]):.3g} | "
+            f"{np.median(a[:, 9]):.3g} |")
     return out
 
 

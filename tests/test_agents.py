@@ -1078,3 +1078,27 @@ def test_eval_failures_reports_how_each_episode_ends(capsys):
     assert cells[1] == "True" and cells[2] == "time limit" and int(cells[3]) == 400
     assert 0 < float(cells[4]) < 0.01 and 0 < float(cells[5]) < float(cells[4])
     assert "failed episodes: 0, of which ended by termination: 0" in out
+
+
+def test_rik_lap_diagnosis_splits_the_error_along_and_across_the_reference_motion():
+    """eval_rik_agents' lap rows: |e|² = along² + across² at every step, the speed is the
+    reference's, and a policy that stands still lags the reference as it starts to move: the
+    error lies along the motion, behind it (the closed path later turns back towards the
+    start); CLIK stays within its 1-mm bar."""
+    from scripts.eval_rik_agents import _lap
+
+    env_id = "cir_gym/RedundantIK-v3"
+    rows, metrics = _lap(baselines.make("clik", env_id), env_id, "manipulability", 1000)
+    err, along, across, speed = rows.T
+    np.testing.assert_allclose(err**2, along**2 + across**2, rtol=1e-9, atol=1e-18)
+    assert err.max() == pytest.approx(metrics["max_task_error"]) and err.max() < 1e-3
+    assert speed.max() > 0.1  # the lap's fast part (m/s)
+
+    class Still:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros(3), state
+
+    rows, _ = _lap(Still(), env_id, "manipulability", 1000)
+    err, along, across, speed = rows.T
+    first = np.flatnonzero(speed > 1e-3)[:20]  # the reference's first moving steps
+    assert np.all(along[first] > 0) and np.all(across[first] < 0.1 * along[first])
