@@ -293,6 +293,7 @@ def train(
     env_kwargs: dict[str, Any] | None = None,
     n_envs: int | None = None,
     residual_scale: float | list[float] | None = None,
+    residual_gains: dict[str, Any] | None = None,
     hyperparams_path: str | Path | None = None,
     progress_bar: bool = True,
     verbose: int = 1,
@@ -312,6 +313,9 @@ def train(
         env_kwargs: environment arguments (e.g. ``{"payload_mass": 3.0}``).
         n_envs: parallel environments (default: the entry's ``n_envs``).
         residual_scale: override the entry's ``residual.scale``.
+        residual_gains: the residual controller's gains (``baselines.make`` keywords, e.g. the
+            tuned gains of ``scripts/tune_gains.py``), saved as ``residual.controller_kwargs``
+            (default: the course's gains).
         hyperparams_path: another hyperparameter YAML file.
         progress_bar: SB3's progress bar (tqdm + rich).
 
@@ -367,6 +371,16 @@ def train(
                                  f"available: {baselines.available(key)}")
             scale = check_scale(hp.pop("residual_scale"), probe.action_space)
             res_cfg = {"controller": residual, "scale": scale.tolist()}
+            if residual_gains:
+                try:  # a bad gain fails here, not in the training envs
+                    baselines.make(residual, key, env=probe, **residual_gains)
+                except ValueError as exc:
+                    probe.close()
+                    raise ValueError(f"residual gains {residual_gains}: {exc}") from exc
+                res_cfg["controller_kwargs"] = {k: _plain(v) for k, v in residual_gains.items()}
+        elif residual_gains:
+            probe.close()
+            raise ValueError("residual_gains needs residual=<controller>")
         probe.close()
         config = {
             "env_id": key,

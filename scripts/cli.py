@@ -325,14 +325,19 @@ def cmd_train(args: argparse.Namespace) -> int:
             f"training needs the train extra: pip install 'cir-gym[train]' ({exc})"
         ) from exc
     env_id = _check_env_id(args.env)
-    env_kwargs, _ = split_settings(env_id, args.residual or "", args.set or [])
+    env_kwargs, gains = split_settings(env_id, args.residual or "", args.set or [])
+    residual = args.residual
+    if residual and residual.startswith("tuned:"):  # the base at its tuned gains, --set over them
+        residual = residual.removeprefix("tuned:")
+        gains = {**tuned_gains(env_id, residual, env_kwargs), **gains}
     try:
         train(
             env_id,
             args.algo,
             timesteps=args.timesteps,
             seed=args.seed,
-            residual=args.residual,
+            residual=residual,
+            residual_gains=gains or None,
             resume=args.resume,
             out=args.out,
             name=args.name,
@@ -456,7 +461,12 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train an SB3 agent (needs the train extra)")
     t.add_argument("--env", required=True)
     t.add_argument("--algo", choices=["sac", "td3", "ppo"], default="ppo")
-    t.add_argument("--residual", metavar="CONTROLLER")
+    t.add_argument(
+        "--residual",
+        metavar="CONTROLLER",
+        help="train a residual on this controller; tuned:<controller> takes the gains tuned for "
+        "these --set environment arguments (results/tuning/); --set <gain>=<value> sets a gain",
+    )
     t.add_argument("--timesteps", type=int, default=None)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--n-envs", type=int, default=None)

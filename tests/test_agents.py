@@ -606,6 +606,56 @@ def test_residual_agent_starts_at_the_controller(tiny_runs, tmp_path):
         obs, *_ = env.step(a)
 
 
+def test_residual_on_given_gains_acts_like_its_controller_at_those_gains(tiny_runs, tmp_path):
+    """``residual_gains`` (the CLI's ``--residual tuned:<controller>``) builds the base at those
+    gains, saves them in config.yml, and agents.load rebuilds it with them: a residual whose
+    last layer is still zero acts exactly like the controller at those gains, not at the
+    course's. A bad gain fails before training; gains without a residual are an error."""
+    from agents.train import train
+
+    gains = {"omega_n": 100.0, "zeta": 0.5}
+    run = train(ENV, "ppo", out=tmp_path, name="rg", residual="computed_torque", timesteps=0,
+                residual_gains=gains, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
+                progress_bar=False, verbose=0)
+    assert yaml.safe_load((run / "config.yml").read_text())["residual"]["controller_kwargs"] \
+        == gains
+    agent = agents.load(ENV, "rg", path=run)
+    tuned, course = (baselines.make("computed_torque", ENV, **gains),
+                     baselines.make("computed_torque", ENV))
+    env = gym.make(ENV, **SHORT)
+    obs, _ = env.reset(seed=0)
+    differs = False
+    for _ in range(10):
+        a, _ = agent.predict(obs)
+        np.testing.assert_array_equal(a, tuned.predict(obs)[0])
+        differs |= not np.array_equal(a, course.predict(obs)[0])
+        obs, *_ = env.step(a)
+    assert differs
+    with pytest.raises(ValueError, match="omega_n"):
+        train(ENV, "ppo", out=tmp_path, name="bad", residual="computed_torque", timesteps=0,
+              residual_gains={"omega_n": -1.0}, env_kwargs=SHORT,
+              hyperparams_path=tiny_runs["hp"], progress_bar=False, verbose=0)
+    with pytest.raises(ValueError, match="needs residual"):
+        train(ENV, "ppo", out=tmp_path, name="none", timesteps=0, residual_gains=gains,
+              env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"], progress_bar=False,
+              verbose=0)
+
+
+def test_cli_trains_a_residual_on_the_tuned_base(tiny_runs, tmp_path):
+    """``cir-gym train --residual tuned:computed_torque --set payload_mass=3.0`` uses the gains
+    tuned for exactly that variant; a variant without a study is a CLI error."""
+    from scripts.cli import main, tuned_gains
+
+    common = ["train", "--env", ENV, "--residual", "tuned:computed_torque", "--timesteps", "0",
+              "--hyperparams", str(tiny_runs["hp"]), "--out", str(tmp_path)]
+    assert main([*common, "--set", "payload_mass=3.0", "--name", "t"]) == 0
+    config = yaml.safe_load((tmp_path / "JointTracking-v1" / "t" / "config.yml").read_text())
+    assert config["residual"]["controller"] == "computed_torque"
+    assert config["residual"]["controller_kwargs"] == tuned_gains(
+        ENV, "computed_torque", {"payload_mass": 3.0})
+    assert main([*common, "--set", "payload_mass=1.0", "--name", "u"]) == 2
+
+
 def test_batched_prediction_matches_single_and_sb3_evaluate_policy(tiny_runs):
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import DummyVecEnv
