@@ -89,7 +89,7 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
     extras: dict[str, dict[str, dict[str, float]]] = {}  # label -> controller -> rate, return
-    bases: list[tuple[str, str, str]] = []  # (controller, setting label, colour) of residuals
+    bases: list[tuple[str, float, str]] = []  # (base's label, its score, colour) of residuals
     for i, name in enumerate(names):
         seed_dirs = [agents.agent_dir(env_id, name, k) for k in agents.seeds(env_id, name)]
         d = seed_dirs[0]
@@ -119,16 +119,25 @@ def plot_env(env_id: str, out: Path) -> Path | None:
             ax.fill_between(band["steps"], band["low"], band["high"], color=color, alpha=0.2)
             for row in band["seeds"]:
                 ax.plot(band["steps"], row, "-", lw=0.6, alpha=0.5, color=color)
-        if config.get("residual"):
-            bases.append((config["residual"]["controller"], label, color))
+        res = config.get("residual")
+        if res:  # its base at the gains it was trained on (controller_kwargs: e.g. tuned ones)
+            gains = res.get("controller_kwargs") or {}
+            value = scores[label][res["controller"]]
+            if gains:
+                base = baselines.make(res["controller"], env_id, env_kwargs=kwargs, **gains)
+                episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
+                value = evaluate(base, env_id, episodes, EVAL_SEED,
+                                 **kwargs).summary[primary]["mean"]
+            at = ", ".join(f"{k} {v:.3g}" for k, v in gains.items())
+            bases.append((f"{res['controller']}{f' at {at}' if at else ''} ({label})", value,
+                          color))
     for j, (label, by_name) in enumerate(scores.items()):
         best = best_of(env_id, by_name)
         if best is not None:
             ax.axhline(best[1], ls="--", color=colors[(len(names) + j) % len(colors)],
                        label=f"best controller: {best[0]} ({label})")
-    for controller, label, color in bases:
-        ax.axhline(scores[label][controller], ls=":", color=color,
-                   label=f"residual's base: {controller} ({label})")
+    for base_label, value, color in bases:
+        ax.axhline(value, ls=":", color=color, label=f"residual's base: {base_label}")
     if ax_s is not None and ax_r is not None:
         for label, by_name in extras.items():
             for k, (controller, e) in enumerate(sorted(by_name.items())):
