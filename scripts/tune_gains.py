@@ -15,7 +15,8 @@ leaderboard's episodes (10, seeds 1000–1009) and written side by side to
 
 Which gains are searched: a controller's rate gains and damping ratio (below) by default;
 :data:`SEARCHED` names the gains of the controllers whose law has more (the interaction and
-peg-in-hole laws: stiffnesses, force-loop ratios, the insertion speed). A null-space gain
+peg-in-hole laws: stiffnesses, force-loop ratios, the insertion speed; the adaptive law's Λ,
+K_D and adaptation gain). A null-space gain
 ``k0_<objective>`` is searched only on the RedundantIK variant of that objective (elsewhere it
 does nothing). A gain whose default is None (the law's own rule) is searched only where that
 rule gives one number for every joint, which is then its default: the decentralized cascades'
