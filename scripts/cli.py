@@ -118,6 +118,17 @@ def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dic
     )
 
 
+def resolve_tuned(env_id: str, policy: str, env_kwargs: dict[str, Any],
+                  gains: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """(controller, gains) of a policy name: ``tuned:<controller>`` is the controller at the
+    gains tuned for ``env_kwargs`` (:func:`tuned_gains`) with ``gains`` (``--set``) over them;
+    any other name is returned with ``gains`` as they are."""
+    if not policy.startswith("tuned:"):
+        return policy, gains
+    controller = policy.removeprefix("tuned:")
+    return controller, {**tuned_gains(env_id, controller, env_kwargs), **gains}
+
+
 def has_tuned_gains(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
     """False for ``tuned:<controller>`` without a study for ``env_kwargs``; True otherwise."""
     return (not policy.startswith("tuned:")
@@ -175,9 +186,7 @@ def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dic
         ag = _agents_module()
         assert ag is not None
         return ag.load(env_id, policy.split(":", 1)[1])
-    if policy.startswith("tuned:"):  # the tuned gains, then any --set gain over them
-        policy = policy.removeprefix("tuned:")
-        gains = {**tuned_gains(env_id, policy, env_kwargs), **gains}
+    policy, gains = resolve_tuned(env_id, policy, env_kwargs, gains)
     try:
         return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
     except (ValueError, TypeError) as exc:  # bad gain (InvalidGain) or environment argument
@@ -326,17 +335,14 @@ def cmd_train(args: argparse.Namespace) -> int:
         ) from exc
     env_id = _check_env_id(args.env)
     env_kwargs, gains = split_settings(env_id, args.residual or "", args.set or [])
-    residual = args.residual
-    if residual and residual.startswith("tuned:"):  # the base at its tuned gains, --set over them
-        residual = residual.removeprefix("tuned:")
-        gains = {**tuned_gains(env_id, residual, env_kwargs), **gains}
+    residual, gains = resolve_tuned(env_id, args.residual or "", env_kwargs, gains)
     try:
         train(
             env_id,
             args.algo,
             timesteps=args.timesteps,
             seed=args.seed,
-            residual=residual,
+            residual=residual or None,
             residual_gains=gains or None,
             resume=args.resume,
             out=args.out,
