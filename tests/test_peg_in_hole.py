@@ -309,3 +309,38 @@ def test_the_admittance_adapter_sees_the_peg_tip_and_presses_the_reference_force
             break
     assert not info["is_success"] and not terminated
     assert np.mean(forces[-250:]) == pytest.approx(10.0, rel=0.2)
+
+
+def _strike(charge: bool) -> tuple[list[float], int, dict]:
+    """The peg driven straight down at full speed onto the face 2.9 mm beside the true hole
+    (seed 3) until the 20-N force limit ends the episode: (rewards, steps played, last info)."""
+    env = PegInHoleEnv(control="position", position_uncertainty=0.01, tilt_uncertainty=0.0,
+                       sensor="ideal", force_limit=20.0, charge_unplayed_steps=charge)
+    env.reset(seed=3)
+    down = np.array([0, 0, -1, 0, 0, 0], dtype=np.float32)
+    rewards = []
+    for k in range(env.max_steps):
+        _, r, terminated, truncated, info = env.step(down)
+        rewards.append(r)
+        if terminated or truncated:
+            return rewards, k + 1, info
+    raise AssertionError("the episode did not end")
+
+
+def test_charge_unplayed_steps_charges_a_failure_the_worst_step_it_did_not_play() -> None:
+    """Same episode with and without the charge: equal rewards up to the failing step, which
+    loses (T − k)(1 + force_weight) more; the failure is at the force limit, not a success."""
+    plain, k, info = _strike(False)
+    charged, k2, info2 = _strike(True)
+    assert k == k2 and info["force_limit_exceeded"] and not info["is_success"]
+    assert plain[:-1] == charged[:-1]
+    T = PegInHoleEnv(control="position").max_steps
+    np.testing.assert_allclose(plain[-1] - charged[-1], (T - k) * 2.0, rtol=1e-12)
+    assert info2["reward_force_limit"] == pytest.approx(-(100.0 + (T - k) * 2.0))
+    # failing now is worse than playing on at the worst non-failing reward to the time limit
+    assert charged[-1] < -(T - k + 1) * 2.0
+
+
+def test_charge_unplayed_steps_must_be_a_bool() -> None:
+    with pytest.raises(InvalidArgument, match="charge_unplayed_steps must be True or False"):
+        PegInHoleEnv(charge_unplayed_steps="yes")

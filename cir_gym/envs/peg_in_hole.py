@@ -157,6 +157,16 @@ class PegInHoleEnv(RobotEnv):
     - r_force_limit = −``failure_penalty`` on the step |F| exceeds ``force_limit``;
     - r_diverged = −``divergence_penalty`` on the step the physics diverged.
 
+    With ``charge_unplayed_steps=True`` an episode that ends as a failure (force limit or
+    divergence) also loses, on its last step, the worst reward of every step it did not play
+    without ending, (T − k)(1 + ``force_weight``) (T the episode's steps, k the steps played;
+    r_distance = −1 and r_force at the force limit). Playing on can then never lose more than
+    failing: failing early never raises the return, at any discount γ ≤ 1. Off by default
+    (v0's episodes unchanged), and v0's default return favours failing: 100 for exceeding the
+    force limit against up to 1 + ``force_weight`` per remaining step, so a residual agent on ``hybrid_spiral``
+    (tuned gains) learned to strike the surface within 0.8 s (return ≈ −410) rather than insert
+    as its base does in ~5 s (≈ −900 to −1060); docs/agents.md, eleventh round.
+
     ## Starting State
     At rest, the peg tip ``start_height`` above the nominal hole on its axis, aligned with it,
     in the posture closest to the robot file's home (null-space Newton iterations).
@@ -205,6 +215,7 @@ class PegInHoleEnv(RobotEnv):
     | success_bonus | 100.0 | reward on success |
     | failure_penalty | 100.0 | reward lost when the force limit is exceeded |
     | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | charge_unplayed_steps | False | a failed episode also loses the worst reward of each unplayed step (see Rewards) |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
@@ -221,7 +232,8 @@ class PegInHoleEnv(RobotEnv):
     the adapter ``baselines.hybrid.PegAdmittance`` (axial force regulation only).
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version. Later, without a version bump (a new argument whose default keeps
+      v0's episodes): ``charge_unplayed_steps``.
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
@@ -261,6 +273,7 @@ class PegInHoleEnv(RobotEnv):
         success_bonus: float = 100.0,
         failure_penalty: float = 100.0,
         divergence_penalty: float = 100.0,
+        charge_unplayed_steps: bool = False,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
@@ -289,6 +302,14 @@ class PegInHoleEnv(RobotEnv):
         self.success_bonus = check_number("success_bonus", success_bonus, 0.0, 1e6)
         self.failure_penalty = check_number("failure_penalty", failure_penalty, 0.0, 1e6)
         self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+        if not isinstance(charge_unplayed_steps, (bool, np.bool_)):
+            raise InvalidArgument(
+                f"charge_unplayed_steps must be True or False, got {charge_unplayed_steps!r}"
+            )
+        self.charge_unplayed_steps = bool(charge_unplayed_steps)
+        # the worst reward of a step that does not end the episode: r_distance = −1, r_force
+        # at the force limit
+        self._worst_step = 1.0 + self.force_weight
 
         model, self.geometry = geo.build_peg_in_hole(self.clearance, self.chamfer)
         super().__init__(
@@ -437,8 +458,13 @@ class PegInHoleEnv(RobotEnv):
         r_dist = -min(dist / GOAL_SCALE, 1.0)
         r_force = -self.force_weight * min(f / self.force_limit, 10.0) ** 2
         r_success = self.success_bonus if inserted else 0.0
-        r_limit = -self.failure_penalty if over else 0.0
-        r_div = -self.divergence_penalty if diverged else 0.0
+        unplayed = (
+            (self.max_steps - self._k) * self._worst_step
+            if self.charge_unplayed_steps and (over or diverged)
+            else 0.0
+        )
+        r_limit = -(self.failure_penalty + unplayed) if over else 0.0
+        r_div = -(self.divergence_penalty + unplayed) if diverged else 0.0
         reward = r_dist + r_force + r_success + r_limit + r_div
 
         terminated = diverged or inserted or over
