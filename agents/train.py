@@ -397,7 +397,13 @@ def train(
         }
         text = yaml.safe_dump(_plain(config), sort_keys=False)
         run_dir.mkdir(parents=True, exist_ok=True)
-        config_path.write_text(text)
+        try:  # created exclusively: of two runs started at once into one directory (the
+            # check above passes for both), the second stops here instead of sharing it
+            with config_path.open("x") as f:
+                f.write(text)
+        except FileExistsError:
+            raise ValueError(f"{run_dir} already holds a run (started while this one was "
+                             f"being set up); pass another name (--name) or --out") from None
         config = yaml.safe_load(config_path.read_text())  # train on exactly what was saved
 
     return _run(run_dir, config, resume=resume, progress_bar=progress_bar, verbose=verbose)

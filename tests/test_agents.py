@@ -1152,3 +1152,25 @@ def test_rik_lap_diagnosis_splits_the_error_along_and_across_the_reference_motio
     err, along, across, speed = rows.T
     first = np.flatnonzero(speed > 1e-3)[:20]  # the reference's first moving steps
     assert np.all(along[first] > 0) and np.all(across[first] < 0.1 * along[first])
+
+
+def test_two_runs_started_at_once_into_one_directory_do_not_share_it(tiny_runs, tmp_path,
+                                                                     monkeypatch):
+    """Another run writes its config.yml while this one is being set up (both passed the
+    existence check): this one stops with a clear error, the other's config is untouched."""
+    import agents.train as train_module
+
+    out = tmp_path / "race"
+    run_dir = out / "JointTracking-v1" / "ppo"
+    real = train_module.load_hyperparams
+
+    def other_run_starts(*args, **kwargs):
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yml").write_text("the other run\n")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "load_hyperparams", other_run_starts)
+    with pytest.raises(ValueError, match="started while this one was being set up"):
+        train_module.train(ENV, "ppo", out=out, env_kwargs=SHORT,
+                           hyperparams_path=tiny_runs["hp"], progress_bar=False, verbose=0)
+    assert (run_dir / "config.yml").read_text() == "the other run\n"
