@@ -5,11 +5,12 @@
 For each environment with shipped agents (``agents/trained/<EnvName-vN>/``) the primary metric
 of every agent's ``learning_curve.csv`` is drawn against training steps; an agent trained over
 several seeds (``seed_<k>/``) is drawn as the IQM over seeds with its 95 % stratified-bootstrap
-band and each seed's curve thin (:func:`agents.report.curve_band`). For every distinct
-training setting of those agents (e.g. the exact model and an unknown 3 kg payload) each
-applicable controller is run through :func:`cir_gym.evaluation.evaluate` on the *same* seeds
-and number of episodes as the curves' evaluations (``agents.train.EVAL_SEED``): the best one
-is drawn as a dashed horizontal line, and a residual agent's base controller as a dotted one
+band and each seed's curve thin (:func:`agents.report.curve_band`). For every distinct training
+setting of those agents (e.g. the exact model and an unknown 3 kg payload) each applicable
+controller is run through :func:`cir_gym.evaluation.evaluate` on the *same* seeds and number of
+episodes as the curves' evaluations (``agents.train.EVAL_SEED``): the best one is drawn as a
+dashed horizontal line, the best of those tuned for that setting (``scripts/tune_gains.py``, at
+their tuned gains) as a dash-dotted one, and a residual agent's base controller as a dotted one
 in the agent's colour. An agent's interface arguments (``control``, ``control_freq``: a
 PegInHole agent may act through the position interface) are not a training setting: the
 controllers run on the task's other arguments with their own interface. Environments in
@@ -60,6 +61,26 @@ def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, se
     return scores
 
 
+def tuned_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int,
+                 seed: int) -> dict[str, float]:
+    """Mean primary metric of every controller that ``scripts/tune_gains.py`` tuned for
+    exactly ``env_kwargs``, at its tuned gains, on these seeds (keys ``tuned:<controller>``)."""
+    from scripts.cli import has_tuned_gains, tuned_gains
+
+    primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
+    scores = {}
+    for name in baselines.available(env_id):
+        if not has_tuned_gains(env_id, f"tuned:{name}", env_kwargs):
+            continue
+        policy = baselines.make(name, env_id, env_kwargs=env_kwargs,
+                                **tuned_gains(env_id, name, env_kwargs))
+        result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
+        scores[f"tuned:{name}"] = result.summary[primary]["mean"]
+        print(f"  tuned:{name:22s} {env_kwargs or 'defaults'}: {primary} = "
+              f"{scores[f'tuned:{name}']:.4g}", file=sys.stderr)
+    return scores
+
+
 def best_of(env_id: str, scores: dict[str, float]) -> tuple[str, float] | None:
     """(name, score) of the best controller by the primary metric's direction."""
     if not scores:
@@ -84,10 +105,11 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     primary = cls.primary_metric
     unit = next(s.unit for s in cls.metric_specs if s.name == primary)
     panel = env_id in SUCCESS_PANEL
-    fig, axes = plt.subplots(1, 3 if panel else 1, figsize=(18 if panel else 7, 4.2))
+    fig, axes = plt.subplots(1, 3 if panel else 1, figsize=(18 if panel else 12, 4.2))
     ax, ax_s, ax_r = (axes[0], axes[1], axes[2]) if panel else (axes, None, None)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     scores: dict[str, dict[str, float]] = {}  # setting label -> controller -> score
+    tuned: dict[str, dict[str, float]] = {}  # setting label -> tuned:<controller> -> score
     extras: dict[str, dict[str, dict[str, float]]] = {}  # label -> controller -> rate, return
     bases: list[tuple[str, float, str]] = []  # (base's label, its score, colour) of residuals
     for i, name in enumerate(names):
@@ -103,6 +125,7 @@ def plot_env(env_id: str, out: Path) -> Path | None:
             extras[label] = {}
             scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED,
                                               extras[label])
+            tuned[label] = tuned_scores(env_id, kwargs, episodes, EVAL_SEED)
         color = colors[i % len(colors)]
         if len(seed_dirs) == 1:
             steps, values = read_curve(d, primary)
@@ -136,6 +159,10 @@ def plot_env(env_id: str, out: Path) -> Path | None:
         if best is not None:
             ax.axhline(best[1], ls="--", color=colors[(len(names) + j) % len(colors)],
                        label=f"best controller: {best[0]} ({label})")
+        best = best_of(env_id, tuned.get(label, {}))
+        if best is not None:
+            ax.axhline(best[1], ls="-.", color=colors[(len(names) + j) % len(colors)],
+                       label=f"best tuned controller: {best[0]} ({label})")
     for base_label, value, color in bases:
         ax.axhline(value, ls=":", color=color, label=f"residual's base: {base_label}")
     if ax_s is not None and ax_r is not None:
@@ -164,7 +191,10 @@ def plot_env(env_id: str, out: Path) -> Path | None:
     ax.set_ylabel(f"{primary} ({unit})" if unit else primary)
     ax.set_title(f"{env_id}: evaluation during training (seeds {EVAL_SEED}…)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    if panel:
+        ax.legend(fontsize=8)
+    else:  # beside the axes: the lines it names run across the whole plot
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{agents.env_dir_name(env_id)}.png"
