@@ -44,40 +44,29 @@ SUCCESS_PANEL = {"cir_gym/PegInHole-v0"}
 
 
 def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int,
-                      extras: dict[str, dict[str, float]] | None = None) -> dict[str, float]:
+                      extras: dict[str, dict[str, float]] | None = None, *,
+                      tuned: bool = False) -> dict[str, float]:
     """Mean primary metric of every applicable controller on these seeds (and, into
-    ``extras`` when given, each one's success rate and mean return)."""
-    primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
-    scores = {}
-    for name in baselines.available(env_id):
-        policy = baselines.make(name, env_id, env_kwargs=env_kwargs)
-        result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
-        scores[name] = result.summary[primary]["mean"]
-        if extras is not None:
-            extras[name] = {"success_rate": result.success_rate,
-                            "return": result.summary["return"]["mean"]}
-        print(f"  {name:28s} {env_kwargs or 'defaults'}: {primary} = {scores[name]:.4g}, "
-              f"success {result.success_rate:.0%}", file=sys.stderr)
-    return scores
-
-
-def tuned_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int,
-                 seed: int) -> dict[str, float]:
-    """Mean primary metric of every controller that ``scripts/tune_gains.py`` tuned for
-    exactly ``env_kwargs``, at its tuned gains, on these seeds (keys ``tuned:<controller>``)."""
+    ``extras`` when given, each one's success rate and mean return). ``tuned``: only the
+    controllers ``scripts/tune_gains.py`` tuned for exactly ``env_kwargs``, at their tuned
+    gains (keys ``tuned:<controller>``)."""
     from scripts.cli import has_tuned_gains, tuned_gains
 
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
-        if not has_tuned_gains(env_id, f"tuned:{name}", env_kwargs):
+        key = f"tuned:{name}" if tuned else name
+        if tuned and not has_tuned_gains(env_id, key, env_kwargs):
             continue
-        policy = baselines.make(name, env_id, env_kwargs=env_kwargs,
-                                **tuned_gains(env_id, name, env_kwargs))
+        gains = tuned_gains(env_id, name, env_kwargs) if tuned else {}
+        policy = baselines.make(name, env_id, env_kwargs=env_kwargs, **gains)
         result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
-        scores[f"tuned:{name}"] = result.summary[primary]["mean"]
-        print(f"  tuned:{name:22s} {env_kwargs or 'defaults'}: {primary} = "
-              f"{scores[f'tuned:{name}']:.4g}", file=sys.stderr)
+        scores[key] = result.summary[primary]["mean"]
+        if extras is not None:
+            extras[key] = {"success_rate": result.success_rate,
+                           "return": result.summary["return"]["mean"]}
+        print(f"  {key:28s} {env_kwargs or 'defaults'}: {primary} = {scores[key]:.4g}, "
+              f"success {result.success_rate:.0%}", file=sys.stderr)
     return scores
 
 
@@ -125,7 +114,8 @@ def plot_env(env_id: str, out: Path) -> Path | None:
             extras[label] = {}
             scores[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED,
                                               extras[label])
-            tuned[label] = tuned_scores(env_id, kwargs, episodes, EVAL_SEED)
+            tuned[label] = controller_scores(env_id, kwargs, episodes, EVAL_SEED,
+                                             tuned=True)
         color = colors[i % len(colors)]
         if len(seed_dirs) == 1:
             steps, values = read_curve(d, primary)

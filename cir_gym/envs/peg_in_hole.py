@@ -163,9 +163,10 @@ class PegInHoleEnv(RobotEnv):
     r_distance = −1 and r_force at the force limit). Playing on can then never lose more than
     failing: failing early never raises the return, at any discount γ ≤ 1. Off by default
     (v0's episodes unchanged), and v0's default return favours failing: 100 for exceeding the
-    force limit against up to 1 + ``force_weight`` per remaining step, so a residual agent on ``hybrid_spiral``
-    (tuned gains) learned to strike the surface within 0.8 s (return ≈ −410) rather than insert
-    as its base does in ~5 s (≈ −900 to −1060); docs/agents.md, eleventh round.
+    force limit against up to 1 + ``force_weight`` per remaining step, so a residual agent on
+    ``hybrid_spiral`` (tuned gains) learned to strike the surface within 0.8 s (return ≈ −410)
+    rather than insert as its base does in ~5 s (≈ −900 to −1060); docs/agents.md, eleventh
+    round.
 
     ## Starting State
     At rest, the peg tip ``start_height`` above the nominal hole on its axis, aligned with it,
