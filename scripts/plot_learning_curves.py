@@ -36,6 +36,7 @@ from agents.policy import INTERFACE_KEYS
 from agents.report import curve_band, read_curve
 from agents.train import EVAL_SEED
 from cir_gym.evaluation import evaluate
+from scripts.cli import has_tuned_gains, tuned_gains
 
 #: issue 20's bar for a from-scratch agent: this controller at its default gains
 TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
@@ -50,8 +51,6 @@ def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, se
     ``extras`` when given, each one's success rate and mean return). ``tuned``: only the
     controllers ``scripts/tune_gains.py`` tuned for exactly ``env_kwargs``, at their tuned
     gains (keys ``tuned:<controller>``)."""
-    from scripts.cli import has_tuned_gains, tuned_gains
-
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
@@ -136,7 +135,11 @@ def plot_env(env_id: str, out: Path) -> Path | None:
         if res:  # its base at the gains it was trained on (controller_kwargs: e.g. tuned ones)
             gains = res.get("controller_kwargs") or {}
             value = scores[label][res["controller"]]
-            if gains:
+            tuned_key = f"tuned:{res['controller']}"
+            if (gains and tuned_key in tuned[label]
+                    and gains == tuned_gains(env_id, res["controller"], kwargs)):
+                value = tuned[label][tuned_key]  # the tuned line's own evaluation, not again
+            elif gains:
                 base = baselines.make(res["controller"], env_id, env_kwargs=kwargs, **gains)
                 episodes = int(config["hyperparams"].get("n_eval_episodes", 5))
                 value = evaluate(base, env_id, episodes, EVAL_SEED,
