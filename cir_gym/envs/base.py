@@ -420,13 +420,39 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         """:meth:`_check_action`, plus max |a_i| of the returned action (1.0 if clipped).
 
         The entries as Python floats (cheaper than numpy reductions on a few elements): their
-        sum decides finiteness (NaN and inf propagate), min and max the clipping; the errors
-        come only after.
+        sum decides finiteness (NaN and inf propagate), the largest |a_i| the clipping; the
+        errors come only after. A float array of the right shape (a policy's action) skips
+        the conversions.
 
         Raises:
             ValueError: wrong shape, a non-numeric dtype, or NaN/inf entries.
         """
         shape = self.action_space.shape
+        if type(action) is np.ndarray and action.shape == shape and action.dtype.kind == "f":
+            a = action.astype(float)  # float64, a new array
+        else:
+            a = self._action_array(action, shape)
+        values = a.tolist() if a.ndim == 1 else a.ravel().tolist()
+        # the common case, finite and in range: a finite sum means no NaN/inf (an overflow
+        # of finite values only takes the exact path below)
+        if values and _isfinite(sum(values)):
+            peak = max(map(abs, values))
+            if peak <= 1.0:
+                return a, False, peak
+        elif not values:
+            return a, False, 0.0
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
+        return CLIP(a, -1.0, 1.0, out=a), True, 1.0
+
+    @staticmethod
+    def _action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+        """``action`` as a new float64 array of ``shape`` (a flat sequence of its size is
+        reshaped).
+
+        Raises:
+            ValueError: ragged or non-numeric input, or another shape.
+        """
         try:
             raw = np.asarray(action)
         except (TypeError, ValueError) as exc:  # ragged nested sequences
@@ -447,18 +473,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                     f"action has shape {a.shape}; this environment expects shape {shape} "
                     f"(values in [-1, 1])"
                 )
-        values = a.tolist() if a.ndim == 1 else a.ravel().tolist()
-        # the common case, finite and in range: a finite sum means no NaN/inf (an overflow
-        # of finite values only takes the exact path below)
-        if values and _isfinite(sum(values)):
-            low, high = min(values), max(values)
-            if low >= -1.0 and high <= 1.0:
-                return a, False, max(high, -low)
-        elif not values:
-            return a, False, 0.0
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains NaN or inf: {a}; expected finite values in [-1, 1]")
-        return CLIP(a, -1.0, 1.0, out=a), True, 1.0
+        return a
 
     # ------------------------------------------------------------------ physics
     def _simulate(self, ctrl: np.ndarray, qfrc: np.ndarray | None = None) -> bool:
@@ -466,17 +481,20 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
 
         Cost beyond the one ``mj_step(m, d, frame_skip)`` call: one ``mj_getState`` and one
         dot product for the finite check of the state before (kept to restore it on
-        divergence), a bytes compare of MuJoCo's instability-warning counters and two dot
-        products after: ‖q̇‖² ≤ MAX_JOINT_SPEED² implies every |q̇_i| ≤ MAX_JOINT_SPEED and a
-        finite q̇, a finite ‖q‖² a finite q (NaN fails every comparison; an overflow only
-        sends the step to the exact element-wise checks, which run only when these flag
-        something). The views of ``ctrl``, ``qpos``, ``qvel`` and the counters are built once
-        per MjData.
+        divergence), a bytes compare of MuJoCo's instability-warning counters and one dot
+        product after: ‖q̇‖² ≤ MAX_JOINT_SPEED² implies every |q̇_i| ≤ MAX_JOINT_SPEED and a
+        finite q̇ (NaN fails every comparison; an overflow only sends the step to the exact
+        element-wise checks, which run only when it flags something). q needs no test of
+        its own: every ``mj_step`` starts with ``mj_checkPos``, which resets a q with a NaN
+        or beyond 1e10 and counts a BADQPOS warning (a diverged step), and then adds h q̇
+        with that finite, bounded q̇, so a step that ends without a new warning and with
+        ‖q̇‖ ≤ MAX_JOINT_SPEED ends with a finite q. The views of ``ctrl``, ``qpos``,
+        ``qvel`` and the counters are built once per MjData.
         """
         m, d = self.model, self.data
         if self._warn_data is not d:  # views of MuJoCo's arrays, rebuilt if data changed
             self._refresh_views(d)
-        d_ctrl, d_qpos, d_qvel = self._views
+        d_ctrl, _, d_qvel = self._views
         warn = self._warn_view
         scratch = self._scratch_state
         mujoco.mj_getState(m, d, scratch, _STATE)
@@ -494,9 +512,8 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
             if _UNSTABLE_CONTIGUOUS
             else self._instability_warnings() > warnings_before
         )
-        if not diverged and not (
-            d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ and _isfinite(d_qpos.dot(d_qpos))
-        ):  # NaN fails every comparison: exact checks only here
+        if not diverged and not d_qvel.dot(d_qvel) <= _MAX_SPEED_SQ:
+            # NaN fails every comparison: exact checks only here
             with np.errstate(all="ignore"):
                 diverged = bool(
                     not np.all(np.isfinite(d.qpos))

@@ -240,6 +240,11 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
             if isinstance(self._ma_at, slice) and isinstance(self._md_at, slice)
             else None
         )
+        motors, row = self._motor_views, self._motor_row
+        if self._direct_rows is not None and motors is not None and self._motor_drive is None:
+            self._direct_rows += ((row, motors[0]), (row + 1, motors[1]))
+        else:  # _obs calls _measure
+            self._direct_rows = None
 
     def _measure(self, out: np.ndarray) -> None:
         """The link rows as JointTracking, then the motor encoders θ, θ̇ (link units)."""

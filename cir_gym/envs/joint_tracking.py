@@ -360,6 +360,7 @@ class JointTrackingEnv(RobotEnv):
         self._err = np.zeros((steps, n))
         self._tau = np.zeros((steps, n))
         self._sat = np.zeros(steps, dtype=bool)
+        self._action_change = np.zeros(n)  # a − a_prev of the step (a buffer)
         self._k = 0
         self._k_scored = 0
         self._a_prev = np.zeros(n)
@@ -367,6 +368,10 @@ class JointTrackingEnv(RobotEnv):
         self._diverged = False
         self.episode_model_error = self.model_error
         self._drive_state = None if self.drive is None else DriveState(self.drive, n)
+        # no drive, torque noise or encoder: the step's actuation is τ = a ⊙ τ_max as it is
+        self._ideal_io = (
+            self.drive is None and self.torque_noise == 0 and self.encoder_resolution == 0
+        )
         # a settling window only for an off-reference start, leaving at least the last step
         self._settle_steps = min(round(self.settling_time / self.dt), self.max_steps - 1)
         self._judged_from = 0
@@ -399,6 +404,11 @@ class JointTrackingEnv(RobotEnv):
             if isinstance(self._q_at, slice) and isinstance(self._qd_at, slice)
             else None
         )
+        # (row, view) of every measured row when _measure copies them as they are (no
+        # drive, no encoder): _obs copies them without the call; None: _obs calls _measure
+        views = self._joint_views
+        plain = views is not None and self._drive_state is None and self.encoder_resolution <= 0
+        self._direct_rows = ((0, views[0]), (1, views[1])) if plain else None
 
     def _set_observation_space(self, bounds: dict[str, float]) -> None:
         """The Dict observation space: key → bound (each a Box(−b, b, (n,)) of float64), in
@@ -520,20 +530,21 @@ class JointTrackingEnv(RobotEnv):
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, _, peak = self._check_action_peak(action)
         # commanded (the metrics' τ; drive and noise act on it), into its row of the record
-        tau = _MUL(a, self.torque_limit, out=self._tau[k])
-        if self._drive_state is not None:  # one period late, with the motor's ripple
-            tau = self._drive_state.actuate(tau)
-            tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
-        if self.torque_noise > 0:
-            tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-        if self.encoder_resolution > 0 and self._drive_state is None:  # for q̇ by differences
-            self._q_meas_prev = self._quantize(self.data.qpos[self._q_at])
+        tau = _MUL(a, self.torque_limit, self._tau[k])
+        if not self._ideal_io:
+            if self._drive_state is not None:  # one period late, with the motor's ripple
+                tau = self._drive_state.actuate(tau)
+                tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
+            if self.torque_noise > 0:
+                tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
+            if self.encoder_resolution > 0 and self._drive_state is None:  # q̇ by differences
+                self._q_meas_prev = self._quantize(self.data.qpos[self._q_at])
         diverged = self._simulate(tau)
         self._k = k1 = k + 1
         # q̄ − q into its row of the record (views: set by _simulate)
         views = self._joint_views
         q_now = views[0] if views is not None else self._views[1][self._q_at]
-        q_err = _SUB(self._ref[0, k1], q_now, out=self._err[k])
+        q_err = _SUB(self._ref[0, k1], q_now, self._err[k])
         self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
 
         err_sq = float(q_err.dot(q_err))
@@ -550,7 +561,7 @@ class JointTrackingEnv(RobotEnv):
         else:
             r_track = -(1.0 - _mean(_EXP(_DIV(-err_sq, self._scales_sq, kernels), kernels)))
         r_torque = -self.torque_weight * float(a.dot(a)) / self.n
-        da = a - self._a_prev
+        da = _SUB(a, self._a_prev, self._action_change)
         r_rate = -self.action_rate_weight * float(da.dot(da)) / self.n
         joint_error = math.sqrt(err_sq)
         stopped = (
@@ -558,15 +569,21 @@ class JointTrackingEnv(RobotEnv):
             and self.max_following_error is not None
             and joint_error > self._following_error_limit
         )
-        # the worst reward of the steps a stopped episode does not play (section Rewards)
-        unplayed = (self.max_steps - k1) * self._worst_step if self.charge_unplayed_steps else 0.0
-        r_div = -(self.divergence_penalty + unplayed) if diverged else 0.0
-        r_follow = -(self.following_error_penalty + unplayed) if stopped else 0.0
+        r_div = r_follow = 0.0
+        if diverged or stopped:
+            # the worst reward of the steps a stopped episode does not play (section Rewards)
+            unplayed = (
+                (self.max_steps - k1) * self._worst_step if self.charge_unplayed_steps else 0.0
+            )
+            if diverged:
+                r_div = -(self.divergence_penalty + unplayed)
+            else:
+                r_follow = -(self.following_error_penalty + unplayed)
         self._a_prev = a  # a new array of _check_action_peak's, never the caller's
         reward = r_track + r_torque + r_rate + r_follow + r_div
 
         terminated = diverged or stopped
-        truncated = self._k >= self.max_steps and not terminated
+        truncated = k1 >= self.max_steps and not terminated
         info: dict[str, Any] = {
             "reward_tracking": r_track,
             "reward_torque": r_torque,
@@ -646,7 +663,12 @@ class JointTrackingEnv(RobotEnv):
         if k > self.max_steps:
             k = self.max_steps
         out = np.empty(self._obs_shape)
-        self._measure(out)
+        rows = self._direct_rows if self._warn_data is self.data else None
+        if rows is None:
+            self._measure(out)
+        else:  # _measure's rows, copied as they are
+            for row, view in rows:
+                out[row] = view
         out[2:5] = self._ref[:, k]  # q̄, q̄̇, q̄̈
         CLIP(out, self._obs_lo, self._obs_hi, out)
         keys = self._obs_keys
