@@ -44,7 +44,7 @@ def _float_observation(observation: Observation) -> Observation:
     and concatenated.
     """
     base = getattr(observation.get("q"), "base", None)
-    shared = type(base) is _NDARRAY and base.dtype == _F64
+    shared = type(base) is _NDARRAY and (base.dtype is _F64 or base.dtype == _F64)
     if shared:
         for v in observation.values():
             if type(v) is not _NDARRAY or v.base is not base:
@@ -67,13 +67,10 @@ _NO_STATE = np.zeros(0)  # the state row of a stateless law (nothing can be writ
 _NO_STATE.flags.writeable = False
 
 
-_NO_STATES = np.zeros((1, 0))  # it has no element: sharing it among the calls is harmless
-
-
-def _no_state() -> np.ndarray:
-    """The state ``predict`` returns for one observation of a stateless law: (1, 0), one
-    array for every call (a new one cost a tenth of a pd_gravity predict's plumbing)."""
-    return _NO_STATES
+# The state ``predict`` returns for one observation of a stateless law: (1, 0), one array for
+# every call (a new one cost a tenth of a pd_gravity predict's plumbing); it has no element,
+# so sharing it among the calls is harmless.
+_NO_STATES = np.zeros((1, 0))
 
 
 _UNIT_BOUNDS: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
@@ -327,7 +324,7 @@ class RowDynamics:
             rigid = self._rne
             mujoco.mj_rne(m, d, 1, rigid)
             tau = _MUL(self._armature, qdd)
-            return _ADD(rigid, tau, out=tau)
+            return _ADD(rigid, tau, tau)
         tau = np.empty(q.shape)
         n = q.shape[-1]
         for q_i, qd_i, qdd_i, t_i in zip(
@@ -491,7 +488,7 @@ class Controller:
             and self.vectorized
             and (state is None or getattr(state, "size", None) == 0)
         ):  # a stateless law on one observation: no state rows to build
-            return self._finish(self.control_batch(obs, _NO_STATE), False), _no_state()
+            return self._finish(self.control_batch(obs, _NO_STATE), False), _NO_STATES
         n_envs = len(obs["q"]) if batched else 1
         if state is None:
             state = np.zeros((n_envs, size))
@@ -528,7 +525,8 @@ class Controller:
         flat = actions if batched is False else actions.ravel()
         if not _isfinite(flat.dot(flat)):  # NaN/inf (or an overflow: the exact check decides)
             _check_command(self.name, commands)
-        low, high = _unit_bounds(actions.shape[-1:])
+        row = actions.shape[-1:]
+        low, high = _UNIT_BOUNDS.get(row) or _unit_bounds(row)
         CLIP(actions, low, high, actions)  # (into a float32 out=: slower, a casting loop)
         return actions.astype(np.float32)  # clipped in float64, then rounded
 

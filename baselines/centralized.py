@@ -26,7 +26,7 @@ __all__ = [
     "lyapunov_solution",
 ]
 
-_MUL, _ADD = np.multiply, np.add  # the ufuncs, called with out= on the hot path
+_MUL, _ADD, _SUB = np.multiply, np.add, np.subtract  # the ufuncs, out positional on the hot path
 
 JOINT_TASKS = ("JointTracking",)
 RIGID_MODEL_TASKS = ("JointTracking", "ElasticJointTracking")  # laws that work on link q, q̇
@@ -147,15 +147,15 @@ class PDGravity(_ModelBased):
         q = obs["q"]
         # ĝ + K_P q̃ + K_D q̃̇ in control's order, the products in place (a·b = b·a); one
         # row's ĝ in RowDynamics' buffer, the sum a new array
-        err = obs["q_ref"] - q
-        _MUL(err, self.kp, out=err)
-        if q.ndim == 1:
-            tau = _ADD(rows.gravity_buffer(q), err)
+        err = _SUB(obs["q_ref"], q)
+        _MUL(err, self.kp, err)
+        if q.ndim == 1:  # ĝ + K_P q̃ into q̃'s array
+            tau = _ADD(rows.gravity_buffer(q), err, err)
         else:
             tau = rows.gravity(q)
-            _ADD(tau, err, out=tau)
-        err = obs["qd_ref"] - obs["qd"]
-        return _ADD(tau, _MUL(err, self.kd, out=err), out=tau)
+            _ADD(tau, err, tau)
+        err = _SUB(obs["qd_ref"], obs["qd"])
+        return _ADD(tau, _MUL(err, self.kd, err), tau)
 
 
 # ---------------------------------------------------------------------- computed torque
@@ -220,12 +220,12 @@ class ComputedTorque(_InverseDynamicsLaw):
             self._gain_vectors = (g, np.full(self.n, g.kp), np.full(self.n, g.kd))
         _, kp, kd = self._gain_vectors
         # q̄̈ + K_D (q̄̇ − q̇) + K_P (q̄ − q) in that order, the products in place (a·b = b·a)
-        d_err = obs["qd_ref"] - obs["qd"]
-        p_err = obs["q_ref"] - obs["q"]
-        _MUL(d_err, kd, out=d_err)
-        _MUL(p_err, kp, out=p_err)
-        y = obs["qdd_ref"] + d_err
-        return _ADD(y, p_err, out=y)
+        d_err = _SUB(obs["qd_ref"], obs["qd"])
+        p_err = _SUB(obs["q_ref"], obs["q"])
+        _MUL(d_err, kd, d_err)
+        _MUL(p_err, kp, p_err)
+        y = _ADD(obs["qdd_ref"], d_err, d_err)  # into q̃̇'s array
+        return _ADD(y, p_err, y)
 
 
 # ---------------------------------------------------------------------- robust
