@@ -72,7 +72,7 @@ KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
 #: surface: PegInHole's zero-action row is free fall and one impact; on seed 0 these
 #: controllers touch at step ~700 (PegInHole) and ~870 (AdmittanceContact))
 DRIVEN = {
-    "cir_gym/PegInHole-v0": ("hybrid_force_position", 1000),
+    "cir_gym/PegInHole-v1": ("hybrid_force_position", 1000),
     "cir_gym/AdmittanceContact-v0": ("admittance", 1000),
 }
 REFERENCE = "Reacher-v5"

@@ -2,8 +2,8 @@
 
     python scripts/eval_peg_in_hole.py --stage main --episodes 100 --out results/peg_in_hole/
     python scripts/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
-    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v0/ppo_position \\
-        --agent agents/trained/PegInHole-v0/residual_ppo_hybrid_force_position \\
+    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v1/ppo_position \\
+        --agent agents/trained/PegInHole-v1/residual_ppo_hybrid_force_position \\
         --controller hybrid_force_position --episodes 100 --resume
 
 On the same seeds for every controller (seed i draws the same true hole pose for all) it reports
@@ -37,7 +37,7 @@ import baselines
 from baselines.hybrid import TASK_ADAPTERS
 from cir_gym.evaluation import evaluate
 
-ENV_ID = "cir_gym/PegInHole-v0"
+ENV_ID = "cir_gym/PegInHole-v1"
 SEED = 1000
 SWEPT = ("hybrid_spiral", "position_only")
 CLEARANCES = (1e-4, 5e-4, 2e-3)
@@ -278,7 +278,7 @@ def _markdown(results: dict[str, Any]) -> str:
     main_runs = results.get("main", [])
     seeds = max([r["episodes"] for r in main_runs], default=0)
     lines = [
-        "# PegInHole-v0: hybrid force/position control against position only",
+        "# PegInHole-v1: hybrid force/position control against position only",
         "",
         f"Seeds {SEED}, {SEED + 1}, … (seed i draws the same true hole pose for every "
         f"controller; up to {SEED + seeds - 1}); produced by "
@@ -442,7 +442,7 @@ def agents_table(rows: list[dict[str, Any]]) -> str:
                 f"{r['wall_time_s']:.0f} s |"
             )
     head = [
-        "# PegInHole-v0: controllers and trained agents on the same seeds",
+        "# PegInHole-v1: controllers and trained agents on the same seeds",
         "",
         "Written by `python scripts/eval_peg_in_hole.py --agent DIR ... --controller NAME ...` "
         "from `agents.json`. Default task (0.5 mm clearance, hole pose ±2 mm / ±2°, sharp "
@@ -518,7 +518,7 @@ def _figures(sweeps: dict[str, Any], out: Path) -> None:
                 label=name,
             )
         n = max(r["episodes"] for r in sweeps[key])
-        fig.suptitle(f"PegInHole-v0, {n} seeds per point (seeds {SEED}–{SEED + n - 1})")
+        fig.suptitle(f"PegInHole-v1, {n} seeds per point (seeds {SEED}–{SEED + n - 1})")
         ax1.set_xlabel(label)
         ax1.set_ylabel("success (%)")
         ax1.set_ylim(-5, 105)

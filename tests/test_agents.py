@@ -999,7 +999,7 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
     assert set(tunable_gains("adaptive", ENV)) == {"lam", "kd", "gamma"}
     assert bounds("gamma", 100.0, 0.002) == pytest.approx((10.0, 1000.0))
     assert bounds("lam", 10.0, 0.002) == pytest.approx((1.0, 150.0))
-    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v0")) == {
+    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v1")) == {
         "omega_n", "zeta", "d_f", "speed"}
 
 

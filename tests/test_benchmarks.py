@@ -104,7 +104,7 @@ def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
     import numpy as np
 
     bench = _load_bench_step()
-    env = gym.make("cir_gym/PegInHole-v0")
+    env = gym.make("cir_gym/PegInHole-v1")
     u = env.unwrapped
     mj_step = mujoco.mj_step
     mine, tape = bench.recorded_step_loop(env, 5, 2)
@@ -138,7 +138,7 @@ def test_bench_step_driven_row_times_the_contact_phase_it_recorded():
     import baselines
 
     bench = _load_bench_step()
-    env_id = "cir_gym/PegInHole-v0"
+    env_id = "cir_gym/PegInHole-v1"
     name, warmup = bench.DRIVEN[env_id]
     env = gym.make(env_id)
     u = env.unwrapped

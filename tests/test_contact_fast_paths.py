@@ -21,7 +21,7 @@ from cir_gym import motion_interface as mi
 from cir_gym.envs import admittance_contact, peg_in_hole
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
 
-PEG = "cir_gym/PegInHole-v0"
+PEG = "cir_gym/PegInHole-v1"
 ADMITTANCE = "cir_gym/AdmittanceContact-v0"
 
 

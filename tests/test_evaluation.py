@@ -296,7 +296,7 @@ def _pegs(name: str, successes: list[bool], times: list[float]) -> EvaluationRes
         for i, (s, t) in enumerate(zip(successes, times, strict=True))
     ]
     return EvaluationResult(
-        "cir_gym/PegInHole-v0", name, episodes, PegInHoleEnv.metric_specs, "insertion_time"
+        "cir_gym/PegInHole-v1", name, episodes, PegInHoleEnv.metric_specs, "insertion_time"
     )
 
 

@@ -57,7 +57,7 @@ def test_the_summary_footnote_of_a_left_out_factor_is_a_paragraph_under_its_tabl
     def result(name: str, success: bool, seconds: float) -> EvaluationResult:
         episodes = [EpisodeResult(0, 0.0, 1, success, False, {"insertion_time": seconds})]
         specs = PegInHoleEnv.metric_specs
-        return EvaluationResult("cir_gym/PegInHole-v0", name, episodes, specs, "insertion_time")
+        return EvaluationResult("cir_gym/PegInHole-v1", name, episodes, specs, "insertion_time")
 
     rows = [result("hybrid_spiral", True, 7.8), result("agent:ppo_position", False, 12.0)]
     out = markdown_to_html(rl_summary({"sharp edge": rows}), "summary")

@@ -3,6 +3,7 @@ jamming, torque-driven arm), the env's flags and arguments, and the selection ma
 
 from __future__ import annotations
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
@@ -178,12 +179,12 @@ def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
     from cir_gym.evaluation import evaluate
 
     hybrid = baselines.make(
-        "hybrid_force_position", "cir_gym/PegInHole-v0", env_kwargs={"chamfer": 0.003}
+        "hybrid_force_position", "cir_gym/PegInHole-v1", env_kwargs={"chamfer": 0.003}
     )
-    ep = evaluate(hybrid, "cir_gym/PegInHole-v0", 1, seed=1000, chamfer=0.003).episodes[0]
+    ep = evaluate(hybrid, "cir_gym/PegInHole-v1", 1, seed=1000, chamfer=0.003).episodes[0]
     assert ep.success and ep.metrics["peak_force"] < 50.0
-    stiff = baselines.make("position_only", "cir_gym/PegInHole-v0")
-    ep = evaluate(stiff, "cir_gym/PegInHole-v0", 1, seed=1000, chamfer=0.003).episodes[0]
+    stiff = baselines.make("position_only", "cir_gym/PegInHole-v1")
+    ep = evaluate(stiff, "cir_gym/PegInHole-v1", 1, seed=1000, chamfer=0.003).episodes[0]
     assert not ep.success and ep.metrics["peak_force"] > 100.0
 
 
@@ -289,11 +290,9 @@ def test_the_admittance_adapter_sees_the_peg_tip_and_presses_the_reference_force
     """PegAdmittance (interaction.py's admittance law on PegInHole): its translated tool pose is
     the peg tip of the nominal arm; with the hole off by 2 mm it lands on the face and then
     regulates the reference force (±20 %), never inserting (no lateral compliance)."""
-    import gymnasium as gym
-
     from baselines.hybrid import PegAdmittance
 
-    env = gym.make("cir_gym/PegInHole-v0", episode_duration=2.0)
+    env = gym.make("cir_gym/PegInHole-v1", episode_duration=2.0)
     policy = PegAdmittance(env.unwrapped.controller_context(), insertion_force=10.0)
     obs, _ = env.reset(seed=1000)
     t = policy.translate(obs)
@@ -339,6 +338,18 @@ def test_charge_unplayed_steps_charges_a_failure_the_worst_step_it_did_not_play(
     assert info2["reward_force_limit"] == pytest.approx(-(100.0 + (T - k) * 2.0))
     # failing now is worse than playing on at the worst non-failing reward to the time limit
     assert charged[-1] < -(T - k + 1) * 2.0
+
+
+def test_v1_charges_unplayed_steps_by_default() -> None:
+    """PegInHole-v1's one change from v0: the charge is on unless asked off, through the
+    registered id too (the default, not a registration kwarg)."""
+    assert PegInHoleEnv().charge_unplayed_steps is True
+    env = gym.make("cir_gym/PegInHole-v1")
+    assert env.unwrapped.charge_unplayed_steps is True
+    assert "charge_unplayed_steps" not in env.spec.kwargs
+    off = gym.make("cir_gym/PegInHole-v1", charge_unplayed_steps=False)
+    assert off.unwrapped.charge_unplayed_steps is False
+    assert "cir_gym/PegInHole-v0" not in gym.registry
 
 
 def test_charge_unplayed_steps_must_be_a_bool() -> None:

@@ -42,7 +42,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         AdmittanceContactEnv,
         "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)",
     ),
-    "cir_gym/PegInHole-v0": (
+    "cir_gym/PegInHole-v1": (
         PegInHoleEnv,
         "iiwa14 inserting a peg into a hole known only approximately: hybrid force/position control (ch. 6)",
     ),

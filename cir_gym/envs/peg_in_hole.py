@@ -157,16 +157,15 @@ class PegInHoleEnv(RobotEnv):
     - r_force_limit = −``failure_penalty`` on the step |F| exceeds ``force_limit``;
     - r_diverged = −``divergence_penalty`` on the step the physics diverged.
 
-    With ``charge_unplayed_steps=True`` an episode that ends as a failure (force limit or
-    divergence) also loses, on its last step, the worst reward of every step it did not play
-    without ending, (T − k)(1 + ``force_weight``) (T the episode's steps, k the steps played;
-    r_distance = −1 and r_force at the force limit). Playing on can then never lose more than
-    failing: failing early never raises the return, at any discount γ ≤ 1. Off by default
-    (v0's episodes unchanged), and v0's default return favours failing: 100 for exceeding the
-    force limit against up to 1 + ``force_weight`` per remaining step, so a residual agent on
-    ``hybrid_spiral`` (tuned gains) learned to strike the surface within 0.8 s (return ≈ −410)
-    rather than insert as its base does in ~5 s (≈ −900 to −1060); docs/agents.md, eleventh
-    round.
+    An episode that ends as a failure (force limit or divergence) also loses, on its last
+    step, the worst reward of every step it did not play without ending, (T − k)(1 +
+    ``force_weight``) (T the episode's steps, k the steps played; r_distance = −1 and r_force
+    at the force limit): playing on can never lose more than failing, so failing early never
+    raises the return, at any discount γ ≤ 1 (``charge_unplayed_steps``, on by default since
+    v1). Without it (v0's return) failing pays: 100 for exceeding the force limit against up
+    to 1 + ``force_weight`` per remaining step, and a residual agent on ``hybrid_spiral``
+    (tuned gains) learned to strike the surface within 0.8 s (return ≈ −410) rather than
+    insert as its base does in ~5 s (≈ −900 to −1060); docs/agents.md, eleventh round.
 
     ## Starting State
     At rest, the peg tip ``start_height`` above the nominal hole on its axis, aligned with it,
@@ -216,7 +215,7 @@ class PegInHoleEnv(RobotEnv):
     | success_bonus | 100.0 | reward on success |
     | failure_penalty | 100.0 | reward lost when the force limit is exceeded |
     | divergence_penalty | 100.0 | reward lost when the physics diverges |
-    | charge_unplayed_steps | False | a failed episode also loses the worst reward of each unplayed step (see Rewards) |
+    | charge_unplayed_steps | True | a failed episode also loses the worst reward of each unplayed step (see Rewards; False: v0's return) |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
@@ -228,12 +227,15 @@ class PegInHoleEnv(RobotEnv):
     peg reached the goal depth (so the success rate over episodes is the evaluator's).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/PegInHole-v0")``: hybrid_force_position, hybrid_spiral,
+    ``baselines.available("cir_gym/PegInHole-v1")``: hybrid_force_position, hybrid_spiral,
     position_only (baselines/hybrid.py); AdmittanceContact's ``admittance`` law applies through
     the adapter ``baselines.hybrid.PegAdmittance`` (axial force regulation only).
 
     ## Version History
-    - v0: initial version. Later, without a version bump (a new argument whose default keeps
+    - v1: ``charge_unplayed_steps`` on by default (v0's return favoured failing). The
+      dynamics, observations, metrics and success are v0's; only a failed episode's last
+      reward differs (``charge_unplayed_steps=False`` gives v0's episodes exactly).
+    - v0: initial version. Later, without a version bump (a new argument whose default kept
       v0's episodes): ``charge_unplayed_steps``.
     """
 
@@ -274,7 +276,7 @@ class PegInHoleEnv(RobotEnv):
         success_bonus: float = 100.0,
         failure_penalty: float = 100.0,
         divergence_penalty: float = 100.0,
-        charge_unplayed_steps: bool = False,
+        charge_unplayed_steps: bool = True,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
