@@ -38,6 +38,9 @@ from baselines.hybrid import TASK_ADAPTERS
 from cir_gym.evaluation import evaluate
 
 ENV_ID = "cir_gym/PegInHole-v1"
+#: the env of a stored row without ``env_id``: rows written before v1 were measured on v0 (the
+#: same episodes but for a failed one's last reward, so a row is reused only on its own env)
+STORED_BEFORE_V1 = "cir_gym/PegInHole-v0"
 SEED = 1000
 SWEPT = ("hybrid_spiral", "position_only")
 CLEARANCES = (1e-4, 5e-4, 2e-3)
@@ -85,6 +88,7 @@ def summarise(name: str, env_kwargs: dict[str, Any], result: Any) -> dict[str, A
     peaks = np.array([ep.metrics["peak_force"] for ep in eps])
     success = np.array([bool(ep.success) for ep in eps])
     return {
+        "env_id": ENV_ID,
         "controller": name,
         "env_kwargs": env_kwargs,
         "episodes": len(eps),
@@ -179,7 +183,8 @@ def main() -> None:
         name: str, n: int, gains: dict[str, Any] | None = None, **kwargs: Any
     ) -> dict[str, Any]:
         """``run``, or with ``--resume`` the stored result of the same run."""
-        key = _key({"controller": name, "episodes": n, "env_kwargs": kwargs, "gains": gains})
+        key = _key({"env_id": ENV_ID, "controller": name, "episodes": n, "env_kwargs": kwargs,
+                    "gains": gains})
         return done.get(key) or run(name, n, gains, **kwargs)
 
     if args.stage in ("main", "all"):
@@ -249,7 +254,17 @@ def summarise_sweep(directory: Path) -> str:
 
 def _key(r: dict[str, Any]) -> str:
     gains = r.get("gains") or {}
-    return json.dumps([r["controller"], r["episodes"], r["env_kwargs"], gains], sort_keys=True)
+    return json.dumps([_env_of(r), r["controller"], r["episodes"], r["env_kwargs"], gains],
+                      sort_keys=True)
+
+
+def _env_of(r: dict[str, Any]) -> str:
+    return r.get("env_id", STORED_BEFORE_V1)
+
+
+def _env_names(rows: list[dict[str, Any]]) -> str:
+    """The environments the rows were measured on, for a title (e.g. "PegInHole-v1")."""
+    return ", ".join(sorted({_env_of(r).split("/")[-1] for r in rows})) or ENV_ID.split("/")[-1]
 
 
 #: the parts of results.json that ``--stage sweeps`` replaces (``--stage main``: "main")
@@ -278,7 +293,8 @@ def _markdown(results: dict[str, Any]) -> str:
     main_runs = results.get("main", [])
     seeds = max([r["episodes"] for r in main_runs], default=0)
     lines = [
-        "# PegInHole-v1: hybrid force/position control against position only",
+        f"# {_env_names([r for part in results.values() for r in part])}: hybrid "
+        "force/position control against position only",
         "",
         f"Seeds {SEED}, {SEED + 1}, … (seed i draws the same true hole pose for every "
         f"controller; up to {SEED + seeds - 1}); produced by "
@@ -339,7 +355,7 @@ def evaluate_agents(
         }
         jobs.append((path.name, path, {}, training))
     for label, path, task_kwargs, training in jobs:
-        key = json.dumps([label, episodes, task_kwargs, training.get("timesteps")])
+        key = json.dumps([ENV_ID, label, episodes, task_kwargs, training.get("timesteps")])
         rows = json.loads(store.read_text()) if store.exists() else {}
         if resume and key in rows:
             continue
@@ -442,7 +458,7 @@ def agents_table(rows: list[dict[str, Any]]) -> str:
                 f"{r['wall_time_s']:.0f} s |"
             )
     head = [
-        "# PegInHole-v1: controllers and trained agents on the same seeds",
+        f"# {_env_names(rows)}: controllers and trained agents on the same seeds",
         "",
         "Written by `python scripts/eval_peg_in_hole.py --agent DIR ... --controller NAME ...` "
         "from `agents.json`. Default task (0.5 mm clearance, hole pose ±2 mm / ±2°, sharp "
@@ -518,7 +534,9 @@ def _figures(sweeps: dict[str, Any], out: Path) -> None:
                 label=name,
             )
         n = max(r["episodes"] for r in sweeps[key])
-        fig.suptitle(f"PegInHole-v1, {n} seeds per point (seeds {SEED}–{SEED + n - 1})")
+        fig.suptitle(
+            f"{_env_names(sweeps[key])}, {n} seeds per point (seeds {SEED}–{SEED + n - 1})"
+        )
         ax1.set_xlabel(label)
         ax1.set_ylabel("success (%)")
         ax1.set_ylim(-5, 105)

@@ -203,6 +203,26 @@ def test_parallel_runs_keep_every_row_of_agents_json(tmp_path):
     assert store.stat().st_mode & 0o777 == 0o644
 
 
+def test_a_stored_peg_row_is_reused_only_on_its_own_env_version():
+    """eval_peg_in_hole --resume: a row stored before PegInHole-v1 (no env_id: measured on v0,
+    whose failed episodes end with another reward) is not taken for a v1 run; a v1 row is;
+    tables name the version their rows ran on."""
+    import json
+    from pathlib import Path
+
+    from scripts.eval_peg_in_hole import ENV_ID, _env_names, _key
+
+    committed = Path(__file__).resolve().parents[1] / "results" / "peg_in_hole"
+    old = json.loads((committed / "results.json").read_text())["main"][0]
+    assert "env_id" not in old
+    asked = {k: old[k] for k in ("controller", "episodes", "env_kwargs")}
+    asked["gains"] = old.get("gains")
+    assert _key(old) != _key({**asked, "env_id": ENV_ID})
+    assert _key({**old, "env_id": ENV_ID}) == _key({**asked, "env_id": ENV_ID})
+    assert _env_names([old]) == "PegInHole-v0"
+    assert _env_names([old, {**old, "env_id": ENV_ID}]) == "PegInHole-v0, PegInHole-v1"
+
+
 def test_a_stage_replaces_only_its_part_of_results_json(tmp_path):
     """eval_peg_in_hole: a --stage main run keeps the sweeps another run wrote to results.json
     since it started (it replaces only its own part, under the lock), and the markdown built

@@ -877,3 +877,31 @@ def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
 
     sampled, every_step, _ = physics_rate_errors(Zero(), kwargs, 1000)
     assert every_step != pytest.approx(sampled, rel=1e-3)
+
+
+@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2"])
+@pytest.mark.parametrize("setting", [{"torque_noise": 0.5}, {"encoder_resolution": 1e-3}])
+def test_a_sensor_or_noise_setting_changed_between_episodes_holds_from_the_next_reset(
+    env_id: str, setting: dict
+) -> None:
+    """The step's shortcuts for an ideal drive (no noise, no encoder: the measured rows copied
+    as they are) are rebuilt at reset: an env whose torque_noise or encoder_resolution is set
+    after construction plays the next episode as one built with it (the same seeds)."""
+    built = gym.make(env_id, **setting).unwrapped
+    changed = gym.make(env_id).unwrapped
+    changed.reset(seed=0)
+    changed.step(np.zeros(7))  # an episode played with the ideal settings first
+    for key, value in setting.items():
+        setattr(changed, key, value)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-0.2, 0.2, (30, 7))
+    obs_b, _ = built.reset(seed=3)
+    obs_c, _ = changed.reset(seed=3)
+    for k in obs_b:
+        np.testing.assert_array_equal(obs_b[k], obs_c[k])
+    for a in actions:
+        ob, rb, *_ = built.step(a)
+        oc, rc, *_ = changed.step(a)
+        assert rb == rc
+        for k in ob:
+            np.testing.assert_array_equal(ob[k], oc[k])

@@ -487,8 +487,9 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         element-wise checks, which run only when it flags something). q needs no test of
         its own: every ``mj_step`` starts with ``mj_checkPos``, which resets a q with a NaN
         or beyond 1e10 and counts a BADQPOS warning (a diverged step), and then adds h q̇
-        with that finite, bounded q̇, so a step that ends without a new warning and with
-        ‖q̇‖ ≤ MAX_JOINT_SPEED ends with a finite q. The views of ``ctrl``, ``qpos``,
+        with that finite, bounded q̇ (the Euler and implicit integrators every cir_gym model
+        uses; RK4 would integrate intermediate velocities), so a step that ends without a
+        new warning and with ‖q̇‖ ≤ MAX_JOINT_SPEED ends with a finite q. The views of ``ctrl``, ``qpos``,
         ``qvel`` and the counters are built once per MjData.
         """
         m, d = self.model, self.data

@@ -368,10 +368,7 @@ class JointTrackingEnv(RobotEnv):
         self._diverged = False
         self.episode_model_error = self.model_error
         self._drive_state = None if self.drive is None else DriveState(self.drive, n)
-        # no drive, torque noise or encoder: the step's actuation is τ = a ⊙ τ_max as it is
-        self._ideal_io = (
-            self.drive is None and self.torque_noise == 0 and self.encoder_resolution == 0
-        )
+        self._ideal_io = False  # set with the views (_refresh_views): the general step until then
         # a settling window only for an off-reference start, leaving at least the last step
         self._settle_steps = min(round(self.settling_time / self.dt), self.max_steps - 1)
         self._judged_from = 0
@@ -405,10 +402,16 @@ class JointTrackingEnv(RobotEnv):
             else None
         )
         # (row, view) of every measured row when _measure copies them as they are (no
-        # drive, no encoder): _obs copies them without the call; None: _obs calls _measure
+        # drive, no encoder): _obs copies them without the call; None: _obs calls _measure.
+        # And no drive, torque noise or encoder: the step's torque is a ⊙ τ_max as it is.
+        # Both read torque_noise and encoder_resolution: reset() rebuilds the views, so a
+        # value set between episodes holds from the next one.
         views = self._joint_views
         plain = views is not None and self._drive_state is None and self.encoder_resolution <= 0
         self._direct_rows = ((0, views[0]), (1, views[1])) if plain else None
+        self._ideal_io = (
+            self._drive_state is None and self.torque_noise == 0 and self.encoder_resolution == 0
+        )
 
     def _set_observation_space(self, bounds: dict[str, float]) -> None:
         """The Dict observation space: key → bound (each a Box(−b, b, (n,)) of float64), in
@@ -502,6 +505,7 @@ class JointTrackingEnv(RobotEnv):
             restore_inertial_arrays(self.model, self._nominal_arrays)
             self._apply_model_error(self.episode_model_error)
             self.robot.invalidate()
+        self._refresh_views(self.data)  # (the settings _direct_rows and _ideal_io read)
         q0, qd0 = self._make_reference()
         if self.initial_error > 0:
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)

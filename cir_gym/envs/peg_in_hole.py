@@ -510,8 +510,9 @@ class PegInHoleEnv(RobotEnv):
         the windowed contact force over the period).
 
         A fast pass runs the period with RobotEnv._simulate's quick test per physics step
-        (‖q̇‖² ≤ MAX_JOINT_SPEED²), its warning test and its finite test of q at the end (a
-        non-finite q inside the period makes MuJoCo warn at the next step) and leaves
+        (‖q̇‖² ≤ MAX_JOINT_SPEED²) and its warning test, plus a finite test of q at the end
+        (a guard _simulate has dropped: a non-finite q makes MuJoCo's mj_checkPos warn at the
+        next step, and a finite bounded q̇ keeps q finite), and leaves
         _simulate's saved state as its loop would (the state before the period's last
         step). If anything fails, the period is undone (MuJoCo's integration state and its
         whole warning state, every counter and last info, restored; nothing else was changed)
