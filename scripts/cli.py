@@ -92,16 +92,26 @@ def _as_json(value: Any) -> Any:
 
 
 def _tuned_row(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, Any] | None:
-    """The study of ``controller`` on ``env_id`` with exactly ``env_kwargs``, or None."""
-    asked = _as_json(env_kwargs)
+    """The study of ``controller`` on ``env_id`` with ``env_kwargs``, or None: the arguments
+    must be the study's but for the env's ``reward_arguments`` (the controller's episodes do
+    not depend on them)."""
+    cls = cir_gym.ENVIRONMENTS.get(env_id, (None,))[0]
+    reward_only = cls.reward_arguments if cls is not None else frozenset()
+
+    def task(kwargs: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in kwargs.items() if k not in reward_only}
+
+    asked = task(_as_json(env_kwargs))
     return next((r for r in _tuning_rows(env_id)
-                 if r["controller"] == controller and r["env_kwargs"] == asked), None)
+                 if r["controller"] == controller and task(r["env_kwargs"]) == asked), None)
 
 
 def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, float]:
-    """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with exactly
-    ``env_kwargs`` (a leaderboard variant's arguments), from ``results/tuning/<Env-vN>.json``
-    (Optuna on training seeds, never the leaderboard's; each file's header says which).
+    """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with
+    ``env_kwargs`` (a leaderboard variant's arguments; the env's ``reward_arguments`` may differ
+    from the study's: they change the reward, not the episodes), from
+    ``results/tuning/<Env-vN>.json`` (Optuna on training seeds, never the leaderboard's; each
+    file's header says which).
 
     Raises:
         CliError: no study of that controller with these arguments (the message lists the

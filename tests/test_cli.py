@@ -279,6 +279,25 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
     assert tuned_jobs == {"exact model", "unknown 3 kg payload"}
 
 
+def test_tuned_gains_hold_whatever_the_reward_arguments():
+    """A study's gains are found again with reward-only arguments changed (the reward is not
+    the controller's business) and not when a task argument differs."""
+    from scripts.cli import CliError, tuned_gains
+
+    jt = "cir_gym/JointTracking-v1"
+    plain = tuned_gains(jt, "computed_torque", {})
+    assert tuned_gains(jt, "computed_torque", {"torque_weight": 0.5}) == plain
+    payload = tuned_gains(jt, "computed_torque", {"payload_mass": 3.0})
+    assert payload != plain
+    assert tuned_gains(jt, "computed_torque", {"payload_mass": 3.0, "charge_unplayed_steps": True,
+                                               "error_scales": (0.5,)}) == payload
+    with pytest.raises(CliError, match="was not tuned"):
+        tuned_gains(jt, "computed_torque", {"payload_mass": 1.0, "torque_weight": 0.5})
+    peg = "cir_gym/PegInHole-v1"
+    spiral = tuned_gains(peg, "hybrid_spiral", {})
+    assert tuned_gains(peg, "hybrid_spiral", {"charge_unplayed_steps": False}) == spiral
+
+
 def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():
     """Every study in results/tuning/<Env>.json is found again by its own env arguments (a
     tuple such as VisualServo's camera_error matches the JSON's list)."""

@@ -191,6 +191,46 @@ def _assert_same_rollout(r1: list[tuple[Any, ...]], r2: list[tuple[Any, ...]]) -
             _assert_bitwise_equal(x, y, f"step {k} item {i}")
 
 
+def _without_reward(step: tuple[Any, ...]) -> tuple[Any, ...]:
+    """A rollout entry without what the reward arguments may change: the reward, and the
+    info entries named reward_*."""
+    if len(step) == 2:  # (obs, info) of a reset
+        return step
+    obs, _, terminated, truncated, info = step
+    kept = {k: v for k, v in info.items() if not k.startswith("reward")}
+    return obs, terminated, truncated, kept
+
+
+def _changed(value: Any) -> Any:
+    """Another valid value of a reward argument: the flag flipped, numbers doubled (1 for a
+    zero), each of a tuple's numbers doubled."""
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, tuple):
+        return tuple(2 * v for v in value)
+    return 2 * value if value else 1.0
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_reward_arguments_change_the_reward_only(env_id: str) -> None:
+    """Every argument an env declares in ``reward_arguments`` (tuned gains hold whatever their
+    values) leaves the episodes as they were: with all of them changed at once, the same
+    seed and random actions give bit-identical observations, episode ends, metrics, success
+    and every info entry but the reward terms, across several short episodes."""
+    cls = _cls(env_id)
+    assert cls.reward_arguments <= set(constructor_arguments(cls))
+    if not cls.reward_arguments:
+        pytest.skip("no reward arguments declared")
+    defaults = _signature_defaults(cls)
+    changed = {k: _changed(defaults[k]) for k in cls.reward_arguments}
+    plain, other = gym.make(env_id, **_short(env_id)), gym.make(env_id, **_short(env_id),
+                                                                 **changed)
+    actions = _random_actions(plain, 60, seed=11)
+    r1, r2 = _rollout(plain, 5, actions), _rollout(other, 5, actions)
+    _assert_same_rollout([_without_reward(s) for s in r1], [_without_reward(s) for s in r2])
+    assert any(len(s1) == 5 and s1[1] != s2[1] for s1, s2 in zip(r1, r2, strict=True))
+
+
 # ---------------------------------------------------------------------- registry
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_registry_entry_and_declarations(env_id: str) -> None:

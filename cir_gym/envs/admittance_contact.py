@@ -329,6 +329,10 @@ class AdmittanceContactEnv(RobotEnv):
         MetricSpec("max_force", "N", "lower", "maximum normal force"),
     )
     primary_metric: ClassVar[str] = "force_rms_error"
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "force_scale", "path_scale", "path_weight", "action_rate_weight",
+        "force_limit_penalty", "divergence_penalty",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "stiffness 1e3 N/m": {"stiffness": 1.0e3, "force_ref": 20.0},
         "stiffness 1e4 N/m": {"stiffness": 1.0e4, "force_ref": 20.0},

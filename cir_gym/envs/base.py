@@ -361,6 +361,10 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = ()
     primary_metric: ClassVar[str] = ""
+    #: constructor arguments that shape only the reward: the dynamics, observations, episode
+    #: end, metrics and success do not depend on them (tests/test_conformance.py checks it),
+    #: so a controller's tuned gains (``scripts.cli.tuned_gains``) hold whatever their values
+    reward_arguments: ClassVar[frozenset[str]] = frozenset()
     success_threshold: ClassVar[float] = 0.0
 
     def __init__(

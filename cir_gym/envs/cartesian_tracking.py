@@ -222,6 +222,10 @@ class CartesianTrackingEnv(RobotEnv):
         MetricSpec("saturation", "", "lower", "fraction of steps with a saturated joint"),
     )
     primary_metric: ClassVar[str] = "position_rms"
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "error_scales", "orientation_scale", "torque_weight", "action_rate_weight",
+        "divergence_penalty", "following_error_penalty",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "exact model": {},
         "unknown 3 kg payload": {"payload_mass": 3.0},

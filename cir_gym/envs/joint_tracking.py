@@ -234,6 +234,10 @@ class JointTrackingEnv(RobotEnv):
         MetricSpec("saturation", "", "lower", "fraction of steps with a saturated joint"),
     )
     primary_metric: ClassVar[str] = "rms_error"
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "error_scales", "torque_weight", "action_rate_weight", "divergence_penalty",
+        "following_error_penalty", "charge_unplayed_steps",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "exact model": {},
         "unknown 3 kg payload": {"payload_mass": 3.0},

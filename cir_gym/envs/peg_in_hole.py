@@ -253,6 +253,10 @@ class PegInHoleEnv(RobotEnv):
         MetricSpec("final_depth", "m", "higher", "tip depth in the true hole at the end"),
     )
     primary_metric: ClassVar[str] = "insertion_time"
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "force_weight", "success_bonus", "failure_penalty", "divergence_penalty",
+        "charge_unplayed_steps",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "sharp edge": {},
         "3 mm chamfer": {"chamfer": 0.003},

@@ -246,6 +246,9 @@ class _RedundantIKBase(RobotEnv):
     agent_task_keys: ClassVar[tuple[str, ...]] = ("objective",)
     #: reset(options={"replay": True}) starts the last drawn task again (TaskReplay)
     replayable_tasks: ClassVar[bool] = True
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "error_scales", "secondary_weight", "velocity_weight", "termination_penalty",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "manipulability": {"objective": "manipulability"},
         "obstacle": {"objective": "obstacle"},

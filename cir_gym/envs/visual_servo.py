@@ -153,6 +153,9 @@ class _VisualServoBase(RobotEnv):
         ),
         MetricSpec("detection_failures", "", "lower", "markers not found in the image"),
     )
+    reward_arguments: ClassVar[frozenset[str]] = frozenset((
+        "action_weight", "termination_penalty",
+    ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "projected features": {},
         "calibration error": {"camera_error": (0.05, 10.0, 0.01, 0.02)},
