@@ -493,8 +493,8 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         or beyond 1e10 and counts a BADQPOS warning (a diverged step), and then adds h q̇
         with that finite, bounded q̇ (the Euler and implicit integrators every cir_gym model
         uses; RK4 would integrate intermediate velocities), so a step that ends without a
-        new warning and with ‖q̇‖ ≤ MAX_JOINT_SPEED ends with a finite q. The views of ``ctrl``, ``qpos``,
-        ``qvel`` and the counters are built once per MjData.
+        new warning and with ‖q̇‖ ≤ MAX_JOINT_SPEED ends with a finite q. The views of
+        ``ctrl``, ``qpos``, ``qvel`` and the counters are built once per MjData.
         """
         m, d = self.model, self.data
         if self._warn_data is not d:  # views of MuJoCo's arrays, rebuilt if data changed
