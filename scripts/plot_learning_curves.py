@@ -36,7 +36,7 @@ from agents.policy import INTERFACE_KEYS
 from agents.report import curve_band, read_curve
 from agents.train import EVAL_SEED
 from cir_gym.evaluation import evaluate
-from scripts.cli import has_tuned_gains, tuned_gains
+from scripts.cli import CliError, tuned_gains
 
 #: issue 20's bar for a from-scratch agent: this controller at its default gains
 TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
@@ -49,15 +49,18 @@ def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, se
                       tuned: bool = False) -> dict[str, float]:
     """Mean primary metric of every applicable controller on these seeds (and, into
     ``extras`` when given, each one's success rate and mean return). ``tuned``: only the
-    controllers ``scripts/tune_gains.py`` tuned for exactly ``env_kwargs``, at their tuned
-    gains (keys ``tuned:<controller>``)."""
+    controllers ``scripts/tune_gains.py`` tuned for ``env_kwargs`` (the env's reward arguments
+    aside, :func:`scripts.cli.tuned_gains`), at their tuned gains (keys ``tuned:<controller>``)."""
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
         key = f"tuned:{name}" if tuned else name
-        if tuned and not has_tuned_gains(env_id, key, env_kwargs):
-            continue
-        gains = tuned_gains(env_id, name, env_kwargs) if tuned else {}
+        gains = {}
+        if tuned:
+            try:
+                gains = tuned_gains(env_id, name, env_kwargs)
+            except CliError:  # not tuned for this setting
+                continue
         policy = baselines.make(name, env_id, env_kwargs=env_kwargs, **gains)
         result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
         scores[key] = result.summary[primary]["mean"]
