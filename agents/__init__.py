@@ -94,7 +94,7 @@ def trained_for(env_id: str, name: str, env_kwargs: dict[str, Any]) -> bool:
     class's defaults, must then agree with ``env_kwargs`` (completed the same way) on those
     keys, so no variant is scored with an agent trained for another. True for an env without
     such keys."""
-    from agents.policy import read_config, registered_defaults
+    from cir_gym.agents.policy import read_config, registered_defaults
 
     cls, defaults = registered_defaults(env_id)
     keys = getattr(cls, "agent_task_keys", ())
@@ -130,7 +130,7 @@ def load(env_id: str, name: str, *, path: str | Path | None = None,
     ``numpy.load(allow_pickle=False)``: no pickle is executed. Still, only load agents from
     sources you trust (see docs/agents.md).
     """
-    from agents.policy import load_agent
+    from cir_gym.agents.policy import load_agent
 
     if path is None:
         path = agent_dir(env_id, name, seed)

@@ -1,4 +1,4 @@
-"""Training on ``cir_gym.vector.JointTrackingVectorEnv``: the batched env as an agent's VecEnv.
+"""Training on ``cir_gym.envs.vector.JointTrackingVectorEnv``: the batched env as an agent's VecEnv.
 
 ``vec_env: batched`` in a hyperparameter entry (``training`` section) makes :mod:`agents.train`
 step all ``n_envs`` training copies of JointTracking-v1 with one ``mujoco.batch.Batch`` call
@@ -20,17 +20,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from cir_gym.agents.observation import ObservationLayout
+from cir_gym.agents.shaping import check_log_error_bonus, log_error_bonus
 from stable_baselines3.common.vec_env import VecEnv
-
-from agents.observation import ObservationLayout
-from agents.shaping import check_log_error_bonus, log_error_bonus
 
 __all__ = ["BATCHED_ENVS", "BatchedTaskObservation", "make_batched_vec_env"]
 
 #: env ids with a native batched implementation → what it needs
 BATCHED_ENVS = {
-    "cir_gym/JointTracking-v1": "cir_gym.vector.JointTrackingVectorEnv",
-    "cir_gym/ElasticJointTracking-v2": "cir_gym.vector.ElasticJointTrackingVectorEnv",
+    "cir_gym/JointTracking-v1": "cir_gym.envs.vector.JointTrackingVectorEnv",
+    "cir_gym/ElasticJointTracking-v2": "cir_gym.envs.vector.ElasticJointTrackingVectorEnv",
 }
 
 
@@ -42,7 +41,7 @@ class BatchedTaskObservation(VecEnv):
     the evaluation env (a ``DummyVecEnv`` under ``VecNormalize``) has no such layer.
 
     Args:
-        venv: an SB3 VecEnv with Dict observations (``cir_gym.vector.sb3_vec_env``).
+        venv: an SB3 VecEnv with Dict observations (``cir_gym.envs.vector.sb3_vec_env``).
         layout: the agent's observation layout.
         flatten: ``obs ↦ (n_envs, size)``, ``layout.bind(template_env)``.
         reward_offset: added to every step's reward (training only, as
@@ -146,7 +145,7 @@ def make_batched_vec_env(
             f"vec_env 'batched' exists for {sorted(BATCHED_ENVS)} only, not "
             f"{key!r}; use vec_env 'dummy'"
         )
-    from cir_gym.vector import VECTOR_ENVS, sb3_vec_env
+    from cir_gym.envs.vector import VECTOR_ENVS, sb3_vec_env
 
     venv = VECTOR_ENVS[key](num_envs=n_envs, nthread=1, **env_kwargs)
     layout.check_space(venv.single_observation_space)

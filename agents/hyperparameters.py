@@ -10,7 +10,7 @@ does not know to the algorithm. So every entry is complete by itself (YAML merge
       n_timesteps: 1000000            # an int or 1.0e+6 (YAML 1.1 reads 1.0e6 as a string)
       n_envs: 16
       normalize: {norm_obs: true, norm_reward: true}
-      env_wrapper: agents.observation.TaskObservation     # Dict -> flat vector (+ k_ref - k)
+      env_wrapper: cir_gym.agents.observation.TaskObservation  # Dict -> flat vector (+ k_ref - k)
       policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh, log_std_init=-1.0)"
       learning_rate: 3.0e-4           # or "lin_3.0e-4" (linear decay to 0)
       ...                             # any other keyword of the SB3 algorithm
@@ -95,11 +95,11 @@ TRAINING_KEYS = {
     "noise_type": "off-policy exploration noise added to actions: 'normal' (TD3)",
     "noise_std": "std of that noise (action units)",
     "residual": "overrides used when training a residual agent",
-    "env_wrapper": "rl-zoo3's observation wrapper: agents.observation.TaskObservation, with "
-                   "optional {task_errors, features} (the project applies it itself)",
+    "env_wrapper": "rl-zoo3's observation wrapper: cir_gym.agents.observation.TaskObservation, "
+                   "with optional {task_errors, features} (the project applies it itself)",
 }
 #: the observation wrapper rl-zoo3 must apply (the project's own EnvFactory applies it too)
-ENV_WRAPPER = "agents.observation.TaskObservation"
+ENV_WRAPPER = "cir_gym.agents.observation.TaskObservation"
 WRAPPER_KEYS = {"task_errors", "features"}
 #: top-level sections of a file that rl-zoo3 never reads (not environment ids)
 SECTIONS = ("training", "residual")
@@ -330,13 +330,13 @@ def _validate(entry: dict[str, Any], cls: type, file: Path, key: str) -> None:
         raise HyperparameterError(f"{where}: task_replay must be an integer >= 1 (plays per "
                                   f"drawn task), got {replay!r}")
     if entry.get("log_error_bonus") is not None:
-        from agents.shaping import check_log_error_bonus
+        from cir_gym.agents.shaping import check_log_error_bonus
 
         try:
             check_log_error_bonus(entry["log_error_bonus"])
         except ValueError as exc:
             raise HyperparameterError(f"{where}: {exc}") from exc
-    from agents.observation import FEATURES
+    from cir_gym.agents.observation import FEATURES
 
     features = observation_options(entry, where)["features"]
     if set(features) - set(FEATURES):

@@ -81,7 +81,12 @@ def pseudo_inverse_features(env: gym.Env) -> tuple[Feature, Feature]:
     x̄̇ exactly as the controller forms them), single or batched observations. At a singular
     configuration (σ_min < 1e-9, where J† does not exist) the damped J* with k = 1e-3 is used.
     """
-    from baselines.kinematic import CLIK, SingularJacobian, damped_pseudo_inverse, pseudo_inverse
+    from cir_gym.baselines.kinematic import (
+        CLIK,
+        SingularJacobian,
+        damped_pseudo_inverse,
+        pseudo_inverse,
+    )
 
     ctx = _feature_context(env, "joint_velocity", "pinv_*")
     clik = CLIK(ctx)

@@ -23,10 +23,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from agents.hyperparameters import algorithm_class, resolve_policy_kwargs
-from agents.observation import ObservationLayout
-from agents.residual import check_scale, combine
+from cir_gym.agents.hyperparameters import algorithm_class, resolve_policy_kwargs
+from cir_gym.agents.observation import ObservationLayout
+from cir_gym.agents.residual import check_scale, combine
 
 __all__ = ["INTERFACE_KEYS", "AgentFileError", "TrainedAgent", "interface_defaults", "load_agent",
            "read_config"]
@@ -224,7 +223,7 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
         residual = config.get("residual")
         controller, scale = None, None
         if residual:
-            import baselines
+            from cir_gym import baselines
 
             try:
                 controller = baselines.make(residual["controller"], trained_id, env=env,

@@ -163,8 +163,8 @@ class SeedReport:
 def seed_report(env_id: str, name: str, env_kwargs: dict[str, Any] | None = None, *,
                 episodes: int = 10, seed: int = 1000) -> SeedReport:
     """Evaluate every training seed of shipped agent ``name`` on ``episodes`` episodes."""
-    import agents
     import cir_gym
+    from cir_gym import agents
     from cir_gym.evaluation import evaluate
 
     primary = cir_gym.ENVIRONMENTS[env_id.split(":")[-1]][0].primary_metric
@@ -191,7 +191,7 @@ def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episode
     ``names``) over its training seeds on one variant (``env_kwargs``): seeds, IQM of the
     primary metric [95 % CI], mean success rate [CI], each seed's mean. The leaderboard's one call
     per variant."""
-    import agents
+    from cir_gym import agents
 
     if names is None:  # every agent trained for this variant's task (agents.trained_for)
         names = [n for n in agents.available(env_id)
@@ -282,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     key = args.env.split(":")[-1]
     if key not in cir_gym.ENVIRONMENTS:
         p.error(f"unknown environment {args.env!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
-    from agents import env_dir_name
+    from cir_gym.agents import env_dir_name
 
     out = Path(args.out or f"results/agents/{env_dir_name(key)}_seeds.md")
     parts = [f"# {key}: shipped agents over training seeds (`python -m agents.report`)", "",

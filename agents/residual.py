@@ -65,7 +65,7 @@ class ResidualAction(gym.Wrapper):
                  **controller_kwargs: Any) -> None:
         super().__init__(env)
         if isinstance(controller, str):
-            import baselines
+            from cir_gym import baselines
 
             env_id = env.spec.id if env.spec is not None else None
             if env_id is None:

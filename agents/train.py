@@ -1,6 +1,6 @@
 """Train an SB3 agent (from scratch or residual) on a cir_gym environment, reproducibly.
 
-    from agents.train import train
+    from cir_gym.agents.train import train
     run = train("cir_gym/JointTracking-v1", "ppo", residual="computed_torque",
                 env_kwargs={"payload_mass": 3.0})
 
@@ -43,6 +43,26 @@ import gymnasium as gym
 import numpy as np
 import torch
 import yaml
+from cir_gym.agents import TRAINED_DIR, env_dir_name
+from cir_gym.agents.batched import make_batched_vec_env
+from cir_gym.agents.hyperparameters import (
+    TRAINING_KEYS,
+    HyperparameterError,
+    algorithm_class,
+    load_hyperparams,
+    observation_options,
+    resolve_policy_kwargs,
+    resolve_schedule,
+)
+from cir_gym.agents.observation import ObservationLayout, TaskObservation
+from cir_gym.agents.residual import ResidualAction, check_scale
+from cir_gym.agents.shaping import (
+    EarlyTermination,
+    LogErrorBonus,
+    RewardOffset,
+    TaskReplay,
+    check_log_error_bonus,
+)
 from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise
@@ -54,26 +74,6 @@ from stable_baselines3.common.vec_env import (
 )
 
 import cir_gym
-from agents import TRAINED_DIR, env_dir_name
-from agents.batched import make_batched_vec_env
-from agents.hyperparameters import (
-    TRAINING_KEYS,
-    HyperparameterError,
-    algorithm_class,
-    load_hyperparams,
-    observation_options,
-    resolve_policy_kwargs,
-    resolve_schedule,
-)
-from agents.observation import ObservationLayout, TaskObservation
-from agents.residual import ResidualAction, check_scale
-from agents.shaping import (
-    EarlyTermination,
-    LogErrorBonus,
-    RewardOffset,
-    TaskReplay,
-    check_log_error_bonus,
-)
 
 __all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
 
@@ -363,7 +363,7 @@ def train(
             raise HyperparameterError(f"observation of {key}: {exc}") from exc
         res_cfg = None
         if residual is not None:
-            import baselines
+            from cir_gym import baselines
 
             if residual not in baselines.available(key):
                 probe.close()

@@ -10,21 +10,21 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
-
-import cir_gym  # noqa: F401  (registers the environments)
-from baselines.base import Controller, InvalidGain
-from baselines.centralized import AdaptiveControl, ComputedTorque, PDGravity, RobustControl
-from baselines.decentralized import (
+from cir_gym.baselines.base import Controller, InvalidGain
+from cir_gym.baselines.centralized import AdaptiveControl, ComputedTorque, PDGravity, RobustControl
+from cir_gym.baselines.decentralized import (
     DecentralizedFeedforward,
     IndependentPID,
     PCascade,
     PPIFeedforward,
 )
-from baselines.hybrid import HYBRID_CONTROLLERS, TASK_ADAPTERS
-from baselines.interaction import INTERACTION_CONTROLLERS
-from baselines.kinematic import KINEMATIC_CONTROLLERS
-from baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
-from baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
+from cir_gym.baselines.hybrid import HYBRID_CONTROLLERS, TASK_ADAPTERS
+from cir_gym.baselines.interaction import INTERACTION_CONTROLLERS
+from cir_gym.baselines.kinematic import KINEMATIC_CONTROLLERS
+from cir_gym.baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
+from cir_gym.baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
+
+import cir_gym  # noqa: F401  (registers the environments)
 
 __all__ = [
     "CONTROLLERS",

@@ -1,6 +1,6 @@
 """The policy protocol every controller implements: SB3's ``predict`` with state in ``state``.
 
-A controller sees only the observation and a :class:`~cir_gym.envs.base.TaskContext` (the
+A controller sees only the observation and a :class:`~cir_gym.context.TaskContext` (the
 nominal robot, control period, action scaling). Its internal state (integrators, adaptive
 estimates, filters) is a float vector per environment that travels in ``state``, shape
 (n_envs, state_size), and is re-initialised where ``episode_start`` is true — exactly how SB3
@@ -20,7 +20,8 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from cir_gym.envs.base import CLIP, TaskContext
+from cir_gym.context import TaskContext
+from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
 
 __all__ = ["Controller", "InvalidGain", "Observation", "RowDynamics", "check_gain_type"]

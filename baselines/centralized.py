@@ -12,10 +12,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
 from cir_gym import dynamics
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.robot import ModelError, Robot
 
 __all__ = [

@@ -35,9 +35,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
-from cir_gym.envs.base import CLIP, TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.motor import (
     average_inertia,
     joint_torques,
@@ -45,6 +45,7 @@ from cir_gym.motor import (
     motor_side_inertia,
     motor_torques,
 )
+from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
 
 __all__ = [

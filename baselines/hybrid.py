@@ -61,10 +61,10 @@ from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain
+from cir_gym.baselines.interaction import Admittance, AdmittanceGains
 
-from baselines.base import Controller, InvalidGain
-from baselines.interaction import Admittance, AdmittanceGains
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.ft_sensor import contact_wrench
 from cir_gym.operational_space import (
     dynamically_consistent_inverse,
@@ -181,7 +181,7 @@ class _TipController(Controller):
             apply_model_error(self.robot.model, ModelError(payload_mass=self.tool_mass))
             self.robot.invalidate()
         self.tip_offset = float(extras.get("tip_offset", 0.0))
-        self.tool_com = np.array([0.0, 0.0, 0.05])  # peg centre of mass in the sensor frame
+        self.tool_com = np.array(extras.get("tool_com", np.zeros(3)), dtype=float)  # sensor frame
         self.site = self.robot.site_id(context.site or "flange")
         self.q_home: np.ndarray | None = None
 
@@ -580,18 +580,15 @@ class PegAdmittance(Admittance):
     ) -> None:
         _require_torque(self.name, context)
         ex = context.extras
-        if "tip_offset" not in ex:
+        if not {"tip_offset", "tool_com", "hole_position"} <= set(ex):
             raise InvalidGain(f"{self.name} (PegInHole adapter) needs a PegInHole context")
-        from cir_gym.envs.peg_in_hole import TOOL_COM
-        from cir_gym.peg_hole_geometry import HOLE_POSITION
-
-        hole_pos = np.asarray(HOLE_POSITION, dtype=float)
+        hole_pos = np.array(ex["hole_position"], dtype=float)
         R_h = np.eye(3)  # the nominal hole frame is aligned with the world (env: hole_quat)
         quat = np.empty(4)
         mujoco.mju_mat2Quat(quat, (R_h @ ALIGNED).ravel())
         extras = {
             **ex,
-            "tool_com": TOOL_COM.copy(),
+            "tool_com": np.array(ex["tool_com"], dtype=float),
             "surface_point": hole_pos,
             "surface_normal": R_h[:, 2].copy(),
             "tool_quat": quat,

@@ -76,10 +76,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
 from cir_gym import operational_space as osp
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.ft_sensor import contact_wrench, tool_gravity_wrench
 from cir_gym.robot import ModelError, Robot, apply_model_error
 

@@ -19,9 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,

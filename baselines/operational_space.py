@@ -24,10 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
 from cir_gym import operational_space as osp
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.robot import Robot
 
 __all__ = [

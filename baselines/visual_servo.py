@@ -38,9 +38,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from cir_gym.baselines.base import Controller, InvalidGain, Observation
 
-from baselines.base import Controller, InvalidGain, Observation
-from cir_gym.envs.base import TaskContext
+from cir_gym.context import TaskContext
 from cir_gym.vision import (
     Camera,
     interaction_matrix,

@@ -5,7 +5,7 @@
                                                  [--out results/benchmarks.md]
 
 For every leaderboard job (each environment's ``leaderboard_variants`` × every controller and
-shipped agent, :func:`scripts.leaderboard.jobs_for`), ``--episodes`` episodes on the
+shipped agent, :func:`cir_gym.scoring.leaderboard.jobs_for`), ``--episodes`` episodes on the
 leaderboard's seeds (1000, 1001, ...) run one after the other through
 :func:`cir_gym.evaluation.evaluate` while every ``mj_step`` call is recorded (MuJoCo's full
 integration state before it, and its ``nstep``). The recorded calls are then replayed (each
@@ -39,7 +39,7 @@ import numpy as np
 from _sections import write_section  # sibling modules: the scripts run as files
 from _tape import PhysicsTape, replay_seconds
 
-sys.path.insert(0, str(Path(__file__).parents[1]))  # scripts.leaderboard, run as a file
+sys.path.insert(0, str(Path(__file__).parents[1]))  # cir_gym.scoring.leaderboard, run as a file
 
 import cir_gym
 from cir_gym.evaluation import evaluate
@@ -76,7 +76,7 @@ def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int, repeat: int
 ) -> dict[str, Any]:
     """One leaderboard job's ``episodes``: env steps, physics steps, physics and total CPU s."""
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     env_id, _, env_kwargs, policy_name = job
     policy = make_policy(env_id, policy_name, env_kwargs, {})
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")
-    from scripts.leaderboard import jobs_for
+    from cir_gym.scoring.leaderboard import jobs_for
 
     ids = args.env or list(cir_gym.ENVIRONMENTS)
     scale = args.seeds / args.episodes

@@ -40,7 +40,7 @@ episode) against one ``mj_step`` of that env's model (replayed on the states of 
 zero-action steps, as above); then ``predict`` on ``--batch`` stacked observations, per row.
 
 Vector env: env-steps/s of ``--num-envs`` JointTracking copies in
-``cir_gym.vector.JointTrackingVectorEnv``, of the same model's raw ``mujoco.batch.Batch.step``
+``cir_gym.envs.vector.JointTrackingVectorEnv``, of the same model's raw ``mujoco.batch.Batch.step``
 and of Gymnasium's ``SyncVectorEnv`` of the single env (``gymnasium.make_vec``).
 
 Prints markdown and writes it to ``--out`` under the heading ``## env.step and predict``,
@@ -63,8 +63,8 @@ import numpy as np
 from _sections import write_section  # sibling modules: the scripts run as files
 from _tape import PhysicsTape, replay_seconds
 
-import baselines
 import cir_gym
+from cir_gym import baselines
 
 KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
 #: contact envs timed a second time in contact: the controller whose actions drive the steps
@@ -437,7 +437,7 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     would end every episode within a few dozen steps: resets are not what this times)."""
     import mujoco.batch
 
-    from cir_gym.vector import JointTrackingVectorEnv
+    from cir_gym.envs.vector import JointTrackingVectorEnv
 
     kw = {"max_following_error": None}
     vec = JointTrackingVectorEnv(num_envs, nthread=nthread, **kw)
@@ -474,7 +474,7 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
         "| what | env-steps/s | vs SyncVectorEnv |",
         "|---|---:|---:|",
         f"| gymnasium SyncVectorEnv of the single env | {1 / t_sync:,.0f} | 1.00 |",
-        f"| cir_gym.vector.JointTrackingVectorEnv | {1 / t_vec:,.0f} | {t_sync / t_vec:.2f} |",
+        f"| cir_gym.envs.vector.JointTrackingVectorEnv | {1 / t_vec:,.0f} | {t_sync / t_vec:.2f} |",
         f"| raw mujoco.batch.Batch.step(nstep={skip}), same model | {1 / t_raw:,.0f} "
         f"| {t_sync / t_raw:.2f} |",
     ]

@@ -9,7 +9,7 @@ directories: local pool with 1 and 2 workers, a Ray instance started for the run
 (``ray="local"``) with 1 and 2 CPUs; ``--repeat`` rounds, every other one in reverse order,
 the best steady rate of each configuration kept. Two rates per run:
 
-* end to end: tasks / wall time of :func:`scripts.sweep.run_sweep`, including starting the
+* end to end: tasks / wall time of :func:`cir_gym.scoring.sweep.run_sweep`, including starting the
   worker processes (about 4 s here, each imports MuJoCo, cir_gym and the controllers) or Ray
   (about 20 s here);
 * steady: (tasks − 1) / (time between the first and the last finished task), from the task
@@ -53,14 +53,14 @@ def grid(tasks: int, duration: float) -> dict:
 
 def episodes(directory: Path) -> list[tuple]:
     """The table's episodes without the columns that differ between runs, sorted."""
-    from scripts.sweep import read_table
+    from cir_gym.scoring.sweep import read_table
 
     rows = [{k: v for k, v in r.items() if k not in VOLATILE} for r in read_table(directory)]
     return sorted(tuple(sorted(r.items(), key=lambda kv: kv[0])) for r in rows)
 
 
 def one_run(g: dict, out: Path, workers: int, ray: str | None) -> dict:
-    from scripts.sweep import run_sweep
+    from cir_gym.scoring.sweep import run_sweep
 
     t0 = time.perf_counter()
     summary = run_sweep(g, out, workers=workers, ray=ray, progress=False)

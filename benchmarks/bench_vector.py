@@ -8,7 +8,7 @@ Four parts, written under the heading ``## Vector env`` of ``--out`` (only that 
 replaced; the other sections belong to other scripts):
 
 1. ``throughput``: env-steps/s of ``--num-envs`` copies of JointTracking-v1 and
-   ElasticJointTracking-v2 in ``cir_gym.vector``'s batched env, of the same model's raw
+   ElasticJointTracking-v2 in ``cir_gym.envs.vector``'s batched env, of the same model's raw
    ``mujoco.batch.Batch.step`` and of Gymnasium's ``SyncVectorEnv`` of the single env; zero
    torques, ``max_following_error=None`` (resets are not what this times). The three loops are
    timed alternately, best of ``--repeat``, in process CPU time with one MuJoCo thread (other
@@ -53,8 +53,8 @@ from _sections import write_section  # sibling module: the scripts run as files
 
 import cir_gym
 from cir_gym.envs.base import make_env
+from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
 from cir_gym.evaluation import evaluate
-from cir_gym.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
 
 SECTION = "## Vector env"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
@@ -141,7 +141,7 @@ def _timed_evaluate(
     env_id: str, kwargs: dict, policy_name: str, episodes: int, batched: bool
 ) -> tuple[Any, float]:
     """(result, CPU seconds) of one leaderboard job: the policy built, then evaluated."""
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     t0 = _cpu()
     policy = make_policy(env_id, policy_name, kwargs, {})
@@ -161,8 +161,8 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
     """Per (variant, policy) of the batched envs: batched vs sequential CPU time at
     ``episodes`` seeds. Returns (rows, CPU s of these jobs now, CPU s sequentially)."""
     from cir_gym.evaluation import batches_exactly
-    from scripts.cli import make_policy
-    from scripts.leaderboard import jobs_for
+    from cir_gym.scoring.leaderboard import jobs_for
+    from cir_gym.scoring.policies import make_policy
 
     scale = episodes / seq_episodes
     rows = [
@@ -219,7 +219,7 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
 
 def bench_other_envs(episodes: int, other_episodes: int) -> tuple[list[str], float]:
     """CPU seconds of every other env's leaderboard jobs, scaled to ``episodes``."""
-    from scripts.leaderboard import jobs_for
+    from cir_gym.scoring.leaderboard import jobs_for
 
     scale = episodes / other_episodes
     per_env: dict[str, float] = {}
@@ -267,7 +267,7 @@ def bench_ppo(steps: int) -> list[str]:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from cir_gym.vector import JointTrackingVectorEnv
+    from cir_gym.envs.vector import JointTrackingVectorEnv
 
     torch.set_num_threads(1)
     env_id = "cir_gym/JointTracking-v1"

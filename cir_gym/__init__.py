@@ -34,9 +34,9 @@ __all__ = ["ENVIRONMENTS", "ModelError", "Robot", "make_vec", "register_envs"]
 
 def make_vec(env_id: str, num_envs: int = 1, **kwargs: _Any) -> _Any:
     """``num_envs`` copies of ``env_id`` as a Gymnasium vector env: natively batched on
-    ``mujoco.batch`` where :mod:`cir_gym.vector` has it, else a SyncVectorEnv (same autoreset
-    mode and seeding); see :func:`cir_gym.vector.make_vec` (imported on first use)."""
-    from cir_gym.vector import make_vec as _make_vec
+    ``mujoco.batch`` where :mod:`cir_gym.envs.vector` has it, else a SyncVectorEnv (same autoreset
+    mode and seeding); see :func:`cir_gym.envs.vector.make_vec` (imported on first use)."""
+    from cir_gym.envs.vector import make_vec as _make_vec
 
     return _make_vec(env_id, num_envs, **kwargs)
 

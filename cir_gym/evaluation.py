@@ -6,9 +6,9 @@ is reset with seed ``seed + i``, so every policy meets the same references, init
 and model errors. Metrics come from the environment's ``metric_specs`` and its
 ``info["episode_metrics"]`` at the last step; nothing else is computed here.
 
-Batched evaluation: where ``cir_gym.vector`` has a native batched env for the id and its
+Batched evaluation: where ``cir_gym.envs.vector`` has a native batched env for the id and its
 arguments (JointTracking-v1 and ElasticJointTracking-v2 with the ideal drive, see
-``cir_gym.vector.native_vector_env``) and the policy gives the same actions for a batch of
+``cir_gym.envs.vector.native_vector_env``) and the policy gives the same actions for a batch of
 observations as for each one alone (:func:`batches_exactly`: the course controllers, whose
 ``predict`` runs ``control`` row by row), :func:`evaluate` runs up to ``MAX_BATCH`` episodes
 at once on one ``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each
@@ -278,7 +278,7 @@ def evaluate(
         policy_name: label for tables (default: the policy's ``name`` or class name).
         env: use this environment instead of making one (``env_kwargs`` must then be empty;
             it must be on the policy's ``interface_kwargs``: :func:`check_env_interface`).
-        batched: None (default): the episodes run batched on ``cir_gym.vector``'s native env
+        batched: None (default): the episodes run batched on ``cir_gym.envs.vector``'s native env
             when the id and ``env_kwargs`` have one and :func:`batches_exactly` holds for the
             policy (the same results as one at a time, faster), else one after the other.
             False: always one after the other. True: batched whenever the env allows it, for
@@ -374,7 +374,8 @@ def batches_exactly(policy: Any) -> bool:
     flag = getattr(policy, "batches_exactly", None)
     if flag is not None:
         return bool(flag)
-    base = sys.modules.get("baselines.base")  # a Controller exists only if baselines is imported
+    # a Controller exists only if the baselines are imported
+    base = sys.modules.get("cir_gym.baselines.base")
     return base is not None and isinstance(policy, base.Controller)
 
 
@@ -384,7 +385,7 @@ def _batched_env_class(
     """The native batched env class :func:`evaluate` may use, or None (see its ``batched``)."""
     if batched is False:
         return None
-    from cir_gym.vector import VECTOR_ENVS, native_vector_env
+    from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env
 
     reasons = []
     if env is not None:
@@ -399,7 +400,7 @@ def _batched_env_class(
         reasons.append(
             f"the batched {env_id} cannot batch {native.unsupported(env_kwargs)}"
             if native is not None
-            else f"cir_gym.vector has no batched {env_id} (it has {sorted(VECTOR_ENVS)})"
+            else f"cir_gym.envs.vector has no batched {env_id} (it has {sorted(VECTOR_ENVS)})"
         )
     if reasons and batched:
         raise ValueError(f"evaluate(batched=True) cannot batch: {'; '.join(reasons)}")

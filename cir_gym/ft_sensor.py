@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from cir_gym.envs.base import InvalidArgument, as_float_array, check_number
+from cir_gym.validation import InvalidArgument, as_float_array, check_number
 
 __all__ = [
     "PRESETS",

@@ -37,10 +37,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cir_gym.envs.base import CLIP, InvalidArgument, check_number
 from cir_gym.fast_solve import solve
+from cir_gym.numeric import CLIP
 from cir_gym.operational_space import damped_least_squares
 from cir_gym.robot import Robot
+from cir_gym.validation import InvalidArgument, check_number
 
 #: command's damped least squares inline (False: operational_space.damped_least_squares
 #: itself, the reference the inline form is tested against)

@@ -64,6 +64,8 @@ PEG_RADIUS = 0.005  # m: a 10 mm peg (IndustReal and Factory use 8–16 mm)
 PEG_LENGTH = 0.06  # m
 PEG_MASS = 0.1  # kg (steel, 10 mm × 60 mm ≈ 0.037 kg plus its holder)
 PEG_OFFSET = 0.02  # m: peg base beyond the flange (a holder between flange and peg)
+#: the peg's centre of mass in the sensor (flange) frame (m)
+PEG_COM = (0.0, 0.0, PEG_OFFSET + PEG_LENGTH / 2)
 HOLE_DEPTH = 0.025  # m
 WALL_THICKNESS = 0.02  # m: radial thickness of the ring boxes
 N_SIDES = 64  # polygon sides of the hole

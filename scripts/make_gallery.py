@@ -7,7 +7,7 @@ frames/s) of a reference controller, with the task drawn by the environment's ``
 and its caption. The controller and the setting per environment are in :data:`SHOWN` (chosen
 to show the task: the obstacle variant of the redundancy envs, the controller that solves it);
 an environment not listed there shows its first controller in default settings. Frames are
-written by :func:`scripts.leaderboard_page.save_gif` (one palette, unchanged pixels
+written by :func:`cir_gym.scoring.page.save_gif` (one palette, unchanged pixels
 transparent) and each file must stay under 1 MB. Also prints the README's gallery table.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import cir_gym
-from scripts.leaderboard_page import episode_frames, save_gif
+from cir_gym.scoring.page import episode_frames, save_gif
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_BYTES = 1_000_000
@@ -46,7 +46,7 @@ SHOWN: dict[str, tuple[str, dict[str, Any], str]] = {
 
 def shown(env_id: str) -> tuple[str, dict[str, Any], str]:
     """(controller, env kwargs, description) for ``env_id`` (see :data:`SHOWN`)."""
-    import baselines
+    from cir_gym import baselines
 
     name = env_id.split("/")[-1].rsplit("-v", 1)[0]
     if name in SHOWN:

@@ -28,15 +28,14 @@ from typing import Any
 
 import numpy as np
 import yaml
+from cir_gym.agents.policy import INTERFACE_KEYS
+from cir_gym.agents.report import curve_band, read_curve
+from cir_gym.agents.train import EVAL_SEED
 
-import agents
-import baselines
 import cir_gym
-from agents.policy import INTERFACE_KEYS
-from agents.report import curve_band, read_curve
-from agents.train import EVAL_SEED
+from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
-from scripts.cli import CliError, tuned_gains
+from cir_gym.scoring.policies import PolicyError, tuned_gains
 
 #: issue 20's bar for a from-scratch agent: this controller at its default gains
 TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
@@ -50,7 +49,7 @@ def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, se
     """Mean primary metric of every applicable controller on these seeds (and, into
     ``extras`` when given, each one's success rate and mean return). ``tuned``: only the
     controllers ``scripts/tune_gains.py`` tuned for ``env_kwargs`` (the env's reward arguments
-    aside, :func:`scripts.cli.tuned_gains`), at their tuned gains (keys ``tuned:<controller>``)."""
+    aside, :func:`cir_gym.cli.tuned_gains`), at their tuned gains (keys ``tuned:<controller>``)."""
     primary = cir_gym.ENVIRONMENTS[env_id][0].primary_metric
     scores = {}
     for name in baselines.available(env_id):
@@ -59,7 +58,7 @@ def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, se
         if tuned:
             try:
                 gains = tuned_gains(env_id, name, env_kwargs)
-            except CliError:  # not tuned for this setting
+            except PolicyError:  # not tuned for this setting
                 continue
         policy = baselines.make(name, env_id, env_kwargs=env_kwargs, **gains)
         result = evaluate(policy, env_id, episodes, seed, **env_kwargs)

@@ -94,7 +94,7 @@ class ZooAgent:
         self.transform = transform
         self.vecnormalize = vecnormalize
         self.name = name
-        from agents.policy import INTERFACE_KEYS, interface_defaults
+        from cir_gym.agents.policy import INTERFACE_KEYS, interface_defaults
 
         # as a shipped agent's: the recorded interface, else the env's default (500 Hz)
         self.interface_kwargs = {**interface_defaults(ENV_ID),
@@ -162,7 +162,7 @@ def _cmd_trials(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    import baselines
+    from cir_gym import baselines
     from cir_gym.evaluation import evaluate
 
     print("| policy | observation wrapper | RMS error (rad), mean | median | success | "

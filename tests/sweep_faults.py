@@ -12,7 +12,7 @@ import signal
 from pathlib import Path
 from typing import Any
 
-import baselines
+from cir_gym import baselines
 
 
 def flaky(env_id: str, env_kwargs: dict[str, Any], gains: dict[str, Any]) -> Any:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from cir_gym.baselines.base import InvalidGain
 
-import baselines
 import cir_gym  # noqa: F401  (registers the environments)
-from baselines.base import InvalidGain
+from cir_gym import baselines
 from cir_gym.envs.admittance_contact import RANDOM_RANGES, AdmittanceContactEnv
-from cir_gym.envs.base import InvalidArgument
+from cir_gym.validation import InvalidArgument
 
 ENV_ID = "cir_gym/AdmittanceContact-v0"
 
@@ -218,7 +218,7 @@ def test_explicit_force_reference_ramps_from_the_contact_force_to_f_ref() -> Non
     derivatives are the quintic's (central differences); ramp_time=0 is a step to f̄."""
     env = gym.make(ENV_ID, stiffness=1e4, force_ref=20.0)
     law = baselines.make("explicit_force", ENV_ID, env=env)
-    from baselines.interaction import _COMMON
+    from cir_gym.baselines.interaction import _COMMON
 
     state = np.zeros(law.state_size)
     state[_COMMON + 2] = 3.0  # f̂ at contact (N)

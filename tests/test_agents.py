@@ -16,17 +16,17 @@ import yaml
 
 pytest.importorskip("stable_baselines3")
 
-import agents
-import baselines
-import cir_gym
-from agents.hyperparameters import (
+from cir_gym.agents.hyperparameters import (
     HYPERPARAMS_DIR,
     HyperparameterError,
     load_hyperparams,
     parse_policy_kwargs,
 )
-from agents.observation import ObservationLayout, TaskObservation
-from agents.residual import ResidualAction
+from cir_gym.agents.observation import ObservationLayout, TaskObservation
+from cir_gym.agents.residual import ResidualAction
+
+import cir_gym
+from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
 
 ENV = "cir_gym/JointTracking-v1"
@@ -131,7 +131,7 @@ def test_shipped_files_are_in_rl_zoo3_format(algo):
     """What rl-zoo3 reads (yaml.safe_load, one entry, keys passed to the algorithm) is valid."""
     import inspect
 
-    from agents.hyperparameters import SECTIONS, algorithm_class
+    from cir_gym.agents.hyperparameters import SECTIONS, algorithm_class
 
     data = yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())  # rl-zoo3's reader
     args = set(inspect.signature(algorithm_class(algo).__init__).parameters)
@@ -141,13 +141,13 @@ def test_shipped_files_are_in_rl_zoo3_format(algo):
         assert set(entry) <= RL_ZOO3_KEYS | args, (key, set(entry) - RL_ZOO3_KEYS - args)
         assert isinstance(entry["n_timesteps"], (int, float)), key  # not the string "1.0e6"
         assert isinstance(entry["policy_kwargs"], str), key  # rl-zoo3 evals strings only
-        assert entry["env_wrapper"] == "agents.observation.TaskObservation"
+        assert entry["env_wrapper"] == "cir_gym.agents.observation.TaskObservation"
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
 def test_shipped_entries_name_registered_environments(algo):
     """A stale id (an env whose version was bumped) would silently train with `default`."""
-    from agents.hyperparameters import SECTIONS
+    from cir_gym.agents.hyperparameters import SECTIONS
 
     data = yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())
     ids = set(cir_gym.ENVIRONMENTS) | {"default"}
@@ -216,8 +216,9 @@ def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
     """f_ff + K f_err is CLIK's action (before its clip) along a noisy episode, and the
     feed-forward feature, scaled back to rad/s, moves the task at the reference velocity:
     J (q̇_max ⊙ f_ff) = x̄̇ (the pseudo-inverse is a right inverse)."""
-    import baselines
-    from agents.observation import pseudo_inverse_features
+    from cir_gym.agents.observation import pseudo_inverse_features
+
+    from cir_gym import baselines
 
     env = TaskObservation(gym.make(env_id), features=["pinv_feedforward", "pinv_error"])
     base = env.unwrapped
@@ -247,8 +248,8 @@ def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
 
 
 def test_reward_offset_shifts_training_rewards_only(tmp_path):
-    from agents.shaping import RewardOffset
-    from agents.train import EnvFactory
+    from cir_gym.agents.shaping import RewardOffset
+    from cir_gym.agents.train import EnvFactory
 
     env = gym.make(ENV, **SHORT)
     layout = ObservationLayout.from_space(env.observation_space)
@@ -266,8 +267,8 @@ def test_reward_offset_shifts_training_rewards_only(tmp_path):
 
 
 def test_log_error_bonus_pays_each_halving_of_the_error_alike(tmp_path):
-    from agents.shaping import LogErrorBonus, log_error_bonus
-    from agents.train import EnvFactory
+    from cir_gym.agents.shaping import LogErrorBonus, log_error_bonus
+    from cir_gym.agents.train import EnvFactory
 
     b = lambda e: float(log_error_bonus(e, weight=2.0, max_error=0.5, floor=1e-3))  # noqa: E731
     assert b(0.5) == pytest.approx(0.0) and b(0.6) < 0.0
@@ -302,8 +303,8 @@ def test_batched_training_env_matches_the_single_env_stack(tmp_path, env_id, fea
     """vec_env 'batched': copy i is EnvFactory's env (flat obs [+ gravity], r + offset) with
     seed + i, step for step, and a finished episode reports Monitor-style statistics; for
     JointTracking and ElasticJointTracking, at 500 and at 100 Hz."""
-    from agents.batched import make_batched_vec_env
-    from agents.train import EnvFactory
+    from cir_gym.agents.batched import make_batched_vec_env
+    from cir_gym.agents.train import EnvFactory
 
     env_kwargs = {**SHORT, **kwargs}
     probe = gym.make(env_id, **env_kwargs)
@@ -391,7 +392,7 @@ def test_residual_adds_the_scaled_action_and_clips():
 
 
 def test_early_termination_ends_a_lost_episode_at_its_full_cost():
-    from agents.shaping import EarlyTermination
+    from cir_gym.agents.shaping import EarlyTermination
 
     env = EarlyTermination(gym.make(ENV), max_error=0.1, penalty=-100.0)
     env.reset(seed=0)
@@ -408,7 +409,7 @@ def test_early_termination_ends_a_lost_episode_at_its_full_cost():
 def test_task_replay_plays_each_drawn_task_repeats_times():
     """TaskReplay draws every ``repeats``-th reset (and on every seeded one) and replays the
     last task between; the drawn tasks are the unwrapped env's own sequence."""
-    from agents.shaping import TaskReplay
+    from cir_gym.agents.shaping import TaskReplay
 
     rik = "cir_gym/RedundantIK-v3"
     env = TaskReplay(gym.make(rik), repeats=3)
@@ -427,9 +428,9 @@ def test_task_replay_plays_each_drawn_task_repeats_times():
 
 
 def test_task_replay_key_is_checked_and_reaches_the_training_envs(tmp_path):
-    from agents.hyperparameters import HyperparameterError
-    from agents.shaping import TaskReplay
-    from agents.train import EnvFactory
+    from cir_gym.agents.hyperparameters import HyperparameterError
+    from cir_gym.agents.shaping import TaskReplay
+    from cir_gym.agents.train import EnvFactory
 
     rik = "cir_gym/RedundantIK-v3"
     assert load_hyperparams("ppo", rik, path=tiny_hyperparams(tmp_path, task_replay=4))[
@@ -467,9 +468,14 @@ def test_shaping_reads_the_orientation_error_with_orientation_scale():
     """orientation_scale s > 0: the error norm is max(|e|, s * theta), so 0.5 mm of position and
     0.3 rad of orientation (RedundantIK7-v4's position-only run) is a lost lap at 10 mm / s = 0.1
     and earns a negative bonus; s = 0 (the default) reads the position alone, as before."""
-    from agents.batched import BatchedTaskObservation
-    from agents.shaping import EarlyTermination, LogErrorBonus, check_log_error_bonus, error_norm
-    from agents.train import EnvFactory
+    from cir_gym.agents.batched import BatchedTaskObservation
+    from cir_gym.agents.shaping import (
+        EarlyTermination,
+        LogErrorBonus,
+        check_log_error_bonus,
+        error_norm,
+    )
+    from cir_gym.agents.train import EnvFactory
 
     info = {"task_error": 5e-4, "orientation_error": 0.3}
     assert error_norm(info) == 5e-4 and error_norm(info, 0.1) == pytest.approx(0.03)
@@ -520,7 +526,7 @@ def test_shaping_reads_the_orientation_error_with_orientation_scale():
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory):
     """A from-scratch and a residual run of 256 steps each on 50-step episodes."""
-    from agents.train import train
+    from cir_gym.agents.train import train
 
     tmp = tmp_path_factory.mktemp("runs")
     hp = tiny_hyperparams(tmp)
@@ -563,7 +569,7 @@ def test_trained_model_reloads_and_evaluates(tiny_runs):
 def test_interface_kwargs_keep_only_the_action_interface(tiny_runs):
     """An agent's interface arguments (what its action means) travel with it; the task
     conditions it was trained under (payload_mass, episode_duration) do not."""
-    from agents.policy import TrainedAgent
+    from cir_gym.agents.policy import TrainedAgent
 
     for key in ("scratch", "residual"):  # trained at the default rate, which is recorded
         assert agents.load(ENV, "tiny", path=tiny_runs[key]).interface_kwargs == {
@@ -590,7 +596,7 @@ def test_agent_of_the_default_rate_refuses_another_rate(tiny_runs):
 
 def test_residual_agent_starts_at_the_controller(tiny_runs, tmp_path):
     """A residual agent whose last layer is still zero acts exactly like its controller."""
-    from agents.train import train
+    from cir_gym.agents.train import train
 
     run = train(ENV, "ppo", out=tmp_path, residual="computed_torque", timesteps=0,
                 env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"], progress_bar=False,
@@ -611,7 +617,7 @@ def test_residual_on_given_gains_acts_like_its_controller_at_those_gains(tiny_ru
     gains, saves them in config.yml, and agents.load rebuilds it with them: a residual whose
     last layer is still zero acts exactly like the controller at those gains, not at the
     course's. A bad gain fails before training; gains without a residual are an error."""
-    from agents.train import train
+    from cir_gym.agents.train import train
 
     gains = {"omega_n": 100.0, "zeta": 0.5}
     run = train(ENV, "ppo", out=tmp_path, name="rg", residual="computed_torque", timesteps=0,
@@ -644,7 +650,8 @@ def test_residual_on_given_gains_acts_like_its_controller_at_those_gains(tiny_ru
 def test_cli_trains_a_residual_on_the_tuned_base(tiny_runs, tmp_path):
     """``cir-gym train --residual tuned:computed_torque --set payload_mass=3.0`` uses the gains
     tuned for exactly that variant; a variant without a study is a CLI error."""
-    from scripts.cli import main, tuned_gains
+    from cir_gym.cli import main
+    from cir_gym.scoring.policies import tuned_gains
 
     common = ["train", "--env", ENV, "--residual", "tuned:computed_torque", "--timesteps", "0",
               "--hyperparams", str(tiny_runs["hp"]), "--out", str(tmp_path)]
@@ -674,7 +681,7 @@ def test_batched_prediction_matches_single_and_sb3_evaluate_policy(tiny_runs):
 
 
 def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
-    from agents.train import train
+    from cir_gym.agents.train import train
 
     out = tmp_path / "out"
     shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
@@ -690,9 +697,8 @@ def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path
     """Fine-tuning: a learning rate edited in config.yml before resuming is the one trained
     with (a linear schedule starts where it stands at the resumed step), not the saved one."""
     import yaml
+    from cir_gym.agents.train import train
     from stable_baselines3 import PPO
-
-    from agents.train import train
 
     out = tmp_path / "out"
     shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
@@ -712,7 +718,7 @@ def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path
 
 
 def test_ctrl_c_saves_a_checkpoint(tmp_path, monkeypatch):
-    from agents import train as train_module
+    from cir_gym.agents import train as train_module
 
     def interrupt(self):
         raise KeyboardInterrupt
@@ -754,7 +760,7 @@ def test_loading_checks_the_environment_id_and_version(tiny_runs):
 @pytest.mark.filterwarnings("ignore::tqdm.TqdmExperimentalWarning")
 def test_cli_train_2000_steps_end_to_end(tmp_path):
     """`cir-gym train` with the shipped ppo.yml (progress bar on): ~2-10 s here."""
-    from scripts.cli import main
+    from cir_gym.cli import main
 
     code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
                  "--out", str(tmp_path), "--set", "episode_duration=0.2"])
@@ -773,7 +779,7 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
 
 
 def test_cli_train_rejects_an_unknown_residual_controller(tmp_path, capsys):
-    from scripts.cli import main
+    from cir_gym.cli import main
 
     code = main(["train", "--env", ENV, "--residual", "no_such_controller", "--timesteps", "100",
                  "--out", str(tmp_path)])
@@ -804,7 +810,7 @@ def test_shipped_agents_are_listed_load_and_act():
 
 # ---------------------------------------------------------------------- seeds and reporting
 def test_iqm_and_stratified_bootstrap():
-    from agents.report import interval, iqm, stratified_bootstrap_ci
+    from cir_gym.agents.report import interval, iqm, stratified_bootstrap_ci
 
     assert iqm(np.array([0.0, 1.0, 2.0, 3.0, 100.0, -100.0, 1.5, 2.5])) == pytest.approx(1.75)
     rng = np.random.default_rng(0)
@@ -826,7 +832,7 @@ def test_interval_is_reproducible_and_leaves_numpy_global_generator_alone():
     generator, whatever random_state it is given: the leaderboard's CIs changed from run to
     run), a different seed a different one, and the caller's global random stream goes on
     as if interval had not been called."""
-    from agents.report import interval
+    from cir_gym.agents.report import interval
 
     scores = np.random.default_rng(0).random((3, 3))
     first = interval(scores, reps=300)
@@ -842,7 +848,7 @@ def test_interval_is_reproducible_and_leaves_numpy_global_generator_alone():
 def test_success_rate_is_a_mean_not_an_iqm():
     """A 0/1 success at a 20 % rate: its IQM trims every success away (0), its mean is 0.2,
     with a bootstrap CI over seeds that brackets the per-seed rates' mean."""
-    from agents.report import interval
+    from cir_gym.agents.report import interval
 
     success = np.zeros((3, 10))
     success[0, :3] = success[1, :2] = success[2, :1] = 1.0  # 30 %, 20 %, 10 %
@@ -855,7 +861,7 @@ def test_success_rate_is_a_mean_not_an_iqm():
 
 
 def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkeypatch):
-    from agents.report import curve_band, read_curve, seed_table
+    from cir_gym.agents.report import curve_band, read_curve, seed_table
 
     env_dir = tmp_path / "JointTracking-v1"
     shutil.copytree(tiny_runs["scratch"], env_dir / "old_single")  # the older layout
@@ -879,7 +885,7 @@ def test_curve_band_interpolates_seeds_evaluated_at_different_steps():
     """A seed evaluated every 25k steps (24992, 49984, ...) and two every 100k share no step:
     the band is drawn on the sparse seeds' steps inside the common range, each seed
     interpolated linearly (a line stays that line), not left empty."""
-    from agents.report import curve_band
+    from cir_gym.agents.report import curve_band
 
     def line(t):
         return 1.0 - t / 1e7
@@ -914,11 +920,11 @@ def test_report_main_writes_one_seed_table_per_leaderboard_variant(tmp_path, mon
 
 
 def test_a_batched_run_trains_ships_and_loads_like_any_other(tmp_path):
-    from agents.train import train
+    from cir_gym.agents.train import train
 
     hp = tiny_hyperparams(tmp_path, vec_env="batched", n_envs=4, reward_offset=1.0,
                           log_error_bonus={"weight": 0.5},
-                          env_wrapper={"agents.observation.TaskObservation":
+                          env_wrapper={"cir_gym.agents.observation.TaskObservation":
                                        {"features": ["gravity"]}})
     run = train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, hyperparams_path=hp,
                 progress_bar=False, verbose=0)
@@ -934,7 +940,7 @@ def test_a_batched_run_trains_ships_and_loads_like_any_other(tmp_path):
 
 
 def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
-    from agents.train import ship, train
+    from cir_gym.agents.train import ship, train
 
     run = train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
                 name="ppo/seed_2", seed=2, progress_bar=False, verbose=0)
@@ -949,8 +955,8 @@ def test_tune_gains_smoke(tmp_path):
 
     assert main(["--controller", "pd_gravity", "--trials", "2", "--train-episodes", "1",
                  "--episodes", "1", "--variant", "exact model", "--set", "episode_duration=0.1",
-                 "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "JointTracking-v1.json").read_text())
+                 "--out", str(tmp_path), "--gains-out", str(tmp_path / "gains")]) == 0
+    data = json.loads((tmp_path / "gains" / "JointTracking-v1.json").read_text())
     assert data[0]["default"] == {"omega": 10.0, "zeta": 1.0}
     assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
     assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
@@ -1061,7 +1067,7 @@ def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
     objective is a task key (its agents record it, or train on the default), so the
     leaderboard pairs each shipped agent with its own objective's variant only; a condition
     such as JointTracking's payload is not (an agent may meet it unseen)."""
-    from scripts.leaderboard import jobs_for
+    from cir_gym.scoring.leaderboard import jobs_for
 
     rik = "cir_gym/RedundantIK-v3"
     assert agents.trained_for(rik, "ppo", {"objective": "manipulability"})
@@ -1087,7 +1093,7 @@ def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
     bit for bit (the same context, the same design); on 1e3 N/m the variant's admittance,
     designed for the known stiffness, is far better than that base, and the agent scores what
     its base scores."""
-    from scripts.eval_residual_base import main as residual_base
+    from scripts.research.eval_residual_base import main as residual_base
 
     out = tmp_path / "r.md"
     assert residual_base(["--seed-agent", "1", "--episodes", "1", "--out", str(out)]) == 0
@@ -1103,7 +1109,7 @@ def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
 def test_eval_rik_agents_scores_seeds_and_sorts_laps(tmp_path):
     """scripts/eval_rik_agents.py: a row per training seed with its objective, and every
     diagnosed lap sorted into exactly one kind."""
-    from scripts.eval_rik_agents import main as rik_agents
+    from scripts.research.eval_rik_agents import main as rik_agents
 
     out = tmp_path / "a.md"
     assert rik_agents(["--agent", "ppo_joint_limits", "--episodes", "1", "--laps", "2",
@@ -1118,7 +1124,7 @@ def test_eval_rik_agents_scores_seeds_and_sorts_laps(tmp_path):
 def test_eval_failures_reports_how_each_episode_ends(capsys):
     """scripts/eval_failures.py: one row per episode with how it ended and the played error,
     and a count of failures that ended by termination."""
-    from scripts.eval_failures import main
+    from scripts.research.eval_failures import main
 
     main(["--env", "cir_gym/JointTracking-v1", "--agent", "ppo_100hz", "--seeds", "0",
           "--episodes", "1", "--metric", "rms_error"])
@@ -1135,7 +1141,7 @@ def test_rik_lap_diagnosis_splits_the_error_along_and_across_the_reference_motio
     reference's, and a policy that stands still lags the reference as it starts to move: the
     error lies along the motion, behind it (the closed path later turns back towards the
     start); CLIK stays within its 1-mm bar."""
-    from scripts.eval_rik_agents import _lap
+    from scripts.research.eval_rik_agents import _lap
 
     env_id = "cir_gym/RedundantIK-v3"
     rows, metrics = _lap(baselines.make("clik", env_id), env_id, "manipulability", 1000)

@@ -135,7 +135,7 @@ def test_bench_step_driven_row_times_the_contact_phase_it_recorded():
     import mujoco
     import numpy as np
 
-    import baselines
+    from cir_gym import baselines
 
     bench = _load_bench_step()
     env_id = "cir_gym/PegInHole-v1"
@@ -179,7 +179,7 @@ def test_bench_step_driven_loop_resets_between_trials_off_the_tape():
     import numpy as np
     import pytest
 
-    import baselines
+    from cir_gym import baselines
 
     bench = _load_bench_step()
     env_id = "cir_gym/AdmittanceContact-v0"

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import baselines
+from cir_gym import baselines
 from cir_gym import operational_space as osp
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.cartesian_tracking import (
     NEAR_SINGULAR_Q2,
     NEAR_SINGULAR_Q6,
@@ -22,6 +21,7 @@ from cir_gym.envs.cartesian_tracking import (
     CartesianTrackingEnv,
 )
 from cir_gym.envs.joint_tracking import RANDOM_RANGES
+from cir_gym.validation import InvalidArgument
 
 ENV_ID = "cir_gym/CartesianTracking-v0"
 
@@ -287,7 +287,7 @@ def test_a_path_that_leaves_the_reachable_workspace_is_drawn_again():
     """Seed 1001's first draw takes the flange where CLIK's J loses rank (every
     operational-space law saturated on it); the env redraws it, and the exact inverse
     dynamics then tracks the path it gets to the issue's accuracy."""
-    import baselines
+    from cir_gym import baselines
     from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
     from cir_gym.evaluation import evaluate
 

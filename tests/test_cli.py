@@ -1,4 +1,4 @@
-"""The ``cir-gym`` command line through ``scripts.cli.main``: list, evaluate, leaderboard.
+"""The ``cir-gym`` command line through ``cir_gym.cli.main``: list, evaluate, leaderboard.
 
 Episodes last 0.1 s and runs have one episode: the command line is under test, not the
 controllers.
@@ -12,11 +12,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering for --video (con
 
 import pytest
 
-import baselines
 import cir_gym
-import scripts.cli
-from scripts.cli import main
-from scripts.leaderboard import run_leaderboard
+import cir_gym.cli
+import cir_gym.scoring.policies
+from cir_gym import baselines
+from cir_gym.cli import main
+from cir_gym.scoring.leaderboard import run_leaderboard
 
 ENV = "cir_gym/JointTracking-v1"
 SHORT = ["--episodes", "1", "--set", "episode_duration=0.1"]
@@ -58,7 +59,7 @@ def test_a_bad_output_extension_exits_2_before_evaluating(
     def no_evaluation(*args, **kwargs):
         raise AssertionError("the extension must be checked before evaluating")
 
-    monkeypatch.setattr(scripts.cli, "evaluate", no_evaluation)
+    monkeypatch.setattr(cir_gym.cli, "evaluate", no_evaluation)
     assert main(evaluate_argv(option, str(tmp_path / path))) == 2
     err = capsys.readouterr().err
     assert option in err and allowed in err and "Traceback" not in err
@@ -83,7 +84,7 @@ def test_a_rendering_failure_exits_2_with_a_message(tmp_path, monkeypatch, capsy
     def no_gl(*args, **kwargs):
         raise RuntimeError("MuJoCo could not create an OpenGL context")
 
-    monkeypatch.setattr(scripts.cli, "record_video", no_gl)
+    monkeypatch.setattr(cir_gym.cli, "record_video", no_gl)
     assert main(evaluate_argv("--video", str(tmp_path / "x.mp4"))) == 2
     err = capsys.readouterr().err
     assert "x.mp4" in err and "OpenGL context" in err
@@ -93,7 +94,8 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
     """The command's wiring; the job itself (too long at full episode length) is tested below."""
     calls = []
     monkeypatch.setattr(
-        "scripts.leaderboard.run_leaderboard", lambda out, **kwargs: calls.append((out, kwargs))
+        "cir_gym.scoring.leaderboard.run_leaderboard",
+        lambda out, **kwargs: calls.append((out, kwargs)),
     )
     argv = ["leaderboard", "--episodes", "1", "--seed", "3", "--out", str(tmp_path)]
     assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v3", "--env", ENV]) == 0
@@ -117,7 +119,7 @@ def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
 
 def test_sweep_command_passes_its_options_on(tmp_path, monkeypatch, capsys):
     """The command's wiring (the sweep itself is tested in tests/test_sweep.py)."""
-    from scripts.sweep import SweepSummary
+    from cir_gym.scoring.sweep import SweepSummary
 
     calls = []
 
@@ -125,7 +127,7 @@ def test_sweep_command_passes_its_options_on(tmp_path, monkeypatch, capsys):
         calls.append((grid, out, kwargs))
         return SweepSummary(4, 1, 3, 0, 2.0, tmp_path / "results.parquet")
 
-    monkeypatch.setattr("scripts.sweep.run_sweep", fake)
+    monkeypatch.setattr("cir_gym.scoring.sweep.run_sweep", fake)
     argv = ["sweep", "g.yaml", "--out", str(tmp_path), "--workers", "2", "--ray", "auto"]
     assert main(argv) == 0
     assert calls == [("g.yaml", str(tmp_path), {"workers": 2, "ray": "auto", "retries": 2})]
@@ -161,7 +163,7 @@ def test_train_command_passes_its_hyperparameter_file_on(tmp_path, monkeypatch):
     """``--hyperparams`` reaches ``agents.train.train`` (the default file when omitted)."""
     pytest.importorskip("stable_baselines3")
     calls = []
-    monkeypatch.setattr("agents.train.train", lambda env_id, algo, **kw: calls.append(kw))
+    monkeypatch.setattr("cir_gym.agents.train.train", lambda env_id, algo, **kw: calls.append(kw))
     argv = ["train", "--env", "cir_gym/RedundantIK-v3", "--out", str(tmp_path)]
     hp = "agents/hyperparams/levers/rik_base.yml"
     assert main([*argv, "--hyperparams", hp]) == 0
@@ -174,7 +176,7 @@ def test_train_command_passes_its_hyperparameter_file_on(tmp_path, monkeypatch):
 def _merge_many(store: str, worker: int, n: int) -> None:
     from pathlib import Path
 
-    from scripts.eval_peg_in_hole import merge_rows
+    from scripts.research.eval_peg_in_hole import merge_rows
 
     for i in range(n):
         merge_rows(Path(store), {f"{worker}/{i}": {"worker": worker, "i": i}})
@@ -210,7 +212,7 @@ def test_a_stored_peg_row_is_reused_only_on_its_own_env_version():
     import json
     from pathlib import Path
 
-    from scripts.eval_peg_in_hole import ENV_ID, _env_names, _key
+    from scripts.research.eval_peg_in_hole import ENV_ID, _env_names, _key
 
     committed = Path(__file__).resolve().parents[1] / "results" / "peg_in_hole"
     old = json.loads((committed / "results.json").read_text())["main"][0]
@@ -230,7 +232,7 @@ def test_a_stage_replaces_only_its_part_of_results_json(tmp_path):
     import json
     from pathlib import Path
 
-    from scripts.eval_peg_in_hole import SWEEP_PARTS, _write
+    from scripts.research.eval_peg_in_hole import SWEEP_PARTS, _write
 
     committed = Path(__file__).resolve().parents[1] / "results" / "peg_in_hole"
     stored = json.loads((committed / "results.json").read_text())
@@ -255,8 +257,8 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
     a study instead of guessing."""
     import json
 
-    from scripts.cli import CliError, make_policy, policy_names
-    from scripts.leaderboard import jobs_for
+    from cir_gym.scoring.leaderboard import jobs_for
+    from cir_gym.scoring.policies import PolicyError, make_policy, policy_names
 
     rows = [
         {"variant": "exact model", "env_kwargs": {}, "controller": "pd_gravity",
@@ -265,7 +267,7 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
          "controller": "pd_gravity", "tuned": {"omega": 120.0, "zeta": 1.5}},
     ]
     (tmp_path / "JointTracking-v1.json").write_text(json.dumps(rows))
-    monkeypatch.setattr(scripts.cli, "TUNING_DIR", tmp_path)
+    monkeypatch.setattr(cir_gym.scoring.policies, "TUNED_GAINS_DIR", tmp_path)
     assert "tuned:pd_gravity" in policy_names(ENV)
     assert "tuned:computed_torque" not in policy_names(ENV)
     exact = make_policy(ENV, "tuned:pd_gravity", {}, {})
@@ -273,7 +275,7 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
     assert (exact.gains.omega, exact.gains.zeta) == (50.0, 0.7)
     assert (payload.gains.omega, payload.gains.zeta) == (120.0, 1.5)
     assert make_policy(ENV, "tuned:pd_gravity", {}, {"zeta": 2.0}).gains.zeta == 2.0  # --set
-    with pytest.raises(CliError, match=r"not tuned .* with \{'drive': 'industrial'\}"):
+    with pytest.raises(PolicyError, match=r"not tuned .* with \{'drive': 'industrial'\}"):
         make_policy(ENV, "tuned:pd_gravity", {"drive": "industrial"}, {})
     tuned_jobs = {v for _, v, _, p in jobs_for(ENV) if p == "tuned:pd_gravity"}
     assert tuned_jobs == {"exact model", "unknown 3 kg payload"}
@@ -282,7 +284,7 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
 def test_tuned_gains_hold_whatever_the_reward_arguments():
     """A study's gains are found again with reward-only arguments changed (the reward is not
     the controller's business) and not when a task argument differs."""
-    from scripts.cli import CliError, tuned_gains
+    from cir_gym.scoring.policies import PolicyError, tuned_gains
 
     jt = "cir_gym/JointTracking-v1"
     plain = tuned_gains(jt, "computed_torque", {})
@@ -291,7 +293,7 @@ def test_tuned_gains_hold_whatever_the_reward_arguments():
     assert payload != plain
     assert tuned_gains(jt, "computed_torque", {"payload_mass": 3.0, "charge_unplayed_steps": True,
                                                "error_scales": (0.5,)}) == payload
-    with pytest.raises(CliError, match="was not tuned"):
+    with pytest.raises(PolicyError, match="was not tuned"):
         tuned_gains(jt, "computed_torque", {"payload_mass": 1.0, "torque_weight": 0.5})
     peg = "cir_gym/PegInHole-v1"
     spiral = tuned_gains(peg, "hybrid_spiral", {})
@@ -303,10 +305,10 @@ def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():
     tuple such as VisualServo's camera_error matches the JSON's list)."""
     import json
 
-    from scripts.cli import TUNING_DIR, tuned_gains
+    from cir_gym.scoring.policies import TUNED_GAINS_DIR, tuned_gains
 
     for env_id in cir_gym.ENVIRONMENTS:
-        path = TUNING_DIR / f"{env_id.split('/')[-1]}.json"
+        path = TUNED_GAINS_DIR / f"{env_id.split('/')[-1]}.json"
         if not path.is_file():
             continue
         cls = cir_gym.ENVIRONMENTS[env_id][0]

@@ -32,6 +32,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from cir_gym.agents.policy import AgentFileError
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from gymnasium.utils.passive_env_checker import env_render_passive_checker
 from hypothesis import HealthCheck, assume, given, settings
@@ -41,10 +42,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-import agents
-import baselines
 import cir_gym
-from agents.policy import AgentFileError
+from cir_gym import agents, baselines
 from cir_gym.envs.base import constructor_arguments
 from cir_gym.envs.joint_tracking import REFERENCES
 from cir_gym.evaluation import evaluate
@@ -1050,9 +1049,8 @@ AGENT_ENV = "cir_gym/JointTracking-v1"
 @pytest.fixture(scope="module")
 def agent_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real (untrained: 0 steps, tiny network) PPO run directory of JointTracking-v1."""
+    from cir_gym.agents.train import train
     from test_agents import tiny_hyperparams
-
-    from agents.train import train
 
     tmp = tmp_path_factory.mktemp("agent")
     return train(AGENT_ENV, "ppo", out=tmp, timesteps=0, env_kwargs=_short(AGENT_ENV),

@@ -6,10 +6,10 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from cir_gym.baselines.decentralized import MAX_OMEGA_DT
 
-import baselines
 import cir_gym  # noqa: F401  (registers the ids)
-from baselines.decentralized import MAX_OMEGA_DT
+from cir_gym import baselines
 from cir_gym.motor import average_inertia
 
 ENV = "cir_gym/ElasticJointTracking-v2"

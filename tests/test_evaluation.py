@@ -9,11 +9,11 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-import baselines
+from cir_gym import baselines
+from cir_gym.cli import main
 from cir_gym.evaluation import EpisodeResult, EvaluationResult, evaluate, rank
 from cir_gym.metrics import MetricSpec, aggregate, cvar
-from scripts.cli import main
-from scripts.leaderboard import run_leaderboard
+from cir_gym.scoring.leaderboard import run_leaderboard
 
 ENV = "cir_gym/JointTracking-v1"
 SHORT = {"episode_duration": 0.2}
@@ -253,7 +253,7 @@ def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
     (0 % success, small error) came first."""
     from cir_gym.envs.redundant_ik import RedundantIKEnv
     from cir_gym.evaluation import variant_primary_metric
-    from scripts.leaderboard import _best, ranked_table, rl_summary
+    from cir_gym.scoring.tables import best, ranked_table, rl_summary
 
     metric = variant_primary_metric(RedundantIKEnv, "manipulability")
     rows = [
@@ -271,7 +271,7 @@ def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
         [" 2 ", " clik "],
         [" 3 ", " stopped "],
     ]
-    assert _best(rows).policy_name == "clik_nullspace"
+    assert best(rows).policy_name == "clik_nullspace"
     assert "| manipulability | `min_manipulability` | clik_nullspace" in rl_summary(
         {"manipulability": rows}
     )
@@ -279,7 +279,7 @@ def test_leaderboard_tables_rank_success_first_on_the_variant_metric():
 
 
 def test_the_factor_to_the_best_controller_is_left_out_when_a_value_is_not_positive():
-    from scripts.leaderboard import _summary_cell
+    from cir_gym.scoring.tables import _summary_cell
 
     best = _result("clik_nullspace", [True], [1e-5], [0.3]).ranked_on("min_manipulability")
     zero = _result("agent:ppo", [False], [1e-2], [0.0]).ranked_on("min_manipulability")
@@ -306,7 +306,7 @@ def test_no_factor_to_the_best_controller_of_censored_insertion_times():
     insertion times. Such a factor is "–†" with a footnote; a factor of two fully successful
     rows stays, and so does one of a metric measured in every episode."""
     from cir_gym.envs.peg_in_hole import PegInHoleEnv
-    from scripts.leaderboard import NO_FACTOR, _summary_cell, censored_ratio, rl_summary
+    from cir_gym.scoring.tables import NO_FACTOR, _summary_cell, censored_ratio, rl_summary
 
     spec = next(s for s in PegInHoleEnv.metric_specs if s.name == PegInHoleEnv.primary_metric)
     assert spec.failure_scores_limit
@@ -340,7 +340,7 @@ def test_an_episode_longer_than_the_registered_spec_is_played_in_full():
 
     import gymnasium as gym
 
-    import baselines
+    from cir_gym import baselines
 
     env_id = "cir_gym/JointTracking-v1"
     registered = gym.spec(env_id).max_episode_steps

@@ -17,7 +17,6 @@ from cir_gym.envs.admittance_contact import (
     build_model,
     tool_robot,
 )
-from cir_gym.envs.base import InvalidArgument
 from cir_gym.ft_sensor import (
     PRESETS,
     SensorSpec,
@@ -28,6 +27,7 @@ from cir_gym.ft_sensor import (
 )
 from cir_gym.motion_interface import MEASURED_BANDWIDTH_HZ, CartesianMotionInterface
 from cir_gym.robot import Robot
+from cir_gym.validation import InvalidArgument
 
 H = 1e-3  # physics step (s)
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scripts.identify import excitation_data, run_identify, savgol_coefficients, savgol_filter
+from cir_gym.scoring.identify import (
+    excitation_data,
+    run_identify,
+    savgol_coefficients,
+    savgol_filter,
+)
 
 
 def test_noise_free_identification_gives_computed_torque_the_exact_model_accuracy(tmp_path):
@@ -59,7 +64,7 @@ def test_filtered_differentiation_recovers_qdd_where_finite_differences_drown_in
 def test_spread_reports_every_seed_and_noise_level_with_median_and_range(tmp_path, monkeypatch):
     """The headline must be a spread, not one run: one ratio per (noise, seed), a median and a
     range per noise level and overall."""
-    import scripts.identify as identify
+    import cir_gym.scoring.identify as identify
 
     fake = {(0.1, 0): 1.5, (0.1, 1): 2.5, (0.3, 0): 1.9, (0.3, 1): 3.1}
 

@@ -6,9 +6,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import baselines
 import cir_gym
-from cir_gym import motor
+from cir_gym import baselines, motor
 from cir_gym.envs.joint_tracking import RANDOM_RANGES
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import ModelError, Robot
@@ -148,7 +147,7 @@ def test_robust_alpha_bounds_the_weighted_norm_of_the_inertia_error_below_one():
 
 
 def test_lyapunov_solution_solves_the_equation():
-    from baselines.centralized import lyapunov_solution
+    from cir_gym.baselines.centralized import lyapunov_solution
 
     n = 3
     H = np.block([[np.zeros((n, n)), np.eye(n)], [-400 * np.eye(n), -40 * np.eye(n)]])
@@ -394,7 +393,7 @@ def test_motor_side_inertia_is_diagonal_scales_as_inverse_square_and_dominates_a
         np.testing.assert_allclose(motor.motor_side_inertia(B_bar, 2 * n), B_bar_r / 4)
         np.testing.assert_allclose(B_bar_r, B_bar / n**2)
     # the decentralized design's J_eff is J_m + B̄_r,ii
-    from baselines.decentralized import effective_motor_inertia
+    from cir_gym.baselines.decentralized import effective_motor_inertia
 
     N = robot.gear_ratio
     np.testing.assert_allclose(
@@ -549,7 +548,7 @@ def test_industrial_drive_quantizes_differentiates_delays_and_ripples():
 
 def test_p_pi_feedforward_keeps_a_given_k_ff():
     """It used to overwrite any k_ff with 1 (setdefault on the overrides, not on gains=)."""
-    from baselines.decentralized import FeedforwardCascadeGains
+    from cir_gym.baselines.decentralized import FeedforwardCascadeGains
 
     assert baselines.make("p_pi_feedforward", ENV).gains.k_ff == 1.0
     assert baselines.make("p_pi_feedforward", ENV, k_ff=0.3).gains.k_ff == 0.3
@@ -704,7 +703,7 @@ def test_measured_rows_match_the_sensor_models(drive_kwargs):
 
 
 def test_index_view_is_a_slice_exactly_when_the_addresses_are_evenly_spaced():
-    from cir_gym.envs.base import index_view
+    from cir_gym.numeric import index_view
 
     data = np.arange(20.0)
     for idx in ([0, 1, 2, 3], [13, 12, 11, 10, 9, 8, 7], [6, 5, 4, 3, 2, 1, 0], [4], [1, 3, 5]):
@@ -796,7 +795,7 @@ def test_batched_predict_is_row_by_row_predict_bit_for_bit(env_id):
 def test_row_dynamics_are_the_robot_calls_bit_for_bit():
     """RowDynamics (the controllers' batched model calls) against Robot.gravity and
     Robot.inertia(q) @ q̈ + Robot.bias(q, q̇) on random states, one row and a batch."""
-    from baselines.base import RowDynamics
+    from cir_gym.baselines.base import RowDynamics
 
     robot = Robot.from_name("iiwa14")
     rows = RowDynamics.for_robot(robot)
@@ -843,7 +842,7 @@ def test_predict_still_names_a_non_finite_observation_and_command():
 def test_metric_reductions_are_numpys_bit_for_bit() -> None:
     """base.mean_of / rms_of / max_of (the episode metrics' reductions without numpy's Python
     wrappers) give exactly float(np.mean), float(np.sqrt(np.mean(x**2))), float(np.max)."""
-    from cir_gym.envs.base import max_of, mean_of, rms_of
+    from cir_gym.numeric import max_of, mean_of, rms_of
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 7, 8, 9, 100, 2001):
@@ -862,8 +861,8 @@ def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
     100 Hz, has the same RMS error at every physics step as at its control instants (< 1 %),
     and a policy that holds a constant zero torque (the arm falls between samples) does not
     get a ratio of 1 by construction."""
-    import baselines
-    from scripts.eval_intersample import physics_rate_errors
+    from cir_gym import baselines
+    from scripts.research.eval_intersample import physics_rate_errors
 
     kwargs = {"control_freq": 100.0, "episode_duration": 1.0}
     pd = baselines.make("pd_gravity", "cir_gym/JointTracking-v1", env_kwargs=kwargs)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scripts.leaderboard_page import labelled, markdown_to_html, save_gif, side_by_side
+from cir_gym.scoring.page import labelled, markdown_to_html, save_gif, side_by_side
 
 CHROMIUM = "/usr/bin/chromium"
 #: flags from the machine notes: no sandbox as root, no GPU, no background network traffic
@@ -52,7 +52,7 @@ def test_the_summary_footnote_of_a_left_out_factor_is_a_paragraph_under_its_tabl
     """rl_summary's "–†" cells and their footnote (a censored insertion time) on the page."""
     from cir_gym.envs.peg_in_hole import PegInHoleEnv
     from cir_gym.evaluation import EpisodeResult, EvaluationResult
-    from scripts.leaderboard import rl_summary
+    from cir_gym.scoring.tables import rl_summary
 
     def result(name: str, success: bool, seconds: float) -> EvaluationResult:
         episodes = [EpisodeResult(0, 0.0, 1, success, False, {"insertion_time": seconds})]
@@ -85,8 +85,8 @@ def test_gif_round_trip_keeps_the_frames_and_stays_small(tmp_path: Path) -> None
     for k, (a, b) in enumerate(zip(decoded, frames, strict=True)):
         assert np.abs(a.astype(int) - b).mean() < 6.0
         assert a[44, 4 * k + 8, 0] > 180 and a[44, 4 * k + 8, 1] < 60  # the square is red
-    # one palette, unchanged pixels transparent: smaller than cir_gym.plotting.save_video's GIF
-    from cir_gym.plotting import save_video
+    # one palette, unchanged pixels transparent: smaller than plotting.save_video's GIF
+    from cir_gym.scoring.plotting import save_video
 
     plain = save_video(frames, tmp_path / "plain.gif", fps=10)
     assert path.stat().st_size < 0.5 * plain.stat().st_size
@@ -165,9 +165,10 @@ def test_page_of_two_controllers_loads_in_chromium(tmp_path: Path) -> None:
     figures as run_leaderboard writes them) in the real browser: a few seconds."""
     _need_chromium()
     import cir_gym
-    from cir_gym.plotting import plot_comparison
-    from scripts.leaderboard import _slug, jobs_for, run_job
-    from scripts.leaderboard_page import write_page
+    from cir_gym.scoring.leaderboard import jobs_for, run_job
+    from cir_gym.scoring.page import write_page
+    from cir_gym.scoring.plotting import plot_comparison
+    from cir_gym.scoring.tables import slug
 
     env_id = "cir_gym/JointTracking-v1"
     overrides = {"episode_duration": 0.2}
@@ -178,7 +179,7 @@ def test_page_of_two_controllers_loads_in_chromium(tmp_path: Path) -> None:
     variants = cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants
     for variant in variants:
         rows = [r for (_, v, _), r in sorted(results.items()) if v == variant]
-        plot_comparison(rows, out / f"JointTracking-v1_{_slug(variant)}.png", title=variant)
+        plot_comparison(rows, out / f"JointTracking-v1_{slug(variant)}.png", title=variant)
     index = write_page(out, results, [env_id], 1, 1000, overrides, workers=1)
     gifs = sorted((out / "videos").glob("*.gif"))
     assert len(gifs) == len(variants)
@@ -190,7 +191,7 @@ def test_page_of_two_controllers_loads_in_chromium(tmp_path: Path) -> None:
 def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) -> None:
     _need_chromium()
     import cir_gym
-    from scripts.leaderboard import run_leaderboard
+    from cir_gym.scoring.leaderboard import run_leaderboard
 
     env_id = "cir_gym/JointTracking-v1"
     variants = len(cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants)
@@ -222,9 +223,9 @@ def test_leaderboard_from_a_sweep_ranks_its_episodes_as_the_evaluator_scores_the
     re-run), draws a figure per variant and one against the swept payload, lists the failure."""
     import cir_gym
     from cir_gym.evaluation import evaluate
-    from scripts.cli import make_policy
-    from scripts.leaderboard import leaderboard_from, sweep_results
-    from scripts.sweep import expand, read_table, run_task, write_table
+    from cir_gym.scoring.leaderboard import leaderboard_from, sweep_results
+    from cir_gym.scoring.policies import make_policy
+    from cir_gym.scoring.sweep import expand, read_table, run_task, write_table
 
     env_id = "cir_gym/JointTracking-v1"
     short = {"episode_duration": 0.1}

@@ -7,13 +7,13 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from cir_gym.baselines.hybrid import _rotvec, selection_matrix
 
-from baselines.hybrid import _rotvec, selection_matrix
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.peg_in_hole import PegInHoleEnv
 from cir_gym.operational_space import rotvec_error
+from cir_gym.validation import InvalidArgument
 
 
 def _exact_env(**kwargs: float) -> PegInHoleEnv:
@@ -175,7 +175,7 @@ def test_the_controllers_fast_rotation_vector_is_operational_space_rotvec_error(
 def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
     """On the same hole pose (seed 1000, 3 mm chamfer): hybrid_force_position reaches 90 % of
     the depth below 50 N; position_only, stiff to the nominal hole, ends at the force limit."""
-    import baselines
+    from cir_gym import baselines
     from cir_gym.evaluation import evaluate
 
     hybrid = baselines.make(
@@ -290,7 +290,7 @@ def test_the_admittance_adapter_sees_the_peg_tip_and_presses_the_reference_force
     """PegAdmittance (interaction.py's admittance law on PegInHole): its translated tool pose is
     the peg tip of the nominal arm; with the hole off by 2 mm it lands on the face and then
     regulates the reference force (±20 %), never inserting (no lateral compliance)."""
-    from baselines.hybrid import PegAdmittance
+    from cir_gym.baselines.hybrid import PegAdmittance
 
     env = gym.make("cir_gym/PegInHole-v1", episode_duration=2.0)
     policy = PegAdmittance(env.unwrapped.controller_context(), insertion_force=10.0)

@@ -9,20 +9,20 @@ import re
 import gymnasium as gym
 import numpy as np
 import pytest
+from cir_gym.baselines import kinematic
+from cir_gym.baselines.base import InvalidGain
 from gymnasium.utils.env_checker import check_env
 
 import cir_gym  # noqa: F401  (registers the environments it knows)
-from baselines import kinematic
-from baselines.base import InvalidGain
 from cir_gym import redundancy
 from cir_gym.envs import redundant_ik as env_module
-from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.redundant_ik import (
     REDUNDANT_IK_ENVIRONMENTS,
     RedundantIK7Env,
     RedundantIKEnv,
 )
 from cir_gym.robot import Robot
+from cir_gym.validation import InvalidArgument
 
 ENV = "cir_gym/RedundantIK-v3"
 ENV7 = "cir_gym/RedundantIK7-v4"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pickle
 
 import numpy as np
+from cir_gym.baselines.base import RowDynamics
 
-from baselines.base import RowDynamics
 from cir_gym.robot import Robot
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import yaml
 
-from scripts.sweep import (
+from cir_gym.scoring.sweep import (
     GridError,
     expand,
     read_table,
@@ -188,7 +188,7 @@ def test_table_round_trip_keeps_types_and_missing_cells(tmp_path, fmt):
 
 def test_a_task_gives_the_evaluators_episodes(tmp_path):
     from cir_gym.evaluation import evaluate
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     task = next(
         t
@@ -292,7 +292,7 @@ def test_a_killed_driver_loses_no_finished_task(tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "scripts.cli",
+        "cir_gym.cli",
         "sweep",
         str(grid),
         "--out",
@@ -408,8 +408,8 @@ def test_training_tasks_write_seed_runs_and_evaluate_them(training_sweep):
 def test_leaderboard_reports_training_seeds_with_iqm(training_sweep, tmp_path, monkeypatch):
     """The sweep's two seed runs: in ``leaderboard --from`` as runs over seeds, and, shipped
     as ``<name>/seed_<k>``, in the leaderboard's multi-seed table (agents.report.seed_table)."""
-    import agents
-    from scripts.leaderboard import leaderboard_from, multi_seed_table
+    from cir_gym import agents
+    from cir_gym.scoring.leaderboard import leaderboard_from, multi_seed_table
 
     out, _ = training_sweep
     md = leaderboard_from(out, tmp_path / "page").read_text()
@@ -428,7 +428,7 @@ def test_leaderboard_reports_training_seeds_with_iqm(training_sweep, tmp_path, m
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "sweeps").glob("*.yaml")))
 def test_every_shipped_grid_expands(path):
-    from scripts.sweep import load_grid
+    from cir_gym.scoring.sweep import load_grid
 
     tasks = expand(load_grid(path))
     assert tasks and len({t["task_id"] for t in tasks}) == len(tasks)
@@ -437,7 +437,8 @@ def test_every_shipped_grid_expands(path):
 def test_ray_stays_optional():
     """Neither the package nor the command line imports Ray (or pyarrow) until a sweep asks."""
     code = (
-        "import sys, cir_gym, baselines, agents, scripts.cli, scripts.sweep, scripts.leaderboard;"
+        "import sys, cir_gym, cir_gym.baselines, cir_gym.agents, cir_gym.cli,"
+        " cir_gym.scoring.sweep, cir_gym.scoring.leaderboard;"
         "print(sorted(m for m in ('ray', 'pyarrow') if m in sys.modules))"
     )
     out = subprocess.run(
@@ -491,8 +492,8 @@ def test_a_training_task_killed_mid_run_resumes_from_its_checkpoint(training_swe
 def test_a_training_run_on_another_host_comes_back_to_the_driver(training_sweep, tmp_path):
     """A training task whose driver is elsewhere (a multi-node Ray cluster without a shared
     filesystem) returns its run directory; the driver unpacks it under its own ``out``."""
-    import agents
-    from scripts.sweep import unpack_run
+    from cir_gym import agents
+    from cir_gym.scoring.sweep import unpack_run
 
     src, _ = training_sweep
     record = json.loads(next((src / "tasks").glob("*.json")).read_text())

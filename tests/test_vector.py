@@ -1,4 +1,4 @@
-"""cir_gym.vector's batched envs against the single envs, copy by copy; make_vec and the
+"""cir_gym.envs.vector's batched envs against the single envs, copy by copy; make_vec and the
 registered vector entry points."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ import pytest
 
 import cir_gym
 from cir_gym.envs import BATCHED_ENVIRONMENTS
-from cir_gym.envs.base import InvalidArgument
 from cir_gym.envs.joint_tracking import JointTrackingEnv
-from cir_gym.vector import (
+from cir_gym.envs.vector import (
     VECTOR_ENVS,
     ElasticJointTrackingVectorEnv,
     JointTrackingVectorEnv,
     make_vec,
 )
+from cir_gym.validation import InvalidArgument
 
 N = 3
 KW = {"episode_duration": 0.1}  # 50 steps: the run below crosses an autoreset
@@ -108,7 +108,7 @@ def test_sb3_adapter_follows_sb3_conventions_and_trains():
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecEnv
 
-    from cir_gym.vector import sb3_vec_env
+    from cir_gym.envs.vector import sb3_vec_env
 
     envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **KW)
     vec = sb3_vec_env(envs)

@@ -7,8 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-import baselines
 import cir_gym  # noqa: F401
+from cir_gym import baselines
 from cir_gym import trajectories as traj
 from cir_gym.envs.visual_servo import detect_markers
 from cir_gym.vision import optical_pose

@@ -16,8 +16,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import baselines
 import cir_gym  # noqa: F401
+from cir_gym import baselines
 from cir_gym.fast_solve import solve
 
 ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")

@@ -49,8 +49,8 @@ def test_a_zoo_run_loads_as_a_policy_on_raw_observations(tmp_path):
     the run's wrapper and VecNormalize statistics, acts on the env's raw Dict observation as
     the network does on the normalised flat one, and runs in the project's evaluator."""
     import gymnasium as gym
+    from cir_gym.agents.observation import TaskObservation
 
-    from agents.observation import TaskObservation
     from cir_gym.evaluation import evaluate
 
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", ENV,

@@ -53,20 +53,20 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
 }
 
 
-#: ids with a native batched env on ``mujoco.batch`` (``cir_gym.vector.VECTOR_ENVS``; named here
+#: ids with a native batched env on ``mujoco.batch`` (``cir_gym.envs.vector.VECTOR_ENVS``; named here
 #: so that registering them does not import ``mujoco.batch``)
 BATCHED_ENVIRONMENTS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
 
 
 class VectorEntryPoint:
-    """``gymnasium.register``'s ``vector_entry_point`` of one id: imports ``cir_gym.vector`` on
-    first use and returns :func:`cir_gym.vector.vector_entry_point`'s batched env."""
+    """``gymnasium.register``'s ``vector_entry_point`` of one id: imports ``cir_gym.envs.vector`` on
+    first use and returns :func:`cir_gym.envs.vector.vector_entry_point`'s batched env."""
 
     def __init__(self, env_id: str) -> None:
         self.env_id = env_id
 
     def __call__(self, num_envs: int = 1, **kwargs: Any) -> gym.vector.VectorEnv:
-        from cir_gym.vector import vector_entry_point
+        from cir_gym.envs.vector import vector_entry_point
 
         return vector_entry_point(self.env_id, num_envs, **kwargs)
 
@@ -82,7 +82,7 @@ def register_envs() -> None:
 
     The ids of ``BATCHED_ENVIRONMENTS`` also get a ``vector_entry_point``:
     ``gymnasium.make_vec(id, num_envs)`` (mode None or ``"vector_entry_point"``) builds the
-    native batched env of :mod:`cir_gym.vector`; ``vectorization_mode="sync"`` still gives
+    native batched env of :mod:`cir_gym.envs.vector`; ``vectorization_mode="sync"`` still gives
     Gymnasium's SyncVectorEnv.
     """
     for env_id, (cls, _) in ENVIRONMENTS.items():

@@ -10,21 +10,13 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import rendering
+from cir_gym.context import TaskContext
 from cir_gym.envs.base import (
     _MAX_SPEED_SQ,
     _STATE,
-    _SUM,
     _UNSTABLE_CONTIGUOUS,
-    CLIP,
     MIN_CONTROL_FREQ,
-    InvalidArgument,
     RobotEnv,
-    TaskContext,
-    check_number,
-    index_view,
-    max_of,
-    mean_of,
-    rms_of,
 )
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
@@ -36,6 +28,7 @@ from cir_gym.ft_sensor import (
 )
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.numeric import _SUM, CLIP, index_view, max_of, mean_of, rms_of
 from cir_gym.robot import (
     ASSETS,
     PAYLOAD_OFFSET,
@@ -44,6 +37,7 @@ from cir_gym.robot import (
     Robot,
     apply_model_error,
 )
+from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "AdmittanceContactEnv",

@@ -23,7 +23,6 @@ import math
 import os
 import sys
 import warnings
-from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -31,17 +30,17 @@ import mujoco
 import numpy as np
 
 from cir_gym import rendering
+from cir_gym.context import TaskContext
 from cir_gym.metrics import MetricSpec
-from cir_gym.robot import ModelError, Robot
+from cir_gym.numeric import CLIP
+from cir_gym.robot import ModelError
+from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "EpisodeLongerThanSpec",
-    "InvalidArgument",
     "RobotEnv",
-    "TaskContext",
-    "as_float_array",
     "check_kwargs",
-    "check_number",
+    "make_env",
 ]
 
 GL_HELP = (
@@ -65,15 +64,10 @@ MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverge
 # Hot-path helpers of _check_action/_simulate: the ufuncs themselves (np.max, np.clip add a
 # Python dispatch layer that costs more than the 7-element work), the state mj_getState copies.
 _ABS = np.absolute
-_MAX = np.maximum.reduce
-_SUM = np.add.reduce
 _SUB = np.subtract
 _MUL = np.multiply
 _EXP = np.exp
 _RINT = np.rint  # np.round(x) with decimals=0 is rint (half to even), without its wrapper
-#: numpy's clip ufunc without np.clip's Python wrapper (~4x cheaper on small arrays; the same
-#: values); np.clip itself where numpy has no such private module. The one definition.
-CLIP = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip", np.clip)
 _isfinite = math.isfinite
 _MAX_SPEED_SQ = MAX_JOINT_SPEED**2  # ‖q̇‖² bound of the pre-check in _simulate
 _STATE = int(
@@ -94,51 +88,11 @@ _UNSTABLE_FIRST, _UNSTABLE_LAST = _UNSTABLE_WARNINGS[0], _UNSTABLE_WARNINGS[-1]
 _UNSTABLE_CONTIGUOUS = _UNSTABLE_LAST - _UNSTABLE_FIRST + 1 == len(_UNSTABLE_WARNINGS)
 
 
-def mean_of(x: np.ndarray) -> float:
-    """``float(np.mean(x))`` of a float or bool array of any shape, bit for bit: numpy's own
-    reduction (np.mean sums with ``np.add.reduce`` and divides by the count) without
-    np.mean's Python layers; the episode metrics' hot path."""
-    if x.size == 0 or x.dtype.kind != "f":
-        return float(np.mean(x))
-    return float(_SUM(x, None)) / x.size
-
-
-def rms_of(x: np.ndarray) -> float:
-    """``float(np.sqrt(np.mean(x**2)))``, bit for bit (IEEE sqrt: math's is numpy's)."""
-    return math.sqrt(mean_of(x**2))
-
-
-def max_of(x: np.ndarray) -> float:
-    """``float(np.max(x))`` (over every axis), bit for bit."""
-    return float(_MAX(x, None))
-
-
-def index_view(index: np.ndarray) -> slice | np.ndarray:
-    """A slice that selects what the integer array ``index`` selects, when its entries are
-    evenly spaced (``qpos[s]`` is then a view: no copy, no fancy-indexing cost), else
-    ``index`` itself. Used on the hot path for the robot's joints in ``qpos``/``qvel``."""
-    idx = np.asarray(index, dtype=np.int64).ravel()
-    if idx.size == 0 or np.any(idx < 0):
-        return np.asarray(index)
-    step = int(idx[1] - idx[0]) if idx.size > 1 else 1
-    if step == 0:
-        return np.asarray(index)
-    stop = int(idx[-1]) + step
-    view = slice(int(idx[0]), None if stop < 0 else stop, step)
-    if not np.array_equal(np.arange(int(idx.max()) + 1)[view], idx):
-        return np.asarray(index)
-    return view
-
-
 def _has_display() -> bool:
     """False on Linux/BSD without an X11 or Wayland display (macOS and Windows always have one)."""
     if sys.platform in ("darwin", "win32"):
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
-class InvalidArgument(ValueError, TypeError):
-    """An unknown or out-of-range constructor argument (a ValueError and a TypeError)."""
 
 
 def _init_parameters(cls: type) -> list[inspect.Parameter]:
@@ -173,20 +127,6 @@ def check_kwargs(cls: type, kwargs: dict[str, Any]) -> None:
         )
 
 
-def check_number(
-    name: str, value: Any, low: float = -np.inf, high: float = np.inf, *, low_open: bool = False
-) -> float:
-    """Return ``value`` as a float in [low, high] (or (low, high]); else InvalidArgument."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidArgument(f"{name} must be a number, got {type(value).__name__} {value!r}")
-    v = float(value)
-    bad = not np.isfinite(v) and not (np.isinf(v) and np.isinf(high) and v > 0)
-    if bad or v < low or v > high or (low_open and v <= low):
-        lo = "(" if low_open else "["
-        raise InvalidArgument(f"{name} must be in {lo}{low}, {high}], got {value!r}")
-    return v
-
-
 def model_error_arguments(
     payload_mass: Any, mass_scale: Any, viscous_friction: Any, coulomb_friction: Any
 ) -> ModelError:
@@ -197,36 +137,6 @@ def model_error_arguments(
         viscous_friction=check_number("viscous_friction", viscous_friction, 0.0, 100.0),
         coulomb_friction=check_number("coulomb_friction", coulomb_friction, 0.0, 100.0),
     )
-
-
-def check_encoder_resolution(value: Any) -> float:
-    """An encoder quantum (rad): 0 (exact) or in [1e-12, 0.1]; else InvalidArgument."""
-    res = check_number("encoder_resolution", value, 0.0, 0.1)
-    if 0.0 < res < 1e-12:
-        raise InvalidArgument(
-            f"encoder_resolution must be 0 (exact) or in [1e-12, 0.1] rad, got {value!r}"
-        )
-    return res
-
-
-def check_flag(name: str, value: Any) -> bool:
-    """``value`` as a bool (a Python or numpy bool only); else InvalidArgument."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise InvalidArgument(f"{name} must be True or False, got {value!r}")
-    return bool(value)
-
-
-def as_float_array(name: str, value: Any) -> np.ndarray:
-    """``value`` as a float array, or :class:`InvalidArgument` naming ``name``."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InvalidArgument(
-            f"{name} must be a number or a sequence of numbers, got {value!r}"
-        ) from exc
-    if not np.all(np.isfinite(arr)):
-        raise InvalidArgument(f"{name} must be finite, got {value!r}")
-    return arr
 
 
 def frame_skip(control_freq: float, timestep: float) -> int:
@@ -321,40 +231,6 @@ class EntryPoint:
         return env
 
 
-@dataclass(frozen=True)
-class TaskContext:
-    """What a controller may know about a task: never the simulator, only nominal facts.
-
-    Attributes:
-        robot: shipped robot name or MJCF path of the *nominal* model.
-        dt: control period (s).
-        action_kind: "joint_torque", "joint_velocity", … (what ``action * action_scale`` is).
-        action_scale: (n,) physical units per unit of action.
-        armature: (n,) reflected rotor inertia the task's motors give (kg m²), or None for the
-            robot file's values.
-        gear_ratio, rotor_inertia: (n,) motor side of the joints (chapter 4).
-        site: the task's end-effector site, if any.
-        extras: task-specific facts (objective, obstacle handling, ...).
-    """
-
-    robot: str
-    dt: float
-    action_kind: str
-    action_scale: np.ndarray
-    armature: np.ndarray | None = None
-    gear_ratio: np.ndarray | None = None
-    rotor_inertia: np.ndarray | None = None
-    site: str | None = None
-    extras: dict[str, Any] = field(default_factory=dict)
-
-    def nominal_robot(self) -> Robot:
-        """A fresh nominal :class:`Robot` (the file's parameters, the task's motors)."""
-        robot = Robot.from_name(self.robot)
-        if self.armature is not None:
-            robot.set_armature(self.armature)
-        return robot
-
-
 class RobotEnv(gym.Env[dict, np.ndarray]):
     """Base class of the cir_gym environments (see the module docstring)."""
 
@@ -363,7 +239,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
     primary_metric: ClassVar[str] = ""
     #: constructor arguments that shape only the reward: the dynamics, observations, episode
     #: end, metrics and success do not depend on them (tests/test_conformance.py checks it),
-    #: so a controller's tuned gains (``scripts.cli.tuned_gains``) hold whatever their values
+    #: so a controller's tuned gains (``cir_gym.cli.tuned_gains``) hold whatever their values
     reward_arguments: ClassVar[frozenset[str]] = frozenset()
     success_threshold: ClassVar[float] = 0.0
 

@@ -11,28 +11,23 @@ from gymnasium import spaces
 
 from cir_gym import operational_space as osp
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import (
-    CLIP,
-    InvalidArgument,
-    RobotEnv,
-    TaskContext,
-    as_float_array,
-    check_encoder_resolution,
-    check_flag,
-    check_number,
-    index_view,
-    max_of,
-    mean_of,
-    model_error_arguments,
-    rms_of,
-)
+from cir_gym.context import TaskContext
+from cir_gym.envs.base import RobotEnv, model_error_arguments
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import CLIP, index_view, max_of, mean_of, rms_of
 from cir_gym.robot import (
     Robot,
     apply_model_error,
     draw_model_error,
     inertial_arrays,
     restore_inertial_arrays,
+)
+from cir_gym.validation import (
+    InvalidArgument,
+    as_float_array,
+    check_encoder_resolution,
+    check_flag,
+    check_number,
 )
 
 PATHS = ("random", "segment", "circle", "figure_eight", "near_singular", "regulation")

@@ -7,16 +7,12 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
+from cir_gym.context import TaskContext
 from cir_gym.drives import DriveState
-from cir_gym.envs.base import (
-    InvalidArgument,
-    TaskContext,
-    as_float_array,
-    check_number,
-    index_view,
-)
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.numeric import index_view
 from cir_gym.robot import ModelError, Robot, apply_model_error, robot_path
+from cir_gym.validation import InvalidArgument, as_float_array, check_number
 
 #: Joint stiffness k_el (N m/rad) per joint — an ASSUMPTION of harmonic-drive order of magnitude
 #: (the data sheet publishes none), scaled down toward the wrist where the links are light.

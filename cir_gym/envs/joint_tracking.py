@@ -9,28 +9,11 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import trajectories as traj
+from cir_gym.context import TaskContext
 from cir_gym.drives import DRIVES, DriveModel, DriveState
-from cir_gym.envs.base import (
-    _EXP,
-    _MUL,
-    _RINT,
-    _SUB,
-    _SUM,
-    CLIP,
-    InvalidArgument,
-    RobotEnv,
-    TaskContext,
-    as_float_array,
-    check_encoder_resolution,
-    check_flag,
-    check_number,
-    index_view,
-    max_of,
-    mean_of,
-    model_error_arguments,
-    rms_of,
-)
+from cir_gym.envs.base import _EXP, _MUL, _RINT, _SUB, RobotEnv, model_error_arguments
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import _SUM, CLIP, index_view, max_of, mean_of, rms_of
 from cir_gym.robot import (
     MODEL_ERROR_RANGES,
     ModelError,
@@ -39,6 +22,13 @@ from cir_gym.robot import (
     draw_model_error,
     inertial_arrays,
     restore_inertial_arrays,
+)
+from cir_gym.validation import (
+    InvalidArgument,
+    as_float_array,
+    check_encoder_resolution,
+    check_flag,
+    check_number,
 )
 
 REFERENCES = ("random", "regulation", "quintic", "sine")

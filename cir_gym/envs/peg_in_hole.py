@@ -14,24 +14,15 @@ from gymnasium import spaces
 
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import (
-    _MAX_SPEED_SQ,
-    _STATE,
-    _UNSTABLE_CONTIGUOUS,
-    CLIP,
-    InvalidArgument,
-    RobotEnv,
-    TaskContext,
-    check_number,
-    index_view,
-    max_of,
-    mean_of,
-)
+from cir_gym.context import TaskContext
+from cir_gym.envs.base import _MAX_SPEED_SQ, _STATE, _UNSTABLE_CONTIGUOUS, RobotEnv
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.numeric import CLIP, index_view, max_of, mean_of
 from cir_gym.operational_space import rotvec_error
 from cir_gym.robot import Robot
+from cir_gym.validation import InvalidArgument, check_number
 
 CONTROLS = ("torque", "position")
 #: Position interface: largest setpoint speed (m/s) and angular speed (rad/s); an action of 1 moves
@@ -42,7 +33,7 @@ MAX_ANGULAR_SPEED = 0.5
 #: steps, as a force monitor sampling at 500 Hz sees it (an impact's sub-millisecond spike on the
 #: rigid arm model is an impulse, not a sustained force).
 FORCE_WINDOW = 2e-3
-TOOL_COM = np.array([0.0, 0.0, geo.PEG_OFFSET + geo.PEG_LENGTH / 2])  # in the sensor frame
+TOOL_COM = np.array(geo.PEG_COM)  # in the sensor frame
 #: Orientation of the peg-tip frame in the hole frame when the peg is aligned with the bore
 #: (peg z pointing into the hole: a half turn about y).
 ALIGNED = np.diag([-1.0, 1.0, -1.0])
@@ -861,6 +852,8 @@ class PegInHoleEnv(RobotEnv):
             site="flange",
             extras={
                 "tool_mass": geo.PEG_MASS,
+                "tool_com": TOOL_COM.copy(),
+                "hole_position": np.array(geo.HOLE_POSITION),
                 "tip_offset": self.geometry.tip_offset,
                 "clearance": self.clearance,
                 "chamfer": self.chamfer,

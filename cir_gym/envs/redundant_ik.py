@@ -24,8 +24,10 @@ import numpy as np
 from gymnasium import spaces
 
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import CLIP, InvalidArgument, RobotEnv, TaskContext, check_number
+from cir_gym.context import TaskContext
+from cir_gym.envs.base import RobotEnv
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import CLIP
 from cir_gym.operational_space import align_quat, quat_dot
 from cir_gym.redundancy import (
     LAP_WINDOW,
@@ -42,6 +44,7 @@ from cir_gym.redundancy import (
     witness_path,
 )
 from cir_gym.robot import Robot, robot_path
+from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "REDUNDANT_IK_ENVIRONMENTS",

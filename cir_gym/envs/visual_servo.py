@@ -21,20 +21,14 @@ from gymnasium import spaces
 
 from cir_gym import rendering
 from cir_gym import trajectories as traj
-from cir_gym.envs.base import (
-    CLIP,
-    GL_DISABLED,
-    GL_HELP,
-    InvalidArgument,
-    RobotEnv,
-    TaskContext,
-    as_float_array,
-    check_number,
-)
+from cir_gym.context import TaskContext
+from cir_gym.envs.base import GL_DISABLED, GL_HELP, RobotEnv
 from cir_gym.fast_solve import solve
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import CLIP
 from cir_gym.redundancy import orientation_error
 from cir_gym.robot import ASSETS, Robot
+from cir_gym.validation import InvalidArgument, as_float_array, check_number
 from cir_gym.vision import MUJOCO_TO_OPTICAL, Camera
 
 as_strided = np.lib.stride_tricks.as_strided

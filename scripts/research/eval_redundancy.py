@@ -87,7 +87,7 @@ class ClearingMotion:
 
 def make_policy(name: str, env: Any) -> Any:
     """The controller (or variant, or the oracle) ``name`` for ``env``."""
-    from baselines.kinematic import KINEMATIC_CONTROLLERS
+    from cir_gym.baselines.kinematic import KINEMATIC_CONTROLLERS
 
     if name == ORACLE:
         return ClearingMotion(env)
@@ -176,8 +176,8 @@ def singular_path(out: Path) -> dict[str, float]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from cir_gym.baselines.kinematic import CLIK, DampedLeastSquaresCLIK
 
-    from baselines.kinematic import CLIK, DampedLeastSquaresCLIK
     from cir_gym.envs.redundant_ik import RedundantIKEnv
 
     env = RedundantIKEnv()

@@ -27,14 +27,13 @@ from typing import Any
 
 import numpy as np
 import yaml
+from cir_gym.agents.report import read_curve
 
-import agents
-import baselines
-from agents.report import read_curve
+from cir_gym import agents, baselines
 from cir_gym.envs.cartesian_tracking import NEAR_SINGULAR_Q2, NEAR_SINGULAR_Q6
 from cir_gym.evaluation import EvaluationResult, evaluate
-from cir_gym.plotting import _plt
 from cir_gym.robot import Robot
+from cir_gym.scoring.plotting import _plt
 
 ENV = "cir_gym/CartesianTracking-v0"
 CONTROLLERS = ("os_pd_gravity", "os_inverse_dynamics", "os_inverse_dynamics_dls", "os_khatib")

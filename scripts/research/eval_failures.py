@@ -17,12 +17,12 @@ from __future__ import annotations
 import argparse
 
 import gymnasium as gym
+from cir_gym.agents.shaping import error_norm
 
-import agents
 import cir_gym  # noqa: F401  (registers the environments)
-from agents.shaping import error_norm
+from cir_gym import agents
 from cir_gym.evaluation import interface_env_kwargs
-from scripts.cli import _parse_value
+from cir_gym.scoring.policies import parse_value
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="environment argument (a Python literal or a bare string)")
     args = ap.parse_args(argv)
 
-    kwargs = {key: _parse_value(value)
+    kwargs = {key: parse_value(value)
               for key, _, value in (item.partition("=") for item in args.set)}
     failed = ended = 0
     for k in args.seeds if args.seeds is not None else agents.seeds(args.env, args.agent):

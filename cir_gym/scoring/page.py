@@ -1,16 +1,16 @@
 """``<out>/index.html``: the leaderboard as one static page, with a video per variant.
 
-Written by :func:`scripts.leaderboard.run_leaderboard` (``cir-gym leaderboard``) after
+Written by :func:`cir_gym.scoring.leaderboard.run_leaderboard` (``cir-gym leaderboard``) after
 ``leaderboard.md`` and its figures, from the same results. The page needs no server and no
 network: plain HTML and CSS in one file, images by relative path (the per-variant figures
 beside it, the learning curves in ``results/learning_curves``, the videos in
 ``<out>/videos``). It holds, per environment and variant, the controllers-vs-RL summary, the
 ranked table, the comparison figure and a GIF of one episode (the leaderboard's first seed)
-of the best controller and the best agent side by side (best = :func:`scripts.leaderboard.
-_best`: the highest success rate, then the best primary metric), each frame showing the task
-(:meth:`cir_gym.envs.base.RobotEnv.draw_task`) and its caption. A small inline script marks
-the page (``<html data-broken="N">``) with the number of images that failed to load, which the
-browser test reads; it changes nothing else.
+of the best controller and the best agent side by side (best =
+:func:`cir_gym.scoring.tables.best`: the highest success rate, then the best primary metric),
+each frame showing the task (:meth:`cir_gym.envs.base.RobotEnv.draw_task`) and its caption.
+A small inline script marks the page (``<html data-broken="N">``) with the number of images
+that failed to load, which the browser test reads; it changes nothing else.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ VIDEO_SIZE = 180
 VIDEO_FPS = 8
 VIDEO_SECONDS = 6.0
 #: where the learning curves live (scripts/plot_learning_curves.py)
-LEARNING_CURVES = Path(__file__).resolve().parents[1] / "results" / "learning_curves"
+LEARNING_CURVES = Path(__file__).resolve().parents[2] / "results" / "learning_curves"
 
 CSS = """
 body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1200px; padding: 0 1em;
@@ -159,7 +159,7 @@ def episode_frames(
     """Frames (size × size RGB) of one episode of ``policy_name`` at ≈ ``fps`` frames/s, the
     first ``seconds`` of it (the episode goes on to its end: the last frame is its end)."""
 
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     policy = make_policy(env_id, policy_name, env_kwargs, {})
     env_kwargs = interface_env_kwargs(policy, env_kwargs)
@@ -302,7 +302,7 @@ def write_page(
         extra: (env_id, variant) → markdown shown under that variant's ranked table (the
             multi-seed agents' table).
     """
-    from scripts.leaderboard import _best, _slug, ranked_table, rl_summary
+    from cir_gym.scoring.tables import best, ranked_table, rl_summary, slug
 
     out.mkdir(parents=True, exist_ok=True)
     sections: list[tuple[str, str, list[tuple[str, str, str, list[Any], str, list[str]]]]] = []
@@ -317,15 +317,15 @@ def write_page(
         entries = []
         for variant, kwargs in variants.items():
             rows = rows_of[variant]
-            ctrl = _best([r for r in rows if not r.policy_name.startswith("agent:")])
-            agent = _best([r for r in rows if r.policy_name.startswith("agent:")])
+            ctrl = best([r for r in rows if not r.policy_name.startswith("agent:")])
+            agent = best([r for r in rows if r.policy_name.startswith("agent:")])
             shown = [r.policy_name for r in (ctrl, agent) if r is not None]
             name = env_id.split("/")[-1]
-            gif = out / "videos" / f"{name}_{_slug(variant)}.gif"
+            gif = out / "videos" / f"{name}_{slug(variant)}.gif"
             if videos and shown:
                 jobs.append((env_id, {**kwargs, **(env_overrides or {})}, shown, seed, str(gif)))
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
-            fig = out / f"{name}_{_slug(variant)}.png"
+            fig = out / f"{name}_{slug(variant)}.png"
             entries.append(
                 (variant, setting, str(gif) if videos and shown else "", rows, str(fig), shown)
             )
@@ -357,12 +357,12 @@ def write_page(
         '<a href="leaderboard.md">leaderboard.md</a>.</p>',
         "<nav>"
         + "".join(
-            f'<a href="#{_slug(e)}">{html.escape(e.split("/")[-1])}</a>' for e, _, _ in sections
+            f'<a href="#{slug(e)}">{html.escape(e.split("/")[-1])}</a>' for e, _, _ in sections
         )
         + "</nav>",
     ]
     for env_id, description, entries in sections:
-        body.append(f'<h2 id="{_slug(env_id)}">{html.escape(env_id)}</h2>')
+        body.append(f'<h2 id="{slug(env_id)}">{html.escape(env_id)}</h2>')
         body.append(markdown_to_html(description, "summary"))
         curve = _learning_curve(env_id)
         if curve is not None:

@@ -55,9 +55,10 @@ from gymnasium.vector.utils import batch_space
 from cir_gym.envs.base import (
     _UNSTABLE_WARNINGS as _UNSTABLE,  # MuJoCo's instability warnings, as RobotEnv counts them
 )
-from cir_gym.envs.base import MAX_JOINT_SPEED, InvalidArgument, check_kwargs, check_number
+from cir_gym.envs.base import MAX_JOINT_SPEED, check_kwargs
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "VECTOR_ENVS",

@@ -29,8 +29,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-import baselines
 import cir_gym  # noqa: F401  (registers the environments)
+from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
 ENV_ID = "cir_gym/AdmittanceContact-v0"
@@ -171,8 +171,8 @@ def agent_dirs(out: Path) -> dict[str, tuple[Path, bool]]:
     ``<out>/agents/<name>/`` (agents on the position interface, which the leaderboard does not
     run, so they are not in agents/trained)."""
     try:
-        from agents import TRAINED_DIR, available
-        from agents.train import env_dir_name
+        from cir_gym.agents import TRAINED_DIR, available
+        from cir_gym.agents.train import env_dir_name
     except ImportError:  # the train extra is not installed
         return {}
     dirs = {n: (TRAINED_DIR / env_dir_name(ENV_ID) / n, True) for n in available(ENV_ID)}
@@ -184,7 +184,7 @@ def agent_dirs(out: Path) -> dict[str, tuple[Path, bool]]:
 def agent_rows(episodes: int, seed: int, out: Path) -> dict[str, dict[str, Any]]:
     """Every agent of :func:`agent_dirs` on the randomize variant (same seeds as the table),
     with its own env arguments; for an experiment also its controller alone on them."""
-    from agents.policy import load_agent, read_config
+    from cir_gym.agents.policy import load_agent, read_config
 
     rows = {}
     for name, (path, shipped) in agent_dirs(out).items():

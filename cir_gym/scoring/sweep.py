@@ -18,7 +18,8 @@ of the grid are merged into one tidy table, ``<out>/results.parquet`` (``results
 pyarrow): one row per episode with the task's parameters (``env.<argument>``, ``gain.<name>``,
 ``hp.<name>``) and the episode's return, length, success, divergence and metrics
 (``metric.<name>``); a failed task is one row with ``status = "failed"`` and its ``error``.
-``cir-gym leaderboard --from <out>`` renders it (:func:`scripts.leaderboard.leaderboard_from`).
+``cir-gym leaderboard --from <out>`` renders it
+(:func:`cir_gym.scoring.leaderboard.leaderboard_from`).
 
 Episodes are scored by :func:`cir_gym.evaluation.evaluate` (episode ``i`` of a task reset with
 seed ``first seed + i``), so splitting a seed range into tasks changes no result. Training tasks
@@ -233,7 +234,7 @@ def _describe(kwargs: dict[str, Any]) -> str:
 
 
 def _policies(where: str, env_id: str, spec: Any) -> list[str]:
-    from scripts.cli import policy_names
+    from cir_gym.scoring.policies import policy_names
 
     valid = policy_names(env_id)
     if spec in (None, "all"):
@@ -255,7 +256,7 @@ def _is_factory(policy: str) -> bool:
 
 
 def _gain_sets(where: str, env_id: str, policy: str, spec: Any) -> list[dict[str, Any]]:
-    import baselines
+    from cir_gym import baselines
 
     if not isinstance(spec, dict):
         raise GridError(f"{where}: 'gains' must map a controller to its gain axes, got {spec!r}")
@@ -311,7 +312,7 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
         GridError: unknown keys, environments, policies, arguments or gains; bad counts;
             two training tasks that would write the same run directory.
     """
-    from scripts.cli import trained_for
+    from cir_gym.scoring.policies import trained_for
 
     _check_keys("grid", grid, ("name", "evaluate", "train"))
     tasks: list[dict[str, Any]] = []
@@ -359,7 +360,7 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _train_tasks(where: str, block: dict[str, Any]) -> list[dict[str, Any]]:
-    import baselines
+    from cir_gym import baselines
 
     _check_keys(where, block, TRAIN_KEYS)
     algos = block.get("algos", ["ppo"])
@@ -453,7 +454,7 @@ def _factory(spec: str) -> Callable[..., Any]:
 
 
 def _policy(task: dict[str, Any]) -> Any:
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     if _is_factory(task["policy"]):
         return _factory(task["policy"])(
@@ -521,8 +522,7 @@ def _hyperparams_file(task: dict[str, Any], directory: Path) -> Path | None:
     ``training`` and, for a residual run, ``residual``), so the set wins whatever the file
     says; the file itself when the set is empty (None: the shipped file)."""
     import yaml
-
-    from agents.hyperparameters import HYPERPARAMS_DIR, _read_yaml
+    from cir_gym.agents.hyperparameters import HYPERPARAMS_DIR, _read_yaml
 
     hp = task["hyperparams"]
     if not hp:
@@ -542,9 +542,10 @@ def _hyperparams_file(task: dict[str, Any], directory: Path) -> Path | None:
 
 
 def _train_task(task: dict[str, Any], out: Path) -> tuple[list[dict[str, Any]], Path]:
-    import agents
-    from agents import env_dir_name
-    from agents.train import train
+    from cir_gym.agents import env_dir_name
+    from cir_gym.agents.train import train
+
+    from cir_gym import agents
 
     runs = out / "runs"
     run_dir = runs / env_dir_name(task["env_id"]) / task["run_name"]

@@ -42,8 +42,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-import baselines
-from cir_gym import dynamics
+from cir_gym import baselines, dynamics
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import Robot
 

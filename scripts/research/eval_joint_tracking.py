@@ -31,11 +31,10 @@ from typing import Any
 
 import numpy as np
 
-import baselines
-from cir_gym import dynamics
+from cir_gym import baselines, dynamics
 from cir_gym.evaluation import EvaluationResult, evaluate
-from cir_gym.plotting import _plt
 from cir_gym.robot import ModelError, Robot
+from cir_gym.scoring.plotting import _plt
 
 ENV = "cir_gym/JointTracking-v1"
 GEAR_RATIOS = (1.0, 5.0, 20.0, 50.0, 100.0, 160.0)

@@ -27,8 +27,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-import baselines
 import cir_gym
+from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
 EYE_IN_HAND = "cir_gym/VisualServo-v0"
@@ -255,7 +255,7 @@ def agent(n: int) -> list[str]:
     """Every shipped agent of the eye-in-hand task, every training seed, against IBVS and PBVS
     on the same episodes of each leaderboard variant (exact camera, calibration error): seeds
     ``AGENT_SEED`` … (unseen by training, its evaluations, tuning and the leaderboard)."""
-    import agents
+    from cir_gym import agents
 
     rows = ["| variant | policy | success | final error (px), mean / worst | convergence time "
             "(s), median | feature lost or joint limit |", "|---|---|---:|---:|---:|---:|"]

@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 
 import cir_gym
-from cir_gym.evaluation import EvaluationResult, evaluate, rank, variant_primary_metric
-from scripts.leaderboard_page import write_page
+from cir_gym.evaluation import EvaluationResult, evaluate, variant_primary_metric
+from cir_gym.scoring.page import write_page
+from cir_gym.scoring.tables import ranked_table, rl_summary, slug
 
 
 def jobs_for(
@@ -33,9 +34,9 @@ def jobs_for(
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate: every
     controller on every variant, at its course gains and, where ``scripts/tune_gains.py``
     tuned it for exactly the variant's arguments, at those gains (``tuned:<controller>``,
-    :func:`scripts.cli.tuned_gains`); a shipped agent only on the variants of the task it was
+    :func:`cir_gym.cli.tuned_gains`); a shipped agent only on the variants of the task it was
     trained for (:func:`agents.trained_for`: RedundantIK's objective)."""
-    from scripts.cli import has_tuned_gains, policy_names, trained_for
+    from cir_gym.scoring.policies import has_tuned_gains, policy_names, trained_for
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
@@ -51,7 +52,7 @@ def jobs_for(
 def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
 ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
-    from scripts.cli import make_policy
+    from cir_gym.scoring.policies import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
     t0 = time.perf_counter()
@@ -83,7 +84,7 @@ def run_leaderboard(
     ``env_overrides`` are added to every environment's kwargs (e.g. a short
     ``episode_duration`` for tests).
     """
-    from cir_gym.plotting import plot_comparison
+    from cir_gym.scoring.plotting import plot_comparison
 
     env_ids = envs or list(cir_gym.ENVIRONMENTS)
     jobs = [j for e in env_ids for j in jobs_for(e, env_overrides)]
@@ -134,7 +135,7 @@ def run_leaderboard(
             if seeds_md:
                 seed_tables[(env_id, variant)] = seeds_md
                 lines += [seeds_md, ""]
-            fig = out / f"{env_id.split('/')[-1]}_{_slug(variant)}.png"
+            fig = out / f"{env_id.split('/')[-1]}_{slug(variant)}.png"
             plot_comparison(rows, fig, title=f"{env_id} — {variant}")
             lines += [f"![{env_id} {variant}]({fig.name})", ""]
     md = out / "leaderboard.md"
@@ -163,146 +164,18 @@ def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, see
     variant, over all their seeds: :func:`agents.report.seed_table` (IQM of the primary metric
     with its stratified-bootstrap CI over seeds). "" when there is none (or no train extra).
     The ranked table above it shows such an agent's first seed only."""
-    from scripts.cli import _agents_module
+    from cir_gym.scoring.policies import agents_module
 
-    ag = _agents_module()
+    ag = agents_module()
     if ag is None:
         return ""
     names = [n for n in ag.available(env_id)
              if len(ag.seeds(env_id, n)) >= 2 and ag.trained_for(env_id, n, env_kwargs)]
     if not names:
         return ""
-    from agents.report import seed_table
+    from cir_gym.agents.report import seed_table
 
     return seed_table(env_id, env_kwargs, episodes=episodes, seed=seed, names=names)
-
-
-def ranked_table(rows: list[EvaluationResult]) -> str:
-    """:func:`scripts.cli.format_table`'s markdown table, rows in :func:`rank`'s order
-    (success rate, then the primary metric) instead of the primary metric alone."""
-    from scripts.cli import format_table
-
-    if not rows:
-        return format_table(rows)
-    tables = [format_table([r]).split("\n") for r in rank(rows)]
-    return "\n".join(
-        [
-            *tables[0][:2],
-            *(f"| {i} |" + table[2].split("|", 2)[2] for i, table in enumerate(tables, 1)),
-        ]
-    )
-
-
-def _best(group: list[EvaluationResult]) -> EvaluationResult | None:
-    """The best result of ``group`` (:func:`rank`: the highest success rate, then the best
-    primary-metric mean; NaN never wins). Success first, because an episode that ends early —
-    at a joint limit, on an obstacle — can still show a small tracking error."""
-    finite = [r for r in group if np.isfinite(r.summary[r.primary_metric]["mean"])]
-    return rank(finite)[0] if finite else None
-
-
-#: in a summary cell, the factor to the best controller left out (:func:`censored_ratio`)
-NO_FACTOR = "–†"
-
-
-def censored_ratio(r: EvaluationResult, reference: EvaluationResult) -> bool:
-    """Whether the factor of ``r`` to ``reference`` on their primary metric would compare
-    censored values: the metric scores a failed episode at a fixed limit
-    (``MetricSpec.failure_scores_limit``, PegInHole's ``insertion_time``: the time limit) and
-    either mean includes a failed episode. A 0 %-success agent's mean is then the limit
-    itself, and a partly successful one's is pulled towards it: the ratio would measure the
-    failures, not the metric. Other metrics are measured in every episode, so their ratios
-    stand (the success rate is printed beside them)."""
-    spec = r.spec(r.primary_metric)
-    return spec.failure_scores_limit and min(r.success_rate, reference.success_rate) < 1.0
-
-
-def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
-    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse);
-    :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`)."""
-    if r is None:
-        return "–"
-    primary = r.primary_metric
-    s = r.summary[primary]
-    text = (
-        f"{r.policy_name}: {s['mean']:.3g} (worst {s['worst']:.3g}, "
-        f"{100 * r.success_rate:.0f} % success)"
-    )
-    if reference is not None:
-        c = reference.summary[primary]["mean"]
-        if censored_ratio(r, reference):
-            text += f", {NO_FACTOR}"
-        elif np.isfinite(c) and c > 0 and s["mean"] > 0:  # a ratio of clearances < 0 says nothing
-            higher = r.spec(primary).better == "higher"
-            factor = c / s["mean"] if higher else s["mean"] / c
-            text += f", **{factor:.3g}×** the best controller's"
-    return text
-
-
-def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
-    """Per variant: the best controller, the best from-scratch agent and the best residual
-    agent on the primary metric (mean), with success, worst episode and the factor to the
-    best controller (> 1: worse than it, in the metric's own direction); a footnote under the
-    table when a factor is left out (:func:`censored_ratio`)."""
-    lines = [
-        "| variant | ranked on | best controller, course gains | best controller, tuned gains "
-        "| best from-scratch RL | best residual RL |",
-        "|---|---|---|---|---|---|",
-    ]
-    censored: set[str] = set()
-    for variant, rows in by_variant.items():
-        if not rows:
-            continue
-        course = _best([r for r in rows if not r.policy_name.startswith(("agent:", "tuned:"))])
-        tuned = _best([r for r in rows if r.policy_name.startswith("tuned:")])
-        ctrl = _best([r for r in (course, tuned) if r is not None])  # the bar for RL
-        agents_ = [r for r in rows if r.policy_name.startswith("agent:")]
-        scratch = _best([r for r in agents_ if "residual" not in r.policy_name])
-        residual = _best([r for r in agents_ if "residual" in r.policy_name])
-        for r in (scratch, residual):
-            if r is not None and ctrl is not None and censored_ratio(r, ctrl):
-                censored.add(r.primary_metric)
-        lines.append(
-            f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(course, None)} | "
-            f"{_summary_cell(tuned, None)} | "
-            f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
-        )
-    notes = []
-    if any(r.policy_name.startswith("agent:residual") for rows in by_variant.values()
-           for r in rows):
-        notes += [
-            "",
-            "A residual agent carries its base controller as designed from the context of the "
-            "env it was trained on (`agents.load`), on every variant: where a variant tells the "
-            "controllers more than training did (AdmittanceContact's fixed stiffnesses, against "
-            "an agent trained on `randomize=True`, whose `admittance` designs for the worst "
-            "case), the gap to the best controller includes that information (docs/agents.md).",
-        ]
-    if censored:
-        names = ", ".join(f"`{m}`" for m in sorted(censored))
-        notes += [
-            "",
-            f"{NO_FACTOR[-1]} No factor to the best controller: a failed episode scores {names} "
-            "at a fixed limit (a time: the time limit), not a measured value, and a mean here "
-            "includes failed episodes (at 0 % success it is the limit itself), so the ratio would "
-            "compare the limit with measured values.",
-        ]
-    return "\n".join(
-        [
-            "Controllers vs RL on each variant's primary metric (mean over the same "
-            "seeds; best = highest success rate, then the best mean). A controller runs at the "
-            "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
-            "found for the variant (Optuna on training seeds; results/tuning/); an agent's "
-            "factor is to the better of the two best controllers:",
-            "",
-            *lines,
-            *notes,
-        ]
-    )
-
-
-def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in text).strip("_").lower()
 
 
 # ---------------------------------------------------------------------- a sweep's table
@@ -359,7 +232,7 @@ def training_seed_table(results: dict[str, EvaluationResult]) -> str:
     """Training runs of one variant with >= 2 seeds: IQM of the primary metric over (seeds ×
     episodes) with its 95 % stratified-bootstrap CI (:func:`agents.report.interval`, the
     statistics of :func:`agents.report.seed_table`), mean success rate, each seed's mean."""
-    from agents.report import interval
+    from cir_gym.agents.report import interval
 
     runs: dict[str, list[EvaluationResult]] = {}
     for label, r in results.items():
@@ -417,7 +290,7 @@ def _swept_axis(rows: list[dict[str, Any]]) -> str | None:
 def plot_sweep_axis(rows: list[dict[str, Any]], env_id: str, axis: str, path: Path) -> Path:
     """The primary metric (mean over each policy's episodes) against a swept numeric
     environment argument, one line per policy: where each controller stops coping."""
-    from cir_gym.plotting import _plt
+    from cir_gym.scoring.plotting import _plt
 
     plt = _plt()
     cls = cir_gym.ENVIRONMENTS[env_id][0]
@@ -456,9 +329,9 @@ def leaderboard_from(directory: Path, out: Path | None = None) -> Path:
     in ``out`` (default ``DIR``). Ranked as the leaderboard ranks (:func:`ranked_table`);
     training runs over >= 2 seeds also get :func:`training_seed_table`; failed tasks are listed
     with their errors. Returns the markdown's path."""
-    from cir_gym.plotting import plot_comparison
-    from scripts.leaderboard_page import html_page, markdown_to_html
-    from scripts.sweep import read_table
+    from cir_gym.scoring.page import html_page, markdown_to_html
+    from cir_gym.scoring.plotting import plot_comparison
+    from cir_gym.scoring.sweep import read_table
 
     directory = Path(directory)
     out = Path(out) if out is not None else directory
@@ -483,7 +356,7 @@ def leaderboard_from(directory: Path, out: Path | None = None) -> Path:
         axis = _swept_axis(env_rows)
         if axis is not None:
             fig = plot_sweep_axis(
-                env_rows, env_id, axis, out / f"{env_id.split('/')[-1]}_vs_{_slug(axis[4:])}.png"
+                env_rows, env_id, axis, out / f"{env_id.split('/')[-1]}_vs_{slug(axis[4:])}.png"
             )
             lines += [f"![{env_id} against {axis[4:]}]({fig.name})", ""]
         for (e, variant), by_label in results.items():
@@ -505,7 +378,7 @@ def leaderboard_from(directory: Path, out: Path | None = None) -> Path:
             seeds_md = training_seed_table(by_label)
             if seeds_md:
                 lines += [seeds_md, ""]
-            fig = out / f"{env_id.split('/')[-1]}_{_slug(variant)}.png"
+            fig = out / f"{env_id.split('/')[-1]}_{slug(variant)}.png"
             plot_comparison(group, fig, title=f"{env_id} — {variant}")
             lines += [f"![{env_id} {variant}]({fig.name})", ""]
     if failed:

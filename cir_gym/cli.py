@@ -6,22 +6,29 @@ cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...
 cir-gym leaderboard [--episodes N] [--out results/]
 cir-gym leaderboard --from DIR [--out DIR]    (a sweep's table: tables and figures)
 cir-gym sweep GRID.yaml --out DIR [--workers N] [--ray ADDRESS|auto|local] [--retries N]
-cir-gym train ...      (see ``agents.train``)
-cir-gym identify ...   (see ``scripts.identify``)
+cir-gym train ...      (see ``cir_gym.agents.train``)
+cir-gym identify ...   (see ``cir_gym.scoring.identify``)
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
 import sys
 from pathlib import Path
 from typing import Any
 
-import baselines
 import cir_gym
-from cir_gym.envs.base import constructor_arguments, make_env
-from cir_gym.evaluation import EvaluationResult, evaluate, interface_env_kwargs
+from cir_gym.envs.base import make_env
+from cir_gym.evaluation import evaluate, interface_env_kwargs
+from cir_gym.scoring.policies import (
+    PolicyError,
+    check_env_id,
+    make_policy,
+    policy_names,
+    resolve_tuned,
+    split_settings,
+)
+from cir_gym.scoring.tables import format_table
 
 
 class CliError(Exception):
@@ -41,213 +48,6 @@ def _check_suffix(option: str, path: str | None, allowed: tuple[str, ...]) -> No
         )
 
 
-def _parse_value(text: str) -> Any:
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return text
-
-
-def _check_env_id(env_id: str) -> str:
-    key = env_id.split(":")[-1]
-    if key not in cir_gym.ENVIRONMENTS:
-        raise CliError(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
-    return key
-
-
-def _agents_module() -> Any | None:
-    try:
-        import agents
-    except ImportError:  # the train extra (SB3, torch) is not installed
-        return None
-    return agents if hasattr(agents, "available") else None
-
-
-def policy_names(env_id: str) -> list[str]:
-    """Controllers, controllers at tuned gains (``tuned:<controller>``, :func:`tuned_gains`)
-    and shipped agents (``agent:<name>``) that apply to an environment."""
-    names = baselines.available(env_id)
-    names += [f"tuned:{c}" for c in sorted({r["controller"] for r in _tuning_rows(env_id)})]
-    ag = _agents_module()
-    if ag is not None:
-        names += [f"agent:{a}" for a in ag.available(env_id)]
-    return names
-
-
-#: ``scripts/tune_gains.py``'s results: ``<Env-vN>.json`` per environment
-TUNING_DIR = Path(__file__).resolve().parent.parent / "results" / "tuning"
-
-
-def _tuning_rows(env_id: str) -> list[dict[str, Any]]:
-    import json
-
-    path = TUNING_DIR / f"{env_id.split('/')[-1]}.json"
-    return json.loads(path.read_text()) if path.is_file() else []
-
-
-def _as_json(value: Any) -> Any:
-    import json
-
-    return json.loads(json.dumps(value))  # tuples as lists, as a JSON file holds them
-
-
-def _tuned_row(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, Any] | None:
-    """The study of ``controller`` on ``env_id`` with ``env_kwargs``, or None: the arguments
-    must be the study's but for the env's ``reward_arguments`` (the controller's episodes do
-    not depend on them)."""
-    cls = cir_gym.ENVIRONMENTS.get(env_id, (None,))[0]
-    reward_only = cls.reward_arguments if cls is not None else frozenset()
-
-    def task(kwargs: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in kwargs.items() if k not in reward_only}
-
-    asked = task(_as_json(env_kwargs))
-    return next((r for r in _tuning_rows(env_id)
-                 if r["controller"] == controller and task(r["env_kwargs"]) == asked), None)
-
-
-def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, float]:
-    """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with
-    ``env_kwargs`` (a leaderboard variant's arguments; the env's ``reward_arguments`` may differ
-    from the study's: they change the reward, not the episodes), from
-    ``results/tuning/<Env-vN>.json`` (Optuna on training seeds, never the leaderboard's; each
-    file's header says which).
-
-    Raises:
-        CliError: no study of that controller with these arguments (the message lists the
-            arguments it was tuned with).
-    """
-    row = _tuned_row(env_id, controller, env_kwargs)
-    if row is not None:
-        return dict(row["tuned"])
-    tuned_with = [r["env_kwargs"] for r in _tuning_rows(env_id) if r["controller"] == controller]
-    raise CliError(
-        f"{controller} was not tuned for {env_id} with {env_kwargs or 'its default arguments'}; "
-        f"tuned with: {tuned_with or 'nothing'} "
-        f"({TUNING_DIR / (env_id.split('/')[-1] + '.json')}, scripts/tune_gains.py)"
-    )
-
-
-def resolve_tuned(env_id: str, policy: str, env_kwargs: dict[str, Any],
-                  gains: dict[str, Any]) -> tuple[str, dict[str, Any]]:
-    """(controller, gains) of a policy name: ``tuned:<controller>`` is the controller at the
-    gains tuned for ``env_kwargs`` (:func:`tuned_gains`) with ``gains`` (``--set``) over them;
-    any other name is returned with ``gains`` as they are."""
-    if not policy.startswith("tuned:"):
-        return policy, gains
-    controller = policy.removeprefix("tuned:")
-    return controller, {**tuned_gains(env_id, controller, env_kwargs), **gains}
-
-
-def has_tuned_gains(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
-    """False for ``tuned:<controller>`` without a study for ``env_kwargs``; True otherwise."""
-    return (not policy.startswith("tuned:")
-            or _tuned_row(env_id, policy.removeprefix("tuned:"), env_kwargs) is not None)
-
-
-def trained_for(env_id: str, policy: str, env_kwargs: dict[str, Any]) -> bool:
-    """False for a shipped agent (``agent:<name>``) trained for another task than
-    ``env_kwargs`` asks (:func:`agents.trained_for`: RedundantIK's objective); True for a
-    controller or a factory."""
-    if not policy.startswith("agent:"):
-        return True
-    ag = _agents_module()
-    return ag is None or ag.trained_for(env_id, policy.removeprefix("agent:"), env_kwargs)
-
-
-def split_settings(
-    env_id: str, policy: str, settings: list[str]
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``--set key=value`` → (environment kwargs, controller gains); unknown keys are errors."""
-    env_cls = cir_gym.ENVIRONMENTS[env_id][0]
-    env_keys = constructor_arguments(env_cls)
-    gain_keys: list[str] = []
-    controller = policy.removeprefix("tuned:")
-    if controller in baselines.CONTROLLERS:
-        import dataclasses
-
-        gain_keys = [
-            f.name
-            for f in dataclasses.fields(baselines.controller_class(controller, env_id).Gains)
-        ]
-    env_kwargs: dict[str, Any] = {}
-    gains: dict[str, Any] = {}
-    for item in settings:
-        if "=" not in item:
-            raise CliError(f"--set expects key=value, got {item!r}")
-        key, value = item.split("=", 1)
-        if key in env_keys:
-            env_kwargs[key] = _parse_value(value)
-        elif key in gain_keys:
-            gains[key] = _parse_value(value)
-        else:
-            raise CliError(
-                f"unknown --set key {key!r}; environment arguments: {env_keys}; "
-                f"gains of {policy!r}: {gain_keys}"
-            )
-    return env_kwargs, gains
-
-
-def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]) -> Any:
-    valid = policy_names(env_id)
-    if policy not in valid:
-        raise CliError(f"unknown policy {policy!r} for {env_id}; valid: {valid}")
-    if policy.startswith("agent:"):
-        ag = _agents_module()
-        assert ag is not None
-        return ag.load(env_id, policy.split(":", 1)[1])
-    policy, gains = resolve_tuned(env_id, policy, env_kwargs, gains)
-    try:
-        return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
-    except (ValueError, TypeError) as exc:  # bad gain (InvalidGain) or environment argument
-        raise CliError(str(exc)) from exc
-
-
-def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
-    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, return."""
-    if not results:
-        return "(no results)"
-    primary = results[0].primary_metric
-    spec = results[0].spec(primary)
-    reverse = spec.better == "higher"
-    ranked = sorted(results, key=lambda r: _nan_last(r.summary[primary]["mean"], reverse))
-    other = [s for s in results[0].specs if s.name != primary]
-    unit = f" ({spec.unit})" if spec.unit else ""
-    head = (
-        ["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
-        + [f"{s.name}" for s in other]
-        + ["return", "diverged"]
-    )
-    rows = []
-    for i, r in enumerate(ranked, 1):
-        s = r.summary[primary]
-        rows.append(
-            [
-                str(i),
-                r.policy_name,
-                f"{s['mean']:.3g} ± {s['std']:.2g}",
-                f"{s['worst']:.3g}",
-                f"{s['cvar']:.3g}",
-                f"{100 * r.success_rate:.0f}%",
-            ]
-            + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
-            + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"]
-        )
-    if markdown:
-        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        lines += ["| " + " | ".join(row) + " |" for row in rows]
-        return "\n".join(lines)
-    widths = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return "\n".join(fmt.format(*row) for row in [head, *rows])
-
-
-def _nan_last(value: float, reverse: bool) -> float:
-    if value != value:  # NaN
-        return float("inf")
-    return -value if reverse else value
-
-
 # ---------------------------------------------------------------------- commands
 def cmd_list(args: argparse.Namespace) -> int:
     for env_id, (_, description) in cir_gym.ENVIRONMENTS.items():
@@ -256,7 +56,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    env_id = _check_env_id(args.env)
+    env_id = check_env_id(args.env)
     _check_suffix("--plot", args.plot, PLOT_SUFFIXES)
     _check_suffix("--video", args.video, VIDEO_SUFFIXES)
     env_kwargs, gains = split_settings(env_id, args.policy, args.set or [])
@@ -276,7 +76,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(format_table([result], markdown=False))
     try:
         if args.plot:
-            from cir_gym.plotting import plot_episode
+            from cir_gym.scoring.plotting import plot_episode
 
             print(f"plot: {plot_episode(result, args.plot)}")
         if args.video:
@@ -294,7 +94,7 @@ def record_video(
     policy: Any, env_id: str, path: str, seed: int, env_kwargs: dict[str, Any], size: int = 320
 ) -> Path:
     """One episode rendered with ``rgb_array`` frames at ≤ 25 fps."""
-    from cir_gym.plotting import save_video
+    from cir_gym.scoring.plotting import save_video
 
     env_kwargs = interface_env_kwargs(policy, env_kwargs)
     env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
@@ -315,10 +115,10 @@ def record_video(
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from scripts.leaderboard import run_leaderboard
+    from cir_gym.scoring.leaderboard import run_leaderboard
 
     if args.from_dir is not None:
-        from scripts.leaderboard import leaderboard_from
+        from cir_gym.scoring.leaderboard import leaderboard_from
 
         try:
             md = leaderboard_from(Path(args.from_dir), Path(args.out) if args.out else None)
@@ -331,19 +131,19 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
         Path(args.out or "results"),
         episodes=args.episodes,
         seed=args.seed,
-        envs=[_check_env_id(e) for e in args.env] if args.env else None,
+        envs=[check_env_id(e) for e in args.env] if args.env else None,
     )
     return 0
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     try:
-        from agents.train import train
+        from cir_gym.agents.train import train
     except ImportError as exc:
         raise CliError(
             f"training needs the train extra: pip install 'cir-gym[train]' ({exc})"
         ) from exc
-    env_id = _check_env_id(args.env)
+    env_id = check_env_id(args.env)
     env_kwargs, gains = split_settings(env_id, args.residual or "", args.set or [])
     residual, gains = resolve_tuned(env_id, args.residual or "", env_kwargs, gains)
     try:
@@ -367,7 +167,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from scripts.sweep import GridError, run_sweep
+    from cir_gym.scoring.sweep import GridError, run_sweep
 
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
@@ -389,7 +189,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
-    from scripts.identify import run_identify
+    from cir_gym.scoring.identify import run_identify
 
     run_identify(
         payload_mass=args.payload_mass,
@@ -513,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except CliError as exc:
+    except (CliError, PolicyError) as exc:
         print(f"cir-gym: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

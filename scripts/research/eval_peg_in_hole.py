@@ -32,9 +32,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from cir_gym.baselines.hybrid import TASK_ADAPTERS
 
-import baselines
-from baselines.hybrid import TASK_ADAPTERS
+from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
 ENV_ID = "cir_gym/PegInHole-v1"
@@ -220,7 +220,7 @@ def main() -> None:
 
 def summarise_sweep(directory: Path) -> str:
     """Success rate and success with peak force <= 50 N per gain set of a sweep's table."""
-    from scripts.sweep import read_table
+    from cir_gym.scoring.sweep import read_table
 
     rows = [r for r in read_table(directory) if r["status"] == "ok"]
     gains = sorted({k for r in rows for k in r if k.startswith("gain.")})
@@ -336,7 +336,7 @@ def evaluate_agents(
     (with ``resume``, a row of the same policy, episodes and training steps is reused, so
     several processes can fill it in parallel: :func:`merge_rows`); the table of all of them goes to
     ``<out>/agents.md``; returns its text."""
-    from agents.policy import load_agent, read_config
+    from cir_gym.agents.policy import load_agent, read_config
 
     store = out / "agents.json"
     jobs: list[tuple[str, Any, dict[str, Any], dict[str, Any]]] = []

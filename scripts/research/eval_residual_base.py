@@ -20,9 +20,8 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-import agents
-import baselines
 import cir_gym
+from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
 
 

@@ -31,10 +31,9 @@ ENV = "cir_gym/JointTracking-v1"
 
 def _env(n: int = 1):
     import gymnasium as gym
+    from cir_gym.agents.observation import ObservationLayout
+    from cir_gym.agents.train import EnvFactory
     from stable_baselines3.common.vec_env import DummyVecEnv
-
-    from agents.observation import ObservationLayout
-    from agents.train import EnvFactory
 
     probe = gym.make(ENV)
     layout = ObservationLayout.from_space(probe.observation_space, features=["gravity"])

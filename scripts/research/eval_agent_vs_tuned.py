@@ -33,17 +33,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from cir_gym.agents.report import interval, seed_report
 
-import agents
 import cir_gym
-from agents.report import interval, seed_report
+from cir_gym import agents
 from cir_gym.evaluation import evaluate
 
 
 def _controller_row(name: str, gains: dict[str, float], env_id: str, env_kwargs: dict[str, Any],
                     episodes: int, seed: int, primary: str) -> tuple[float, float, float]:
     """(mean, IQM, success rate) of controller ``name`` with ``gains`` on the episodes."""
-    import baselines
+    from cir_gym import baselines
 
     policy = baselines.make(name, env_id, env_kwargs=env_kwargs, **gains)
     result = evaluate(policy, env_id, episodes, seed, policy_name=name, **env_kwargs)

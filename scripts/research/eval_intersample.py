@@ -108,13 +108,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     env_kwargs = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
     if args.agent:
-        import agents
+        from cir_gym import agents
 
         policy = agents.load(args.env, args.agent, seed=args.seed_agent)
         env_kwargs = interface_env_kwargs(policy, env_kwargs)
         label = f"agent {args.agent}"
     else:
-        import baselines
+        from cir_gym import baselines
 
         if args.control_freq is not None:
             env_kwargs["control_freq"] = args.control_freq

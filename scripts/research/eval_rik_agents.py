@@ -24,9 +24,8 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-import agents
-import baselines
 import cir_gym  # noqa: F401  (registers the ids)
+from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
 
 NEAR_MISS = 0.01  # m: a lap whose max error stays below this is a near miss, above it lost

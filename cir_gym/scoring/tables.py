@@ -1,0 +1,178 @@
+"""Tables of evaluation results: a ranked table per variant, the controllers-vs-RL summary."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cir_gym.evaluation import EvaluationResult, rank
+
+
+def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
+    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, return."""
+    if not results:
+        return "(no results)"
+    primary = results[0].primary_metric
+    spec = results[0].spec(primary)
+    reverse = spec.better == "higher"
+    ranked = sorted(results, key=lambda r: _nan_last(r.summary[primary]["mean"], reverse))
+    other = [s for s in results[0].specs if s.name != primary]
+    unit = f" ({spec.unit})" if spec.unit else ""
+    head = (
+        ["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
+        + [f"{s.name}" for s in other]
+        + ["return", "diverged"]
+    )
+    rows = []
+    for i, r in enumerate(ranked, 1):
+        s = r.summary[primary]
+        rows.append(
+            [
+                str(i),
+                r.policy_name,
+                f"{s['mean']:.3g} ± {s['std']:.2g}",
+                f"{s['worst']:.3g}",
+                f"{s['cvar']:.3g}",
+                f"{100 * r.success_rate:.0f}%",
+            ]
+            + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
+            + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"]
+        )
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(row) + " |" for row in rows]
+        return "\n".join(lines)
+    widths = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return "\n".join(fmt.format(*row) for row in [head, *rows])
+
+
+def _nan_last(value: float, reverse: bool) -> float:
+    if value != value:  # NaN
+        return float("inf")
+    return -value if reverse else value
+
+
+def ranked_table(rows: list[EvaluationResult]) -> str:
+    """:func:`format_table`'s markdown table, rows in :func:`rank`'s order
+    (success rate, then the primary metric) instead of the primary metric alone."""
+    if not rows:
+        return format_table(rows)
+    tables = [format_table([r]).split("\n") for r in rank(rows)]
+    return "\n".join(
+        [
+            *tables[0][:2],
+            *(f"| {i} |" + table[2].split("|", 2)[2] for i, table in enumerate(tables, 1)),
+        ]
+    )
+
+
+def best(group: list[EvaluationResult]) -> EvaluationResult | None:
+    """The best result of ``group`` (:func:`rank`: the highest success rate, then the best
+    primary-metric mean; NaN never wins). Success first, because an episode that ends early —
+    at a joint limit, on an obstacle — can still show a small tracking error."""
+    finite = [r for r in group if np.isfinite(r.summary[r.primary_metric]["mean"])]
+    return rank(finite)[0] if finite else None
+
+
+#: in a summary cell, the factor to the best controller left out (:func:`censored_ratio`)
+NO_FACTOR = "–†"
+
+
+def censored_ratio(r: EvaluationResult, reference: EvaluationResult) -> bool:
+    """Whether the factor of ``r`` to ``reference`` on their primary metric would compare
+    censored values: the metric scores a failed episode at a fixed limit
+    (``MetricSpec.failure_scores_limit``, PegInHole's ``insertion_time``: the time limit) and
+    either mean includes a failed episode. A 0 %-success agent's mean is then the limit
+    itself, and a partly successful one's is pulled towards it: the ratio would measure the
+    failures, not the metric. Other metrics are measured in every episode, so their ratios
+    stand (the success rate is printed beside them)."""
+    spec = r.spec(r.primary_metric)
+    return spec.failure_scores_limit and min(r.success_rate, reference.success_rate) < 1.0
+
+
+def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
+    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse);
+    :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`)."""
+    if r is None:
+        return "–"
+    primary = r.primary_metric
+    s = r.summary[primary]
+    text = (
+        f"{r.policy_name}: {s['mean']:.3g} (worst {s['worst']:.3g}, "
+        f"{100 * r.success_rate:.0f} % success)"
+    )
+    if reference is not None:
+        c = reference.summary[primary]["mean"]
+        if censored_ratio(r, reference):
+            text += f", {NO_FACTOR}"
+        elif np.isfinite(c) and c > 0 and s["mean"] > 0:  # a ratio of clearances < 0 says nothing
+            higher = r.spec(primary).better == "higher"
+            factor = c / s["mean"] if higher else s["mean"] / c
+            text += f", **{factor:.3g}×** the best controller's"
+    return text
+
+
+def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
+    """Per variant: the best controller, the best from-scratch agent and the best residual
+    agent on the primary metric (mean), with success, worst episode and the factor to the
+    best controller (> 1: worse than it, in the metric's own direction); a footnote under the
+    table when a factor is left out (:func:`censored_ratio`)."""
+    lines = [
+        "| variant | ranked on | best controller, course gains | best controller, tuned gains "
+        "| best from-scratch RL | best residual RL |",
+        "|---|---|---|---|---|---|",
+    ]
+    censored: set[str] = set()
+    for variant, rows in by_variant.items():
+        if not rows:
+            continue
+        course = best([r for r in rows if not r.policy_name.startswith(("agent:", "tuned:"))])
+        tuned = best([r for r in rows if r.policy_name.startswith("tuned:")])
+        ctrl = best([r for r in (course, tuned) if r is not None])  # the bar for RL
+        agents_ = [r for r in rows if r.policy_name.startswith("agent:")]
+        scratch = best([r for r in agents_ if "residual" not in r.policy_name])
+        residual = best([r for r in agents_ if "residual" in r.policy_name])
+        for r in (scratch, residual):
+            if r is not None and ctrl is not None and censored_ratio(r, ctrl):
+                censored.add(r.primary_metric)
+        lines.append(
+            f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(course, None)} | "
+            f"{_summary_cell(tuned, None)} | "
+            f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
+        )
+    notes = []
+    if any(r.policy_name.startswith("agent:residual") for rows in by_variant.values()
+           for r in rows):
+        notes += [
+            "",
+            "A residual agent carries its base controller as designed from the context of the "
+            "env it was trained on (`agents.load`), on every variant: where a variant tells the "
+            "controllers more than training did (AdmittanceContact's fixed stiffnesses, against "
+            "an agent trained on `randomize=True`, whose `admittance` designs for the worst "
+            "case), the gap to the best controller includes that information (docs/agents.md).",
+        ]
+    if censored:
+        names = ", ".join(f"`{m}`" for m in sorted(censored))
+        notes += [
+            "",
+            f"{NO_FACTOR[-1]} No factor to the best controller: a failed episode scores {names} "
+            "at a fixed limit (a time: the time limit), not a measured value, and a mean here "
+            "includes failed episodes (at 0 % success it is the limit itself), so the ratio would "
+            "compare the limit with measured values.",
+        ]
+    return "\n".join(
+        [
+            "Controllers vs RL on each variant's primary metric (mean over the same "
+            "seeds; best = highest success rate, then the best mean). A controller runs at the "
+            "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
+            "found for the variant (Optuna on training seeds; results/tuning/); an agent's "
+            "factor is to the better of the two best controllers:",
+            "",
+            *lines,
+            *notes,
+        ]
+    )
+
+
+def slug(text: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in text).strip("_").lower()
