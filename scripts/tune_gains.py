@@ -11,8 +11,9 @@ within :data:`BOUNDS` to minimise the mean primary metric over *training* episod
 100000–); a trial whose gains are rejected by the controller (``InvalidGain``) or whose
 episodes diverge scores +inf. The best gains and the defaults are then scored on the
 leaderboard's episodes (10, seeds 1000–1009): the report goes to ``<out>/<Env-vN>.md`` (the
-Optuna study beside it as SQLite), the gains to ``<gains-out>/<Env-vN>.json`` (default: the
-package's ``cir_gym/scoring/tuned_gains/``, which ``tuned:<controller>`` reads).
+Optuna study beside it as SQLite), the gains to ``<gains-out>/<Env-vN>.json`` (default ``<out>``;
+``--gains-out cir_gym/scoring/tuned_gains`` replaces the package's, which
+``tuned:<controller>`` reads).
 
 Which gains are searched: a controller's rate gains and damping ratio (below) by default;
 :data:`SEARCHED` names the gains of the controllers whose law has more (the interaction and
@@ -246,8 +247,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="leaderboard episodes for the side-by-side scores")
     p.add_argument("--variant", action="append", help="restrict to these variants")
     p.add_argument("--out", default="results/tuning", help="the report and the Optuna study")
-    p.add_argument("--gains-out", default=str(TUNED_GAINS_DIR),
-                   help="the tuned gains, <Env-vN>.json (default: the package's)")
+    p.add_argument("--gains-out", default=None,
+                   help=f"the tuned gains, <Env-vN>.json (default: --out; {TUNED_GAINS_DIR} "
+                        "is the package's, which tuned:<controller> reads)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="environment argument added to every variant (e.g. a short "
                         "episode_duration for a smoke run; results then differ)")
@@ -287,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{variant:24s} {c:24s} {d['metric']} default {d['value']:.3g} "
                   f"({d['success']:.0%}) tuned {t['value']:.3g} ({t['success']:.0%}) "
                   f"{r['tuned']} [{r['seconds']:.0f} s]", file=sys.stderr, flush=True)
-    gains_out = Path(args.gains_out)
+    gains_out = Path(args.gains_out or args.out)
     gains_out.mkdir(parents=True, exist_ok=True)
     (gains_out / f"{stem.name}.json").write_text(json.dumps(results, indent=2) + "\n")
     stem.with_suffix(".md").write_text(report(env_id, results, args, extra))

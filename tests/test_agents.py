@@ -955,8 +955,8 @@ def test_tune_gains_smoke(tmp_path):
 
     assert main(["--controller", "pd_gravity", "--trials", "2", "--train-episodes", "1",
                  "--episodes", "1", "--variant", "exact model", "--set", "episode_duration=0.1",
-                 "--out", str(tmp_path), "--gains-out", str(tmp_path / "gains")]) == 0
-    data = json.loads((tmp_path / "gains" / "JointTracking-v1.json").read_text())
+                 "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "JointTracking-v1.json").read_text())
     assert data[0]["default"] == {"omega": 10.0, "zeta": 1.0}
     assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
     assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
