@@ -3,7 +3,7 @@
 cir-gym list
 cir-gym evaluate --env ID --policy NAME [--episodes N] [--seed S] [--set k=v ...]
                  [--plot out.png] [--video out.gif]
-cir-gym leaderboard [--episodes N] [--out results/]
+cir-gym leaderboard [--episodes N] [--out runs/leaderboard] [--env ID ...] [--no-videos]
 cir-gym leaderboard --from DIR [--out DIR]    (a sweep's table: tables and figures)
 cir-gym sweep GRID.yaml --out DIR [--workers N] [--ray ADDRESS|auto|local] [--retries N]
 cir-gym train ...      (see ``cir_gym.agents.train``)
@@ -13,6 +13,7 @@ cir-gym identify ...   (see ``cir_gym.scoring.identify``)
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,12 +22,20 @@ import cir_gym
 from cir_gym.envs.base import make_env
 from cir_gym.evaluation import evaluate, interface_env_kwargs
 from cir_gym.scoring.policies import (
+    ENTRY_POINT_GROUP,
+    TRAIN_EXTRA,
     PolicyError,
     check_env_id,
+    check_env_kwargs,
+    check_policy,
     make_policy,
+    module_missing,
+    plugin_factories,
     policy_names,
     resolve_tuned,
+    shipped_agents,
     split_settings,
+    train_extra_missing,
 )
 from cir_gym.scoring.tables import format_table
 
@@ -37,6 +46,24 @@ class CliError(Exception):
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 VIDEO_SUFFIXES = (".mp4", ".gif")
+PLOTS_EXTRA = "pip install 'cir-gym[plots]'"
+#: the main job's output folder (untracked; ``--out results/`` regenerates the repository's)
+LEADERBOARD_OUT = "runs/leaderboard"
+
+
+def version() -> str:
+    """The installed distribution's version (``cir-gym --version``)."""
+    try:
+        return importlib.metadata.version("cir-gym")
+    except importlib.metadata.PackageNotFoundError:  # run from a source tree, not installed
+        return "unknown (not installed)"
+
+
+def _need(option: str, modules: tuple[str, ...]) -> None:
+    """Fail before any work when ``option``'s writer needs a module that is not installed."""
+    missing = [m for m in modules if module_missing(m)]
+    if missing:
+        raise CliError(f"{option} needs {', '.join(missing)}: {PLOTS_EXTRA}")
 
 
 def _check_suffix(option: str, path: str | None, allowed: tuple[str, ...]) -> None:
@@ -50,8 +77,19 @@ def _check_suffix(option: str, path: str | None, allowed: tuple[str, ...]) -> No
 
 # ---------------------------------------------------------------------- commands
 def cmd_list(args: argparse.Namespace) -> int:
+    agents_off = bool(train_extra_missing())
     for env_id, (_, description) in cir_gym.ENVIRONMENTS.items():
         print(f"{env_id}\n    {description}\n    policies: {', '.join(policy_names(env_id))}")
+        if agents_off and shipped_agents(env_id):
+            print(f"    trained agents (need the train extra): "
+                  f"{', '.join(shipped_agents(env_id))}")
+    if agents_off:
+        print(f"\nTrained agents need the train extra: {TRAIN_EXTRA}")
+    plugins = sorted(plugin_factories())
+    print(
+        f"\nPlugin policies ({ENTRY_POINT_GROUP} entry points): "
+        + (", ".join(f"{p} ({plugin_factories()[p].value})" for p in plugins) or "none installed")
+    )
     return 0
 
 
@@ -59,7 +97,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     env_id = check_env_id(args.env)
     _check_suffix("--plot", args.plot, PLOT_SUFFIXES)
     _check_suffix("--video", args.video, VIDEO_SUFFIXES)
+    if args.plot:
+        _need("--plot", ("matplotlib",))
+    if args.video:
+        _need("--video", ("imageio",))
+    if args.episodes < 1:
+        raise CliError(f"--episodes must be >= 1, got {args.episodes}")
+    check_policy(env_id, args.policy)
     env_kwargs, gains = split_settings(env_id, args.policy, args.set or [])
+    check_env_kwargs(env_id, env_kwargs)
     policy = make_policy(env_id, args.policy, env_kwargs, gains)
     try:
         result = evaluate(
@@ -127,16 +173,24 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
         print(md.read_text())
         print(f"wrote {md} and {md.parent / 'index.html'}", file=sys.stderr)
         return 0
+    if args.episodes < 1:
+        raise CliError(f"--episodes must be >= 1, got {args.episodes}")
     run_leaderboard(
-        Path(args.out or "results"),
+        Path(args.out or LEADERBOARD_OUT),
         episodes=args.episodes,
         seed=args.seed,
         envs=[check_env_id(e) for e in args.env] if args.env else None,
+        videos=not args.no_videos,
     )
     return 0
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    if train_extra_missing():
+        raise CliError(
+            f"training needs the train extra (missing: {', '.join(train_extra_missing())}): "
+            f"{TRAIN_EXTRA}"
+        )
     try:
         from cir_gym.agents.train import train
     except ImportError as exc:
@@ -201,37 +255,82 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+#: the main job's episodes per (variant, policy): the most that keep ``bash scripts/run.sh``
+#: under 15 minutes on 2 cores (docs: README)
+LEADERBOARD_EPISODES = 5
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cir-gym", description=__doc__.split("\n")[0])
+    p.add_argument("--version", action="version", version=f"cir-gym {version()}")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="environments and their policies").set_defaults(func=cmd_list)
 
-    e = sub.add_parser("evaluate", help="score one policy on one environment")
-    e.add_argument("--env", required=True)
-    e.add_argument("--policy", required=True)
-    e.add_argument("--episodes", type=int, default=5)
-    e.add_argument("--seed", type=int, default=0)
+    e = sub.add_parser(
+        "evaluate",
+        help="score one policy on one environment",
+        description="Score one policy on one environment: episodes on seeds SEED, SEED+1, ...; "
+        "prints the metrics' mean, worst episode and CVaR.",
+    )
+    e.add_argument(
+        "--env",
+        required=True,
+        metavar="ID",
+        help="environment id, e.g. cir_gym/JointTracking-v1 or JointTracking-v1 (cir-gym list)",
+    )
+    e.add_argument(
+        "--policy",
+        required=True,
+        metavar="NAME",
+        help="a controller (computed_torque), tuned:<controller>, agent:<name> (train extra) "
+        "or plugin:<name> (cir-gym list names them per environment)",
+    )
+    e.add_argument("--episodes", type=int, default=5,
+                   help="number of episodes (default: %(default)s)")
+    e.add_argument("--seed", type=int, default=0,
+                   help="seed of the first episode (default: %(default)s)")
     e.add_argument(
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="environment argument or controller gain (repeatable)",
+        default=None,
+        help="environment argument (payload_mass=3.0) or controller gain (omega_n=40), a "
+        "Python literal; repeatable (default: the environment's and controller's defaults)",
     )
     e.add_argument(
-        "--plot", metavar="OUT.png", help=f"plot of episode 0 ({', '.join(PLOT_SUFFIXES)})"
+        "--plot",
+        metavar="OUT.png",
+        default=None,
+        help=f"plot of episode 0 ({', '.join(PLOT_SUFFIXES)}; plots extra; default: none)",
     )
     e.add_argument(
-        "--video", metavar="OUT.gif", help=f"video of episode 0 ({', '.join(VIDEO_SUFFIXES)})"
+        "--video",
+        metavar="OUT.gif",
+        default=None,
+        help=f"video of episode 0 ({', '.join(VIDEO_SUFFIXES)}; plots extra; default: none)",
     )
     e.set_defaults(func=cmd_evaluate)
 
-    lb = sub.add_parser("leaderboard", help="every policy on every environment (the main job)")
-    lb.add_argument("--episodes", type=int, default=10)
-    lb.add_argument("--seed", type=int, default=1000)
-    lb.add_argument(
-        "--out", default=None, help="output directory (default: results, or DIR with --from)"
+    lb = sub.add_parser(
+        "leaderboard",
+        help="every policy on every environment (the main job)",
+        description="Every policy on every environment's variants, on the same seeds: ranked "
+        "tables (leaderboard.md), figures, a video per variant and a page (index.html) in "
+        f"--out (default {LEADERBOARD_OUT}, untracked; --out results/ regenerates the "
+        "repository's). About 10 minutes on 2 cores at the default episodes.",
     )
-    lb.add_argument("--env", action="append", help="restrict to these ids (repeatable)")
+    lb.add_argument("--episodes", type=int, default=LEADERBOARD_EPISODES,
+                    help="episodes per (variant, policy) (default: %(default)s)")
+    lb.add_argument("--seed", type=int, default=1000,
+                    help="seed of the first episode (default: %(default)s)")
+    lb.add_argument(
+        "--out",
+        default=None,
+        help=f"output folder (default: {LEADERBOARD_OUT}, or DIR with --from)",
+    )
+    lb.add_argument("--env", action="append", metavar="ID",
+                    help="only these environments (repeatable; default: all)")
+    lb.add_argument("--no-videos", action="store_true", help="leave the page's videos out")
     lb.add_argument(
         "--from",
         dest="from_dir",
@@ -281,7 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--residual",
         metavar="CONTROLLER",
         help="train a residual on this controller; tuned:<controller> takes the gains tuned for "
-        "these --set environment arguments (results/tuning/); --set <gain>=<value> sets a gain",
+        "these --set environment arguments (cir_gym/scoring/tuned_gains/); --set "
+        "<gain>=<value> sets a gain",
     )
     t.add_argument("--timesteps", type=int, default=None)
     t.add_argument("--seed", type=int, default=0)

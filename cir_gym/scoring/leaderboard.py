@@ -5,16 +5,21 @@ Each environment class declares ``leaderboard_variants`` (name → constructor k
 it is ranked on, e.g. RedundantIK's "manipulability" variant on ``min_manipulability``; the
 class's ``primary_metric`` otherwise). Every (variant, policy) pair runs on the same seeds in a
 pool of worker processes (one per core); the tables in ``<out>/leaderboard.md`` rank by success
-rate, then by the variant's primary metric (:func:`cir_gym.evaluation.rank`), and a PNG per
-variant is written beside them. The output is
-deterministic for a given seed (no timings in the tables).
+rate, then by the variant's primary metric (:func:`cir_gym.evaluation.rank`), a PNG per
+variant is written beside them and ``<out>/index.html`` (:mod:`cir_gym.scoring.page`) shows
+it all with a video per variant. The tables are deterministic for a given seed (no timings in
+them); the time per episode of each policy goes to ``<out>/timings.json``, the next run's
+estimate. ``cir-gym leaderboard`` writes into ``runs/leaderboard/`` (untracked) unless
+``--out`` names another folder (``--out results/`` regenerates the repository's results).
 """
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -34,8 +39,9 @@ def jobs_for(
     """(env_id, variant name, env kwargs, policy name) for every pair to evaluate: every
     controller on every variant, at its course gains and, where ``scripts/tune_gains.py``
     tuned it for exactly the variant's arguments, at those gains (``tuned:<controller>``,
-    :func:`cir_gym.cli.tuned_gains`); a shipped agent only on the variants of the task it was
-    trained for (:func:`agents.trained_for`: RedundantIK's objective)."""
+    :func:`cir_gym.scoring.policies.tuned_gains`); a shipped agent (with the ``train`` extra)
+    only on the variants of the task it was trained for (:func:`agents.trained_for`:
+    RedundantIK's objective); every installed plugin policy (``plugin:<name>``) that applies."""
     from cir_gym.scoring.policies import has_tuned_gains, policy_names, trained_for
 
     cls = cir_gym.ENVIRONMENTS[env_id][0]
@@ -52,6 +58,8 @@ def jobs_for(
 def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
 ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
+    """One (environment, variant, policy) of the leaderboard: its episodes, ranked on the
+    variant's primary metric, and the wall time (s) it took."""
     from cir_gym.scoring.policies import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
@@ -62,13 +70,129 @@ def run_job(
     return (env_id, variant, policy_name), result, time.perf_counter() - t0
 
 
-def _progress(total: int) -> Any:
-    try:
-        from tqdm import tqdm
+def run_seed_table(
+    env_id: str, variant: str, env_kwargs: dict[str, Any], episodes: int, seed: int
+) -> tuple[tuple[str, str], str, float]:
+    """One variant's :func:`multi_seed_table` and the wall time (s) it took."""
+    t0 = time.perf_counter()
+    return (env_id, variant), multi_seed_table(env_id, env_kwargs, episodes, seed), (
+        time.perf_counter() - t0
+    )
 
-        return tqdm(total=total, desc="leaderboard", unit="run", file=sys.stderr)
-    except ImportError:  # pragma: no cover
-        return None
+
+# ---------------------------------------------------------------------- progress and estimates
+#: wall seconds of one episode on one core of the machine the defaults were chosen on (2 cores,
+#: measured with ``cir-gym leaderboard --episodes 1``, every policy of the environment): the
+#: estimate before a run; a run's own timings (``<out>/timings.json``) replace them next time
+EPISODE_SECONDS: dict[str, float] = {
+    "JointTracking-v1": 0.35,
+    "ElasticJointTracking-v2": 0.45,
+    "RedundantIK-v3": 0.25,
+    "RedundantIK7-v4": 0.30,
+    "VisualServo-v0": 0.60,
+    "VisualServoEyeToHand-v0": 0.60,
+    "AdmittanceContact-v0": 0.40,
+    "PegInHole-v1": 1.50,
+    "CartesianTracking-v0": 0.50,
+}
+#: wall seconds to build a policy (an agent loads torch and its network) before its episodes
+JOB_SECONDS = {"agent": 1.5, "other": 0.2}
+#: wall seconds of one comparison figure and of one variant's GIF (two episodes rendered)
+FIGURE_SECONDS = 0.8
+VIDEO_SECONDS = 20.0
+TIMINGS = "timings.json"
+
+
+def _name(env_id: str) -> str:
+    return env_id.split("/")[-1]
+
+
+class Progress:
+    """One phase's progress on stderr: the count done, the time spent and the time left.
+
+    The time left is the planned cost of what remains (s of one worker, from the estimates)
+    scaled by how fast the phase has gone so far (wall time per planned second), so it is
+    honest from the first finished item on; before that it is the plan divided by the workers.
+    On a terminal the line is rewritten in place; otherwise a line is written at most every
+    ``every`` seconds, and at the end.
+    """
+
+    def __init__(self, phase: str, total: int, planned: float, workers: int = 1,
+                 unit: str = "", every: float = 20.0) -> None:
+        self.phase, self.total, self.unit, self.every = phase, total, unit, every
+        self.planned, self.workers = max(planned, 1e-9), max(1, workers)
+        self.done, self.done_cost = 0, 0.0
+        self.t0 = self.last = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+        self.label = ""
+
+    def left(self) -> float:
+        """Estimated wall seconds left."""
+        elapsed = time.perf_counter() - self.t0
+        if self.done_cost <= 0.0:
+            return max(0.0, self.planned / self.workers - elapsed)
+        return (self.planned - self.done_cost) * elapsed / self.done_cost
+
+    def update(self, cost: float, label: str = "") -> None:
+        self.done += 1
+        self.done_cost += cost
+        self.label = label
+        now = time.perf_counter()
+        if self.tty or now - self.last >= self.every or self.done == self.total:
+            self.last = now
+            self._write(final=False)
+
+    def _write(self, final: bool) -> None:
+        elapsed = time.perf_counter() - self.t0
+        what = f"{self.done}/{self.total} {self.unit}".rstrip()
+        tail = f"done in {_clock(elapsed)}" if final else (
+            f"{_clock(elapsed)} spent, ~{_clock(self.left())} left"
+        )
+        line = f"  {self.phase}: {what}, {tail}" + (f"  ({self.label})" if self.label and
+                                                      not final else "")
+        if self.tty:
+            sys.stderr.write("\r\x1b[2K" + line + ("\n" if final else ""))
+        else:
+            sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+    def close(self) -> float:
+        """End the phase (its last line); return its wall time (s)."""
+        self._write(final=True)
+        return time.perf_counter() - self.t0
+
+
+def _clock(seconds: float) -> str:
+    seconds = round(max(0.0, seconds))
+    return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
+
+
+def _load_timings(out: Path) -> dict[str, Any]:
+    try:
+        return json.loads((out / TIMINGS).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def job_cost(job: tuple[str, str, dict[str, Any], str], episodes: int,
+             timings: dict[str, Any] | None = None) -> float:
+    """Planned seconds of one worker for a leaderboard job: the previous run's time per
+    episode of this (environment, policy) where ``<out>/timings.json`` has it, else the
+    environment's :data:`EPISODE_SECONDS`, plus building the policy."""
+    env_id, _, _, policy = job
+    kind = "agent" if policy.startswith("agent:") else "other"
+    per_episode = (timings or {}).get("episode", {}).get(f"{_name(env_id)} {policy}")
+    if per_episode is None:
+        per_episode = EPISODE_SECONDS.get(_name(env_id), 1.0)
+    return JOB_SECONDS[kind] + episodes * float(per_episode)
+
+
+def missing_extras(figures: bool, videos: bool) -> list[str]:
+    """What the figures (matplotlib) and the videos (Pillow) need but cannot import."""
+    from cir_gym.scoring.policies import module_missing
+
+    need = (["matplotlib"] if figures else []) + (["PIL"] if videos else [])
+    return [m for m in need if module_missing(m)]
 
 
 def run_leaderboard(
@@ -78,35 +202,104 @@ def run_leaderboard(
     envs: list[str] | None = None,
     workers: int | None = None,
     env_overrides: dict[str, Any] | None = None,
+    figures: bool = True,
+    videos: bool = True,
 ) -> Path:
-    """Evaluate everything, write ``out/leaderboard.md`` and the figures; return the md path.
+    """Evaluate everything, write ``out/leaderboard.md``, the figures and ``out/index.html``
+    (:func:`cir_gym.scoring.page.write_page`, with a GIF per variant); return the md path.
 
-    ``env_overrides`` are added to every environment's kwargs (e.g. a short
-    ``episode_duration`` for tests).
+    Progress goes to stderr, phase by phase (episodes and the agents' seed tables, figures,
+    videos and the page), with the estimate of each phase at the start and the time left as it
+    runs; at the end a summary (:func:`summary`: the best controller and agent of each
+    environment) and where the page is. The time per episode of each (environment, policy)
+    is kept in ``out/timings.json`` for the next run's estimate.
+
+    Args:
+        out: the output folder (created).
+        episodes: episodes per (variant, policy), seeds ``seed`` … ``seed + episodes - 1``.
+        envs: environment ids (default: every registered one).
+        workers: processes (default: one per core).
+        env_overrides: added to every environment's kwargs (e.g. a short
+            ``episode_duration`` for tests).
+        figures, videos: False leaves out the PNG figures (matplotlib) or the GIFs (Pillow);
+            they are left out, with a line saying so, when those packages are missing.
     """
-    from cir_gym.scoring.plotting import plot_comparison
-
+    out = Path(out)
+    missing = missing_extras(figures, videos)
+    if missing:
+        print(
+            f"cir-gym leaderboard: {' and '.join(missing)} not installed: no "
+            f"{'figures' if 'matplotlib' in missing else ''}"
+            f"{' or ' if len(missing) == 2 else ''}{'videos' if 'PIL' in missing else ''}"
+            " (pip install 'cir-gym[plots]' adds them)",
+            file=sys.stderr,
+        )
+        figures = figures and "matplotlib" not in missing
+        videos = videos and "PIL" not in missing
     env_ids = envs or list(cir_gym.ENVIRONMENTS)
     jobs = [j for e in env_ids for j in jobs_for(e, env_overrides)]
-    workers = workers or min(len(jobs), os.cpu_count() or 1)
+    variants = [
+        (e, v, {**kw, **(env_overrides or {})})
+        for e in env_ids
+        for v, kw in getattr(cir_gym.ENVIRONMENTS[e][0], "leaderboard_variants",
+                             {"default": {}}).items()
+    ]
+    seed_jobs = [(e, v, kw) for e, v, kw in variants if _multi_seed_agents(e, kw)]
+    workers = max(1, workers or min(len(jobs), os.cpu_count() or 1))
+    timings = _load_timings(out)
+
+    cost = {j: job_cost(j, episodes, timings) for j in jobs}
+    seed_cost = {
+        (e, v): sum(
+            len(_seeds(e, n)) * job_cost((e, v, kw, f"agent:{n}"), episodes, timings)
+            for n in _multi_seed_agents(e, kw)
+        )
+        for e, v, kw in seed_jobs
+    }
+    plan = {
+        "episodes": (sum(cost.values()) + sum(seed_cost.values())) / workers,
+        "figures": FIGURE_SECONDS * len(variants) * figures,
+        "videos": VIDEO_SECONDS * len(variants) * videos / min(workers, len(variants)),
+    }
+    print(
+        f"cir-gym leaderboard: {len(env_ids)} environment(s), {len(variants)} variants, "
+        f"{len(jobs)} runs × {episodes} episode(s) (seeds {seed}…{seed + episodes - 1})"
+        + (f" and the agents' seed tables of {len(seed_jobs)} variant(s)" if seed_jobs else "")
+        + f" on {workers} worker(s) → {out}/\n  estimate: ~{_clock(sum(plan.values()))} ("
+        + ", ".join(f"{k} ~{_clock(v)}" for k, v in plan.items() if v > 0)
+        + ")",
+        file=sys.stderr,
+    )
+    t_start = time.perf_counter()
     results: dict[tuple[str, str, str], EvaluationResult] = {}
     seconds: dict[tuple[str, str, str], float] = {}
-    bar = _progress(len(jobs))
-    t0 = time.perf_counter()
+    seed_tables: dict[tuple[str, str], str] = {}
+    bar = Progress("episodes", len(jobs) + len(seed_jobs),
+                   sum(cost.values()) + sum(seed_cost.values()), workers, "runs")
     # spawn, not fork: a child forked from a parent that has already run torch (an agent's
     # policy, a test that trained one) can deadlock in torch's thread pool at its first op.
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=spawn) as pool:
-        futures = [pool.submit(run_job, j, episodes, seed) for j in jobs]
+        # the seed tables first: each is the longest single item, so none is left for last
+        futures = {
+            pool.submit(run_seed_table, e, v, kw, episodes, seed): ("seeds", (e, v))
+            for e, v, kw in seed_jobs
+        }
+        futures.update({pool.submit(run_job, j, episodes, seed): ("run", j) for j in jobs})
         for fut in as_completed(futures):
-            key, result, sec = fut.result()
-            results[key], seconds[key] = result, sec
-            if bar is not None:
-                bar.set_postfix_str(f"{key[0].split('/')[-1]} {key[1]} {key[2]}")
-                bar.update(1)
-    if bar is not None:
-        bar.close()
+            kind, what = futures[fut]
+            if kind == "seeds":
+                key2, md, _ = fut.result()
+                seed_tables[key2] = md
+                bar.update(seed_cost[key2], f"seed table {_name(key2[0])} {key2[1]}")
+            else:
+                key, result, sec = fut.result()
+                results[key], seconds[key] = result, sec
+                bar.update(cost[what], f"{_name(key[0])} {key[1]} {key[2]}")
+    bar.close()
     out.mkdir(parents=True, exist_ok=True)
+    _save_timings(out, timings, jobs, seconds, episodes)
+
     lines = [
         "# cir_gym leaderboard",
         "",
@@ -117,29 +310,33 @@ def run_leaderboard(
         "of the worst 20 %. Generated by `cir-gym leaderboard`.",
         "",
     ]
-    seed_tables: dict[tuple[str, str], str] = {}
+    bar = Progress("figures", len(variants) if figures else 0, FIGURE_SECONDS * len(variants),
+                   1, "figures", every=10.0)
     for env_id in env_ids:
         cls, description = cir_gym.ENVIRONMENTS[env_id]
         lines += [f"## {env_id}", "", description, ""]
-        variants = getattr(cls, "leaderboard_variants", {"default": {}})
-        by_variant = {
-            v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
-            for v in variants
-        }
+        by_variant = _by_variant(results, env_id)
         lines += [rl_summary(by_variant), ""]
-        for variant, kwargs in variants.items():
+        for variant, kwargs in getattr(cls, "leaderboard_variants", {"default": {}}).items():
             rows = by_variant[variant]
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
             lines += [f"### {variant} ({setting})", "", ranked_table(rows), ""]
-            seeds_md = multi_seed_table(env_id, {**kwargs, **(env_overrides or {})}, episodes, seed)
-            if seeds_md:
-                seed_tables[(env_id, variant)] = seeds_md
-                lines += [seeds_md, ""]
-            fig = out / f"{env_id.split('/')[-1]}_{slug(variant)}.png"
-            plot_comparison(rows, fig, title=f"{env_id} — {variant}")
-            lines += [f"![{env_id} {variant}]({fig.name})", ""]
+            if seed_tables.get((env_id, variant)):
+                lines += [seed_tables[(env_id, variant)], ""]
+            if figures:
+                from cir_gym.scoring.plotting import plot_comparison
+
+                fig = out / f"{_name(env_id)}_{slug(variant)}.png"
+                plot_comparison(rows, fig, title=f"{env_id} — {variant}")
+                lines += [f"![{env_id} {variant}]({fig.name})", ""]
+                bar.update(FIGURE_SECONDS, fig.name)
+    if figures:
+        bar.close()
     md = out / "leaderboard.md"
     md.write_text("\n".join(lines))
+
+    shown = sum(1 for e, v, _ in variants if _by_variant(results, e)[v]) if videos else 0
+    watch = _VideoWatch(out, shown, workers) if shown else None
     write_page(
         out,
         results,
@@ -147,16 +344,124 @@ def run_leaderboard(
         episodes,
         seed,
         env_overrides,
-        workers,  # index.html
-        extra=seed_tables,
+        workers,
+        videos=videos,
+        extra={k: v for k, v in seed_tables.items() if v},
     )
+    if watch is not None:
+        watch.stop()
+    total = time.perf_counter() - t_start
+    print(summary(results, env_ids), file=sys.stderr)
     print(
-        f"wrote {md} in {time.perf_counter() - t0:.0f} s "
-        f"(slowest run {max(seconds.values()):.0f} s)",
+        f"done in {_clock(total)} (slowest run {max(seconds.values(), default=0):.0f} s)\n"
+        f"page: {(out / 'index.html').resolve()}\ntables: {md.resolve()}",
         file=sys.stderr,
     )
-    print(md.read_text())
     return md
+
+
+def _multi_seed_agents(env_id: str, env_kwargs: dict[str, Any]) -> list[str]:
+    """The shipped agents of ``env_id`` trained over >= 2 seeds for the variant's task."""
+    from cir_gym.scoring.policies import agents_module
+
+    ag = agents_module()
+    if ag is None:
+        return []
+    return [n for n in ag.available(env_id)
+            if len(ag.seeds(env_id, n)) >= 2 and ag.trained_for(env_id, n, env_kwargs)]
+
+
+def _seeds(env_id: str, name: str) -> list[int]:
+    from cir_gym.scoring.policies import agents_module
+
+    ag = agents_module()
+    return ag.seeds(env_id, name) if ag is not None else []
+
+
+def _by_variant(
+    results: dict[tuple[str, str, str], EvaluationResult], env_id: str
+) -> dict[str, list[EvaluationResult]]:
+    """One environment's results, variant → its rows (every variant, in the class's order)."""
+    variants = getattr(cir_gym.ENVIRONMENTS[env_id][0], "leaderboard_variants", {"default": {}})
+    return {
+        v: [r for (e, vv, _), r in sorted(results.items()) if e == env_id and vv == v]
+        for v in variants
+    }
+
+
+def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
+                  seconds: dict[tuple[str, str, str], float], episodes: int) -> None:
+    """Merge this run's wall time per episode of each (environment, policy) into
+    ``out/timings.json`` (the mean over its variants, building the policy left out)."""
+    per: dict[str, list[float]] = {}
+    for env_id, variant, _, policy in jobs:
+        sec = seconds.get((env_id, variant, policy))
+        if sec is not None:
+            kind = "agent" if policy.startswith("agent:") else "other"
+            per.setdefault(f"{_name(env_id)} {policy}", []).append(
+                max(0.0, sec - JOB_SECONDS[kind]) / episodes
+            )
+    episode = {**timings.get("episode", {}),
+               **{k: round(float(np.mean(v)), 4) for k, v in per.items()}}
+    (out / TIMINGS).write_text(json.dumps({"episode": episode}, indent=1, sort_keys=True) + "\n")
+
+
+class _VideoWatch:
+    """Progress of :func:`write_page`'s videos, read from the GIFs it writes into
+    ``out/videos`` (a file newer than the phase's start is a finished video), on a thread."""
+
+    def __init__(self, out: Path, total: int, workers: int) -> None:
+        self.folder, self.total = out / "videos", total
+        self.t0 = time.time()
+        self.bar = Progress("videos", total, VIDEO_SECONDS * total,
+                            min(workers, total), "videos", every=20.0)
+        self.halt = threading.Event()
+        self.thread = threading.Thread(target=self._watch, daemon=True)
+        self.thread.start()
+
+    def _finished(self) -> int:
+        if not self.folder.is_dir():
+            return 0
+        return sum(1 for g in self.folder.glob("*.gif") if g.stat().st_mtime >= self.t0)
+
+    def _watch(self) -> None:
+        while not self.halt.wait(2.0):
+            while self.bar.done < min(self._finished(), self.total):
+                self.bar.update(VIDEO_SECONDS)
+
+    def stop(self) -> None:
+        self.halt.set()
+        self.thread.join()
+        self.bar.close()
+
+
+def summary(results: dict[tuple[str, str, str], EvaluationResult], env_ids: list[str]) -> str:
+    """A few lines: per environment, on its first leaderboard variant, the best controller
+    (a course law, at course or tuned gains, or a plugin policy) and the best shipped agent
+    (:func:`cir_gym.scoring.tables.best`: success rate first, then the primary metric)."""
+    from cir_gym.scoring.tables import best
+
+    def cell(r: EvaluationResult | None) -> str:
+        if r is None:
+            return "—"
+        spec = r.spec(r.primary_metric)
+        unit = f" {spec.unit}" if spec.unit else ""
+        return (f"{r.policy_name} {r.summary[r.primary_metric]['mean']:.3g}{unit} "
+                f"({100 * r.success_rate:.0f} % success)")
+
+    lines = ["best per environment (its first variant; success first, then the metric):"]
+    width = max((len(_name(e)) for e in env_ids), default=0)
+    for env_id in env_ids:
+        variant, rows = next(iter(_by_variant(results, env_id).items()))
+        if not rows:
+            continue
+        ctrl = best([r for r in rows if not r.policy_name.startswith("agent:")])
+        agent = best([r for r in rows if r.policy_name.startswith("agent:")])
+        lines.append(
+            f"  {_name(env_id):<{width}}  {variant} [{rows[0].primary_metric}]: controller "
+            f"{cell(ctrl)}; agent {cell(agent)}"
+        )
+    return "\n".join(lines)
 
 
 def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int) -> str:
@@ -164,13 +469,7 @@ def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, see
     variant, over all their seeds: :func:`agents.report.seed_table` (IQM of the primary metric
     with its stratified-bootstrap CI over seeds). "" when there is none (or no train extra).
     The ranked table above it shows such an agent's first seed only."""
-    from cir_gym.scoring.policies import agents_module
-
-    ag = agents_module()
-    if ag is None:
-        return ""
-    names = [n for n in ag.available(env_id)
-             if len(ag.seeds(env_id, n)) >= 2 and ag.trained_for(env_id, n, env_kwargs)]
+    names = _multi_seed_agents(env_id, env_kwargs)
     if not names:
         return ""
     from cir_gym.agents.report import seed_table

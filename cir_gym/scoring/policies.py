@@ -2,7 +2,9 @@
 
 Names: a controller of :mod:`cir_gym.baselines` (``computed_torque``), a controller at the
 gains tuned for a variant (``tuned:computed_torque``, :func:`tuned_gains`), a shipped agent
-(``agent:ppo``, :mod:`cir_gym.agents`). ``--set key=value`` settings are split into
+(``agent:ppo``, :mod:`cir_gym.agents`; needs the ``train`` extra) and a third party's policy
+installed under the entry-point group ``cir_gym.policies`` (``plugin:<name>``,
+:func:`plugin_factories`; docs/policies.md). ``--set key=value`` settings are split into
 environment arguments and gains by :func:`split_settings`.
 """
 
@@ -10,13 +12,29 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import difflib
+import importlib.metadata
+import importlib.util
 import json
+import sys
+import warnings
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 import cir_gym
 from cir_gym import baselines
-from cir_gym.envs.base import constructor_arguments
+from cir_gym.envs.base import constructor_arguments, default_arguments
+
+#: the prefixes of policy names that are not a plain controller
+PREFIXES = ("tuned:", "agent:", "plugin:")
+#: the entry-point group of third-party policies: ``name = "module:factory"``, where
+#: ``factory(env_id, env_kwargs)`` returns an object with SB3's ``predict``
+ENTRY_POINT_GROUP = "cir_gym.policies"
+#: what a user installs to run the shipped agents
+TRAIN_EXTRA = "pip install 'cir-gym[train]'"
+#: the modules a shipped agent needs (the train extra)
+TRAIN_MODULES = ("yaml", "torch", "stable_baselines3")
 
 
 class PolicyError(ValueError):
@@ -33,32 +51,142 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
+    close = difflib.get_close_matches(word, list(choices), n=2, cutoff=0.6)
+    return f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+
+
 def check_env_id(env_id: str) -> str:
-    """The registered id of ``env_id`` (``cir_gym:`` module prefix allowed)."""
+    """The registered id of ``env_id``: ``cir_gym/JointTracking-v1``, ``JointTracking-v1``
+    (the ``cir_gym/`` namespace is optional) or ``cir_gym:cir_gym/JointTracking-v1`` (with
+    Gymnasium's module prefix).
+
+    Raises:
+        PolicyError: no such environment (the message suggests the closest id, lists them all).
+    """
     key = env_id.split(":")[-1]
+    if key not in cir_gym.ENVIRONMENTS and f"cir_gym/{key}" in cir_gym.ENVIRONMENTS:
+        key = f"cir_gym/{key}"
     if key not in cir_gym.ENVIRONMENTS:
-        raise PolicyError(f"unknown environment {env_id!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+        names = {e.split("/")[-1]: e for e in cir_gym.ENVIRONMENTS}
+        close = difflib.get_close_matches(key.split("/")[-1], list(names), n=2, cutoff=0.6)
+        hint = f" (did you mean {' or '.join(repr(names[c]) for c in close)}?)" if close else ""
+        raise PolicyError(
+            f"unknown environment {env_id!r}{hint}; valid: {sorted(cir_gym.ENVIRONMENTS)} "
+            "(the 'cir_gym/' prefix may be left out)"
+        )
     return key
 
 
+def module_missing(name: str) -> bool:
+    """Whether top-level module ``name`` cannot be imported, looked up without importing it
+    (torch takes seconds)."""
+    if name in sys.modules:
+        return sys.modules[name] is None
+    try:
+        return importlib.util.find_spec(name) is None
+    except (ImportError, ValueError):  # a finder that refuses it, a broken parent module
+        return True
+
+
+def train_extra_missing() -> list[str]:
+    """The modules of the ``train`` extra that cannot be imported (none: agents can run)."""
+    return [name for name in TRAIN_MODULES if module_missing(name)]
+
+
 def agents_module() -> Any | None:
-    """:mod:`cir_gym.agents`, or None when the ``train`` extra (SB3, torch) is not installed."""
+    """:mod:`cir_gym.agents`, or None when the ``train`` extra (SB3, torch, PyYAML) is not
+    installed: a shipped agent cannot be loaded then."""
+    if train_extra_missing():
+        return None
     try:
         from cir_gym import agents
-    except ImportError:  # the train extra (SB3, torch) is not installed
+    except ImportError:
         return None
     return agents if hasattr(agents, "available") else None
 
 
+def shipped_agents(env_id: str) -> list[str]:
+    """``agent:<name>`` of every agent shipped for ``env_id``, whether or not the ``train``
+    extra is installed to run them (the directories are package data)."""
+    from cir_gym import agents  # imports neither torch, SB3 nor yaml
+
+    return [f"agent:{a}" for a in agents.available(env_id)]
+
+
+_PLUGINS: dict[str, Any] | None = None
+
+
+def plugin_factories(refresh: bool = False) -> dict[str, Any]:
+    """The installed distributions' policies: ``plugin:<name>`` → its entry point (group
+    ``cir_gym.policies``, :data:`ENTRY_POINT_GROUP`), read once per process (``refresh``
+    reads the installed distributions again)."""
+    global _PLUGINS
+    if _PLUGINS is None or refresh:
+        eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        _PLUGINS = {f"plugin:{ep.name}": ep for ep in sorted(eps, key=lambda e: e.name)}
+    return _PLUGINS
+
+
+_LOADED: dict[str, Callable[..., Any] | Exception] = {}
+
+
+def plugin_factory(name: str) -> Callable[..., Any]:
+    """The factory of plugin policy ``name`` (``plugin:<name>``), imported once.
+
+    Raises:
+        PolicyError: no such entry point, or it failed to import (the message says which).
+    """
+    ep = plugin_factories().get(name)
+    if ep is None:
+        raise PolicyError(
+            f"no installed policy {name!r}{did_you_mean(name, plugin_factories())}; "
+            f"installed ({ENTRY_POINT_GROUP} entry points): {sorted(plugin_factories())}"
+        )
+    if name not in _LOADED:
+        try:
+            _LOADED[name] = ep.load()
+        except Exception as exc:  # a third party's import error: name it, never crash a list
+            _LOADED[name] = exc
+    loaded = _LOADED[name]
+    if isinstance(loaded, Exception):
+        raise PolicyError(
+            f"{name} ({ep.value}, entry point of {ENTRY_POINT_GROUP}) failed to load: "
+            f"{type(loaded).__name__}: {loaded}"
+        )
+    return loaded
+
+
+def plugin_applies(name: str, env_id: str) -> bool:
+    """Whether plugin policy ``name`` applies to ``env_id``: its factory's optional
+    ``env_ids`` attribute (ids, with or without ``cir_gym/``) holds the id, or it has none.
+    A plugin that fails to load applies nowhere (a warning names it)."""
+    try:
+        factory = plugin_factory(name)
+    except PolicyError as exc:
+        warnings.warn(str(exc), stacklevel=2)
+        return False
+    ids = getattr(factory, "env_ids", None)
+    return ids is None or env_id in ids or env_id.split("/")[-1] in ids
+
+
 def policy_names(env_id: str) -> list[str]:
-    """Controllers, controllers at tuned gains (``tuned:<controller>``, :func:`tuned_gains`)
-    and shipped agents (``agent:<name>``) that apply to an environment."""
+    """Controllers, controllers at tuned gains (``tuned:<controller>``, :func:`tuned_gains`),
+    shipped agents (``agent:<name>``; only with the ``train`` extra installed) and installed
+    plugin policies (``plugin:<name>``) that apply to an environment."""
     names = baselines.available(env_id)
     names += [f"tuned:{c}" for c in sorted({r["controller"] for r in _tuning_rows(env_id)})]
-    ag = agents_module()
-    if ag is not None:
-        names += [f"agent:{a}" for a in ag.available(env_id)]
+    if agents_module() is not None:
+        names += shipped_agents(env_id)
+    names += [p for p in plugin_factories() if plugin_applies(p, env_id)]
     return names
+
+
+def is_policy_name(policy: str) -> bool:
+    """Whether ``policy`` has the form of a policy name (a controller, or one of
+    :data:`PREFIXES`), as opposed to a sweep's ``module:callable`` factory."""
+    return ":" not in policy or policy.startswith(PREFIXES)
 
 
 #: the gains ``scripts/tune_gains.py`` found, shipped with the package: ``<Env-vN>.json`` per
@@ -164,20 +292,84 @@ def split_settings(
             gains[key] = parse_value(value)
         else:
             raise PolicyError(
-                f"unknown --set key {key!r}; environment arguments: {env_keys}; "
+                f"unknown --set key {key!r}{did_you_mean(key, env_keys + gain_keys)}; "
+                f"environment arguments: {env_keys}; "
                 f"gains of {policy!r}: {gain_keys}"
             )
     return env_kwargs, gains
 
 
-def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]) -> Any:
+def check_policy(env_id: str, policy: str) -> str:
+    """``policy`` if it is one of :func:`policy_names` of ``env_id``.
+
+    Raises:
+        PolicyError: a shipped agent without the ``train`` extra (the message names the
+            install command), or an unknown name (with the closest valid one).
+    """
     valid = policy_names(env_id)
-    if policy not in valid:
-        raise PolicyError(f"unknown policy {policy!r} for {env_id}; valid: {valid}")
+    if policy in valid:
+        return policy
+    if policy in shipped_agents(env_id):
+        raise PolicyError(
+            f"{policy} is a trained agent: running it needs the train extra (missing: "
+            f"{', '.join(train_extra_missing())}): {TRAIN_EXTRA}"
+        )
+    if policy.startswith("plugin:") and policy in plugin_factories():
+        plugin_factory(policy)  # a load error says why
+        raise PolicyError(
+            f"{policy} does not apply to {env_id}: its factory's env_ids are "
+            f"{list(getattr(plugin_factory(policy), 'env_ids', []))}"
+        )
+    candidates = list(dict.fromkeys(valid + shipped_agents(env_id)))
+    hint = did_you_mean(policy, candidates)
+    if not hint and ":" not in policy:  # 'ppo_100hz' for 'agent:ppo_100hz'
+        bare = {c.split(":", 1)[-1]: c for c in candidates}
+        close = difflib.get_close_matches(policy, list(bare), n=1, cutoff=0.6)
+        hint = f" (did you mean {bare[close[0]]!r}?)" if close else ""
+    raise PolicyError(f"unknown policy {policy!r} for {env_id}{hint}; valid: {valid}")
+
+
+def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], option: str = "--set") -> None:
+    """Build ``env_id``'s class with ``env_kwargs`` once, so a bad value is reported before any
+    work, in our words: the option, the argument, the value and what is allowed.
+
+    Raises:
+        PolicyError: the constructor refused a value (InvalidArgument, ValueError, TypeError).
+    """
+    cls = cir_gym.ENVIRONMENTS[env_id][0]
+    try:
+        env = cls(**env_kwargs)
+    except (ValueError, TypeError) as exc:
+        bad = [k for k in env_kwargs if k in str(exc)] or list(env_kwargs)
+        defaults = default_arguments(cls)
+        given = ", ".join(f"{option} {k}={env_kwargs[k]}" for k in bad)
+        default = "; ".join(f"{k} defaults to {defaults[k]!r}" for k in bad if k in defaults)
+        raise PolicyError(f"{given}: {exc}" + (f" ({default})" if default else "")) from None
+    env.close()
+
+
+def make_policy(env_id: str, policy: str, env_kwargs: dict[str, Any], gains: dict[str, Any]) -> Any:
+    """The policy named ``policy`` for ``env_id`` with ``env_kwargs``, at ``gains`` (a
+    controller's; a tuned controller's over its tuned gains).
+
+    Raises:
+        PolicyError: an unknown name, a bad gain, a missing extra or a failing plugin.
+    """
+    check_policy(env_id, policy)
     if policy.startswith("agent:"):
         ag = agents_module()
         assert ag is not None
         return ag.load(env_id, policy.split(":", 1)[1])
+    if policy.startswith("plugin:"):
+        if gains:
+            raise PolicyError(f"{policy} takes no gains (--set {', '.join(gains)})")
+        made = plugin_factory(policy)(env_id, dict(env_kwargs))
+        if not callable(getattr(made, "predict", None)):
+            raise PolicyError(
+                f"{policy}'s factory returned {type(made).__name__}, which has no predict("
+                "observation, state=None, episode_start=None, deterministic=True) method"
+            )
+        return made
     policy, gains = resolve_tuned(env_id, policy, env_kwargs, gains)
     try:
         return baselines.make(policy, env_id, env_kwargs=env_kwargs, **gains)
