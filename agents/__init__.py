@@ -128,7 +128,7 @@ def load(env_id: str, name: str, *, path: str | Path | None = None,
 
     Loading reads weights with ``torch.load(weights_only=True)`` and statistics with
     ``numpy.load(allow_pickle=False)``: no pickle is executed. Still, only load agents from
-    sources you trust (see docs/agents.md).
+    sources you trust.
     """
     from cir_gym.agents.policy import load_agent
 

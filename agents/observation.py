@@ -11,7 +11,7 @@ controller may know, :meth:`RobotEnv.controller_context`), appended after the er
 
 * ``gravity``: ĝ(q) ⊘ τ_max, the nominal gravity torque in action units (joint-torque tasks).
   With it, PD + gravity, a = ĝ(q)/τ_max + K_P q̃ + K_D q̃̇, is a *linear* function of the
-  agent's observation (issue 20's observation review).
+  agent's observation.
 
 * ``pinv_feedforward``: J†(q) x̄̇ ⊘ q̇_max, the open-loop differential-IK command in action
   units (joint-velocity tasks: RedundantIK), J the nominal task Jacobian;
@@ -19,7 +19,7 @@ controller may know, :meth:`RobotEnv.controller_context`), appended after the er
   With both, CLIK's a = J†(x̄̇ + K e) ⊘ q̇_max is the *linear* function f_ff + K f_err of the
   agent's observation: the features build in the nominal kinematics (J and its pseudo-inverse),
   as ``gravity`` builds in the nominal gravity model; what is left to learn is the gain and the
-  secondary task in the null space (issue 20's observation review, docs/agents.md).
+  secondary task in the null space (docs/research/agents.md measures what they change).
 
 They are bound to an environment with :meth:`ObservationLayout.bind` (a loaded agent binds to
 the env it is built for); a layout without features needs no binding.

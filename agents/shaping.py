@@ -93,8 +93,7 @@ class RewardOffset(gym.Wrapper):
     about as little as one the following-error monitor stops (−50 = −1/(1 − γ) at γ = 0.98):
     at 0.3 rad of error r ≈ −0.7 per step, and holding on is worth only ~15 more than falling.
     With ``offset = 1`` every played step is worth ≥ 0 and the monitor's stop costs its
-    penalty *plus* the bonuses it ends, so holding the arm up is what pays (issue 20's reward
-    review). The evaluation, the learning curve and the shipped scores use the env's reward.
+    penalty *plus* the bonuses it ends, so holding the arm up is what pays. The evaluation, the learning curve and the shipped scores use the env's reward.
     """
 
     def __init__(self, env: gym.Env, offset: float) -> None:
@@ -171,7 +170,7 @@ class TaskReplay(gym.Wrapper):
     RedundantIK7-v4's "obstacle" reset draws a lap and searches for an obstacle that a
     self-motion can clear: ~0.2 s of CPU, while a step costs ~0.1 ms. Under early termination
     an untrained policy loses its lap within a few steps, so training is almost all resets
-    (43 env steps/s measured, docs/agents.md). This wrapper resets with
+    (43 env steps/s measured, docs/research/agents.md). This wrapper resets with
     ``options={"replay": True}`` (the env restores the last task exactly, ~0.1 ms) on all but
     every ``repeats``-th reset, cutting the draw cost ``repeats``-fold. Every drawn task is
     played the same number of times, so the task distribution is unchanged (only correlated);

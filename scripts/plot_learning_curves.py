@@ -37,7 +37,7 @@ from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
 from cir_gym.scoring.policies import PolicyError, tuned_gains
 
-#: issue 20's bar for a from-scratch agent: this controller at its default gains
+#: the bar for a from-scratch agent: this controller at its default gains
 TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
 #: environments whose failures all score the time limit: success rate drawn beside the metric
 SUCCESS_PANEL = {"cir_gym/PegInHole-v1"}
@@ -176,7 +176,7 @@ def plot_env(env_id: str, out: Path) -> Path | None:
             a.grid(True, alpha=0.3)
             a.legend(fontsize=7)
     target = TARGETS.get(env_id)
-    for label, by_name in scores.items():  # issue 20's bar for a from-scratch agent
+    for label, by_name in scores.items():  # the bar for a from-scratch agent
         if target in by_name and (best_of(env_id, by_name) or ("",))[0] != target:
             ax.axhline(by_name[target], ls="-.", color="k", lw=0.8,
                        label=f"target: {target}, default gains ({label})")
@@ -229,9 +229,9 @@ def export_training_curve(run_dir: Path, dest: Path) -> Path:
 
 
 def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
-    """The issue-20 lever runs (``<curves>/*.csv``, copies of their ``learning_curve.csv``)
-    against the first round's JointTracking-v1 ``ppo`` curve (``<curves>/baseline/``; the agent
-    itself was retired in the fifth round), on the same evaluation episodes."""
+    """The lever runs (``<curves>/*.csv``, copies of their ``learning_curve.csv``) against the
+    baseline JointTracking-v1 ``ppo`` curve (``<curves>/baseline/``; that agent is no longer
+    shipped), on the same evaluation episodes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -276,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="results/learning_curves")
     p.add_argument("--env", action="append", help="environment id (repeatable; default: all)")
     p.add_argument("--levers", metavar="DIR", help="also plot the lever curves in DIR/*.csv "
-                   "(results/learning_curves/levers) against the first round's JointTracking ppo")
+                   "(results/learning_curves/levers) against the baseline JointTracking ppo")
     p.add_argument("--export-training", nargs=2, metavar=("RUN_DIR", "CSV"),
                    help="write RUN_DIR's training episode length/return (TensorBoard) to CSV")
     args = p.parse_args(argv)

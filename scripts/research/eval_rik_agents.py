@@ -1,4 +1,4 @@
-"""RedundantIK agents on many seeds, and where their laps are lost (issue 20's 90 % target).
+"""RedundantIK agents on many seeds, and where their laps are lost (the 90 % target).
 
     python scripts/eval_rik_agents.py [--env cir_gym/RedundantIK-v3] [--episodes 100]
         [--seed 1000] [--laps 60] [--out results/agents/RedundantIK-v3_agents.md]
