@@ -93,8 +93,8 @@ class RewardOffset(gym.Wrapper):
     about as little as one the following-error monitor stops (−50 = −1/(1 − γ) at γ = 0.98):
     at 0.3 rad of error r ≈ −0.7 per step, and holding on is worth only ~15 more than falling.
     With ``offset = 1`` every played step is worth ≥ 0 and the monitor's stop costs its
-    penalty *plus* the bonuses it ends, so holding the arm up is what pays. The evaluation, the learning curve and the shipped
-    scores use the env's reward.
+    penalty *plus* the bonuses it ends, so holding the arm up is what pays. The evaluation,
+    the learning curve and the shipped scores use the env's reward.
     """
 
     def __init__(self, env: gym.Env, offset: float) -> None:
