@@ -34,8 +34,13 @@ import numpy as np
 from cir_gym import trajectories as traj
 
 __all__ = [
+    "CAMERA_GEOM_GROUPS",
+    "MARKER_COLOURS",
     "MUJOCO_TO_OPTICAL",
     "Camera",
+    "camera_points",
+    "damped_pinv",
+    "detect_markers",
     "homography",
     "interaction_matrix",
     "normalise",
@@ -45,10 +50,17 @@ __all__ = [
     "project",
     "transform_points",
     "twist_between",
+    "visible",
 ]
 
 #: p_optical = MUJOCO_TO_OPTICAL @ p_mujoco: MuJoCo cameras look along −z with y up.
 MUJOCO_TO_OPTICAL = np.diag([1.0, -1.0, -1.0])
+#: saturated marker colours (RGB in [0, 1]) in the order of the features: red, green, blue,
+#: yellow
+MARKER_COLOURS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 0.0))
+#: geom groups a camera sees (``visible``): all but group 1, which the robot files use for
+#: translucent placeholders (the flange payload) that are not part of the scene's objects
+CAMERA_GEOM_GROUPS = np.array([1, 0, 1, 1, 1, 1], dtype=np.uint8)
 
 
 @dataclass(frozen=True)
@@ -233,3 +245,81 @@ def twist_between(R_e: np.ndarray, t_e: np.ndarray) -> np.ndarray:
     W[:3, 3:] = skew @ R
     W[3:, 3:] = R
     return W
+
+
+def camera_points(points_world: np.ndarray, position: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Points (k, 3) of the world in the optical frame of a camera at ``position`` (3,) with
+    orientation ``R`` (3, 3, optical → world): Rᵀ (p − position)."""
+    return (np.asarray(points_world, dtype=float) - position) @ np.asarray(R)
+
+
+def damped_pinv(A: np.ndarray, damping: float) -> np.ndarray:
+    """Damped least-squares inverse A* = Aᵀ (A Aᵀ + μ² I)⁻¹ = (AᵀA + μ² I)⁻¹ Aᵀ (n, m) of A (m, n).
+
+    The course's damped least squares (control-laws.md §1) for any shape: through the SVD
+    A = U Σ Vᵀ, A* = V diag(σᵢ / (σᵢ² + μ²)) Uᵀ. A direction with σᵢ ≫ μ is inverted as by the
+    pseudo-inverse (gain σᵢ² / (σᵢ² + μ²) of it), one with σᵢ ≪ μ is all but dropped, and
+    ‖A* e‖ ≤ ‖e‖ / (2 μ) whatever A: no command grows without bound near a singularity.
+    ``damping`` μ ≥ 0 is in the units of A's entries (μ = 0: the pseudo-inverse).
+    """
+    if not np.isfinite(damping) or damping < 0.0:
+        raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
+    if damping == 0.0:
+        return np.linalg.pinv(A)
+    U, sigma, Vt = np.linalg.svd(np.asarray(A, dtype=float), full_matrices=False)
+    return (Vt.T * (sigma / (sigma * sigma + damping * damping))) @ U.T
+
+
+def detect_markers(
+    image: np.ndarray,
+    colours: tuple[tuple[float, ...], ...] = MARKER_COLOURS,
+    min_pixels: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (k, 2) (u, v) px of saturated colour blobs in an RGB image, and found (k,).
+
+    A pixel belongs to colour c (components 0 or 1) when its channels where c = 1 are ≥ 90,
+    within 0.8× of each other (yellow is not orange) and at least 2.5× its channels where
+    c = 0 (plus 20). Fewer than ``min_pixels`` pixels: not found (centroid NaN). Pixel centres
+    at integer coordinates (row 0 at the top).
+    """
+    img = np.asarray(image, dtype=np.int32)
+    out = np.full((len(colours), 2), np.nan)
+    found = np.zeros(len(colours), dtype=bool)
+    for i, c in enumerate(colours):
+        on = np.array(c) > 0.5
+        lit = np.min(img[..., on], axis=-1)
+        dark = np.max(img[..., ~on], axis=-1) if np.any(~on) else np.zeros(img.shape[:2])
+        mask = (lit >= 90) & (lit >= 0.8 * np.max(img[..., on], axis=-1)) & (lit >= 2.5 * dark + 20)
+        rows, cols = np.nonzero(mask)
+        if rows.size >= min_pixels:
+            out[i] = cols.mean(), rows.mean()
+            found[i] = True
+    return out, found
+
+
+def visible(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    position: np.ndarray,
+    geoms: np.ndarray,
+    exclude_body: int = -1,
+) -> np.ndarray:
+    """(k,) True where the centre of geom ``geoms[i]`` is in the line of sight of a camera at
+    ``position`` (3,): a ray from the camera centre to the geom's centre (``mujoco.mj_ray``)
+    meets no other geom first.
+
+    The ray sees the geoms a camera renders (alpha > 0, static ones too, all groups but 1:
+    :data:`CAMERA_GEOM_GROUPS`), except those of body ``exclude_body`` (the body the camera is
+    mounted on, −1: none). The geom's own surface, which the ray meets before its centre, does
+    not hide it; a disc seen from behind its plate, or behind a link, is hidden. Only the
+    centre is tested: a marker partly covered with its centre in view counts as visible.
+    ``data``'s geom poses must be current (``mj_kinematics``).
+    """
+    origin = np.asarray(position, dtype=float)
+    hit = np.zeros(1, dtype=np.int32)
+    out = np.zeros(len(geoms), dtype=bool)
+    for i, g in enumerate(geoms):
+        ray = data.geom_xpos[g] - origin  # x = 1 at the geom's centre
+        x = mujoco.mj_ray(model, data, origin, ray, CAMERA_GEOM_GROUPS, 1, exclude_body, hit)
+        out[i] = x < 0.0 or x >= 1.0 or int(hit[0]) == int(g)
+    return out

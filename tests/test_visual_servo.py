@@ -10,8 +10,7 @@ import pytest
 import cir_gym  # noqa: F401
 from cir_gym import baselines
 from cir_gym import trajectories as traj
-from cir_gym.envs.visual_servo import detect_markers
-from cir_gym.vision import optical_pose
+from cir_gym.vision import detect_markers, optical_pose
 
 EYE_IN_HAND = "cir_gym/VisualServo-v0"
 EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v0"

@@ -73,7 +73,7 @@ def episode(env_id: str, policy: str, gains: dict[str, Any] | None = None, seed:
         feats.append(base._s_true.copy())
         if terminated or truncated:
             break
-    k = base._k_end
+    k = base._k
     out = {"features": np.array(feats), "features_ref": base._s_ref.copy(),
            "path": base._pos[: k + 1].copy(), "metrics": info["episode_metrics"],
            "success": info["is_success"], "feature_lost": info["feature_lost"],
@@ -142,7 +142,7 @@ def free_space_retreat(angle: float, gain: float = 0.5, dt: float = 0.04,
     optical axis from the goal (target 0.75 m ahead, the envs' camera and twist limits).
     Returns (retreat (m), final feature error (px))."""
     from cir_gym import trajectories as traj
-    from cir_gym.envs.visual_servo import TWIST_LIMIT
+    from cir_gym.envs.visual_servo_base import TWIST_LIMIT
     from cir_gym.vision import Camera, interaction_matrix, project
 
     cam = Camera.from_fovy(60.0, 640, 480)

@@ -1,0 +1,83 @@
+"""VisualServo(-EyeToHand)-v0 as environments: the episode's rules, misuse, pickling."""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import cir_gym  # noqa: F401
+from cir_gym import baselines
+from cir_gym.fast_solve import solve
+
+ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")
+LAWS = {ENVS[0]: "ibvs", ENVS[1]: "ibvs_eye_to_hand"}
+
+
+@pytest.mark.parametrize("env_id", ENVS)
+def test_a_pickled_env_continues_the_same_episode(env_id: str) -> None:
+    env = gym.make(env_id).unwrapped
+    obs, _ = env.reset(seed=3)
+    policy = baselines.make(LAWS[env_id], env_id, env=env)
+    for _ in range(5):
+        obs = env.step(policy.predict(obs, None, np.array([True]))[0])[0]
+    copy = pickle.loads(pickle.dumps(env))
+    for _ in range(20):
+        action = policy.predict(obs, None, np.array([True]))[0]
+        (obs, r, te, tr, info), (obs_c, r_c, te_c, tr_c, info_c) = env.step(action), copy.step(
+            action
+        )
+        for key in obs:
+            np.testing.assert_array_equal(obs[key], obs_c[key])
+        assert (r, te, tr, info["feature_error"]) == (r_c, te_c, tr_c, info_c["feature_error"])
+    np.testing.assert_array_equal(env._s_true, copy._s_true)
+
+
+@pytest.mark.parametrize("env_id", ENVS)
+def test_step_before_reset_and_after_the_end_raise(env_id: str) -> None:
+    env = gym.make(env_id, episode_duration=0.12).unwrapped
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(env.action_space.shape))
+    env.reset(seed=0)
+    for _ in range(3):
+        _, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+    assert truncated and not terminated
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(env.action_space.shape))
+
+
+def test_joint_velocities_are_scaled_down_uniformly_to_the_servo_limits() -> None:
+    env = gym.make(ENVS[0]).unwrapped
+    env.reset(seed=0)
+    qd = np.linspace(-1.0, 1.0, 7)
+    limit = env.model.actuator_ctrlrange[:, 1]
+    ctrl = env._ctrl(qd * 100.0)
+    assert np.max(np.abs(ctrl) / limit) == pytest.approx(1.0)
+    np.testing.assert_allclose(ctrl / np.linalg.norm(ctrl), qd / np.linalg.norm(qd))
+    np.testing.assert_array_equal(env._ctrl(0.1 * qd), 0.1 * qd)  # inside the limits: as is
+
+
+@pytest.mark.parametrize("numpy_internals", [True, False])
+def test_solve_is_numpy_solve_with_its_errors(numpy_internals, monkeypatch) -> None:
+    """cir_gym.fast_solve.solve (the motion interface's damped least squares) gives
+    np.linalg.solve's bits and errors for vector and matrix right-hand sides, with numpy's
+    internals and in its fallback (another numpy's layout)."""
+    from cir_gym import fast_solve
+
+    if not numpy_internals:
+        monkeypatch.setattr(fast_solve, "_FP_STATE", None)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        J = rng.standard_normal((6, 7))
+        A, b = J @ J.T, rng.standard_normal(6)
+        np.testing.assert_array_equal(solve(A, b), np.linalg.solve(A, b))
+        np.testing.assert_array_equal(solve(A + np.eye(6), J), np.linalg.solve(A + np.eye(6), J))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no floating-point warning either
+        with pytest.raises(np.linalg.LinAlgError):
+            solve(np.zeros((6, 6)), np.ones(6))
+        with pytest.raises(np.linalg.LinAlgError):
+            solve(np.zeros((6, 6)), np.ones((6, 7)))
