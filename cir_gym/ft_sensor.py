@@ -53,13 +53,12 @@ __all__ = [
     "SensorSpec",
     "WrenchSensor",
     "contact_wrench",
+    "preset",
     "sensor_spec",
     "tool_gravity_wrench",
 ]
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s², the robots' <option gravity>
-_RINT = np.rint  # np.round(x) with decimals=0 (half to even), without its Python wrapper
-_ADD, _MUL, _DIV = np.add, np.multiply, np.divide
 
 
 @dataclass(frozen=True)
@@ -127,15 +126,35 @@ PRESETS: dict[str, SensorSpec] = {
 }
 
 
+def preset(sensor: Any, name: str = "sensor") -> SensorSpec:
+    """The preset named ``sensor`` (a key of :data:`PRESETS`).
+
+    Raises:
+        InvalidArgument: naming the argument ``name``, the value and the presets, for any
+            other value (another string, a list, None, …).
+    """
+    if isinstance(sensor, str) and sensor in PRESETS:
+        return PRESETS[sensor]
+    raise InvalidArgument(
+        f"{name} must be one of the presets {sorted(PRESETS)}, got {sensor!r}"
+    )
+
+
 def sensor_spec(sensor: str | SensorSpec, **changes: Any) -> SensorSpec:
-    """A preset by name (see :data:`PRESETS`) or a :class:`SensorSpec`, with fields replaced."""
+    """A preset by name (see :data:`PRESETS`) or a :class:`SensorSpec`, with fields replaced.
+
+    Raises:
+        InvalidArgument: ``sensor`` is neither (its message names ``sensor``, the value and
+            the presets).
+    """
     if isinstance(sensor, SensorSpec):
         spec = sensor
     elif isinstance(sensor, str) and sensor in PRESETS:
         spec = PRESETS[sensor]
     else:
         raise InvalidArgument(
-            f"sensor must be one of {sorted(PRESETS)} or a SensorSpec, got {sensor!r}"
+            f"sensor must be one of the presets {sorted(PRESETS)} or a SensorSpec, "
+            f"got {sensor!r}"
         )
     return replace(spec, **changes) if changes else spec
 
@@ -170,7 +189,6 @@ class WrenchSensor:
         self._res = np.repeat(spec.resolution, 3)
         # the filter state and the delay line as Python floats: the recursion runs one physics
         # step at a time over six numbers, where a numpy call costs more than the arithmetic
-        # (the same IEEE operations: f + (w − f) α, bit for bit)
         self._f = [0.0] * 6  # the filtered wrench
         self._nline = self.delay_steps + 1
         self._line: list[tuple[float, ...]] = [(0.0,) * 6] * self._nline  # ring of filtered values
@@ -178,7 +196,6 @@ class WrenchSensor:
         self._noisy = bool(np.any(self._std > 0))
         self._quantised = self._res > 0
         self._any_quantised = bool(np.any(self._quantised))
-        self._all_quantised = bool(np.all(self._quantised))  # one rounding of all six
         self._head = 0
         self._count = 0
         self.reading = np.zeros(6)
@@ -226,7 +243,7 @@ class WrenchSensor:
 
     def update_many(self, wrenches: np.ndarray) -> np.ndarray:
         """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
-        ((N, 6), oldest first): the same as N calls of :meth:`update`, bit for bit; return the
+        ((N, 6), oldest first): the same as N calls of :meth:`update`; return the
         reading after the last."""
         self._run(np.asarray(wrenches, dtype=float).reshape(-1, 6).tolist())
         return self.reading.copy()
@@ -281,17 +298,10 @@ class WrenchSensor:
         if held is None:
             oldest = self._head + 1
             held = self._line[0 if oldest == self._nline else oldest]
-        # in place on one new array: the same operations as value = held + bias, value =
-        # value + std · noise, value = rint(value / res) · res
-        value = np.array(held)
-        _ADD(value, self.bias, out=value)
+        value = np.array(held) + self.bias
         if self._noisy:
-            noise = self._rng.standard_normal(6 * draws)
-            _ADD(value, _MUL(self._std, noise[-6:] if draws > 1 else noise), out=value)
-        if self._all_quantised:  # the masked rounding below on every entry, without the masks
-            res = self._res
-            _MUL(_RINT(_DIV(value, res, out=value), out=value), res, out=value)
-        elif self._any_quantised:
+            value += self._std * self._rng.standard_normal(6 * draws)[-6:]
+        if self._any_quantised:  # rounded to the resolution where it is set
             q, res = self._quantised, self._res
             value[q] = np.round(value[q] / res[q]) * res[q]
         self.reading = value

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import math
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
 
+import cir_gym
 from cir_gym.envs.admittance_contact import (
     JOINTS,
     START_Q,
@@ -17,11 +19,13 @@ from cir_gym.envs.admittance_contact import (
     build_model,
     tool_robot,
 )
+from cir_gym.envs.base import constructor_arguments
 from cir_gym.ft_sensor import (
     PRESETS,
     SensorSpec,
     WrenchSensor,
     contact_wrench,
+    preset,
     sensor_spec,
     tool_gravity_wrench,
 )
@@ -102,6 +106,40 @@ def test_unknown_preset_and_too_fast_sampling_are_rejected() -> None:
         sensor_spec("robotiq")
     with pytest.raises(InvalidArgument, match="sample_rate"):
         WrenchSensor(SensorSpec(sample_rate=5000.0), H)
+
+
+#: values of ``sensor`` that are no preset: unhashable ones raised a bare TypeError before
+NOT_PRESETS = [["ati_gamma"], {"ati_gamma": 1}, ("ati_gamma",), None, 3, "ATI_GAMMA"]
+SENSOR_ENVS = [e for e, (cls, _) in cir_gym.ENVIRONMENTS.items()
+               if "sensor" in constructor_arguments(cls)]
+assert len(SENSOR_ENVS) >= 2, SENSOR_ENVS  # PegInHole and AdmittanceContact at least
+
+
+def _names_sensor_value_and_presets(message: str, value: object) -> None:
+    assert "sensor" in message and repr(value) in message, message
+    assert all(name in message for name in PRESETS), message
+
+
+@pytest.mark.parametrize("value", NOT_PRESETS, ids=repr)
+def test_a_sensor_that_is_no_preset_is_an_invalid_argument_naming_it(value: object) -> None:
+    """preset() and sensor_spec() refuse any non-preset value, hashable or not, with an
+    InvalidArgument naming ``sensor``, the value and the presets."""
+    for lookup in (preset, sensor_spec):
+        with pytest.raises(InvalidArgument) as exc:
+            lookup(value)
+        _names_sensor_value_and_presets(str(exc.value), value)
+    assert preset("ideal") is PRESETS["ideal"]
+
+
+@pytest.mark.parametrize("env_id", SENSOR_ENVS)
+@pytest.mark.parametrize("value", NOT_PRESETS, ids=repr)
+def test_env_sensor_that_is_no_preset_names_the_argument(env_id: str, value: object) -> None:
+    """PegInHole's and AdmittanceContact's ``sensor=["ati_gamma"]`` (and other non-presets):
+    InvalidArgument naming ``sensor``, the value and the presets, not an unhashable-type
+    TypeError."""
+    with pytest.raises(InvalidArgument) as exc:
+        gym.make(env_id, sensor=value)
+    _names_sensor_value_and_presets(str(exc.value), value)
 
 
 # ---------------------------------------------------------------------- against MuJoCo
