@@ -14,9 +14,10 @@ inner face is the cone r = R_h + c + z (−c ≤ z ≤ 0, z from the block top);
 point is the top edge of the chamfer, so nothing stands above the block's top face. Above
 z = −c the straight wall steps back to R_h + c.
 
-Collision bits: the peg has contype 2, the block conaffinity 2, the arm's geoms contype 1
-(robots/iiwa14.xml), so only peg–block contacts are computed (the arm never reaches the block
-in this task; skipping those pairs halves the broad phase).
+Collision bits: the peg has contype 2, the arm's links and the peg's holder contype 1 (the robot
+file's default, conaffinity 0: the links never collide with each other), the block conaffinity
+2 | 1, so the peg, its holder and every link collide with the block and nothing else collides
+(the floor has contype = conaffinity = 0).
 
 Physics settings (the numbers are the module constants below; why each one):
 
@@ -88,7 +89,8 @@ NATIVE_CCD = False
 FRICTION = 0.3
 
 PEG_CONTYPE = 2
-BLOCK_CONAFFINITY = 2
+ARM_CONTYPE = 1  # the robot file's default for its links
+BLOCK_CONAFFINITY = PEG_CONTYPE | ARM_CONTYPE
 
 
 @dataclass(frozen=True)
@@ -198,6 +200,7 @@ def build_peg_in_hole(
         opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
 
     holder = spec.body("payload")
+    spec.geom("payload_geom").contype = ARM_CONTYPE  # the peg's holder is a part: it collides
     # the robot file compiles with inertiafromgeom="false": the peg's inertial is explicit
     i_xx = PEG_MASS * (3 * geom.peg_radius**2 + PEG_LENGTH**2) / 12
     peg = holder.add_body(
