@@ -86,8 +86,7 @@ class DriveModel:
     def quantize(self, q: np.ndarray) -> np.ndarray:
         """q_meas = Δ round(q / Δ) (a copy of q when exact)."""
         res = self.resolution
-        # np.rint is np.round's decimals=0 (half to even) without its Python wrapper
-        return np.rint(q / res) * res if res > 0 else np.array(q, dtype=float, copy=True)
+        return np.round(q / res) * res if res > 0 else np.array(q, dtype=float, copy=True)
 
     def ripple(self, tau: np.ndarray, q: np.ndarray, gear_ratio: np.ndarray) -> np.ndarray:
         """τ (1 + r sin(h N q)): the torque a drive applies for the command τ at joint angle q."""

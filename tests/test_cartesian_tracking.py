@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import warnings
 from typing import Any
 
@@ -145,9 +146,47 @@ def test_a_falling_arm_is_stopped_by_the_following_error_monitor() -> None:
             break
     assert terminated and info["following_error_exceeded"] and not info["diverged"]
     assert env._k < env.max_steps and info["is_success"] is False
-    assert info["reward_following_error"] == -env.following_error_penalty
+    reward = env.reward_model
+    unplayed = env.max_steps - env._k
+    assert info["reward_following_error"] == pytest.approx(
+        -(reward.following_error_penalty + unplayed * reward.worst_step), rel=1e-15
+    )
     metrics = info["episode_metrics"]
     assert metrics["final_position_error"] > env.max_following_error
+
+
+def _episode_return(env_id: str, policy: Any, seed: int, **kwargs: Any) -> tuple[float, int]:
+    """(return, steps) of one episode; ``policy`` None holds a constant +1 torque action."""
+    env = gym.make(env_id, max_episode_steps=-1, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    state, start, total, steps = None, np.array([True]), 0.0, 0
+    while True:
+        if policy is None:
+            action = np.ones(7, dtype=np.float32)
+        else:
+            action, state = policy.predict(obs, state, start)
+            start = np.array([False])
+        obs, reward, terminated, truncated, _ = env.step(action)
+        total += reward
+        steps += 1
+        if terminated or truncated:
+            env.close()
+            return total, steps
+
+
+def test_failing_early_never_raises_the_return() -> None:
+    """A constant +1 torque loses the flange within ~20 steps; charged the worst reward of
+    each unplayed step, its return is below a finished os_pd_gravity episode's (without the
+    charge it was −64 against −488: failing early paid)."""
+    max_steps = CartesianTrackingEnv().max_steps
+    failed, steps = _episode_return(ENV_ID, None, 1000)
+    assert steps < 0.05 * max_steps
+    finished, length = _episode_return(ENV_ID, baselines.make("os_pd_gravity", ENV_ID), 1000)
+    assert length == max_steps
+    assert failed < finished
+    assert failed <= -(max_steps - steps) * CartesianTrackingEnv().reward_model.worst_step
+    uncharged, _ = _episode_return(ENV_ID, None, 1000, charge_unplayed_steps=False)
+    assert uncharged > finished  # what the charge prevents
 
 
 # ---------------------------------------------------------------------- the laws, instantly
@@ -283,55 +322,66 @@ def test_near_singular_plain_law_overspeeds_and_the_damped_law_does_not() -> Non
     assert not info_dls["diverged"]
 
 
-def test_a_path_that_leaves_the_reachable_workspace_is_drawn_again():
+def test_a_path_that_leaves_the_reachable_workspace_is_drawn_again(monkeypatch) -> None:
     """Seed 1001's first draw takes the flange where CLIK's J loses rank (every
     operational-space law saturated on it); the env redraws it, and the exact inverse
-    dynamics then tracks the path it gets to the issue's accuracy."""
-    from cir_gym import baselines
-    from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
+    dynamics then tracks the path it gets to 0.1 mm RMS."""
+    from cir_gym.envs import cartesian_tracking
+    from cir_gym.envs.cartesian_reference import PoseReference, kinematically_feasible
     from cir_gym.evaluation import evaluate
 
-    env = gym.make("cir_gym/CartesianTracking-v0").unwrapped
+    def feasible(env: CartesianTrackingEnv) -> bool:
+        reference = PoseReference(env._x_ref, env._quat_ref, env._twist_ref, env._acc_ref)
+        q0 = env.data.qpos[env._qa].copy()
+        return kinematically_feasible(env.robot, env._site, reference, q0, env.dt)
+
+    env = gym.make(ENV_ID).unwrapped
     env.reset(seed=1001)
-    q0 = env.data.qpos[env._qa].copy()
-    assert env._kinematically_feasible(q0)
-    original = CartesianTrackingEnv._kinematically_feasible
-    try:
-        CartesianTrackingEnv._kinematically_feasible = lambda self, q: True
+    assert feasible(env)
+    kept = env._x_ref.copy()
+    with monkeypatch.context() as patch:
+        patch.setattr(cartesian_tracking, "kinematically_feasible", lambda *args: True)
         env.reset(seed=1001)
-        first = env._x_ref.copy()
-    finally:
-        CartesianTrackingEnv._kinematically_feasible = original
-    assert not env._kinematically_feasible(env.data.qpos[env._qa].copy())
+    assert not feasible(env)
+    assert not np.array_equal(kept, env._x_ref)
     env.reset(seed=1001)
-    assert not np.array_equal(first, env._x_ref)
-    policy = baselines.make("os_inverse_dynamics", "cir_gym/CartesianTracking-v0")
-    episode = evaluate(policy, "cir_gym/CartesianTracking-v0", 1, 1001).episodes[0]
+    np.testing.assert_array_equal(kept, env._x_ref)
+    policy = baselines.make("os_inverse_dynamics", ENV_ID)
+    episode = evaluate(policy, ENV_ID, 1, 1001).episodes[0]
     assert episode.success and episode.metrics["position_rms"] <= 1e-4
 
 
-def test_the_step_observation_equals_the_reset_path_observation() -> None:
-    """With exact encoders ``step`` builds its observation from the flange kinematics it
-    computed on the simulator's MjData (``_obs_exact``); ``_obs`` (reset, quantised encoders)
-    computes it through the nominal Robot. Both must give the same numbers on the same state."""
-    env = gym.make("cir_gym/CartesianTracking-v0", payload_mass=3.0).unwrapped
-    env.reset(seed=3)
+def test_the_observation_is_the_flange_of_the_measured_joints() -> None:
+    """x, quat and twist are k(q), Q(q) on Q̄'s hemisphere and J(q) q̇ of the observed q, q̇
+    (MuJoCo's kinematics on a fresh MjData), the reference rows Q̄ (w ≥ 0 at the start)."""
+    env = gym.make(ENV_ID, payload_mass=3.0).unwrapped
+    obs, _ = env.reset(seed=3)
+    assert obs["quat_ref"][0] >= 0.0
     rng = np.random.default_rng(0)
+    model = env.robot.model
+    data = mujoco.MjData(model)
+    site = model.site("flange").id
     for _ in range(40):
         obs = env.step(rng.uniform(-0.3, 0.3, env.action_space.shape))[0]
-        p, R = env._flange_now()
-        exact, reference = env._obs_exact(p, R), env._obs()
-        for key, value in reference.items():
-            np.testing.assert_allclose(exact[key], value, rtol=0, atol=1e-12, err_msg=key)
-            np.testing.assert_allclose(obs[key], value, rtol=0, atol=1e-12, err_msg=key)
+        data.qpos[:] = obs["q"]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        jac = np.zeros((6, model.nv))
+        mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site)
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+        quat *= np.sign(quat @ obs["quat_ref"])
+        np.testing.assert_allclose(obs["x"], data.site_xpos[site], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(obs["quat"], quat, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(obs["twist"], jac @ obs["qd"], rtol=0, atol=1e-12)
+        assert obs["quat"] @ obs["quat_ref"] >= 0.0
     env.close()
 
 
 @pytest.mark.parametrize("clone", ["pickle", "deepcopy"])
 def test_a_copied_env_resets_and_steps_like_the_original(clone: str) -> None:
-    """The reference lives in one array whose columns _x_ref, _quat_ref, ... are views (the
-    observation copies one row); a pickled or deep-copied env rebuilds those views, so what a
-    reset writes into them is what the next observations read."""
+    """A pickled or deep-copied env resets and steps as the original (same observations and
+    rewards on the same seed and actions)."""
     import copy
     import pickle
 
@@ -341,7 +391,6 @@ def test_a_copied_env_resets_and_steps_like_the_original(clone: str) -> None:
     for _ in range(3):
         env.step(rng.uniform(-0.2, 0.2, 7))
     other = pickle.loads(pickle.dumps(env)) if clone == "pickle" else copy.deepcopy(env)
-    assert np.shares_memory(other._x_ref, other._refs)
     for e in (env, other):
         e.reset(seed=7)
     for _ in range(5):
@@ -350,3 +399,84 @@ def test_a_copied_env_resets_and_steps_like_the_original(clone: str) -> None:
         assert r1 == r2
         for key in o1:
             np.testing.assert_array_equal(o1[key], o2[key], err_msg=key)
+
+
+# ---------------------------------------------------------------------- the step's numbers
+STEP_VARIANTS = [{}, {"payload_mass": 3.0}, {"path": "near_singular"}, {"path": "regulation"}]
+
+
+@pytest.mark.parametrize("kwargs", STEP_VARIANTS, ids=lambda kw: ",".join(kw) or "default")
+def test_step_errors_reward_and_metrics_follow_the_docstring(kwargs: dict) -> None:
+    """Each step's errors are ‖p̄ − p‖ and 2 atan2(‖ε_e‖, |η_e|) of the true flange (MuJoCo's
+    kinematics on a fresh MjData), its reward terms the docstring's formulas (numpy's mean,
+    exp, dot), the speed metrics the true q̇'s. Tolerance 1e-12 relative (1e-15 absolute):
+    the same formulas evaluated in another order round differently in the last bits."""
+    env = CartesianTrackingEnv(max_following_error=None, **kwargs)  # plays all 300 steps
+    env.reset(seed=5)
+    model, site = env.robot.model, env.robot.site_id("flange")
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(5)
+    a_prev, qd_seen = np.zeros(env.n), []
+    w = env.reward_model
+    for _ in range(300):
+        action = rng.uniform(-0.3, 0.3, env.n).astype(np.float32)
+        _, reward, terminated, truncated, info = env.step(action)
+        data.qpos[:] = env.data.qpos
+        mujoco.mj_kinematics(model, data)
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+        k = env._k
+        e_pos = np.linalg.norm(env._x_ref[k] - data.site_xpos[site])
+        e_ang = float(osp.orientation_angle(env._quat_ref[k], quat))
+        assert info["position_error"] == pytest.approx(e_pos, rel=1e-12, abs=1e-15)
+        assert info["orientation_error"] == pytest.approx(e_ang, rel=1e-12, abs=1e-15)
+        a = action.astype(float)
+        e_sq = e_pos**2 + (env.orientation_scale * e_ang) ** 2
+        r_track = -(1.0 - float(np.mean(np.exp(-e_sq / w.error_scales**2))))
+        r_torque = -w.torque_weight * float(np.dot(a, a)) / env.n
+        r_rate = -w.action_rate_weight * float(np.dot(a - a_prev, a - a_prev)) / env.n
+        assert info["reward_tracking"] == pytest.approx(r_track, rel=1e-12, abs=1e-15)
+        assert info["reward_torque"] == pytest.approx(r_torque, rel=1e-12, abs=1e-15)
+        assert info["reward_action_rate"] == pytest.approx(r_rate, rel=1e-12, abs=1e-15)
+        assert reward == pytest.approx(r_track + r_torque + r_rate, rel=1e-12, abs=1e-15)
+        qd_seen.append(env.data.qvel[env._da].copy())
+        a_prev = a
+        assert not (terminated or truncated)
+    metrics = env.episode_metrics()
+    speed = np.abs(np.array(qd_seen))
+    assert metrics["peak_joint_speed"] == pytest.approx(np.max(speed), rel=1e-12)
+    assert metrics["peak_speed_ratio"] == pytest.approx(
+        np.max(speed / env.robot.velocity_limit), rel=1e-12
+    )
+    env.close()
+
+
+def test_a_kept_observation_is_not_overwritten_by_later_steps() -> None:
+    env = CartesianTrackingEnv()
+    env.reset(seed=0)
+    first = env.step(np.zeros(env.n))[0]
+    kept = {key: value.copy() for key, value in first.items()}
+    for _ in range(5):
+        env.step(np.full(env.n, 0.05))
+    for key, value in kept.items():
+        assert np.array_equal(first[key], value), key
+
+
+def test_the_orientation_error_ignores_the_sign_of_the_reference_quaternion() -> None:
+    """Q̄ and −Q̄ are the same orientation: the errors and rewards agree (to 1e-12: the
+    error angle is computed from |Q̄·Q| and ‖ε_e‖, equal up to rounding), and the observed Q
+    follows Q̄ to its hemisphere."""
+    env = CartesianTrackingEnv()
+    env.reset(seed=2)
+    flipped = copy.deepcopy(env)
+    flipped._quat_ref[:] *= -1.0
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        action = rng.uniform(-0.2, 0.2, env.n)
+        obs, reward, _, _, info = env.step(action)
+        obs_f, reward_f, _, _, info_f = flipped.step(action)
+        assert reward_f == pytest.approx(reward, rel=1e-12)
+        assert info_f["orientation_error"] == pytest.approx(info["orientation_error"], rel=1e-12)
+        assert np.array_equal(obs_f["quat_ref"], -obs["quat_ref"])
+        np.testing.assert_allclose(obs_f["quat"], -obs["quat"], rtol=0, atol=1e-15)
+        assert float(np.dot(obs["quat"], obs["quat_ref"])) >= 0.0

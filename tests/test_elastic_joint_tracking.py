@@ -180,9 +180,10 @@ def test_stopping_early_never_raises_the_return():
             break
     assert info["following_error_exceeded"] and k < base.max_steps
     unplayed = base.max_steps - k
-    worst = 1.0 + base.torque_weight + 4.0 * base.action_rate_weight
+    weights = base.reward_model
+    worst = 1.0 + weights.torque_weight + 4.0 * weights.action_rate_weight
     assert info["reward_following_error"] == pytest.approx(
-        -(base.following_error_penalty + unplayed * worst))
+        -(weights.following_error_penalty + unplayed * worst))
     played_on = gym.make(ENV, max_following_error=None, **short)
     played_on.reset(seed=0)
     total = sum(played_on.step(np.zeros(7))[1] for _ in range(base.max_steps))

@@ -214,7 +214,9 @@ def test_following_error_monitor_stops_a_lost_episode_and_scores_the_whole_horiz
     assert terminated and not truncated and info["following_error_exceeded"]
     assert not info["diverged"] and not info["is_success"]
     assert errors[-1] > e0 + 0.5 >= max(errors[:-1])  # trips on the first step past the bound
-    assert info["reward_following_error"] == -50.0
+    worst = 1.0 + 0.01 + 4 * 0.01  # r_tracking = −1, ‖a‖²/7 = 1, ‖Δa‖²/7 = 4 at the defaults
+    unplayed = base.max_steps - (k + 1)
+    assert info["reward_following_error"] == pytest.approx(-(50.0 + unplayed * worst), rel=1e-15)
     terms = sum(v for key, v in info.items() if key.startswith("reward_"))
     assert reward == pytest.approx(terms, abs=1e-12)
     # the last error is held for the unplayed steps: RMS over the whole horizon
@@ -630,9 +632,10 @@ def _reference_step(env, obs_before_k, action, a_prev):
     k = u._k
     err = u._ref[0, k] - q
     err_sq = float(err @ err)
-    r_track = -(1.0 - float(np.mean(np.exp(-err_sq / u.error_scales**2))))
-    r_torque = -u.torque_weight * float(a @ a) / u.n
-    r_rate = -u.action_rate_weight * float((a - a_prev) @ (a - a_prev)) / u.n
+    w = u.reward_model
+    r_track = -(1.0 - float(np.mean(np.exp(-err_sq / w.error_scales**2))))
+    r_torque = -w.torque_weight * float(a @ a) / u.n
+    r_rate = -w.action_rate_weight * float((a - a_prev) @ (a - a_prev)) / u.n
     raw = {"q": q, "qd": qd, "q_ref": u._ref[0, k], "qd_ref": u._ref[1, k], "qdd_ref": u._ref[2, k]}
     bounds = {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
     obs = {key: np.clip(v, -bounds[key], bounds[key]) for key, v in raw.items()}
@@ -643,9 +646,11 @@ def _reference_step(env, obs_before_k, action, a_prev):
     "kwargs", [{}, {"reference": "sine", "payload_mass": 2.0}, {"action_rate_weight": 0.5}]
 )
 def test_step_matches_a_plain_reference_computation_and_keeps_past_observations(kwargs):
-    """Every observation entry bit for bit, every reward term to the last bits, joint error,
-    saturation and torque metrics as the docstring defines them; observations returned
-    earlier are never changed by later steps (the step builds one fresh array per step)."""
+    """Every observation entry exactly (copies and one clip of the simulator's numbers),
+    every reward term and the joint error to 1e-15 relative (1e-14 for their sum: numpy's dot
+    and a sum of squares may round a 7-term sum differently in the last bit), saturation and
+    torque metrics as the docstring defines them; observations returned earlier are never
+    changed by later steps (the step builds one fresh array per step)."""
     env = gym.make(ENV, episode_duration=0.3, max_following_error=None, **kwargs)
     obs, _ = env.reset(seed=7)
     rng = np.random.default_rng(7)
@@ -839,20 +844,42 @@ def test_predict_still_names_a_non_finite_observation_and_command():
         policy.predict(rows[0])
 
 
-def test_metric_reductions_are_numpys_bit_for_bit() -> None:
-    """base.mean_of / rms_of / max_of (the episode metrics' reductions without numpy's Python
-    wrappers) give exactly float(np.mean), float(np.sqrt(np.mean(x**2))), float(np.max)."""
-    from cir_gym.numeric import max_of, mean_of, rms_of
+def _episode_return(env_id: str, policy, seed: int, **kwargs) -> tuple[float, int]:
+    """(return, steps) of one episode; ``policy`` None holds a constant +1 torque action."""
+    env = gym.make(env_id, max_episode_steps=-1, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    state, start, total, steps = None, np.array([True]), 0.0, 0
+    while True:
+        if policy is None:
+            action = np.ones(7, dtype=np.float32)
+        else:
+            action, state = policy.predict(obs, state, start)
+            start = np.array([False])
+        obs, reward, terminated, truncated, _ = env.step(action)
+        total += reward
+        steps += 1
+        if terminated or truncated:
+            env.close()
+            return total, steps
 
-    rng = np.random.default_rng(0)
-    for n in (1, 2, 7, 8, 9, 100, 2001):
-        for shape in ((n,), (n, 7)):
-            x = rng.normal(size=shape) * 10.0 ** rng.uniform(-6, 3)
-            assert mean_of(x) == float(np.mean(x))
-            assert rms_of(x) == float(np.sqrt(np.mean(x**2)))
-            assert max_of(x) == float(np.max(x))
-        flags = rng.uniform(size=n) < 0.3
-        assert mean_of(flags) == float(np.mean(flags))
+
+@pytest.mark.parametrize(
+    ("env_id", "law"),
+    [(ENV, "pd_gravity"), ("cir_gym/ElasticJointTracking-v2", "p_pi_cascade")],
+)
+def test_failing_early_never_raises_the_return(env_id: str, law: str) -> None:
+    """A constant +1 torque trips the following-error monitor within ~15 steps; charged the
+    worst reward of each unplayed step, it scores below a finished episode of a reference
+    law; without the charge (−57) it would beat it (pd_gravity −554; p_pi_cascade on the
+    elastic joints −1,029, seed 1000)."""
+    failed, steps = _episode_return(env_id, None, 1000)
+    finished, length = _episode_return(env_id, baselines.make(law, env_id), 1000)
+    max_steps = gym.make(env_id).unwrapped.max_steps
+    assert steps < 0.05 * max_steps and length == max_steps
+    assert failed < finished
+    assert failed <= -(max_steps - steps) * (1.0 + 0.01 + 4 * 0.01)  # the worst steps, charged
+    uncharged, _ = _episode_return(env_id, None, 1000, charge_unplayed_steps=False)
+    assert uncharged > finished  # what the charge prevents
 
 
 def test_intersample_error_of_a_pd_law_equals_its_sampled_error():

@@ -10,7 +10,6 @@ import numpy as np
 from cir_gym.context import TaskContext
 from cir_gym.drives import DriveState
 from cir_gym.envs.joint_tracking import JointTrackingEnv
-from cir_gym.numeric import index_view
 from cir_gym.robot import ModelError, Robot, apply_model_error, robot_path
 from cir_gym.validation import InvalidArgument, as_float_array, check_number
 
@@ -92,10 +91,10 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     (with a ``drive``: a second encoder on the motor side, same model, same units).
 
     ## Rewards
-    As in JointTracking-v1, on the link error, with ``charge_unplayed_steps=True`` by default:
-    a stopped episode loses the worst reward of every step it did not play, so giving up
-    never raises the return (v1: a PPO agent stopped at 0.5 rad scored −227 against −622 for
-    the best controller).
+    As in JointTracking-v1, on the link error: a stopped episode also loses the worst reward
+    of every step it did not play (``charge_unplayed_steps=True``), so giving up never raises
+    the return (v1: a PPO agent stopped at 0.5 rad scored −227 against −622 for the best
+    controller).
 
     ## Starting State
     As in JointTracking-v1, with the springs pre-loaded so that the arm is at rest: θ(0) =
@@ -111,7 +110,6 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     |---|---|---|
     | stiffness | None | nominal joint stiffness k_el (N m/rad, ≥ 10, with ω Δt ≤ 1 for the rotor–spring–link mode), scalar or (7,); None = DEFAULT_STIFFNESS |
     | stiffness_scale | 1.0 | true stiffness / nominal (in [0.1, 10]), unknown to the controllers |
-    | charge_unplayed_steps | True | as in JointTracking-v1, but on by default |
 
     ## Metrics
     As in JointTracking-v1 (on the link side).
@@ -141,7 +139,6 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         *args: Any,
         stiffness: float | list[float] | None = None,
         stiffness_scale: float = 1.0,
-        charge_unplayed_steps: bool = True,
         **kwargs: Any,
     ) -> None:
         k = as_float_array("stiffness", DEFAULT_STIFFNESS if stiffness is None else stiffness)
@@ -155,14 +152,12 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         scale = check_number("stiffness_scale", stiffness_scale, 0.1, 10.0)
         self.stiffness_scale = scale
         self.stiffness = scale * k  # the simulator's springs
-        super().__init__(*args, charge_unplayed_steps=charge_unplayed_steps, **kwargs)
+        super().__init__(*args, **kwargs)
         m = self.model
         self._ma = np.array([m.jnt_qposadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
         self._md = np.array([m.jnt_dofadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
-        self._ma_at, self._md_at = index_view(self._ma), index_view(self._md)
         self._motor_drive = None if self.drive is None else DriveState(self.drive, 7)
         self._set_observation_space({**self._obs_bounds, "q_motor": 2 * np.pi, "qd_motor": 50.0})
-        self._motor_row = self._obs_keys.index("q_motor")  # q_motor, then qd_motor
 
     # hooks of JointTrackingEnv
     def _build_robot(self) -> Robot:
@@ -211,11 +206,11 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         m.dof_frictionloss[link] = 0.0
 
     def _motor_angle(self) -> np.ndarray:
-        return self.data.qpos[self._ma_at]
+        return self.data.qpos[self._ma]
 
     def _reset_drive(self) -> None:
         super()._reset_drive()
-        if getattr(self, "_motor_drive", None) is not None:
+        if self._motor_drive is not None:
             d = self.data
             self._motor_drive.reset(d.qpos[self._ma], d.qvel[self._md], self.dt)
 
@@ -227,35 +222,12 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         qvel[self._md] = qd0
         self._reset_physics(qpos, qvel)
 
-    def _refresh_views(self, d: Any) -> None:
-        """JointTracking's views, then the motors' θ and θ̇ in ``d`` (views where the
-        addresses are a slice; None: index per call)."""
-        super()._refresh_views(d)
-        self._motor_views = (
-            (d.qpos[self._ma_at], d.qvel[self._md_at])
-            if isinstance(self._ma_at, slice) and isinstance(self._md_at, slice)
-            else None
-        )
-        motors, row = self._motor_views, self._motor_row
-        if self._direct_rows is not None and motors is not None and self._motor_drive is None:
-            self._direct_rows += ((row, motors[0]), (row + 1, motors[1]))
-        else:  # _obs calls _measure
-            self._direct_rows = None
-
-    def _measure(self, out: np.ndarray) -> None:
-        """The link rows as JointTracking, then the motor encoders θ, θ̇ (link units)."""
-        super()._measure(out)  # (builds the views on a new MjData)
-        views = self._motor_views
-        if views is not None:
-            theta, theta_d = views
-        else:
-            _, qpos, qvel = self._data_views()
-            theta, theta_d = qpos[self._ma_at], qvel[self._md_at]
+    def _measure(self) -> list[np.ndarray]:
+        """The link rows as JointTracking, then the motor encoders θ, θ̇ (n,) (link units)."""
+        theta, theta_d = self.data.qpos[self._ma], self.data.qvel[self._md]
         if self._motor_drive is not None:  # once per control instant
             theta, theta_d = self._motor_drive.measure(theta, theta_d, self.dt)
-        row = self._motor_row
-        out[row] = theta
-        out[row + 1] = theta_d
+        return [*super()._measure(), theta, theta_d]
 
     def controller_context(self) -> TaskContext:
         ctx = super().controller_context()

@@ -8,12 +8,12 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
 from cir_gym.drives import DRIVES, DriveModel, DriveState
-from cir_gym.envs.base import _EXP, _MUL, _RINT, _SUB, RobotEnv, model_error_arguments
+from cir_gym.envs.base import RobotEnv, model_error_arguments
+from cir_gym.envs.joint_reference import REFERENCES, draw_joint_reference
+from cir_gym.envs.tracking_reward import TERMS, TrackingReward, squared_norm
 from cir_gym.metrics import MetricSpec
-from cir_gym.numeric import _SUM, CLIP, index_view, max_of, mean_of, rms_of
 from cir_gym.robot import (
     MODEL_ERROR_RANGES,
     ModelError,
@@ -31,44 +31,12 @@ from cir_gym.validation import (
     check_number,
 )
 
-REFERENCES = ("random", "regulation", "quintic", "sine")
+__all__ = ["MAX_GEAR_RATIO", "RANDOM_RANGES", "REFERENCES", "JointTrackingEnv"]
+
 MAX_GEAR_RATIO = 1.0e4
 
 #: Ranges drawn per episode when randomize=True (uniform): cir_gym.robot's.
 RANDOM_RANGES = MODEL_ERROR_RANGES
-
-
-def _mean(values: np.ndarray) -> float:
-    """``float(np.mean(values))`` of a 1-D float64 array, bit for bit, without np.mean's
-    Python layers: below 8 terms numpy's sum adds from left to right (pairwise beyond)."""
-    if values.size >= 8:
-        return float(_SUM(values)) / values.size
-    terms = values.tolist()
-    total = terms[0]
-    for v in terms[1:]:
-        total += v
-    return total / len(terms)
-
-
-_DIV = np.true_divide
-
-
-def row_dict(keys: tuple[str, ...], rows: np.ndarray) -> dict[str, np.ndarray]:
-    """``dict(zip(keys, rows))``: key i → ``rows[i]`` (a view), by indexing, which costs
-    about half of iterating the array (7 rows: the elastic env's; JointTracking's ``_obs``
-    indexes its 5 rows inline)."""
-    if len(keys) == 7:
-        k0, k1, k2, k3, k4, k5, k6 = keys
-        return {
-            k0: rows[0],
-            k1: rows[1],
-            k2: rows[2],
-            k3: rows[3],
-            k4: rows[4],
-            k5: rows[5],
-            k6: rows[6],
-        }
-    return dict(zip(keys, rows, strict=False))
 
 
 class JointTrackingEnv(RobotEnv):
@@ -120,13 +88,14 @@ class JointTrackingEnv(RobotEnv):
       monitor stops the episode, else 0;
     - r_diverged = −``divergence_penalty`` on the step the physics diverged, else 0.
 
-    With ``charge_unplayed_steps=True`` a stopped or diverged episode also loses, on its last
-    step, the worst reward of every step it did not play, (T − k)(1 + ``torque_weight`` +
-    4 ``action_rate_weight``) (T the episode's steps, k the steps played; the worst step:
-    r_tracking = −1, ‖a‖² = 7, ‖Δa‖² = 28). Playing on can then never lose more than stopping:
-    stopping early never raises the return, at any discount γ ≤ 1. JointTracking-v1 keeps
-    False (its v1 reward: 50 for giving up against up to ~1 per remaining step, so a lost arm
-    "earns" by being stopped early); ElasticJointTracking-v2 defaults to True.
+    With ``charge_unplayed_steps=True`` (the default) a stopped or diverged episode also
+    loses, on its last step, the worst reward of every step it did not play, (T − k)(1 +
+    ``torque_weight`` + 4 ``action_rate_weight``) (T the episode's steps, k the steps played;
+    the worst step: r_tracking = −1, ‖a‖² = 7, ‖Δa‖² = 28). Playing on can then never lose
+    more than stopping: ending early never raises the return, at any discount γ ≤ 1
+    (``False``: the penalty alone, 50 for giving up against up to ~1 per remaining step, so a
+    lost arm "earns" by being stopped early). The terms are
+    :class:`cir_gym.envs.tracking_reward.TrackingReward`'s, shared with the batched env.
 
     ## Starting State
     At rest on the reference, q(0) = q̄(0) (+ U(±``initial_error``) per joint). For
@@ -175,7 +144,7 @@ class JointTrackingEnv(RobotEnv):
     | success_threshold | 0.05 | max joint error (rad) after the settling window below which an episode succeeds |
     | settling_time | 2.0 | s: the settling window of an episode that starts off its reference (initial_error > 0 or "regulation"), not judged for success (at most the episode minus its last step); 0 on the reference |
     | drive | None | sensing/actuation model: None (ideal), "industrial" (see Drive) or a ``cir_gym.drives.DriveModel`` |
-    | charge_unplayed_steps | False | a stopped or diverged episode also loses the worst reward of each unplayed step (see Rewards) |
+    | charge_unplayed_steps | True | a stopped or diverged episode also loses the worst reward of each unplayed step (see Rewards) |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
@@ -187,9 +156,8 @@ class JointTrackingEnv(RobotEnv):
     by the following-error monitor, and the max absolute joint error after the settling window
     below ``success_threshold``. The window (``settling_time``) applies only to an episode
     that starts off its reference (``initial_error`` > 0 or ``reference="regulation"``): its
-    initial offset is the task, not a failure (before, such an episode could never succeed:
-    ``max_error`` includes the offset). An episode that starts on its reference is judged
-    from its first step, as before. ``max_error`` stays the whole episode's.
+    initial offset is the task, not a failure. An episode that starts on its reference is
+    judged from its first step. ``max_error`` stays the whole episode's.
 
     ## Reference controllers
     ``baselines.available("cir_gym/JointTracking-v1")``: pid, p_pi_cascade,
@@ -198,21 +166,16 @@ class JointTrackingEnv(RobotEnv):
     ## Version History
     Without a version bump (metrics and new arguments whose defaults keep v1's episodes):
     success judged after the settling window of an off-reference start; ``settling_time``,
-    ``drive``, ``charge_unplayed_steps``; a ``control_freq`` that is not 1 kHz / integer is
-    rejected (it was rounded: 300 Hz ran at 333 Hz). Issue 21 made ``step`` cheaper without
-    changing a number (rollouts bit for bit the same; tests compare the step with a plain
-    computation from this docstring): the observation is one (keys, n) array per step,
-    clipped in one call, whose rows are the dict's entries (never written afterwards); the
-    reward's reductions are Python floats or dot products; one finite check of the state
-    (``RobotEnv._simulate``). Overhead over the physics: results/benchmarks.md.
+    ``drive``; a ``control_freq`` that is not 1 kHz / integer is rejected (it was rounded:
+    300 Hz ran at 333 Hz).
 
     - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
       From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
-      (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing
-      (docs/agents.md). On this env no controller of the leaderboard comes near it (worst
-      0.33 rad, PD + gravity under the 3 kg payload); a controller that loses the arm (nominal
-      computed torque at direct drive under a payload, rigid-model control of the elastic
-      joints) is now stopped and scored with its last error held.
+      (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing. On this env
+      no controller of the leaderboard comes near it (worst 0.33 rad, PD + gravity under the
+      3 kg payload); a controller that loses the arm (nominal computed torque at direct drive
+      under a payload, rigid-model control of the elastic joints) is now stopped and scored
+      with its last error held.
     - v0: initial version.
     """
 
@@ -259,7 +222,7 @@ class JointTrackingEnv(RobotEnv):
         success_threshold: float = 0.05,
         settling_time: float = 2.0,
         drive: str | DriveModel | None = None,
-        charge_unplayed_steps: bool = False,
+        charge_unplayed_steps: bool = True,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
@@ -274,25 +237,19 @@ class JointTrackingEnv(RobotEnv):
         self.encoder_resolution = check_encoder_resolution(encoder_resolution)
         self.randomize = check_flag("randomize", randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
-        scales = np.atleast_1d(as_float_array("error_scales", error_scales))
-        if scales.ndim != 1 or scales.size == 0 or not np.all((scales >= 1e-9) & (scales <= 1e3)):
-            raise InvalidArgument(
-                f"error_scales must be numbers in [1e-9, 1e3] rad, got {error_scales!r}"
-            )
-        self.error_scales = scales
-        self._scales_sq = scales**2  # the reward's s² (step divides by it)
-        self._scales_sq_list = self._scales_sq.tolist()  # the same s², as Python floats
-        self._kernels = np.empty(scales.shape)  # exp(−‖q̃‖²/s²) of a step (a buffer)
-        self.torque_weight = check_number("torque_weight", torque_weight, 0.0, 10.0)
-        self.action_rate_weight = check_number("action_rate_weight", action_rate_weight, 0.0, 10.0)
-        self.divergence_penalty = check_number("divergence_penalty", divergence_penalty, 0.0, 1e6)
+        self.reward_model = TrackingReward.from_arguments(
+            error_scales,
+            "rad",
+            torque_weight,
+            action_rate_weight,
+            divergence_penalty,
+            following_error_penalty,
+            charge_unplayed_steps,
+        )
         self.max_following_error = (
             None
             if max_following_error is None
             else check_number("max_following_error", max_following_error, 0.0, 100.0, low_open=True)
-        )
-        self.following_error_penalty = check_number(
-            "following_error_penalty", following_error_penalty, 0.0, 1e6
         )
         self.success_threshold = check_number(
             "success_threshold", success_threshold, 0.0, 10.0, low_open=True
@@ -312,11 +269,6 @@ class JointTrackingEnv(RobotEnv):
                 f"encoder_resolution must be 0 with a drive (its encoder quantizes q), got "
                 f"{encoder_resolution!r}"
             )
-        if not isinstance(charge_unplayed_steps, (bool, np.bool_)):
-            raise InvalidArgument(
-                f"charge_unplayed_steps must be True or False, got {charge_unplayed_steps!r}"
-            )
-        self.charge_unplayed_steps = bool(charge_unplayed_steps)
 
         self.robot = self._build_robot()  # the simulator's (true) robot
         n = self.robot.n
@@ -343,31 +295,25 @@ class JointTrackingEnv(RobotEnv):
         self.torque_limit = self.robot.torque_limit.copy()
         self.n = n
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr  # the link joints
-        # slices (views, no copies) where the joints' addresses are evenly spaced
-        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         self._set_observation_space(
             {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
         )
         steps = self.max_steps
-        self._ref = np.zeros((3, steps + 1, n))
-        self._err = np.zeros((steps, n))
-        self._tau = np.zeros((steps, n))
-        self._sat = np.zeros(steps, dtype=bool)
-        self._action_change = np.zeros(n)  # a − a_prev of the step (a buffer)
-        self._k = 0
-        self._k_scored = 0
+        self._ref = np.zeros((3, steps + 1, n))  # q̄, q̄̇, q̄̈ at every control instant
+        self._err = np.zeros((steps, n))  # q̄ − q after each step (rad)
+        self._tau = np.zeros((steps, n))  # commanded torque of each step (N m)
+        self._sat = np.zeros(steps, dtype=bool)  # a joint clipped or at its limit
+        self._k = 0  # steps played
+        self._k_scored = 0  # steps the metrics cover (the whole horizon once stopped)
         self._a_prev = np.zeros(n)
-        self._q_meas_prev = np.zeros(n)
-        self._diverged = False
+        self._q_meas_prev = np.zeros(n)  # the previous encoder reading (encoder_resolution)
+        self._following_error_limit = math.inf
         self.episode_model_error = self.model_error
         self._drive_state = None if self.drive is None else DriveState(self.drive, n)
-        self._ideal_io = False  # set with the views (_refresh_views): the general step until then
         # a settling window only for an off-reference start, leaving at least the last step
         self._settle_steps = min(round(self.settling_time / self.dt), self.max_steps - 1)
         self._judged_from = 0
-        # the worst reward of one step: r_tracking = −1, ‖a‖²/n = 1, ‖Δa‖²/n = 4
-        self._worst_step = 1.0 + self.torque_weight + 4.0 * self.action_rate_weight
 
     # ------------------------------------------------------------------ hooks (elastic joints)
     def _build_robot(self) -> Robot:
@@ -384,44 +330,20 @@ class JointTrackingEnv(RobotEnv):
 
     def _motor_angle(self) -> np.ndarray:
         """Motor positions in link units θ (n,) (the joints here; q_m = N θ)."""
-        return self.data.qpos[self._q_at]
-
-    def _refresh_views(self, d: Any) -> None:
-        """RobotEnv's views, then the link joints' q and q̇ in ``d`` (views where the
-        addresses are a slice; None: index per call, a copy)."""
-        super()._refresh_views(d)
-        self._joint_views = (
-            (d.qpos[self._q_at], d.qvel[self._qd_at])
-            if isinstance(self._q_at, slice) and isinstance(self._qd_at, slice)
-            else None
-        )
-        # (row, view) of every measured row when _measure copies them as they are (no
-        # drive, no encoder): _obs copies them without the call; None: _obs calls _measure.
-        # And no drive, torque noise or encoder: the step's torque is a ⊙ τ_max as it is.
-        # Both read torque_noise and encoder_resolution: reset() rebuilds the views, so a
-        # value set between episodes holds from the next one.
-        views = self._joint_views
-        plain = views is not None and self._drive_state is None and self.encoder_resolution <= 0
-        self._direct_rows = ((0, views[0]), (1, views[1])) if plain else None
-        self._ideal_io = (
-            self._drive_state is None and self.torque_noise == 0 and self.encoder_resolution == 0
-        )
+        return self.data.qpos[self._qa]
 
     def _set_observation_space(self, bounds: dict[str, float]) -> None:
-        """The Dict observation space: key → bound (each a Box(−b, b, (n,)) of float64), in
-        the order :meth:`_obs` returns the keys: q, qd, the reference rows, then a subclass's.
-        Also the (keys, n) layout ``_obs`` fills: one array per step, clipped in one call."""
+        """The Dict observation space: key → bound b (each a Box(−b, b, (n,)) of float64), in
+        the order :meth:`_obs` returns the keys: q, qd, the reference rows, then a subclass's."""
         n = self.robot.n
         self._obs_bounds = dict(bounds)
         self.observation_space = spaces.Dict(
             {k: spaces.Box(-b, b, (n,), dtype=np.float64) for k, b in bounds.items()}
         )
         self._obs_keys = tuple(bounds)
-        # the bounds in the observation's own (keys, n) shape: a clip without broadcasting
-        # (a (keys, 1) column costs ~4x more per call)
-        self._obs_hi = np.repeat(np.array([float(b) for b in bounds.values()])[:, None], n, 1)
-        self._obs_lo = -self._obs_hi
-        self._obs_shape = (len(bounds), n)
+        # the bounds of the observation as (keys, n) arrays, one row per key
+        self._obs_high = np.repeat(np.array(list(bounds.values()), dtype=float)[:, None], n, 1)
+        self._obs_low = -self._obs_high
 
     def _home(self) -> np.ndarray:
         m = self.robot.model
@@ -453,43 +375,6 @@ class JointTrackingEnv(RobotEnv):
             )
         return arr
 
-    # ------------------------------------------------------------------ reference
-    def _make_reference(self) -> tuple[np.ndarray, np.ndarray]:
-        """Fill ``self._ref`` (pos, vel, acc at every control instant); return (q0, qd0)."""
-        rng = self.np_random
-        lo, hi = self.robot.lower, self.robot.upper
-        margin = 0.1 * (hi - lo)
-        T = self.max_steps * self.dt
-        t = np.arange(self.max_steps + 1) * self.dt
-        home = self._home()
-        if self.reference == "random":
-            ref = traj.random_joint_trajectory(
-                rng,
-                lo,
-                hi,
-                duration=T,
-                n_points=5,
-                v_max=0.5 * self.robot.velocity_limit,
-                start=home + rng.uniform(-0.2, 0.2, self.n),
-            )
-        elif self.reference == "quintic":
-            q1 = rng.uniform(lo + margin, hi - margin)
-            q0 = home + rng.uniform(-0.2, 0.2, self.n)
-            ref = traj.QuinticPolynomial(q0, q1, T)
-        elif self.reference == "sine":
-            amp = rng.uniform(0.1, 0.4, self.n)
-            freq = rng.uniform(0.2, 0.6, self.n)
-            amp = np.minimum(amp, 0.5 * self.robot.velocity_limit / (2 * np.pi * freq))
-            ref = traj.SineTrajectory(home, amp, freq, rng.uniform(0, 2 * np.pi, self.n))
-        else:  # regulation
-            goal = rng.uniform(lo + margin, hi - margin)
-            self._ref[0] = goal
-            self._ref[1:] = 0.0
-            return rng.uniform(lo + margin, hi - margin), np.zeros(self.n)
-        p, v, a = ref.evaluate(t)
-        self._ref[0], self._ref[1], self._ref[2] = p, v, a
-        return p[0].copy(), v[0].copy()
-
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
@@ -499,18 +384,20 @@ class JointTrackingEnv(RobotEnv):
             restore_inertial_arrays(self.model, self._nominal_arrays)
             self._apply_model_error(self.episode_model_error)
             self.robot.invalidate()
-        self._refresh_views(self.data)  # (the settings _direct_rows and _ideal_io read)
-        q0, qd0 = self._make_reference()
+        times = np.arange(self.max_steps + 1) * self.dt
+        r = self.robot
+        self._ref, q0, qd0 = draw_joint_reference(
+            self.reference, rng, self._home(), r.lower, r.upper, r.velocity_limit, times
+        )
         if self.initial_error > 0:
             q0 = q0 + rng.uniform(-self.initial_error, self.initial_error, self.n)
         self._set_initial_state(q0, qd0)
         self._k = 0
-        self._k_scored = 0  # steps the metrics cover (the whole horizon once stopped)
+        self._k_scored = 0
         self._following_error_limit = float(
             np.linalg.norm(self._ref[0, 0] - q0) + (self.max_following_error or 0.0)
         )
         self._a_prev = np.zeros(self.n)
-        self._diverged = False
         self._q_meas_prev = self._quantize(q0)
         off_reference = bool(np.any(q0 != self._ref[0, 0]))
         self._judged_from = self._settle_steps if off_reference else 0
@@ -527,82 +414,51 @@ class JointTrackingEnv(RobotEnv):
         if k >= self.max_steps:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a, _, peak = self._check_action_peak(action)
-        # commanded (the metrics' τ; drive and noise act on it), into its row of the record
-        tau = _MUL(a, self.torque_limit, self._tau[k])
-        if not self._ideal_io:
-            if self._drive_state is not None:  # one period late, with the motor's ripple
-                tau = self._drive_state.actuate(tau)
-                tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
-            if self.torque_noise > 0:
-                tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
-            if self.encoder_resolution > 0 and self._drive_state is None:  # q̇ by differences
-                self._q_meas_prev = self._quantize(self.data.qpos[self._q_at])
+        tau = a * self.torque_limit  # commanded: the metrics' τ (drive and noise act on it)
+        self._tau[k] = tau
+        if self._drive_state is not None:  # one period late, with the motor's ripple
+            tau = self._drive_state.actuate(tau)
+            tau = self.drive.ripple(tau, self._motor_angle(), self.gear_ratio)
+        if self.torque_noise > 0:
+            tau = tau + self.torque_noise * self.np_random.standard_normal(self.n)
+        if self.encoder_resolution > 0:  # the reading before the step, for q̇ by differences
+            self._q_meas_prev = self._quantize(self.data.qpos[self._qa])
         diverged = self._simulate(tau)
-        self._k = k1 = k + 1
-        # q̄ − q into its row of the record (views: set by _simulate)
-        views = self._joint_views
-        q_now = views[0] if views is not None else self._views[1][self._q_at]
-        q_err = _SUB(self._ref[0, k1], q_now, self._err[k])
-        self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
+        self._k += 1
 
-        err_sq = float(q_err.dot(q_err))
-        kernels = self._kernels
-        if kernels.size == 3:  # the default three scales, inline: the quotients −‖q̃‖²/s² as
-            # Python floats (IEEE division, numpy's quotients; a Python scalar over an array
-            # costs numpy a slow promotion), numpy's exp, _mean's sum ((t0 + t1) + t2) / 3
-            s0, s1, s2 = self._scales_sq_list
-            kernels[0] = -err_sq / s0
-            kernels[1] = -err_sq / s1
-            kernels[2] = -err_sq / s2
-            t0, t1, t2 = _EXP(kernels, kernels).tolist()
-            r_track = -(1.0 - (t0 + t1 + t2) / 3)
-        else:
-            r_track = -(1.0 - _mean(_EXP(_DIV(-err_sq, self._scales_sq, kernels), kernels)))
-        r_torque = -self.torque_weight * float(a.dot(a)) / self.n
-        da = _SUB(a, self._a_prev, self._action_change)
-        r_rate = -self.action_rate_weight * float(da.dot(da)) / self.n
-        joint_error = math.sqrt(err_sq)
+        q_err = self._ref[0, self._k] - self.data.qpos[self._qa]  # q̃ = q̄ − q
+        self._err[k] = q_err
+        self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
+        error_sq = float(squared_norm(q_err))
+        joint_error = math.sqrt(error_sq)
         stopped = (
             not diverged
             and self.max_following_error is not None
             and joint_error > self._following_error_limit
         )
-        r_div = r_follow = 0.0
-        if diverged or stopped:
-            # the worst reward of the steps a stopped episode does not play (section Rewards)
-            unplayed = (
-                (self.max_steps - k1) * self._worst_step if self.charge_unplayed_steps else 0.0
-            )
-            if diverged:
-                r_div = -(self.divergence_penalty + unplayed)
-            else:
-                r_follow = -(self.following_error_penalty + unplayed)
-        self._a_prev = a  # a new array of _check_action_peak's, never the caller's
-        reward = r_track + r_torque + r_rate + r_follow + r_div
-
+        terms = self.reward_model(
+            error_sq, a, self._a_prev, diverged, stopped, self.max_steps - self._k
+        )
+        info: dict[str, Any] = {name: float(terms[name]) for name in TERMS}
+        reward = sum(info.values())
+        self._a_prev = a
         terminated = diverged or stopped
-        truncated = k1 >= self.max_steps and not terminated
-        info: dict[str, Any] = {
-            "reward_tracking": r_track,
-            "reward_torque": r_torque,
-            "reward_action_rate": r_rate,
-            "reward_following_error": r_follow,
-            "reward_diverged": r_div,
-            "joint_error": joint_error,
-            "following_error_exceeded": stopped,
-            "diverged": diverged,
-        }
+        truncated = self._k >= self.max_steps and not terminated
+        info.update(
+            joint_error=joint_error, following_error_exceeded=stopped, diverged=diverged
+        )
         if stopped:  # scored over the whole horizon: the last error held (section Episode End)
-            self._err[k1:] = q_err
+            self._err[self._k :] = q_err
             self._k_scored = self.max_steps
         if terminated or truncated:
-            metrics = self.episode_metrics()
-            info["episode_metrics"] = metrics
-            settled = self._err[self._judged_from : max(self._k, self._k_scored)]
-            info["is_success"] = bool(
-                not diverged and not stopped and max_of(np.abs(settled)) < self.success_threshold
-            )
+            info["episode_metrics"] = self.episode_metrics()
+            info["is_success"] = not terminated and self._settled()
         return self._obs(), reward, terminated, truncated, info
+
+    def _settled(self) -> bool:
+        """Every |q̃_i| after the settling window below ``success_threshold``."""
+        settled = self._err[self._judged_from : self._k]
+        return bool(np.max(np.abs(settled)) < self.success_threshold)
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs``)."""
@@ -610,11 +466,11 @@ class JointTrackingEnv(RobotEnv):
         err = self._err[: max(k, self._k_scored)]  # a stopped episode: the whole horizon
         tau = self._tau[:k]
         return {
-            "rms_error": rms_of(err),
-            "max_error": max_of(np.abs(err)),
+            "rms_error": float(np.sqrt(np.mean(err**2))),
+            "max_error": float(np.max(np.abs(err))),
             "final_error": float(np.linalg.norm(err[-1])),
-            "rms_torque": rms_of(tau),
-            "saturation": mean_of(self._sat[:k]),
+            "rms_torque": float(np.sqrt(np.mean(tau**2))),
+            "saturation": float(np.mean(self._sat[:k])),
         }
 
     def draw_task(self, scene: Any) -> None:
@@ -631,49 +487,32 @@ class JointTrackingEnv(RobotEnv):
     # ------------------------------------------------------------------ observation
     def _quantize(self, q: np.ndarray) -> np.ndarray:
         res = self.encoder_resolution
-        return _RINT(q / res) * res if res > 0 else q.copy()
+        return np.round(q / res) * res if res > 0 else q.copy()
 
-    def _measure(self, out: np.ndarray) -> None:
-        """Write the measured rows of the observation (unclipped) into ``out`` (keys, n):
-        q and q̇ in rows 0 and 1 (a subclass adds its own rows). With a drive this advances
-        its velocity difference: once per control instant."""
-        d = self.data
-        if self._warn_data is not d:  # RobotEnv._data_views, inline: views once per MjData
-            self._refresh_views(d)
-        views = self._joint_views
-        if views is not None:
-            q, qd = views
-        else:
-            q, qd = self._views[1][self._q_at], self._views[2][self._qd_at]
+    def _measure(self) -> list[np.ndarray]:
+        """The measured rows of the observation (unclipped): q and q̇ (n,) of the link joints
+        (a subclass adds its own rows). With a drive this advances its velocity difference:
+        once per control instant."""
+        q, qd = self.data.qpos[self._qa], self.data.qvel[self._da]
         if self._drive_state is not None:
             q, qd = self._drive_state.measure(q, qd, self.dt)
         elif self.encoder_resolution > 0:
             q = self._quantize(q)
-            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else 0.0
-        out[0] = q
-        out[1] = qd
+            qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
+        return [q, qd]
 
     def _obs(self) -> dict[str, np.ndarray]:
-        """The observation: one fresh (keys, n) array per call, measured rows and the
-        reference at step k, clipped to the bounds; the dict's entries are its rows (views of
-        an array that nothing writes to afterwards: an observation kept stays as it was)."""
-        k = self._k
-        if k > self.max_steps:
-            k = self.max_steps
-        out = np.empty(self._obs_shape)
-        rows = self._direct_rows if self._warn_data is self.data else None
-        if rows is None:
-            self._measure(out)
-        else:  # _measure's rows, copied as they are
-            for row, view in rows:
-                out[row] = view
-        out[2:5] = self._ref[:, k]  # q̄, q̄̇, q̄̈
-        CLIP(out, self._obs_lo, self._obs_hi, out)
-        keys = self._obs_keys
-        if len(keys) == 5:  # row_dict, inline
-            k0, k1, k2, k3, k4 = keys
-            return {k0: out[0], k1: out[1], k2: out[2], k3: out[3], k4: out[4]}
-        return row_dict(keys, out)
+        """The observation at step k: the measured q, q̇, the reference q̄, q̄̇, q̄̈, then a
+        subclass's measured rows, clipped to the bounds. The entries are the rows of one new
+        (keys, n) array per call (an observation kept is never written to again)."""
+        q, qd, *more = self._measure()
+        rows = np.empty(self._obs_high.shape)
+        rows[0], rows[1] = q, qd
+        rows[2:5] = self._ref[:, min(self._k, self.max_steps)]  # q̄, q̄̇, q̄̈
+        if more:
+            rows[5:] = more
+        np.clip(rows, self._obs_low, self._obs_high, out=rows)
+        return dict(zip(self._obs_keys, rows, strict=True))
 
     def controller_context(self) -> TaskContext:
         return TaskContext(

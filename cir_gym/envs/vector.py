@@ -21,11 +21,12 @@ not written in array form here: they use the fallback.
 What is batched and what is not:
 
 * the physics of all ``num_envs`` copies is one ``Batch.step(nstep=frame_skip)`` call (MuJoCo's
-  threads; bit-identical to ``mj_step`` on one MjData per copy, MuJoCo's documentation says);
-* the task's step (action check, torques, divergence check, tracking error, the four reward
-  terms, following-error stop, observation) is the single env's arithmetic on ``(num_envs, n)``
-  arrays, written here again in array form (``JointTrackingEnv.step`` is the specification; the
-  test compares the two env by env);
+  threads; the same computation as ``mj_step`` on one MjData per copy);
+* the task's step (action check, torques, divergence check, tracking error, following-error
+  stop, observation) is the single env's arithmetic on ``(num_envs, n)`` arrays
+  (``JointTrackingEnv.step`` is the specification; the test compares the two env by env); the
+  reward is the single env's own function (:class:`~cir_gym.envs.tracking_reward.TrackingReward`,
+  batched over the copies);
 * resets are the single env's own: one ``JointTrackingEnv`` (the template) draws each copy's
   reference and initial state with that copy's random generator, and its MjData's integration
   state is written into the copy's row; episode metrics are the template's ``episode_metrics``
@@ -58,6 +59,7 @@ from cir_gym.envs.base import (
 from cir_gym.envs.base import MAX_JOINT_SPEED, check_kwargs
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.envs.tracking_reward import TERMS, squared_norm
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
@@ -77,12 +79,6 @@ _WARNINGS: slice | list[int] = (
     else list(_UNSTABLE)
 )
 _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
-
-
-def _row_dot(x: np.ndarray) -> np.ndarray:
-    """x_i · x_i for each row of x (N, n) → (N,), bit for bit the single env's ``x @ x``
-    (stacked matmul runs numpy's 1-D dot per row; einsum sums in another order)."""
-    return np.matmul(x[:, None, :], x[:, :, None])[:, 0, 0]
 
 
 class JointTrackingVectorEnv(gym.vector.VectorEnv):
@@ -281,23 +277,16 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         self._tau[rows, k] = tau
         self._sat[rows, k] = mag >= 1.0  # clipped or at the limit, as the single env
 
-        n = t.n
-        err_sq = _row_dot(q_err)
-        r_track = -(1.0 - np.mean(np.exp(-err_sq[:, None] / t.error_scales**2), axis=1))
-        r_torque = -t.torque_weight * _row_dot(a) / n
-        da_ = a - self._a_prev
-        r_rate = -t.action_rate_weight * _row_dot(da_) / n
+        err_sq = squared_norm(q_err)
         joint_error = np.sqrt(err_sq)
         stopped = (
             ~diverged & (joint_error > self._limit)
             if t.max_following_error is not None
             else np.zeros_like(diverged)
         )
-        unplayed = (t.max_steps - k1) * t._worst_step if t.charge_unplayed_steps else 0.0
-        r_div = np.where(diverged, -(t.divergence_penalty + unplayed), 0.0)
-        r_follow = np.where(stopped, -(t.following_error_penalty + unplayed), 0.0)
+        terms = t.reward_model(err_sq, a, self._a_prev, diverged, stopped, t.max_steps - k1)
+        reward = sum(terms[name] for name in TERMS)  # the single env's order of the terms
         self._a_prev[:] = a
-        reward = r_track + r_torque + r_rate + r_follow + r_div
         terminated = diverged | stopped
         truncated = (k1 >= t.max_steps) & ~terminated
         kk = np.minimum(k1, t.max_steps)
@@ -310,14 +299,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
             **self._extra_obs(q, qd),
         }
         obs = {key: np.clip(v, -self._bounds[key], self._bounds[key]) for key, v in raw_obs.items()}
-        terms = {
-            "reward_tracking": r_track,
-            "reward_torque": r_torque,
-            "reward_action_rate": r_rate,
-            "reward_following_error": r_follow,
-            "reward_diverged": r_div,
-            "joint_error": joint_error,
-        }
+        terms["joint_error"] = joint_error
         ones = np.ones(self.num_envs, dtype=bool)
         infos: dict[str, Any] = {}
         for key, value in (
@@ -364,15 +346,13 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         t._tau[:] = self._tau[i]
         t._sat[:] = self._sat[i]
         t._k, t._k_scored = int(self._k[i]), int(self._k_scored[i])
-        settled = self._err[i, self._judged_from[i] : max(t._k, t._k_scored)]
+        t._judged_from = int(self._judged_from[i])
         final_info = {
             **terms,
             "following_error_exceeded": stopped,
             "diverged": diverged,
             "episode_metrics": t.episode_metrics(),
-            "is_success": not diverged
-            and not stopped
-            and float(np.max(np.abs(settled))) < t.success_threshold,
+            "is_success": not diverged and not stopped and t._settled(),
         }
         final_obs = {key: v[i].copy() for key, v in obs.items()}
         new_obs, reset_info = self._reset_copy(i)
