@@ -297,29 +297,57 @@ def detect_markers(
     return out, found
 
 
+def _encloses(model: mujoco.MjModel, data: mujoco.MjData, geom: int, point: np.ndarray,
+              direction: np.ndarray) -> bool:
+    """True if the convex primitive geom ``geom`` encloses ``point``: rays from it both ways
+    along ``direction`` meet its surface (from outside, at most one of them does). Meshes and
+    planes: False."""
+    kind = int(model.geom_type[geom])
+    if kind in (int(mujoco.mjtGeom.mjGEOM_MESH), int(mujoco.mjtGeom.mjGEOM_PLANE),
+                int(mujoco.mjtGeom.mjGEOM_HFIELD), int(mujoco.mjtGeom.mjGEOM_SDF)):
+        return False
+    pos, mat, size = data.geom_xpos[geom], data.geom_xmat[geom], model.geom_size[geom]
+    return (mujoco.mju_rayGeom(pos, mat, size, point, direction, kind) >= 0.0
+            and mujoco.mju_rayGeom(pos, mat, size, point, -direction, kind) >= 0.0)
+
+
 def visible(
     model: mujoco.MjModel,
     data: mujoco.MjData,
     position: np.ndarray,
     geoms: np.ndarray,
-    exclude_body: int = -1,
+    near: float = 0.0,
 ) -> np.ndarray:
     """(k,) True where the centre of geom ``geoms[i]`` is in the line of sight of a camera at
     ``position`` (3,): a ray from the camera centre to the geom's centre (``mujoco.mj_ray``)
     meets no other geom first.
 
-    The ray sees the geoms a camera renders (alpha > 0, static ones too, all groups but 1:
-    :data:`CAMERA_GEOM_GROUPS`), except those of body ``exclude_body`` (the body the camera is
-    mounted on, −1: none). The geom's own surface, which the ray meets before its centre, does
-    not hide it; a disc seen from behind its plate, or behind a link, is hidden. Only the
-    centre is tested: a marker partly covered with its centre in view counts as visible.
-    ``data``'s geom poses must be current (``mj_kinematics``).
+    The ray sees what the camera renders: geoms with alpha > 0, static ones too, all groups
+    but 1 (:data:`CAMERA_GEOM_GROUPS`), nothing nearer than the near clipping distance
+    ``near`` (m; MuJoCo's ``vis.map.znear`` × ``stat.extent``), and no geom that encloses the
+    camera centre (a camera on a link sits inside the link's capsule, whose faces the renderer
+    culls from inside; the ray passes on beyond it). The geom's own surface, which the ray
+    meets before its centre, does not hide it; a disc seen from behind its plate, or behind a
+    link, is hidden. Only the centre is tested: a marker partly covered with its centre in
+    view counts as visible. ``data``'s geom poses must be current (``mj_kinematics``).
     """
     origin = np.asarray(position, dtype=float)
     hit = np.zeros(1, dtype=np.int32)
     out = np.zeros(len(geoms), dtype=bool)
     for i, g in enumerate(geoms):
-        ray = data.geom_xpos[g] - origin  # x = 1 at the geom's centre
-        x = mujoco.mj_ray(model, data, origin, ray, CAMERA_GEOM_GROUPS, 1, exclude_body, hit)
-        out[i] = x < 0.0 or x >= 1.0 or int(hit[0]) == int(g)
+        target = data.geom_xpos[g]
+        distance = float(np.linalg.norm(target - origin))
+        if distance <= near:  # nearer than the near plane: not rendered
+            continue
+        direction = (target - origin) / distance
+        start = origin + near * direction
+        while True:
+            ray = target - start  # x = 1 at the geom's centre
+            x = mujoco.mj_ray(model, data, start, ray, CAMERA_GEOM_GROUPS, 1, -1, hit)
+            if x < 0.0 or x >= 1.0 or hit[0] == g:
+                out[i] = True
+                break
+            if not _encloses(model, data, int(hit[0]), origin, direction):
+                break  # something in between: hidden
+            start = start + x * ray + 1e-9 * direction  # beyond the enclosing geom's face
     return out

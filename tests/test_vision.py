@@ -10,6 +10,8 @@ from cir_gym import trajectories as traj
 from cir_gym.vision import (
     MUJOCO_TO_OPTICAL,
     Camera,
+    damped_pinv,
+    detect_markers,
     interaction_matrix,
     optical_pose,
     planar_pose,
@@ -17,6 +19,7 @@ from cir_gym.vision import (
     project,
     transform_points,
     twist_between,
+    visible,
 )
 
 CAMERA = Camera.from_fovy(60.0, 640, 480)
@@ -141,3 +144,74 @@ def test_bad_inputs_raise() -> None:
         interaction_matrix(np.zeros((1, 2)), 0.0, CAMERA)
     with pytest.raises(ValueError, match="fovy"):
         Camera.from_fovy(180.0, 640, 480)
+
+
+_RAY_SCENE = """
+<mujoco>
+  <worldbody>
+    <body name="mount" pos="0 0 0">
+      <geom name="housing" type="capsule" fromto="0 0 -0.05 0 0 0.05" size="0.05"/>
+    </body>
+    <geom name="marker" type="cylinder" pos="0 0 1" size="0.02 0.001"/>
+    <body name="blocker" pos="0 0 0.5">
+      <joint name="slide" type="slide" axis="1 0 0"/>
+      <geom name="wall" type="box" size="0.05 0.05 0.005"/>
+    </body>
+    <geom name="placeholder" type="box" pos="0 0 0.3" size="0.05 0.05 0.005" group="1"/>
+    <geom name="lens_dust" type="sphere" pos="0 0 0.05" size="0.002"/>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_visible_is_a_line_of_sight_test() -> None:
+    """A wall between the camera and a marker hides it, moved aside it does not; the capsule
+    around the camera (culled from inside by the renderer), a group-1 placeholder and a speck
+    nearer than the near plane do not hide it."""
+    model = mujoco.MjModel.from_xml_string(_RAY_SCENE)
+    data = mujoco.MjData(model)
+    marker = np.array([model.geom("marker").id])
+    mujoco.mj_kinematics(model, data)
+    camera = np.zeros(3)
+    assert not visible(model, data, camera, marker, near=0.06)[0]  # the wall
+    data.qpos[0] = 0.2  # the wall slid aside
+    mujoco.mj_kinematics(model, data)
+    assert visible(model, data, camera, marker, near=0.06)[0]
+    assert not visible(model, data, camera, marker, near=0.0)[0]  # the speck, nearer than 6 cm
+    data.qpos[0] = 0.0
+    mujoco.mj_kinematics(model, data)
+    behind = np.array([0.0, 0.0, 1.5])  # from the far side: no wall in between
+    assert visible(model, data, behind, marker, near=0.06)[0]
+
+
+def test_damped_pinv_is_the_course_damped_least_squares() -> None:
+    """A* = Aᵀ (A Aᵀ + μ² I)⁻¹ for a tall and a wide A; μ = 0 is the pseudo-inverse; a rank-
+    deficient A's command stays bounded by ‖e‖ / (2μ) and varies smoothly with A."""
+    rng = np.random.default_rng(0)
+    for shape in ((8, 6), (6, 7)):
+        A = rng.standard_normal(shape)
+        mu = 0.3
+        expected = A.T @ np.linalg.inv(A @ A.T + mu**2 * np.eye(shape[0]))
+        np.testing.assert_allclose(damped_pinv(A, mu), expected, atol=1e-12)
+        np.testing.assert_allclose(damped_pinv(A, 0.0), np.linalg.pinv(A), atol=1e-12)
+    A = rng.standard_normal((8, 6))
+    A[:, 5] = A[:, 4]  # exactly rank 5
+    e = rng.standard_normal(8)
+    nudged = A + 1e-12 * rng.standard_normal(A.shape)
+    assert np.linalg.norm(damped_pinv(A, 1.0) @ e) <= np.linalg.norm(e) / 2.0
+    np.testing.assert_allclose(damped_pinv(nudged, 1.0) @ e, damped_pinv(A, 1.0) @ e, atol=1e-9)
+    assert np.linalg.norm(np.linalg.pinv(nudged) @ e - np.linalg.pinv(A) @ e) > 1.0  # pinv: not
+    with pytest.raises(ValueError, match="damping"):
+        damped_pinv(A, -1.0)
+
+
+def test_detect_markers_finds_the_centroids_of_saturated_discs() -> None:
+    image = np.full((48, 64, 3), 40, dtype=np.uint8)
+    image[10:15, 20:25] = (230, 10, 10)  # red, centre (22, 12)
+    image[30:33, 40:44] = (220, 210, 0)  # yellow, centre (41.5, 31)
+    image[0:2, 0:1] = (0, 0, 250)  # blue: 2 pixels, below min_pixels
+    s, found = detect_markers(image)
+    assert found.tolist() == [True, False, False, True]
+    np.testing.assert_allclose(s[0], (22.0, 12.0))
+    np.testing.assert_allclose(s[3], (41.5, 31.0))
+    assert np.isnan(s[1]).all() and np.isnan(s[2]).all()

@@ -11,9 +11,10 @@ import pytest
 
 import cir_gym  # noqa: F401
 from cir_gym import baselines
+from cir_gym.envs.visual_servo_base import rotation
 from cir_gym.fast_solve import solve
 
-ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")
+EYE_IN_HAND, EYE_TO_HAND = ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")
 LAWS = {ENVS[0]: "ibvs", ENVS[1]: "ibvs_eye_to_hand"}
 
 
@@ -81,3 +82,58 @@ def test_solve_is_numpy_solve_with_its_errors(numpy_internals, monkeypatch) -> N
             solve(np.zeros((6, 6)), np.ones(6))
         with pytest.raises(np.linalg.LinAlgError):
             solve(np.zeros((6, 6)), np.ones((6, 7)))
+
+
+def test_eye_to_hand_marker_hidden_behind_its_plate_is_lost() -> None:
+    """The plate turned 97° away from the fixed camera: every marker still projects inside
+    the image, but the plate is between the camera and each disc. The ray test reports them
+    hidden and the episode ends with the features lost."""
+    env = gym.make(EYE_TO_HAND, pixel_noise=0.0).unwrapped
+    env.reset(seed=0)
+    p_g, R_g = env._goal_pose
+    q, _ = env._solve_ik(env.q_goal.copy(), p_g, R_g @ rotation(np.array([1.7, 0.0, 0.0])))
+    env._set_state(q)
+    p, R = env._moving_pose(q)
+    # the discs lie on the plate's +z face: that face is turned away from the camera
+    assert R[:, 2] @ (np.asarray(env.camera_position) - p) < 0.0
+    _, _, terminated, _, info = env.step(np.zeros(6))
+    assert env._in_view(env._s_true)  # every marker inside the image
+    assert not info["features_visible"].any()
+    assert info["feature_lost"] and terminated and not info["is_success"]
+
+
+@pytest.mark.parametrize("env_id", ENVS)
+def test_every_feature_is_visible_on_the_default_starts_and_ibvs_episodes(env_id: str) -> None:
+    env = gym.make(env_id).unwrapped
+    policy = baselines.make(LAWS[env_id], env_id, env=env)
+    obs, _ = env.reset(seed=1)
+    assert env._visible().all()
+    for _ in range(50):
+        obs, _, _, _, info = env.step(
+            policy.predict(obs, None, np.array([True]))[0]
+        )
+        assert info["features_visible"].all() and not info["feature_lost"]
+
+
+@pytest.mark.parametrize("charge", [True, False])
+def test_failing_early_is_charged_the_worst_reward_of_the_unplayed_steps(charge: bool) -> None:
+    """A camera flung sideways loses the features at step k: its last reward holds the
+    penalty and, by default, (T − k)(1 + action_weight), the worst reward of the T − k steps
+    it did not play (r_features = −1, ‖a‖²/dim = 1), so no early end beats playing on."""
+    weight, penalty = 0.2, 0.0
+    env = gym.make(EYE_IN_HAND, action_weight=weight, termination_penalty=penalty,
+                   charge_unplayed_steps=charge).unwrapped
+    env.reset(seed=0)
+    total, k = 0.0, 0
+    while True:
+        _, reward, terminated, truncated, info = env.step(np.array([1.0, 0, 0, 0, 0, 0]))
+        total, k = total + reward, k + 1
+        if terminated or truncated:
+            break
+    assert terminated and info["feature_lost"] and k < env.max_steps
+    unplayed = (env.max_steps - k) * (1.0 + weight) if charge else 0.0
+    assert info["reward_termination"] == pytest.approx(-penalty - unplayed)
+    if charge:  # never more than the worst return of the steps it did not play
+        assert total <= -(env.max_steps - k) * (1.0 + weight)
+    with pytest.raises(ValueError, match="charge_unplayed_steps"):
+        gym.make(EYE_IN_HAND, charge_unplayed_steps="yes")

@@ -67,8 +67,9 @@ class VisualServoEnv(VisualServoBase):
     ``features="projected"``: the exact projection by the true camera plus Gaussian noise of
     ``pixel_noise`` px per coordinate. ``features="detected"``: the camera image is rendered
     (``mujoco.Renderer``, needs an OpenGL backend: EGL or OSMesa) and each marker is found by
-    its colour (:func:`cir_gym.vision.detect_markers`, centroid of its pixels); a marker not found keeps its
-    last observed position and counts as a detection failure (``info["detection_failure"]``).
+    its colour (:func:`cir_gym.vision.detect_markers`, centroid of its pixels); a marker not
+    found keeps its last observed position and counts as a detection failure
+    (``info["detection_failure"]``).
     Depth is not observed: controllers estimate it from the four points and the target model
     (``controller_context().extras["model_points"]``). Camera intrinsics (nominal) are in
     ``controller_context().extras["camera"]``.
@@ -78,14 +79,19 @@ class VisualServoEnv(VisualServoBase):
     - r_features = −(1 − (1/3) Σ_s exp(−e² / s²)), s ∈ (100, 10, 1) px, e the true feature
       error (RMS point distance ‖s − s*‖/2, px), in [−1, 0];
     - r_action = −``action_weight`` ‖a‖² / dim(a);
-    - r_termination = −``termination_penalty`` − (steps left in the episode) on the step that
-      loses a feature, reaches a joint limit or diverges, else 0: the rest of the episode is
-      charged at the worst feature reward, so ending early never pays (with a constant
-      penalty a PPO agent learned to lose the features at once).
+    - r_termination = −``termination_penalty`` − (T − k)(1 + ``action_weight``) on the step k
+      that loses a feature, reaches a joint limit or diverges (T the episode's steps), else 0.
+
+    (T − k)(1 + ``action_weight``) is the worst reward of every step the failed episode does not
+    play (r_features = −1, ‖a‖² = dim(a)): playing on can never lose more than failing, so
+    failing early never raises the return, at any discount γ ≤ 1 (with a constant penalty a
+    PPO agent learned to lose the features at once). ``charge_unplayed_steps=False`` leaves
+    the penalty alone.
 
     ## Starting State
     At rest at the start offset (see Description), drawn until reachable inside the joint
-    limits (0.1 rad margin) with every feature ≥ 40 px inside the image (200 tries).
+    limits (0.1 rad margin) with every feature ≥ 40 px inside the image and visible (200
+    tries).
     ``start_offset=(tx, ty, tz, rx, ry, rz)`` sets it exactly (m, rotation vector in rad; the
     start camera's pose in the goal camera's optical frame) and leaves the target untilted
     (facing the goal camera squarely, like ViSP's cdMo = (0, 0, 0.75, 0, 0, 0)); an offset that
@@ -93,10 +99,14 @@ class VisualServoEnv(VisualServoBase):
     ``info["start_offset"]`` holds the offset used.
 
     ## Episode End
-    Truncated after ``episode_duration`` s. Terminated (a failure) when a feature leaves the
-    image or goes behind the camera (``info["feature_lost"]``), a joint comes within 0.01 rad
-    of its limit (``info["joint_limit"]``), or the physics diverges (``info["diverged"]``).
-    Success: not terminated and a final feature error < 1 px.
+    Truncated after ``episode_duration`` s. Terminated (a failure) when a feature is lost
+    (``info["feature_lost"]``): it leaves the image, goes behind the camera, or the camera
+    cannot see it — a ray from the true camera's centre to the marker's centre
+    (``mujoco.mj_ray``, :func:`cir_gym.vision.visible`) meets a link, the target's or the marker
+    plate's body or any other rendered geom first (``info["features_visible"]``, (4,) bool);
+    when a joint comes within 0.01 rad of its limit (``info["joint_limit"]``); or when the
+    physics diverges (``info["diverged"]``). Success: not terminated and a final feature error
+    < 1 px.
 
     ## Arguments
     | argument | default | meaning |
@@ -110,7 +120,8 @@ class VisualServoEnv(VisualServoBase):
     | control_freq | 25.0 | control frequency (Hz); ViSP's 40 ms period |
     | episode_duration | 15.0 | s |
     | action_weight | 0.01 | weight of the action-size cost |
-    | termination_penalty | 50.0 | reward lost on a failure, on top of the steps left |
+    | termination_penalty | 50.0 | reward lost on a failure, on top of the unplayed steps' charge |
+    | charge_unplayed_steps | True | a failure also loses the worst reward of each unplayed step (see Rewards) |
     | render_mode | None | None, "human" or "rgb_array" (camera "side", the camera image inset) |
     | width | 480 | frame width (px) |
     | height | 360 | frame height (px) |

@@ -24,7 +24,14 @@ from cir_gym.metrics import MetricSpec
 from cir_gym.redundancy import orientation_error
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument, as_float_array, check_number
-from cir_gym.vision import Camera, camera_points, detect_markers, optical_pose, project
+from cir_gym.vision import (
+    Camera,
+    camera_points,
+    detect_markers,
+    optical_pose,
+    project,
+    visible,
+)
 
 __all__ = ["VisualServoBase"]
 
@@ -90,7 +97,7 @@ class VisualServoBase(RobotEnv):
         MetricSpec("detection_failures", "", "lower", "markers not found in the image"),
     )
     reward_arguments: ClassVar[frozenset[str]] = frozenset((
-        "action_weight", "termination_penalty",
+        "action_weight", "termination_penalty", "charge_unplayed_steps",
     ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "projected features": {},
@@ -109,6 +116,7 @@ class VisualServoBase(RobotEnv):
         episode_duration: float = 15.0,
         action_weight: float = 0.01,
         termination_penalty: float = 50.0,
+        charge_unplayed_steps: bool = True,
         render_mode: str | None = None,
         width: int = 480,
         height: int = 360,
@@ -128,6 +136,14 @@ class VisualServoBase(RobotEnv):
             "termination_penalty", termination_penalty, 0.0, 1e6
         )
         self.start_offset = self._check_start_offset(start_offset)
+        if not isinstance(charge_unplayed_steps, (bool, np.bool_)):
+            raise InvalidArgument(
+                f"charge_unplayed_steps must be True or False, got {charge_unplayed_steps!r}"
+            )
+        self.charge_unplayed_steps = bool(charge_unplayed_steps)
+        #: the worst reward of a step: r_features = −1 and r_action = −action_weight (‖a‖² ≤
+        #: dim a after clipping)
+        self._worst_step = -(1.0 + self.action_weight)
 
         self.model_points = scene.model_points(self.marker_side)
         model = scene.build_model(self.scene_file, self._add_task)
@@ -280,6 +296,14 @@ class VisualServoBase(RobotEnv):
         """Every feature (4, 2) inside the true image (NaN is not)."""
         return bool(np.all(self.true_camera.inside(s)))
 
+    def _visible(self) -> np.ndarray:
+        """(4,) True where the true camera has a line of sight to the marker's centre (no link,
+        plate or other object in between, nearer than its near clipping plane;
+        :func:`cir_gym.vision.visible`)."""
+        m, d, cid = self.model, self.data, self._cam_id
+        near = m.vis.map.znear * m.stat.extent  # the renderer's near clipping distance
+        return visible(m, d, d.cam_xpos[cid], self._marker_ids, near)
+
     # ------------------------------------------------------------------ episode setup
     def _draw_camera_error(self) -> None:
         """This episode's true camera: intrinsics and pose errors at the given magnitudes,
@@ -340,6 +364,8 @@ class VisualServoBase(RobotEnv):
         margin = 0.0 if self.start_offset is not None else START_IMAGE_MARGIN
         if s is None or not np.all(self.true_camera.inside(s, margin)):
             return None
+        if not self._visible().all():
+            return None
         return q
 
     def _set_state(self, q: np.ndarray) -> None:
@@ -389,19 +415,21 @@ class VisualServoBase(RobotEnv):
         q = self.data.qpos[self.qpos_adr]
         at_limit = bool((q < self.lower + JOINT_MARGIN).any() or (q > self.upper - JOINT_MARGIN).any())
         s = None if diverged else self._true_features()
+        seen = np.zeros(4, dtype=bool) if s is None else self._visible()
         if s is None:  # diverged or a marker behind the camera: the last seen features kept
             lost = True
-        else:
-            lost = not self._in_view(s)
+        else:  # a feature is lost when it leaves the image or something hides it
+            lost = not (self._in_view(s) and seen.all())
             self._s_true = s
         detection_failure = self._observe()
         e = self._record(k)
         terminated = bool(diverged or lost or at_limit)
         r_features = -(1.0 - float(np.mean(np.exp(-(e**2) / REWARD_SCALES**2))))
         r_action = -self.action_weight * float(a @ a) / a.size
-        # a failure is charged the rest of the episode at the worst feature reward (−1 per
-        # step) on top of the penalty, so that ending an episode early never pays
-        r_term = -self.termination_penalty - float(self.max_steps - k) if terminated else 0.0
+        r_term = 0.0
+        if terminated:  # the penalty, and the worst reward of every unplayed step (Rewards)
+            unplayed = (self.max_steps - k) * self._worst_step if self.charge_unplayed_steps else 0.0
+            r_term = -self.termination_penalty + unplayed
         reward = r_features + r_action + r_term
         truncated = k >= self.max_steps and not terminated
         info: dict[str, Any] = {
@@ -410,6 +438,7 @@ class VisualServoBase(RobotEnv):
             "reward_termination": r_term,
             "feature_error": e,
             "feature_lost": lost,
+            "features_visible": seen,
             "joint_limit": at_limit,
             "detection_failure": detection_failure,
             "diverged": bool(diverged),

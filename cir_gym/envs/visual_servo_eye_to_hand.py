@@ -56,8 +56,10 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     of view).
 
     ## Episode End
-    As ``VisualServo-v0``. ``camera_error``'s hand-eye terms here displace the fixed camera
-    from its nominal pose (extrinsic calibration error).
+    As ``VisualServo-v0``: here the arm, or the marker plate itself when it turns away from
+    the camera, can hide a marker that is still inside the image (the ray test ends the
+    episode then). ``camera_error``'s hand-eye terms here displace the fixed camera from its
+    nominal pose (extrinsic calibration error).
 
     ## Arguments
     | argument | default | meaning |
@@ -71,7 +73,8 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     | control_freq | 25.0 | control frequency (Hz); ViSP's 40 ms period |
     | episode_duration | 15.0 | s |
     | action_weight | 0.01 | weight of the action-size cost |
-    | termination_penalty | 50.0 | reward lost on a failure, on top of the steps left |
+    | termination_penalty | 50.0 | reward lost on a failure, on top of the unplayed steps' charge |
+    | charge_unplayed_steps | True | a failure also loses the worst reward of each unplayed step (see Rewards) |
     | render_mode | None | None, "human" or "rgb_array" (camera "side", the camera image inset) |
     | width | 480 | frame width (px) |
     | height | 360 | frame height (px) |
