@@ -18,7 +18,8 @@ tilts it back if it tilts: Σ_face = diag(1, 1, 0, 0, 0, 0) holds it square to t
 axis (zero lateral force, motion along the axis and in the three rotations). The commanded
 wrench at the tip is
 
-    h_c = Σ [γ̄ + K_F (γ̄ − γ̂) − D_F ẋ + K_tilt φ] + M (I − Σ) [K_P (x̄ − x) − K_D ẋ],  γ̄ = 0,
+    h_c = Σ [γ̄ + u_I − D_F ẋ + K_tilt φ] + M (I − Σ) [K_P (x̄ − x) − K_D ẋ],
+    u_I = K_I ∫ Σ (γ̄ − γ̂) dt,  γ̄ = 0 (in the bore and above it),
 
 with the motion law an acceleration through the task-space inertia Λ_h = R Λ(q) Rᵀ of the
 tip in the hole frame: above the bore M = Λ_h (the inverse-dynamics form: a motion command
@@ -26,31 +27,40 @@ along the axis accelerates the tip along the axis only, ẍ = (I − Σ) a + Λ�
 dragging it sideways through the off-diagonal inertia); in the bore M = (I − Σ) Λ_h, the
 motion wrench filtered by the selection matrix (its components on the force-controlled
 directions, Λ's coupling terms times the axial command, pushed the peg into the walls and
-tilted it: it jammed at 15–20 mm, two-point contact, ~100 N, before this filter). γ̂ is the
-measured wrench the peg exerts on the environment (the F/T reading minus the peg's weight,
-moved to the tip, :func:`cir_gym.ft_sensor.contact_wrench`); K_F = 0 by default (see
-:class:`HybridForcePositionGains`: proportional force feedback chattered on the stiff walls),
-so the force-controlled directions follow γ̄ = 0 by accommodation, −D_F ẋ, plus a weak tilt
-spring K_tilt toward the nominal axis (a compliance centre at the tip, weak enough that the
-walls tilt the peg by the hole's 2°). Joint torques: τ = g(q) + J_tipᵀ h_c + N_dynᵀ τ_posture
-(gravity of the nominal arm and peg; the posture term acts in the null space of the
-dynamically consistent inverse, so it leaves the tip alone). The axial command is saturated
-at ``push_force`` and the axial reference advances at ``guard_speed`` within
-``guard_height`` of the nominal face (a guarded move: landing on the face at 10 mm/s with the
-arm's 11 kg of task-space inertia is a ~200 N impact).
+tilted it). γ̂ is the measured wrench the peg exerts on the environment (the F/T reading minus
+the peg's weight, moved to the tip, :func:`cir_gym.ft_sensor.contact_wrench`).
+
+The force loop on Σ is the course's explicit force control: an integral regulator
+R_f(s) = K_I/s around the contact, whose force response is G_f(s) = ω_n²/(s² + ω_n²) with
+ω_n = sqrt(k_e/m); the crossover ω_cf ≈ K_I is put below ω_n. Here m is the tip's task
+inertia Λ_ii in each force-controlled direction (from the nominal model, every step) and k_e
+the contact stiffness the law designs with (``stiffness``, k̂_e r² on the moments), so
+K_I,i = ``crossover_ratio`` · sqrt(k̂_i/Λ_ii) (:meth:`HybridForcePosition.force_gains`). The
+integral is bounded (``integral_limit``: crossing the clearance the peg sees no force) and
+is zero off Σ. The accommodation damping −D_F ẋ stays (the course's loop assumes a damped
+mass: with R_f = K_I/s alone the loop on an undamped spring is unstable), and so does a weak
+tilt spring K_tilt toward the nominal axis (a compliance centre at the tip, weak enough that
+the walls tilt the peg by the hole's 2°). ``crossover_ratio=0`` turns the force loop off:
+the force-controlled directions then follow γ̄ by accommodation alone (no force feedback).
+Joint torques: τ = g(q) + J_tipᵀ h_c + N_dynᵀ τ_posture (gravity of the nominal arm and peg;
+the posture term acts in the null space of the dynamically consistent inverse, so it leaves
+the tip alone). The axial command is saturated at ``push_force`` and the axial reference
+advances at ``guard_speed`` within ``guard_height`` of the nominal face (a guarded move).
 
 ``hybrid_spiral`` adds the classic search: while the peg rests on the block beside the hole
 (axial contact force above ``contact_force`` and no drop below the surface height found at
 contact) the roles of x, y and z swap — Σ_search = diag(0, 0, 1, 0, 0, 0): the tip follows an
 Archimedean spiral r = p θ / 2π (pitch p = the hole's diametral clearance scale, 0.5 mm) in
 the hole plane at ``omega_search`` (stiff enough to slide against friction) while pressing
-with ``search_force`` (feed-forward plus damping: force feedback against the face bounced),
-holding the peg square to the face. A drop of ``drop`` below the contact height means the tip
-found the hole: the controller returns to Σ and inserts.
+with ``search_force``: γ̄_z = −``search_force`` through the same integral force loop (on Σ_search,
+the axial direction), with the damping −D_F ż; the peg is held square to the face. A drop of
+``drop`` below the contact height means the tip found the hole: the controller returns to Σ
+and inserts.
 
-``position_only`` is stiff Cartesian position control of the tip to the nominal hole's axis
-(τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback): the reason force control exists. With the
-hole off by more than the clearance it lands on the block and presses until the force limit.
+``position_only`` is stiff Cartesian position control of the tip down the nominal hole's axis
+(τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback, no search): the reason force control
+exists. It fails by construction: with the hole off by more than the radial clearance it lands
+on the block and its spring presses K_P × 22.5 mm = 112 N > the 100-N limit.
 """
 
 from __future__ import annotations
@@ -75,6 +85,9 @@ from cir_gym.robot import ModelError, Robot, apply_model_error
 
 __all__ = [
     "HYBRID_CONTROLLERS",
+    "HYBRID_STATE",
+    "POSITION_STATE",
+    "SPIRAL_STATE",
     "TASK_ADAPTERS",
     "AdmittanceGainsPeg",
     "HybridForcePosition",
@@ -233,6 +246,30 @@ class _TipController(Controller):
         return np.concatenate((f, mu_sensor + _cross(p_f - p_tip, f)))
 
 
+#: State of :class:`HybridForcePosition` (one float64 row, viewed with named fields): time since
+#: the start (s), the axial reference z̄ in the hole frame (m), and the force loop's integral
+#: term u_I (6,) in the hole frame (N, N m).
+HYBRID_STATE = np.dtype([("t", "f8"), ("z_ref", "f8"), ("force_integral", "f8", (6,))])
+#: :data:`HYBRID_STATE` plus the spiral search: mode (0 approach/insert, 1 search, 2 found),
+#: spiral angle θ (rad), spiral centre (2,) and contact height z_c (m), hole frame.
+SPIRAL_STATE = np.dtype([
+    *HYBRID_STATE.descr,
+    ("mode", "f8"),
+    ("theta", "f8"),
+    ("centre", "f8", (2,)),
+    ("z_contact", "f8"),
+])
+#: State of :class:`PositionOnly`: the axial reference z̄ (m).
+POSITION_STATE = np.dtype([("z_ref", "f8")])
+APPROACH, SEARCH, FOUND = 0, 1, 2
+
+
+def _fields(state: np.ndarray, layout: np.dtype) -> np.void:
+    """The state row (layout.itemsize / 8,) float64 seen with the named fields of ``layout``
+    (writes go to the row)."""
+    return state.view(layout)[0]
+
+
 @dataclass(frozen=True)
 class HybridForcePositionGains:
     """Gains of :class:`HybridForcePosition` (hole frame, at the tip).
@@ -241,13 +278,17 @@ class HybridForcePositionGains:
         omega_n: natural frequency of the motion-controlled directions (rad/s):
             K_P = ω_n², K_D = 2 ζ ω_n (per unit task inertia, the course's design).
         zeta: their damping ratio.
-        k_f: force feedback gain K_F on the force-controlled directions (dimensionless). 0 by
-            default: with γ̄ = 0 the law is then pure accommodation, h = −D_F ẋ (the walls
-            alone set the force). K_F = 1 chattered against the bore's walls (the contact
-            force alternating 0 ↔ 60 N between control steps, measured on seed 4 with the
-            3 mm chamfer): proportional force feedback through the sensor's 1 ms delay and
-            2 ms hold on a 1 ms contact (the notes' explicit force control wants an integral
-            law with a crossover below the contact's ω_n, far below 500 Hz here).
+        stiffness: the contact stiffness k̂_e the force loop is designed against (N/m): steel
+            on steel behind MuJoCo's 1-ms contact, the figure PegInHole's admittance adapter
+            designs with (moments: k̂_e r², a rim contact at the peg's radius r).
+        crossover_ratio: the force loop's crossover ω_cf as a fraction of the contact's natural
+            frequency ω_n,i = sqrt(k̂_i / Λ_ii) in each force-controlled direction i (Λ the
+            tip's task inertia, hole frame): the integral gain K_I,i = ratio · ω_n,i (1/s), the
+            course's explicit force control R_f(s) = K_I/s with ω_cf ≈ K_I < ω_n. 0: no force
+            feedback (the force-controlled directions follow γ̄ by accommodation alone).
+        integral_limit: bound on the integral term's force (N; anti-windup: a peg crossing the
+            clearance sees no force, so the integral would otherwise hold its push).
+        integral_limit_moment: its bound on the moments (N m).
         d_f: damping of the lateral force-controlled directions (N s/m).
         d_f_rot: damping of the tilting directions (N m s/rad).
         contact_force: axial push (N) above which the peg is on the block.
@@ -264,7 +305,10 @@ class HybridForcePositionGains:
 
     omega_n: float = 30.0
     zeta: float = 1.0
-    k_f: float = 0.0
+    stiffness: float = 1e7
+    crossover_ratio: float = 0.1
+    integral_limit: float = 10.0
+    integral_limit_moment: float = 0.2
     d_f: float = 150.0
     d_f_rot: float = 2.0
     contact_force: float = 2.0
@@ -283,19 +327,22 @@ class HybridForcePositionGains:
 class HybridForcePosition(_TipController):
     """Hybrid force/position control with the selection matrix Σ (see the module docstring).
 
-    State: [t, z̄] — time since the start (s) and the axial reference in the hole frame (m).
+    State: :data:`HYBRID_STATE` (time, axial reference, the force loop's integral).
     """
 
     name: ClassVar[str] = "hybrid_force_position"
     Gains: ClassVar[type] = HybridForcePositionGains
+    layout: ClassVar[np.dtype] = HYBRID_STATE
 
     @property
     def state_size(self) -> int:
-        return 2
+        return self.layout.itemsize // 8
 
     def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self.q_home = np.asarray(obs["q"], dtype=float).copy()
-        return np.array([0.0, float(obs["peg_pos"][2])])
+        state = np.zeros(self.state_size)
+        _fields(state, self.layout)["z_ref"] = float(obs["peg_pos"][2])
+        return state
 
     def _frames(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
         q, qd = obs["q"], obs["qd"]
@@ -322,16 +369,39 @@ class HybridForcePosition(_TipController):
             "gamma": np.concatenate((R_h.T @ gamma[:3], R_h.T @ gamma[3:])),
         }
 
+    def force_gains(self, Lambda: np.ndarray) -> np.ndarray:
+        """K_I (6,) (1/s): crossover_ratio · sqrt(k̂_i / Λ_ii) per direction of the hole frame,
+        k̂ = stiffness on the forces and stiffness · r_peg² on the moments."""
+        g = self.gains
+        r = float(self.context.extras.get("peg_radius", 0.005))
+        k = np.r_[np.full(3, g.stiffness), np.full(3, g.stiffness * r * r)]
+        return g.crossover_ratio * np.sqrt(k / np.diag(Lambda))
+
+    def force_loop(
+        self, f: dict[str, Any], fields: np.void, sigma: np.ndarray, gamma_ref: np.ndarray
+    ) -> np.ndarray:
+        """The integral force law on the force-controlled directions: u_I ← u_I + Δt K_I Σ (γ̄ − γ̂),
+        bounded by the integral limits, zero off Σ; returns γ̄ + u_I (6,) (N, N m)."""
+        g = self.gains
+        s = np.diag(sigma)
+        limit = np.r_[np.full(3, g.integral_limit), np.full(3, g.integral_limit_moment)]
+        u = fields["force_integral"]
+        u += self.dt * s * self.force_gains(f["Lambda"]) * (gamma_ref - f["gamma"])
+        u *= s  # the motion-controlled directions carry no force integral
+        np.clip(u, -limit, limit, out=u)
+        return gamma_ref + u
+
     def hybrid_wrench(
         self,
         f: dict[str, Any],
         x_ref: np.ndarray,
         sigma: np.ndarray,
-        gamma_ref: np.ndarray,
+        h_force: np.ndarray,
         omega_n: float | None = None,
         decouple: bool = True,
     ) -> np.ndarray:
-        """h_c (6,) in the hole frame: Σ force law + (I − Σ) motion law (at ``omega_n``).
+        """h_c (6,) in the hole frame: Σ (h_force − D_F ẋ + K_tilt φ) + (I − Σ) motion law (at
+        ``omega_n``); ``h_force`` the force loop's command (:meth:`force_loop`).
 
         ``decouple``: the motion wrench is Λ (I − Σ) a, whose components on the force-controlled
         directions cancel the inertial coupling in free space; ``False`` keeps only its motion
@@ -342,8 +412,7 @@ class HybridForcePosition(_TipController):
         g = self.gains
         w = g.omega_n if omega_n is None else omega_n
         v = f["v"]
-        gamma = f["gamma"]
-        h_force = gamma_ref + g.k_f * (gamma_ref - gamma)
+        h_force = h_force.copy()
         h_force[:3] -= g.d_f * v[:3]
         h_force[3:] -= g.d_f_rot * v[3:]
         h_force[3:] += g.k_tilt * f["phi"]  # a weak spring toward the nominal axis (compliance)
@@ -361,22 +430,26 @@ class HybridForcePosition(_TipController):
         h_world = np.concatenate((R_h @ h_hole[:3], R_h @ h_hole[3:]))
         return self.task_wrench_torque(f["q"], f["qd"], h_world, f["J"], f["Lambda_world"])
 
-    def advance_reference(self, state: np.ndarray, z: float) -> None:
+    def advance_reference(self, fields: np.void, z: float) -> None:
         """z̄ ← z̄ − v Δt (v̄, or the guard speed near the top face), at most 5 mm ahead of z."""
         g = self.gains
         v = g.guard_speed if abs(z) < g.guard_height else g.speed
-        state[1] = max(state[1] - v * self.dt, z - 0.005)
+        fields["z_ref"] = max(fields["z_ref"] - v * self.dt, z - 0.005)
+
+    def insert(self, f: dict[str, Any], fields: np.void) -> np.ndarray:
+        """The approach and the insertion: Σ_face above the bore, Σ in it, γ̄ = 0."""
+        x = f["x"]
+        self.advance_reference(fields, float(x[2]))
+        x_ref = np.array([x[0], x[1], fields["z_ref"]])
+        in_bore = x[2] < -self.gains.guard_height
+        sigma = selection_matrix(face=not in_bore)
+        h_force = self.force_loop(f, fields, sigma, np.zeros(6))
+        return self.torque(f, self.hybrid_wrench(f, x_ref, sigma, h_force, decouple=not in_bore))
 
     def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
-        f = self._frames(obs)
-        state[0] += self.dt
-        self.advance_reference(state, float(f["x"][2]))
-        x_ref = np.array([f["x"][0], f["x"][1], state[1]])
-        in_bore = f["x"][2] < -self.gains.guard_height
-        h = self.hybrid_wrench(
-            f, x_ref, selection_matrix(face=not in_bore), np.zeros(6), decouple=not in_bore
-        )
-        return self.torque(f, h)
+        fields = _fields(state, self.layout)
+        fields["t"] += self.dt
+        return self.insert(self._frames(obs), fields)
 
 
 @dataclass(frozen=True)
@@ -385,20 +458,14 @@ class HybridSpiralGains(HybridForcePositionGains):
 
     Attributes:
         drop: drop below the contact height (m) that means the hole is found.
-        search_force: axial push during the search (N).
+        search_force: axial push during the search (N), the force reference γ̄_z of Σ_search.
         pitch: spiral pitch (m, distance between turns).
         search_speed: speed along the spiral (m/s).
         omega_search: natural frequency of the motion control in the plane during the search
             (rad/s): stiff enough that the tip slides across the face against friction.
-        speed: insertion speed v̄ along the axis once the hole is found (m/s): 7 mm/s here,
-            not hybrid_force_position's 10 mm/s. The peaks above 50 N at 10 mm/s were in-bore
-            two-point contacts 16-21 mm deep while the walls turn the arm to the hole's tilt
-            (2° over 18 mm is 0.6 mm, more than the 0.5 mm clearance), and the force that
-            rotates the arm's inertia grows with the speed. Chosen on seeds 1000-1099 (peak
-            ≤ 50 N in 93 % of episodes at 10 mm/s, 99 % at 7 mm/s, all inserted, slowest
-            11.57 s of the 12 s limit; 5 mm/s came too close to it), then checked on unseen
-            seeds 2000-2099: 93 % → 98 %, all 200 episodes inserted
-            (results/peg_in_hole/README.md, results/peg_in_hole/unseen_seeds/).
+        speed: insertion speed v̄ along the axis once the hole is found (m/s): 7 mm/s, slower
+            than hybrid_force_position's 10 mm/s (the walls turn the arm to the hole's tilt
+            while it goes in, and the force that rotates the arm's inertia grows with speed).
     """
 
     speed: float = 0.007
@@ -412,61 +479,40 @@ class HybridSpiralGains(HybridForcePositionGains):
 class HybridSpiral(HybridForcePosition):
     """hybrid_force_position plus a spiral search on the block (see the module docstring).
 
-    State: [t, z̄, mode (0 approach/insert, 1 search, 2 found), spiral angle θ (rad),
-    spiral centre x, y (m), contact height z_c (m)].
+    State: :data:`SPIRAL_STATE`.
     """
 
     name: ClassVar[str] = "hybrid_spiral"
     Gains: ClassVar[type] = HybridSpiralGains
-
-    @property
-    def state_size(self) -> int:
-        return 7
-
-    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        base = super().initial_state(obs)
-        return np.concatenate((base, [0.0, 0.0, 0.0, 0.0, 0.0]))
+    layout: ClassVar[np.dtype] = SPIRAL_STATE
 
     def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
         g = self.gains
+        fields = _fields(state, self.layout)
         f = self._frames(obs)
         x = f["x"]
-        state[0] += self.dt
-        mode = int(state[2])
+        fields["t"] += self.dt
         pushing = -f["gamma"][2] > g.contact_force  # the peg pushes the block along −z
-        if mode == 0 and pushing and x[2] > -g.drop:
-            mode = 1  # on the block beside the hole: search
-            state[3], state[4], state[5], state[6] = 0.0, x[0], x[1], x[2]
-        if mode == 1 and x[2] < state[6] - g.drop:
-            mode = 2  # dropped: the tip is in the hole
-            state[1] = x[2]
-        state[2] = mode
-        if mode == 1:
-            r = g.pitch * state[3] / (2 * np.pi)
-            state[3] += g.search_speed * self.dt / max(r, g.pitch / 2)
-            r = g.pitch * state[3] / (2 * np.pi)
-            target = state[4:6] + r * np.array([np.cos(state[3]), np.sin(state[3])])
-            x_ref = np.array([target[0], target[1], x[2]])
-            h = self.hybrid_wrench(
-                f,
-                x_ref,
-                selection_matrix(True),
-                np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0]),
-                g.omega_search,
-            )
-            # the axial push is feed-forward plus damping: force feedback against the stiff
-            # face (11 kg of task inertia on a 1 ms contact, a delayed sensor) makes it bounce
-            h[2] = -g.search_force - g.d_f * f["v"][2]
-            return self.torque(f, h)
-        self.advance_reference(state, float(x[2]))
-        x_ref = np.array([x[0], x[1], state[1]])
-        in_bore = x[2] < -g.guard_height
-        return self.torque(
-            f,
-            self.hybrid_wrench(
-                f, x_ref, selection_matrix(face=not in_bore), np.zeros(6), decouple=not in_bore
-            ),
-        )
+        if fields["mode"] == APPROACH and pushing and x[2] > -g.drop:
+            fields["mode"] = SEARCH  # on the block beside the hole
+            fields["theta"], fields["centre"], fields["z_contact"] = 0.0, x[:2], x[2]
+            fields["force_integral"] = 0.0
+        if fields["mode"] == SEARCH and x[2] < fields["z_contact"] - g.drop:
+            fields["mode"] = FOUND  # dropped: the tip is in the hole
+            fields["z_ref"] = x[2]
+            fields["force_integral"] = 0.0
+        if fields["mode"] != SEARCH:
+            return self.insert(f, fields)
+        r = g.pitch * fields["theta"] / (2 * np.pi)
+        fields["theta"] += g.search_speed * self.dt / max(r, g.pitch / 2)
+        theta = fields["theta"]
+        r = g.pitch * theta / (2 * np.pi)
+        target = fields["centre"] + r * np.array([np.cos(theta), np.sin(theta)])
+        sigma = selection_matrix(True)
+        h_force = self.force_loop(f, fields, sigma, np.array([0, 0, -g.search_force, 0, 0, 0.0]))
+        x_ref = np.array([target[0], target[1], x[2]])
+        # the axial push is the force loop's γ̄_z + u_I,z with the damping −D_F ż
+        return self.torque(f, self.hybrid_wrench(f, x_ref, sigma, h_force, g.omega_search))
 
 
 @dataclass(frozen=True)
@@ -493,9 +539,15 @@ class PositionOnlyGains:
 
 
 class PositionOnly(_TipController):
-    """Stiff Cartesian position control down the nominal hole axis, no force feedback.
+    """Stiff Cartesian position control down the nominal hole axis, no force feedback, no search.
 
-    State: [z̄] the axial reference in the nominal hole frame (m).
+    It fails by construction whenever the true hole is off the nominal axis by more than the
+    radial clearance (PegInHole's default ±2 mm against 0.25 mm): the reference goes down to
+    the goal depth on the nominal axis, so the tip lands on the face and the spring presses
+    K_P × (goal depth) = 5000 N/m × 22.5 mm = 112 N > the 100-N force limit. It is the foil that
+    shows why force control exists, not a competitor.
+
+    State: :data:`POSITION_STATE`.
     """
 
     name: ClassVar[str] = "position_only"
@@ -503,7 +555,7 @@ class PositionOnly(_TipController):
 
     @property
     def state_size(self) -> int:
-        return 1
+        return POSITION_STATE.itemsize // 8
 
     def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self.q_home = np.asarray(obs["q"], dtype=float).copy()
@@ -511,12 +563,13 @@ class PositionOnly(_TipController):
 
     def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
         g = self.gains
+        fields = _fields(state, POSITION_STATE)
         q, qd = obs["q"], obs["qd"]
         p_h, R_h = self.hole_frame(obs)
         p_tip, R_tip, J = self.tip(q)
         goal = -float(self.context.extras.get("goal_depth", 0.0225))
-        state[0] = max(state[0] - g.speed * self.dt, goal)
-        x_ref = p_h + R_h @ np.array([0.0, 0.0, state[0]])
+        fields["z_ref"] = max(fields["z_ref"] - g.speed * self.dt, goal)
+        x_ref = p_h + R_h @ np.array([0.0, 0.0, fields["z_ref"]])
         R_ref = R_h @ ALIGNED
         phi = _rotvec(R_ref @ R_tip.T)
         twist = J @ qd

@@ -520,3 +520,81 @@ def test_one_loop_keeps_the_episodes_of_the_former_fast_path() -> None:
         n = min(len(got), len(want))
         assert n >= 4
         np.testing.assert_allclose(got[:n], want[:n], rtol=0, atol=1e-9)
+
+
+# ---------------------------------------------------------------- the hybrid laws' force loop
+def _actions_with_the_static_weight(name: str, steps: int, seed: int = 1000) -> list[float]:
+    """Play ``name`` on PegInHole; from the first contact on, also ask it (from a copy of its
+    state) for the action it would take if the F/T sensor read only the peg's static weight.
+    Returns max |Δa| per step after contact."""
+    from cir_gym import baselines
+    from cir_gym.ft_sensor import tool_gravity_wrench
+
+    env = gym.make("cir_gym/PegInHole-v1")
+    u = env.unwrapped
+    policy = baselines.make(name, "cir_gym/PegInHole-v1")
+    obs, _ = env.reset(seed=seed)
+    state, start, diffs, touched = None, np.array([True]), [], False
+    for _ in range(steps):
+        if touched:
+            fake = dict(obs)
+            R_ws = u.data.site_xmat[u.model.site("ft_site").id].reshape(3, 3)
+            fake["wrench"] = tool_gravity_wrench(geo.PEG_MASS, geo.PEG_COM, R_ws)
+            a_fake, _ = policy.predict(fake, np.array(state, copy=True), start)
+        action, state = policy.predict(obs, state, start)
+        if touched:
+            diffs.append(float(np.max(np.abs(action - a_fake))))
+        start = np.array([False])
+        obs, _, terminated, truncated, info = env.step(action)
+        touched = touched or info["contact_force"] > 0
+        if terminated or truncated:
+            break
+    return diffs
+
+
+@pytest.mark.parametrize("name", ["hybrid_force_position", "hybrid_spiral"])
+def test_the_hybrid_laws_close_a_force_loop_on_the_measured_wrench(name: str) -> None:
+    """In contact (seed 1000, the peg on the face beside the hole), the same state and
+    observation with the F/T reading replaced by the peg's static weight give other torques:
+    the force-controlled directions feed back the measured wrench (without the force loop
+    every action was identical, max |Δa| = 0, through the search too)."""
+    diffs = np.array(_actions_with_the_static_weight(name, 1400))
+    assert len(diffs) > 100 and diffs.max() > 1e-3, (len(diffs), diffs.max(initial=0.0))
+    # on most steps, not only where a contact test flips a mode
+    assert np.mean(diffs > 1e-9) > 0.5
+
+
+def test_the_force_gains_are_designed_against_the_contact_stiffness() -> None:
+    """K_I,i = crossover_ratio · sqrt(k̂_i / Λ_ii): the course's integral force regulator with its
+    crossover a fraction of the contact's natural frequency (k̂ r² on the moments); the
+    integral acts on Σ only, opposes the measured wrench and stays within its bounds;
+    crossover_ratio = 0 leaves no force feedback."""
+    from cir_gym.baselines.hybrid import HYBRID_STATE, _fields
+
+    from cir_gym import baselines
+
+    policy = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v1")
+    g = policy.gains
+    Lambda = np.diag([4.0, 5.0, 6.0, 0.01, 0.02, 0.03])
+    k = np.r_[np.full(3, g.stiffness), np.full(3, g.stiffness * geo.PEG_RADIUS**2)]
+    np.testing.assert_allclose(
+        policy.force_gains(Lambda), g.crossover_ratio * np.sqrt(k / np.diag(Lambda))
+    )
+    assert np.all(np.sqrt(k / np.diag(Lambda)) > 10 * policy.force_gains(Lambda) * 0.999)
+    state = np.zeros(policy.state_size)
+    fields = _fields(state, HYBRID_STATE)
+    gamma = np.array([5.0, -3.0, 7.0, 0.1, 0.0, 0.2])  # the peg pushes +x, −y, +z, …
+    f = {"Lambda": Lambda, "gamma": gamma}
+    sigma = selection_matrix()
+    h = policy.force_loop(f, fields, sigma, np.zeros(6))
+    K = policy.force_gains(Lambda)
+    want = -policy.dt * K * np.diag(sigma) * gamma
+    np.testing.assert_allclose(h, want)
+    np.testing.assert_allclose(state[2:], want)  # the named field is the state's row
+    assert h[2] == h[5] == 0.0  # the motion-controlled directions carry no integral
+    for _ in range(10_000):
+        h = policy.force_loop(f, fields, sigma, np.zeros(6))
+    assert abs(h[0]) == g.integral_limit and abs(h[3]) == g.integral_limit_moment
+    off = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v1", crossover_ratio=0.0)
+    state = np.zeros(off.state_size)
+    assert not np.any(off.force_loop(f, _fields(state, HYBRID_STATE), sigma, np.zeros(6)))

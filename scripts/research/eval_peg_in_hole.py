@@ -42,6 +42,19 @@ ENV_ID = "cir_gym/PegInHole-v1"
 #: same episodes but for a failed one's last reward, so a row is reused only on its own env)
 STORED_BEFORE_V1 = "cir_gym/PegInHole-v0"
 SEED = 1000
+#: held-out seeds of ``--stage laws``: no gain was chosen or tuned on them (the hand-chosen
+#: speeds used 1000-1099 and 2000-2099, tune_gains.py seed 0 onwards)
+LAW_SEED = 3000
+#: ``--stage laws``: (label, controller, gains) on equal terms (same env, seeds, sensor and
+#: nominal knowledge); crossover_ratio=0 is the same law without its force loop
+LAWS = (
+    ("hybrid_force_position", "hybrid_force_position", {}),
+    ("hybrid_force_position, no force loop", "hybrid_force_position", {"crossover_ratio": 0.0}),
+    ("hybrid_spiral", "hybrid_spiral", {}),
+    ("hybrid_spiral, no force loop", "hybrid_spiral", {"crossover_ratio": 0.0}),
+    ("position_only (no search: fails by construction)", "position_only", {}),
+    ("admittance (adapter: axial force only, no search)", "admittance", {}),
+)
 SWEPT = ("hybrid_spiral", "position_only")
 CLEARANCES = (1e-4, 5e-4, 2e-3)
 UNCERTAINTIES = ((0.0, 0.0), (1e-3, 1.0), (2e-3, 2.0), (3e-3, 3.0))
@@ -126,7 +139,13 @@ HEADER = (
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--stage", choices=("main", "sweeps", "all"), default="all")
+    parser.add_argument("--stage", choices=("main", "sweeps", "laws", "all"), default="all")
+    parser.add_argument(
+        "--law-episodes",
+        type=int,
+        default=30,
+        help="held-out seeds per law in --stage laws (from LAW_SEED)",
+    )
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path("results/peg_in_hole"))
@@ -187,6 +206,9 @@ def main() -> None:
                     "gains": gains})
         return done.get(key) or run(name, n, gains, **kwargs)
 
+    if args.stage == "laws":
+        print(compare_laws(args.law_episodes, args.out))
+        return
     if args.stage in ("main", "all"):
         results["main"] = []
         for name, n, kwargs, gains in (
@@ -216,6 +238,127 @@ def main() -> None:
                 _write(args.out, results, SWEEP_PARTS)
         _figures(results, args.out)
     print(_write(args.out, results, ()))
+
+
+def mean_ci(values: Any) -> tuple[float, float, float]:
+    """Mean and its 95 % confidence interval (Student's t) of a sample."""
+    from scipy import stats
+
+    x = np.asarray(values, dtype=float)
+    m = float(np.mean(x))
+    if len(x) < 2 or np.all(x == x[0]):
+        return m, m, m
+    half = float(stats.t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / np.sqrt(len(x)))
+    return m, m - half, m + half
+
+
+def wilson(successes: int, n: int) -> tuple[float, float, float]:
+    """A proportion and its 95 % Wilson score interval."""
+    z, p = 1.959963984540054, successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return p, max(0.0, centre - half), min(1.0, centre + half)
+
+
+def compare_laws(n: int, out: Path) -> str:
+    """The laws of :data:`LAWS` on ``n`` held-out seeds from :data:`LAW_SEED` (through
+    cir_gym.evaluation.evaluate); writes ``<out>/laws.json``, ``<out>/laws.md`` and the
+    single-contact force figure ``<out>/contact_forces.png``; returns the markdown."""
+    rows = []
+    for label, name, gains in LAWS:
+        policy = make_policy(name, gains)
+        t0 = time.perf_counter()
+        result = evaluate(policy, ENV_ID, n, seed=LAW_SEED, batched=False)
+        eps = result.episodes
+        rows.append({
+            "label": label,
+            "controller": name,
+            "gains": gains,
+            "env_id": ENV_ID,
+            "seeds": [ep.seed for ep in eps],
+            "wall_time_s": time.perf_counter() - t0,
+            **{key: [ep.metrics[key] for ep in eps] for key in eps[0].metrics},
+            "success": [bool(ep.success) for ep in eps],
+            "force_limit": [bool(ep.terminated and not ep.success and not ep.diverged)
+                            for ep in eps],
+        })
+        print(label, f"{np.mean(rows[-1]['success']):.2f}", flush=True)
+        with locked(out):
+            _replace(out / "laws.json", json.dumps(rows, indent=1))
+    text = laws_markdown(rows)
+    with locked(out):
+        _replace(out / "laws.md", text)
+    contact_force_figure(rows, out / "contact_forces.png")
+    return text
+
+
+def laws_markdown(rows: list[dict[str, Any]]) -> str:
+    """laws.md: each law's success, insertion time, forces and jamming, mean [95 % CI]."""
+    n = len(rows[0]["seeds"])
+    seeds = rows[0]["seeds"]
+
+    def ci(values: Any, scale: float = 1.0, digits: int = 1) -> str:
+        m, lo, hi = mean_ci(np.asarray(values) * scale)
+        return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+    lines = [
+        f"# {ENV_ID.split('/')[-1]}: the laws on equal terms",
+        "",
+        f"{n} held-out seeds ({seeds[0]}-{seeds[-1]}: no gain was chosen on them), the default "
+        "task (0.5 mm clearance, hole within ±2 mm and 2°, sharp edge, ATI Gamma sensor), "
+        "every law at its default gains with the same knowledge (the nominal hole pose, the "
+        "sensed wrench, the nominal arm and peg). `python scripts/research/eval_peg_in_hole.py "
+        f"--stage laws --law-episodes {n}` (cir_gym.evaluation.evaluate). Mean [95 % CI] "
+        "(success: Wilson interval; the rest: Student's t). Forces at physics-step resolution "
+        "(0.5 ms): the largest *single* robot-block contact force, which the 100-N limit reads, "
+        "and the largest *net* force (their vector sum, what the wrist feels).",
+        "",
+        "| law | success | force limit hit | insertion time, inserted (s) | largest single "
+        "contact (N) | largest net force (N) | episodes jammed | time jammed (s) | wall time |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        ok = np.array(r["success"])
+        p, lo, hi = wilson(int(ok.sum()), len(ok))
+        lim = wilson(int(np.sum(r["force_limit"])), len(ok))
+        jam = wilson(int(np.sum(np.array(r["jammed_time"]) > 0)), len(ok))
+        times = np.array(r["insertion_time"])[ok]
+        lines.append(
+            f"| {r['label']} | {100 * p:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] | "
+            f"{100 * lim[0]:.0f} % [{100 * lim[1]:.0f}, {100 * lim[2]:.0f}] | "
+            f"{ci(times, digits=2) if len(times) else '–'} ({len(times)}) | "
+            f"{ci(r['peak_force'])} | {ci(r['peak_net_force'])} | "
+            f"{100 * jam[0]:.0f} % [{100 * jam[1]:.0f}, {100 * jam[2]:.0f}] | "
+            f"{ci(r['jammed_time'], digits=2)} | {r['wall_time_s']:.0f} s |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def contact_force_figure(rows: list[dict[str, Any]], path: Path) -> None:
+    """Per law, each episode's largest single contact force against its largest net force."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for i, r in enumerate(rows):
+        x = i + np.linspace(-0.15, 0.15, len(r["peak_force"]))
+        ax.scatter(x - 0.18, np.maximum(r["peak_force"], 0.1), s=10, color="C3",
+                   label="largest single contact" if i == 0 else None)
+        ax.scatter(x + 0.18, np.maximum(r["peak_net_force"], 0.1), s=10, color="C0",
+                   label="largest net force" if i == 0 else None)
+    ax.axhline(100.0, color="k", ls="--", lw=1, label="force limit (single contact)")
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(rows)), [r["label"].split(" (")[0].replace(", ", ",\n")
+                                     for r in rows], fontsize=7)
+    ax.set_ylabel("peak force over the episode (N)")
+    ax.set_title(f"{ENV_ID.split('/')[-1]}: contact forces at physics-step resolution, "
+                 f"{len(rows[0]['seeds'])} held-out seeds")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def summarise_sweep(directory: Path) -> str:
