@@ -434,6 +434,77 @@ def test_every_shipped_grid_expands(path):
     assert tasks and len({t["task_id"] for t in tasks}) == len(tasks)
 
 
+SHIPPED_GRIDS = sorted((Path(__file__).parents[1] / "sweeps").glob("*.yaml"))
+
+
+def short(env_id: str) -> dict:
+    """:data:`SHORT` episodes, but RedundantIK's own (its obstacle variant places an obstacle
+    the links sweep past in a full lap only)."""
+    return {} if "RedundantIK" in env_id else SHORT
+
+
+def tiny_budget(grid: dict, tmp: Path) -> dict:
+    """A shipped grid at a tiny budget: 1 episode of 0.1 s (:func:`short`) per evaluation,
+    one block per environment, training runs of
+    256 steps (:func:`tiny_hyperparams`) scored on 1 short episode; every environment, policy,
+    variant and gain of the grid kept."""
+    grid = dict(grid)
+    blocks = grid.get("evaluate")
+    if blocks is not None:
+        grid["evaluate"] = [
+            {**b, "envs": [env], "episodes": 1, "episodes_per_task": 1,
+             "env_overrides": {**(b.get("env_overrides") or {}), **short(env)}}
+            for b in (blocks if isinstance(blocks, list) else [blocks])
+            for env in ([b["envs"]] if isinstance(b["envs"], str) else b["envs"])
+        ]
+    blocks = grid.get("train")
+    if blocks is not None:
+        grid["train"] = [
+            {**b, "timesteps": 256, "hyperparams_path": str(tiny_hyperparams(tmp / "ppo.yml")),
+             "env_overrides": {**(b.get("env_overrides") or {}), **SHORT},
+             "evaluate": {"episodes": 1, "seed": 1000}}
+            for b in (blocks if isinstance(blocks, list) else [blocks])
+        ]
+    return grid
+
+
+#: grids too long for the default run even on a tiny budget (minutes): the leaderboard as a
+#: grid (181 tasks, RedundantIK's full-length episodes) and the training grid (6 runs)
+SLOW_GRIDS = ("leaderboard", "train_seeds")
+
+
+@pytest.mark.parametrize(
+    "path",
+    [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW_GRIDS else p
+     for p in SHIPPED_GRIDS],
+    ids=[p.stem for p in SHIPPED_GRIDS],
+)
+def test_every_shipped_grid_runs_clean_on_a_tiny_budget(path, tmp_path):
+    """Each grid of sweeps/ runs with no failed task (``policies: all`` once expanded to
+    ``tuned:*`` names that the worker took for ``module:callable`` factories);
+    :data:`SLOW_GRIDS` are marked slow."""
+    from cir_gym.scoring.sweep import load_grid
+
+    grid = tiny_budget(load_grid(path), tmp_path)
+    summary = run_sweep(grid, tmp_path / "out", workers=2, retries=0, progress=False)
+    failed = [r for r in read_table(tmp_path / "out") if r["status"] != "ok"]
+    assert summary.failed == 0 and not failed, failed[:3]
+    assert summary.ran == summary.tasks == len(expand(grid))
+
+
+def test_all_policies_keep_a_tuned_law_to_the_settings_it_was_tuned_for():
+    from cir_gym.scoring.policies import has_tuned_gains
+
+    tasks = expand(small_grid(policies="all", env_kwargs={"payload_mass": [0.0, 1.0]}))
+    # tuned on 4-s episodes, its gains hold on SHORT ones (the start of the same episode)
+    tuned = {(t["policy"], t["env_kwargs"]["payload_mass"]) for t in tasks
+             if t["policy"].startswith("tuned:")}
+    assert tuned and all(has_tuned_gains(ENV, p, {"payload_mass": m}) for p, m in tuned)
+    assert {m for _, m in tuned} == {0.0}  # nothing tuned for 1 kg
+    with pytest.raises(GridError, match=r"no gains tuned for .* payload_mass=1\.0"):
+        expand(small_grid(policies=["tuned:pd_gravity"], env_kwargs={"payload_mass": [1.0]}))
+
+
 def test_ray_stays_optional():
     """Neither the package nor the command line imports Ray (or pyarrow) until a sweep asks."""
     code = (

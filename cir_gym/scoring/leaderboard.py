@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import shutil
 import sys
 import threading
 import time
@@ -113,51 +114,65 @@ class Progress:
     The time left is the planned cost of what remains (s of one worker, from the estimates)
     scaled by how fast the phase has gone so far (wall time per planned second), so it is
     honest from the first finished item on; before that it is the plan divided by the workers.
-    On a terminal the line is rewritten in place; otherwise a line is written at most every
-    ``every`` seconds, and at the end.
+    On a terminal the line is rewritten in place every second; otherwise a line is written
+    every ``every`` seconds (from a thread, so a long item shows the phase alive), and at
+    the end.
     """
 
     def __init__(self, phase: str, total: int, planned: float, workers: int = 1,
                  unit: str = "", every: float = 20.0) -> None:
-        self.phase, self.total, self.unit, self.every = phase, total, unit, every
+        self.phase, self.total, self.unit = phase, total, unit
         self.planned, self.workers = max(planned, 1e-9), max(1, workers)
         self.done, self.done_cost = 0, 0.0
-        self.t0 = self.last = time.perf_counter()
+        self.t0 = time.perf_counter()
         self.tty = sys.stderr.isatty()
         self.label = ""
+        self.lock = threading.Lock()
+        self.halt = threading.Event()
+        self.every = 1.0 if self.tty else every
+        self.ticker = threading.Thread(target=self._tick, daemon=True)
+        self.ticker.start()
+
+    def _tick(self) -> None:
+        while not self.halt.wait(self.every):
+            self._write(final=False)
 
     def left(self) -> float:
         """Estimated wall seconds left."""
         elapsed = time.perf_counter() - self.t0
         if self.done_cost <= 0.0:
             return max(0.0, self.planned / self.workers - elapsed)
-        return (self.planned - self.done_cost) * elapsed / self.done_cost
+        return max(0.0, (self.planned - self.done_cost) * elapsed / self.done_cost)
 
     def update(self, cost: float, label: str = "") -> None:
-        self.done += 1
-        self.done_cost += cost
-        self.label = label
-        now = time.perf_counter()
-        if self.tty or now - self.last >= self.every or self.done == self.total:
-            self.last = now
+        """One more item done, of planned cost ``cost`` (s)."""
+        with self.lock:
+            self.done += 1
+            self.done_cost += cost
+            self.label = label
+        if self.tty:
             self._write(final=False)
 
     def _write(self, final: bool) -> None:
-        elapsed = time.perf_counter() - self.t0
-        what = f"{self.done}/{self.total} {self.unit}".rstrip()
-        tail = f"done in {_clock(elapsed)}" if final else (
-            f"{_clock(elapsed)} spent, ~{_clock(self.left())} left"
-        )
-        line = f"  {self.phase}: {what}, {tail}" + (f"  ({self.label})" if self.label and
-                                                      not final else "")
-        if self.tty:
-            sys.stderr.write("\r\x1b[2K" + line + ("\n" if final else ""))
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
+        with self.lock:
+            elapsed = time.perf_counter() - self.t0
+            what = f"{self.done}/{self.total} {self.unit}".rstrip()
+            tail = f"done in {_clock(elapsed)}" if final else (
+                f"{_clock(elapsed)} spent, ~{_clock(self.left())} left"
+            )
+            label = f"  ({self.label})" if self.label and not final else ""
+            line = f"  {self.phase}: {what}, {tail}{label}"
+            if self.tty:
+                width = shutil.get_terminal_size((100, 20)).columns - 1
+                sys.stderr.write("\r\x1b[2K" + line[:width] + ("\n" if final else ""))
+            else:
+                sys.stderr.write(line + "\n")
+            sys.stderr.flush()
 
     def close(self) -> float:
         """End the phase (its last line); return its wall time (s)."""
+        self.halt.set()
+        self.ticker.join()
         self._write(final=True)
         return time.perf_counter() - self.t0
 
@@ -248,7 +263,7 @@ def run_leaderboard(
     workers = max(1, workers or min(len(jobs), os.cpu_count() or 1))
     timings = _load_timings(out)
 
-    cost = {j: job_cost(j, episodes, timings) for j in jobs}
+    cost = [job_cost(j, episodes, timings) for j in jobs]
     seed_cost = {
         (e, v): sum(
             len(_seeds(e, n)) * job_cost((e, v, kw, f"agent:{n}"), episodes, timings)
@@ -257,7 +272,7 @@ def run_leaderboard(
         for e, v, kw in seed_jobs
     }
     plan = {
-        "episodes": (sum(cost.values()) + sum(seed_cost.values())) / workers,
+        "episodes": (sum(cost) + sum(seed_cost.values())) / workers,
         "figures": FIGURE_SECONDS * len(variants) * figures,
         "videos": VIDEO_SECONDS * len(variants) * videos / min(workers, len(variants)),
     }
@@ -275,7 +290,7 @@ def run_leaderboard(
     seconds: dict[tuple[str, str, str], float] = {}
     seed_tables: dict[tuple[str, str], str] = {}
     bar = Progress("episodes", len(jobs) + len(seed_jobs),
-                   sum(cost.values()) + sum(seed_cost.values()), workers, "runs")
+                   sum(cost) + sum(seed_cost.values()), workers, "runs")
     # spawn, not fork: a child forked from a parent that has already run torch (an agent's
     # policy, a test that trained one) can deadlock in torch's thread pool at its first op.
     spawn = multiprocessing.get_context("spawn")
@@ -285,7 +300,9 @@ def run_leaderboard(
             pool.submit(run_seed_table, e, v, kw, episodes, seed): ("seeds", (e, v))
             for e, v, kw in seed_jobs
         }
-        futures.update({pool.submit(run_job, j, episodes, seed): ("run", j) for j in jobs})
+        futures.update(
+            {pool.submit(run_job, j, episodes, seed): ("run", i) for i, j in enumerate(jobs)}
+        )
         for fut in as_completed(futures):
             kind, what = futures[fut]
             if kind == "seeds":
@@ -310,8 +327,10 @@ def run_leaderboard(
         "of the worst 20 %. Generated by `cir-gym leaderboard`.",
         "",
     ]
-    bar = Progress("figures", len(variants) if figures else 0, FIGURE_SECONDS * len(variants),
-                   1, "figures", every=10.0)
+    figure_bar = (
+        Progress("figures", len(variants), FIGURE_SECONDS * len(variants), 1, "figures")
+        if figures else None
+    )
     for env_id in env_ids:
         cls, description = cir_gym.ENVIRONMENTS[env_id]
         lines += [f"## {env_id}", "", description, ""]
@@ -329,9 +348,10 @@ def run_leaderboard(
                 fig = out / f"{_name(env_id)}_{slug(variant)}.png"
                 plot_comparison(rows, fig, title=f"{env_id} — {variant}")
                 lines += [f"![{env_id} {variant}]({fig.name})", ""]
-                bar.update(FIGURE_SECONDS, fig.name)
-    if figures:
-        bar.close()
+                if figure_bar is not None:
+                    figure_bar.update(FIGURE_SECONDS, fig.name)
+    if figure_bar is not None:
+        figure_bar.close()
     md = out / "leaderboard.md"
     md.write_text("\n".join(lines))
 
@@ -414,7 +434,7 @@ class _VideoWatch:
         self.folder, self.total = out / "videos", total
         self.t0 = time.time()
         self.bar = Progress("videos", total, VIDEO_SECONDS * total,
-                            min(workers, total), "videos", every=20.0)
+                            min(workers, total), "videos")
         self.halt = threading.Event()
         self.thread = threading.Thread(target=self._watch, daemon=True)
         self.thread.start()

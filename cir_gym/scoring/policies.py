@@ -33,6 +33,9 @@ PREFIXES = ("tuned:", "agent:", "plugin:")
 ENTRY_POINT_GROUP = "cir_gym.policies"
 #: what a user installs to run the shipped agents
 TRAIN_EXTRA = "pip install 'cir-gym[train]'"
+#: arguments that set only how long an episode lasts: a tuned controller's study holds for
+#: any value of them (:func:`tuned_gains`)
+LENGTH_ARGUMENTS = frozenset({"episode_duration"})
 #: the modules a shipped agent needs (the train extra)
 TRAIN_MODULES = ("yaml", "torch", "stable_baselines3")
 
@@ -200,28 +203,38 @@ def _tuning_rows(env_id: str) -> list[dict[str, Any]]:
 
 
 def _as_json(value: Any) -> Any:
-    return json.loads(json.dumps(value))  # tuples as lists, as a JSON file holds them
+    """``value`` as a JSON file holds it (tuples as lists; an object as its ``str``)."""
+    return json.loads(json.dumps(value, default=str))
 
 
 def _tuned_row(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, Any] | None:
     """The study of ``controller`` on ``env_id`` with ``env_kwargs``, or None: the arguments
-    must be the study's but for the env's ``reward_arguments`` (the controller's episodes do
-    not depend on them)."""
+    (an argument left out is its default: ``payload_mass=0.0`` is the default study) must be
+    the study's but for the env's ``reward_arguments`` (the controller's episodes do not depend
+    on them) and the episode's length (:data:`LENGTH_ARGUMENTS`: a shorter episode is the
+    start of the same one, so the gains are those tuned for the task)."""
     cls = cir_gym.ENVIRONMENTS.get(env_id, (None,))[0]
-    reward_only = cls.reward_arguments if cls is not None else frozenset()
+    ignored = frozenset(cls.reward_arguments if cls is not None else ()) | LENGTH_ARGUMENTS
+    defaults = default_arguments(cls) if cls is not None else {}
 
-    def task(kwargs: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in kwargs.items() if k not in reward_only}
+    def same_task(study: dict[str, Any], asked: dict[str, Any]) -> bool:
+        for key in (set(study) | set(asked)) - ignored:
+            a = study[key] if key in study else _as_json(defaults.get(key))
+            b = asked[key] if key in asked else _as_json(defaults.get(key))
+            if a != b:
+                return False
+        return True
 
-    asked = task(_as_json(env_kwargs))
+    asked = _as_json(env_kwargs)
     return next((r for r in _tuning_rows(env_id)
-                 if r["controller"] == controller and task(r["env_kwargs"]) == asked), None)
+                 if r["controller"] == controller and same_task(r["env_kwargs"], asked)), None)
 
 
 def tuned_gains(env_id: str, controller: str, env_kwargs: dict[str, Any]) -> dict[str, float]:
     """The gains ``scripts/tune_gains.py`` found for ``controller`` on ``env_id`` with
-    ``env_kwargs`` (a leaderboard variant's arguments; the env's ``reward_arguments`` may differ
-    from the study's: they change the reward, not the episodes), from
+    ``env_kwargs`` (a leaderboard variant's arguments; the env's ``reward_arguments`` and the
+    episode's duration may differ from the study's: they change the reward or how long the same
+    episode runs, not the task), from
     ``cir_gym/scoring/tuned_gains/<Env-vN>.json`` (Optuna on training seeds, never the
     leaderboard's; each file's header says which).
 

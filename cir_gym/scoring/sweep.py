@@ -32,7 +32,8 @@ Grid file::
     evaluate:                       # a block, or a list of blocks
       envs: [cir_gym/JointTracking-v1]
       policies: [computed_torque, pd_gravity, "agent:ppo_100hz"]  # or "all" (agents only on
-                                    # their own task); or "module:factory"
+                                    # their own task, tuned:<law> only where it was tuned);
+                                    # "plugin:<name>" (cir-gym list); or "module:factory"
       seed: 1000                    # first episode seed
       episodes: 20                  # episodes per (env, policy, arguments, gains)
       episodes_per_task: 5          # default 1: one task per episode
@@ -234,25 +235,31 @@ def _describe(kwargs: dict[str, Any]) -> str:
 
 
 def _policies(where: str, env_id: str, spec: Any) -> list[str]:
-    from cir_gym.scoring.policies import policy_names
+    from cir_gym.scoring.policies import PolicyError, check_policy, policy_names
 
-    valid = policy_names(env_id)
     if spec in (None, "all"):
-        return valid
+        return policy_names(env_id)
     names = [spec] if isinstance(spec, str) else list(spec)
     for p in names:
         if not isinstance(p, str):
             raise GridError(f"{where}: a policy is a name, got {p!r}")
-        if p not in valid and not _is_factory(p):
+        if _is_factory(p):
+            continue
+        try:
+            check_policy(env_id, p)
+        except PolicyError as exc:
             raise GridError(
-                f"{where}: unknown policy {p!r} for {env_id}; valid: {valid}, or "
-                "'module:callable' / 'file.py:callable'"
-            )
+                f"{where}: {exc}, or 'module:callable' / 'file.py:callable'"
+            ) from None
     return names
 
 
 def _is_factory(policy: str) -> bool:
-    return ":" in policy and not policy.startswith("agent:")
+    """A user's ``module:callable`` / ``file.py:callable``, not a policy name (a controller,
+    ``tuned:``, ``agent:`` or ``plugin:``)."""
+    from cir_gym.scoring.policies import is_policy_name
+
+    return not is_policy_name(policy)
 
 
 def _gain_sets(where: str, env_id: str, policy: str, spec: Any) -> list[dict[str, Any]]:
@@ -312,7 +319,7 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
         GridError: unknown keys, environments, policies, arguments or gains; bad counts;
             two training tasks that would write the same run directory.
     """
-    from cir_gym.scoring.policies import trained_for
+    from cir_gym.scoring.policies import has_tuned_gains, trained_for
 
     _check_keys("grid", grid, ("name", "evaluate", "train"))
     tasks: list[dict[str, Any]] = []
@@ -332,6 +339,14 @@ def expand(grid: dict[str, Any]) -> list[dict[str, Any]]:
                     for variant, kwargs in variants:
                         if every and not trained_for(env_id, policy, kwargs):
                             continue  # "all": an agent only on its own task, as the leaderboard
+                        if not has_tuned_gains(env_id, policy, kwargs):
+                            if every:
+                                continue  # "all": a tuned law where it was tuned, as above
+                            raise GridError(
+                                f"{where}: {policy} has no gains tuned for {env_id} with "
+                                f"{_describe(kwargs)} (cir_gym/scoring/tuned_gains/); name "
+                                f"{policy.removeprefix('tuned:')} at its course gains instead"
+                            )
                         for first in range(seed, seed + episodes, per_task):
                             tasks.append(
                                 {
