@@ -12,9 +12,10 @@ pixel features, e = s − s* (8,), L(s, Z) the interaction matrix (8, 6) of the 
 points and the known target model (``planar_pose``: homography decomposition with the nominal
 intrinsics), so a calibration error reaches the depth estimate as it would on a real robot.
 
-* ``ibvs``: v_c = −λ L̂⁺ e with L̂ = L(s, Ẑ) ("current"), L(s*, Z*) ("desired") or
-  ½ (L(s, Ẑ) + L(s*, Z*)) ("mean", Malis's choice). With an exact L̂ = L the features obey
-  ė = −λ e: e(t) = e(0) exp(−λ t), straight lines in the image. ViSP's adaptive gain
+* ``ibvs``: v_c = −λ L̂* e with L̂ = L(s, Ẑ) ("current"), L(s*, Z*) ("desired") or
+  ½ (L(s, Ẑ) + L(s*, Z*)) ("mean", Malis's choice), and L̂* the damped least-squares inverse
+  below. With an exact L̂ = L the features obey ė = −λ e: e(t) = e(0) exp(−λ t), straight
+  lines in the image. ViSP's adaptive gain
   λ(x) = (λ₀ − λ∞) exp(−λ'₀ x / (λ₀ − λ∞)) + λ∞ (x = ‖e‖∞ in normalised coordinates) is an
   option (``adaptive``).
 * ``pbvs``: the target's pose (R, t) in the current camera and (R*, t*) in the desired one
@@ -26,7 +27,22 @@ intrinsics), so a calibration error reaches the depth estimate as it would on a 
   features like a camera twist (v_c, ω_c) = (−v_m − [p_m]× ω_m, −ω_m), so
   ṡ = L G V_m with G = [[−I, −[p_m]×], [0, −I]]; V_m = −λ (L̂ G)⁺ e, and with joint velocities
   through the robot Jacobian the image Jacobian J_I = L̂ G M J(q) (M: the flange's world twist
-  to the markers' twist in the nominal camera frame), q̇ = −λ J_I⁺ e.
+  to the markers' twist in the nominal camera frame), q̇ = −λ J_I* e.
+
+Damped least squares (control-laws.md §1, the course's inverse near singularities): the IBVS
+laws invert L̂ (and L̂ G, J_I) as A* = Aᵀ (A Aᵀ + μ² I)⁻¹ = V diag(σᵢ / (σᵢ² + μ²)) Uᵀ
+(:func:`cir_gym.vision.damped_pinv`) with μ = ``damping`` = 1 px per unit twist (m/s, rad/s;
+per rad/s of joint velocity for J_I). Design: on the default episodes the smallest singular
+value of L̂ is 8.7 … 13 px (current, desired and mean L̂, 12 seeds), so μ = 1 px keeps at least
+98.7 % of the pseudo-inverse's gain in every direction there (σ² / (σ² + μ²)), while a
+direction whose σ falls below μ is attenuated instead of inverted: ‖L̂* e‖ ≤ ‖e‖ / (2 μ). The
+mean L̂ is singular at a rotation of π about the optical axis (s = −s* about the principal
+point: the v_z and ω_z columns of L(s) and L(s*) cancel, smallest σ 8e-11 px), where the
+pseudo-inverse turned the camera by a direction its round-off chose; with the damping the
+law gives no turn there without feature noise (the error is orthogonal to the range of L̂:
+an equilibrium, which the noise leaves in a direction it chooses). ``damping=0`` is the
+pseudo-inverse. PBVS inverts nothing: its rotation error θu has no defined axis at θ = π,
+so there too the direction of the turn is chosen by the noise of the pose estimate.
 
 Gains: λ = 0.5 1/s, ViSP's tutorial-ibvs-4pts value at its 40 ms period (the default
 control period here); the adaptive option's ViSP values are λ₀ = 4, λ∞ = 0.4, λ'₀ = 30.
@@ -43,6 +59,7 @@ from cir_gym.baselines.base import Controller, InvalidGain, Observation
 from cir_gym.context import TaskContext
 from cir_gym.vision import (
     Camera,
+    damped_pinv,
     interaction_matrix,
     normalise,
     planar_pose,
@@ -81,15 +98,20 @@ class ServoGains:
         gain: λ (1/s), the feature (or pose) error's decay rate.
         depth: where L̂ is evaluated: "current", "desired" or "mean" (IBVS laws only).
         adaptive: (λ₀, λ∞, λ'₀) for ViSP's adaptive gain instead of ``gain``, or None.
+        damping: μ (px per unit twist), the damped least-squares inverse's damping (IBVS laws;
+            0: the pseudo-inverse). See the module docstring for its design.
     """
 
     gain: float = 0.5
     depth: str = "current"
     adaptive: tuple[float, float, float] | None = None
+    damping: float = 1.0
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.gain) or self.gain <= 0:
             raise InvalidGain(f"gain must be a finite number > 0 (1/s), got {self.gain!r}")
+        if not np.isfinite(self.damping) or self.damping < 0:
+            raise InvalidGain(f"damping must be a finite number >= 0 (px), got {self.damping!r}")
         if self.depth not in DEPTHS:
             raise InvalidGain(f"depth must be one of {DEPTHS}, got {self.depth!r}")
         if self.adaptive is not None:
@@ -146,6 +168,10 @@ class _VisualServo(Controller):
     def _interaction(self, s: np.ndarray) -> np.ndarray:
         return interaction_matrix(s, self._depths(s), self.camera)
 
+    def _inverse(self, A: np.ndarray) -> np.ndarray:
+        """The damped least-squares inverse A* of an image Jacobian (``damping`` μ)."""
+        return damped_pinv(A, self.gains.damping)
+
     def _error(self, s: np.ndarray, s_ref: np.ndarray) -> tuple[np.ndarray, float]:
         """e (8,) in pixels and the gain λ (adaptive on the normalised error)."""
         e = (s - s_ref).ravel()
@@ -163,7 +189,7 @@ class _VisualServo(Controller):
 
 
 class IBVS(_VisualServo):
-    """Image-based visual servoing, eye in hand: v_c = −λ L̂⁺ (s − s*)."""
+    """Image-based visual servoing, eye in hand: v_c = −λ L̂* (s − s*)."""
 
     name = "ibvs"
     tasks = ("VisualServo",)
@@ -171,7 +197,7 @@ class IBVS(_VisualServo):
     def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         s, s_ref = self._features(obs)
         e, lam = self._error(s, s_ref)
-        twist = -lam * np.linalg.pinv(self._L(s, s_ref)) @ e
+        twist = -lam * self._inverse(self._L(s, s_ref)) @ e
         return self._camera_action(twist, obs)
 
 
@@ -193,8 +219,8 @@ class PBVS(_VisualServo):
 
 
 class EyeToHandIBVS(_VisualServo):
-    """Image-based visual servoing with a fixed camera: V_m = −λ (L̂ G)⁺ e, or through the
-    robot Jacobian q̇ = −λ (L̂ G M J(q))⁺ e (``action="joint_velocity"``)."""
+    """Image-based visual servoing with a fixed camera: V_m = −λ (L̂ G)* e, or through the
+    robot Jacobian q̇ = −λ (L̂ G M J(q))* e (``action="joint_velocity"``)."""
 
     name = "ibvs_eye_to_hand"
     tasks = ("VisualServoEyeToHand",)
@@ -220,7 +246,7 @@ class EyeToHandIBVS(_VisualServo):
         e, lam = self._error(s, s_ref)
         LG = self._L(s, s_ref)
         if self.context.action_kind == "twist":
-            return _fit(-lam * np.linalg.pinv(LG) @ e, self.twist_limit)
+            return _fit(-lam * self._inverse(LG) @ e, self.twist_limit)
         q = np.asarray(obs["q"], dtype=float)
         R_f = self.robot.site_pose(self.site, q)[1]
         J = self.robot.jacobian(self.site, q)
@@ -231,7 +257,7 @@ class EyeToHandIBVS(_VisualServo):
         M[:3, 3:] = -Rc.T @ _skew(r)  # v_m = v_f + ω × r
         M[3:, 3:] = Rc.T
         J_image = LG @ M @ J
-        return _fit(-lam * np.linalg.pinv(J_image) @ e, self.velocity_limit)
+        return _fit(-lam * self._inverse(J_image) @ e, self.velocity_limit)
 
 
 VISUAL_SERVO_CONTROLLERS: tuple[type[Controller], ...] = (IBVS, PBVS, EyeToHandIBVS)

@@ -214,3 +214,28 @@ def test_unreachable_start_offset_is_an_argument_error() -> None:
         gym.make(EYE_IN_HAND, start_offset=(0.9, 0.0, 0.0, 0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="camera_error"):
         gym.make(EYE_IN_HAND, camera_error=(0.9, 0.0, 0.0, 0.0))
+
+
+def test_ibvs_command_is_continuous_where_the_mean_interaction_matrix_is_singular() -> None:
+    """At a rotation of π about the optical axis (s = −s* about the principal point) the mean
+    L̂ is singular (smallest singular value ~1e-10 px). The damped least-squares inverse gives
+    a command that does not depend on 1e-7 px of feature noise and asks for no turn; the
+    pseudo-inverse (damping 0) turns the camera at full speed in a direction the noise picks."""
+    env = gym.make(EYE_IN_HAND, pixel_noise=0.0).unwrapped
+    obs, _ = env.reset(seed=0)
+    cam = env.nominal_camera
+    s_ref = obs["features_ref"].reshape(4, 2)
+    mirrored = (2.0 * np.array([cam.cu, cam.cv]) - s_ref).ravel()
+    rng = np.random.default_rng(0)
+    nudged = [mirrored + 1e-7 * rng.standard_normal(8) for _ in range(6)]
+    damped = baselines.make("ibvs", EYE_IN_HAND, env=env, depth="mean")
+    assert damped.gains.damping == 1.0
+    sigma = np.linalg.svd(damped._L(mirrored.reshape(4, 2), s_ref), compute_uv=False)
+    assert sigma[-1] < 1e-6 * sigma[0]
+    actions = np.array([damped.predict({**obs, "features": f}, None, np.array([True]))[0]
+                        for f in nudged])
+    assert np.max(np.abs(actions - actions[0])) < 1e-4
+    assert np.max(np.abs(actions[:, 5])) < 1e-4  # no turn about the optical axis
+    plain = baselines.make("ibvs", EYE_IN_HAND, env=env, depth="mean", damping=0.0)
+    turns = [plain.predict({**obs, "features": f}, None, np.array([True]))[0][5] for f in nudged]
+    assert max(np.abs(turns)) > 0.5 and min(turns) < 0.0 < max(turns)

@@ -1,11 +1,13 @@
 """Measure chapter 7: IBVS against PBVS on the classic cases, 100-seed success, detected vs
-projected features, calibration errors, and the cost of detected-feature episodes.
+projected features, calibration errors, rotations of 90°–180° about the optical axis with
+feature noise, and the cost of detected-feature episodes.
 
-    python scripts/eval_visual_servo.py --out results/visual_servo/ [--episodes 100]
+    python scripts/research/eval_visual_servo.py --out results/visual_servo/ [--episodes 100]
         [--detected-episodes 20] [--sweep-episodes 20] [--agent-episodes 50]
-        [--parts cases,seeds,detected,sweep,agent]
+        [--rotation-episodes 30] [--parts cases,seeds,detected,sweep,agent,rotation]
 
-Writes ``<out>/README.md`` (the tables, with how each number was measured) and figures:
+Writes ``<out>/sections.json`` (the tables; README.md quotes them), ``<out>/rotation.md`` (the
+rotation family, written whole by the ``rotation`` part) and figures:
 ``classic_cases.png`` (image-plane feature paths and camera paths, IBVS beside PBVS, for a
 large rotation about the optical axis, the 180° case and a large translation with rotation)
 and ``calibration_sweep.png``. Every number comes from an episode of the registered
@@ -54,6 +56,15 @@ CONTROLLERS = (
     ("ibvs, ViSP adaptive gain", "ibvs", {"adaptive": (4.0, 0.4, 30.0)}),
     ("pbvs", "pbvs", {}),
 )
+#: rotations about the optical axis of the rotation family (deg), its laws and first seed
+ROTATION_ANGLES = (90.0, 120.0, 150.0, 170.0, 175.0, 178.0, 180.0)
+ROTATION_LAWS = (
+    ("ibvs (L at current depth)", "ibvs", {}),
+    ("ibvs (mean L)", "ibvs", {"depth": "mean"}),
+    ("ibvs (mean L, pseudo-inverse: damping 0)", "ibvs", {"depth": "mean", "damping": 0.0}),
+    ("pbvs", "pbvs", {}),
+)
+ROTATION_SEED = 3000  # seeds no other measurement, tuning or training run uses
 SWEEP = (0.0, 1.0, 2.0, 4.0)  # multiples of the unit calibration error below
 UNIT_ERROR = (0.05, 10.0, 0.01, 0.02)  # focal 5 %, principal 10 px, hand-eye 1 cm / 0.02 rad
 
@@ -279,6 +290,54 @@ def agent(n: int) -> list[str]:
     return rows
 
 
+def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score 95 % interval (low, high) of a success rate from ``successes`` of ``n``."""
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rotation(n: int, out: Path) -> list[str]:
+    """Each law from a pure rotation about the optical axis (start_offset (0, 0, 0, 0, 0, θ),
+    the default 0.1 px feature noise) on seeds ROTATION_SEED …: success with its Wilson 95 %
+    interval, how the failures ended, and the median convergence time of the successes."""
+    rows = ["| rotation | law | success (95 % interval) | stopped: joint limit or feature lost | "
+            "not converged in 15 s | convergence time of successes (s), median | "
+            "retreat (m), median |", "|---:|---|---:|---:|---:|---:|---:|"]
+    for deg in ROTATION_ANGLES:
+        kwargs = {"start_offset": (0.0, 0.0, 0.0, 0.0, 0.0, float(np.deg2rad(deg)))}
+        for label, law, gains in ROTATION_LAWS:
+            policy = baselines.make(law, EYE_IN_HAND, env_kwargs=kwargs, **gains)
+            res = evaluate(policy, EYE_IN_HAND, n_episodes=n, seed=ROTATION_SEED,
+                           policy_name=label, **kwargs)
+            wins = sum(ep.success for ep in res.episodes)
+            stopped = sum(ep.terminated for ep in res.episodes)
+            low, high = wilson(wins, n)
+            times = [ep.metrics["convergence_time"] for ep in res.episodes if ep.success]
+            retreat = np.median([ep.metrics["retreat"] for ep in res.episodes])
+            t_conv = f"{np.median(times):.2f}" if times else "–"
+            rows.append(f"| {deg:.0f}° | {label} | {wins}/{n} = {100 * wins / n:.0f} % "
+                        f"({100 * low:.0f}–{100 * high:.0f} %) | {stopped} | "
+                        f"{n - wins - stopped} | {t_conv} | {retreat:.3f} |")
+            print(rows[-1], flush=True)
+    text = (
+        "# Rotations about the optical axis with feature noise\n\n"
+        "Written by `python scripts/research/eval_visual_servo.py --parts rotation "
+        f"--rotation-episodes {n}`: `cir_gym/VisualServo-v0` from start_offset "
+        "(0, 0, 0, 0, 0, θ) (the camera turned by θ about its optical axis from the goal, the "
+        "target square to it), the default 0.1 px feature noise, seeds "
+        f"{ROTATION_SEED}–{ROTATION_SEED + n - 1} (the seed draws only the noise), run by "
+        "`cir_gym.evaluation.evaluate`. Success: the final feature error < 1 px after 15 s "
+        "without a feature lost, a joint limit or a divergence; the interval is Wilson's "
+        "95 % score interval. The IBVS laws invert L̂ by damped least squares (μ = 1 px, "
+        "`baselines/visual_servo.py`); the row \"damping 0\" is the pseudo-inverse.\n\n"
+        + "\n".join(rows) + "\n"
+    )
+    (out / "rotation.md").write_text(text)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/visual_servo"))
@@ -286,6 +345,7 @@ def main() -> None:
     parser.add_argument("--detected-episodes", type=int, default=20)
     parser.add_argument("--sweep-episodes", type=int, default=20)
     parser.add_argument("--agent-episodes", type=int, default=50)
+    parser.add_argument("--rotation-episodes", type=int, default=30)
     parser.add_argument("--parts", default="cases,seeds,detected,sweep")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -306,6 +366,9 @@ def main() -> None:
     if "sweep" in parts:
         sections["sweep"] = sweep(args.sweep_episodes, args.out)
         sections["sweep_n"] = args.sweep_episodes
+    if "rotation" in parts:
+        sections["rotation"] = rotation(args.rotation_episodes, args.out)
+        sections["rotation_n"] = args.rotation_episodes
     if "agent" in parts:
         sections["agent"] = agent(args.agent_episodes)
         sections["agent_n"] = args.agent_episodes
