@@ -18,6 +18,12 @@ surface, so until f̂ first exceeds ``contact_force`` the tool moves along −n�
 at that instant each law takes over with its state initialised for continuity (the state of every
 filter, the contact flag and the bias live in the policy state, reset at each episode start).
 
+**Force reference** (the four force-feedback laws alike): the course's form takes f̄ as a step at
+the first contact (``ramp_time=0``, the default). With ``ramp_time`` T > 0 every law tracks f_r
+instead, a quintic from f̂ at the first contact to f̄ in T s (the same shaping for each law);
+explicit force control can add, with ``feedforward=True``, the nominal plant's inverse on that
+ramp (a model-based feed-forward the other laws do not have).
+
 **Motion** (tangential directions and orientation): the compliant/commanded frame follows the
 path reference projected on the nominal surface plane, with the task's constant tool
 orientation. On the position interface (``control="position"``) a law outputs the increment from
@@ -31,9 +37,15 @@ space.
 The laws along n̂ and their design rules (control-laws.md §6, cir-notes.txt §6.2–6.5):
 
 * ``impedance`` (torque interface): M_d x̃̈ + D_d x̃̇ + K_d x̃ = h_e with force measurement,
-  F = Λ (ẍ_d + M_d⁻¹(D_d x̃̇ + K_d x̃ − ĥ) − J̇q̇) + ĥ; x_d = path − n̂ f̄/K_d,n (the setpoint sunk
-  so that the *nominal* surface gives f̄). No force loop: in steady state f = K_d,n × the
-  setpoint's penetration (x − x_d)·n̂, so a surface height error e gives a force error ≈ K e.
+  F = Λ (ẍ_d + M_d⁻¹(D_d x̃̇ + K_d x̃ − ĥ) − J̇q̇) + ĥ. No force loop: the force is set by the
+  equilibrium of the impedance against the environment's stiffness k̂. At rest the impedance's
+  spring and the surface carry the same force, K_d,n (x − x_d)·n̂ = f = k̂ (s₀ − x)·n̂, so
+  f = f̄ on the nominal surface needs x_d = path − n̂ f̄ (1/K_d,n + 1/k̂): the setpoint sunk by
+  the impedance's deflection f̄/K_d,n *and* the surface's f̄/k̂ (``surface_compliance=False``
+  leaves out f̄/k̂: on a soft surface the force is then f̄ k/(K_d,n + k), half of f̄ when
+  k = K_d,n). A surface height error e gives a force error K_d,n k/(K_d,n + k) e. Unknown
+  stiffness: design at 1e5 N/m (the smallest sink: a soft surface is pressed too little,
+  never a stiff one too hard).
 * ``admittance``: x_c = x̄ + Δ with M_d Δ̈ + D_d Δ̇ + K_d Δ = ĥ_ext − h̄ (the admittance filter
   H(s) = 1/(M_d s² + D_d s + K_d) on the force error, K_d,n = 0: integral force control through the
   stiff inner loop). With x ≈ x_c the force loop is L(s) = k_e/(M_d s² + D_d s), k_e the
@@ -50,13 +62,11 @@ The laws along n̂ and their design rules (control-laws.md §6, cir-notes.txt §
   Crossover rule: K_if = ω_cf = ``crossover_ratio`` · ω_n < ω_n (and ≤ ω_s). Unknown
   stiffness: design at 1e3 N/m (ω_n grows with k, so the rule holds on every surface).
   ``crossover_ratio`` ≥ 2ζ breaks Routh: it oscillates and loses contact (tests).
-  Reference (two degrees of freedom; the feedback above is unchanged): from the first contact
-  the loop tracks f_r, a quintic from the contact force to f̄ in ``ramp_time`` = 0.3 s (less
-  than the task's 0.5 s before scoring), u = f_r + K_if ∫(f_r − f̂) dt, plus, when k̂ is
-  known, the plant's inverse on the ramp (f = k x ⇒ u = f + (d ḟ + m̂ f̈)/k). With a step to
-  f̄ instead (``ramp_time=0``), K_if = 0.5 ω_n leaves a closed-loop pair at ≈ 0.57 ω_n with
-  damping ratio ≈ 0.38: on 1e3 N/m (ω_n ≈ 11 rad/s) the contact transient lasts ≈ 1.7 s and
-  dominates the force error (1.6 N against 0.4 N with the ramp, scripts/eval_contact.py).
+  With the course's step to f̄, K_if = 0.5 ω_n leaves a closed-loop pair at ≈ 0.57 ω_n with
+  damping ratio ≈ 0.38: on 1e3 N/m (ω_n ≈ 11 rad/s) the contact transient lasts ≈ 1.7 s, past
+  the task's 0.5 s before scoring. ``feedforward=True`` (with ``ramp_time`` > 0 and k̂ known)
+  adds the plant's inverse on the ramp, u = f_r + (d ḟ_r + m̂ f̈_r)/k̂ + K_if ∫(f_r − f̂) dt
+  (f = k x ⇒ u = f + (d ḟ + m̂ f̈)/k): two degrees of freedom, the feedback unchanged.
 * ``implicit_force``: the force loop around the position loop. The inner loop turns a setpoint
   depth into a force through R(s) ≈ k̂_e (1 + s/ω_i) (its stiffness in series with the surface);
   the notes' compensator C(s) = 1/(s R(s)) = 1/(k̂_e s (1 + s/ω_i)) leaves L_f = R_f(s)/s with
@@ -98,7 +108,8 @@ TASKS = ("AdmittanceContact",)
 _BIAS = slice(0, 6)  # b̂, the re-biased sensor offset (N, N m)
 _BIAS_N, _CONTACT, _TIME, _Z = 6, 7, 8, 9  # bias samples, contact latch, t (s), approach depth
 _Q0 = slice(10, 17)  # the start posture (null-space target)
-_COMMON = 17
+_T_CONTACT, _F_CONTACT = 17, 18  # time since the first contact (s), f̂ at that contact (N)
+_COMMON = 19
 APPROACH_RAMP = 0.2  # s
 
 
@@ -140,6 +151,8 @@ class _CommonGains:
     slow_speed: the approach speed below ``slow_height`` (m/s): the impact on the stiffest
         surface is ≈ v √(k_e m̂), about 10 N at 1 cm/s.
     contact_force: measured normal force that declares the first contact (N).
+    ramp_time: the force reference f_r rises from f̂ at the first contact to f̄ along a
+        quintic in this time (s); 0 = the course's step to f̄ (module docstring).
     bias_time: time held still at the start to re-bias the sensor (s).
     motion_omega: natural frequency of the tangential/orientation motion control (rad/s).
     inner_omega: natural frequency of the inner motion loop on the torque interface (rad/s).
@@ -151,6 +164,7 @@ class _CommonGains:
     slow_height: float = 0.008
     slow_speed: float = 0.01
     contact_force: float = 2.0
+    ramp_time: float = 0.0
     bias_time: float = 0.1
     motion_omega: float = 40.0
     inner_omega: float = 150.0
@@ -168,7 +182,7 @@ class _CommonGains:
             "inner_omega",
             "posture_omega",
         )
-        _positive(self, "bias_time", allow_zero=("bias_time",))
+        _positive(self, "bias_time", "ramp_time", allow_zero=("bias_time", "ramp_time"))
 
 
 class _Interaction(Controller):
@@ -329,10 +343,27 @@ class _Interaction(Controller):
         holding = state[_TIME] < self.gains.bias_time
         if not holding and state[_CONTACT] == 0.0 and f > self.gains.contact_force:
             state[_CONTACT] = 1.0
+            state[_T_CONTACT], state[_F_CONTACT] = 0.0, f
             self.on_contact(obs, state, f)
         command = self.law(obs, state, h, f, holding)
         state[_TIME] += self.dt
+        if state[_CONTACT]:
+            state[_T_CONTACT] += self.dt
         return command
+
+    def force_reference(self, obs: Observation, state: np.ndarray) -> tuple[float, float, float]:
+        """f_r, ḟ_r, f̈_r (N, N/s, N/s²): f̄ (the course's step, ``ramp_time=0``), or a quintic
+        from f̂ at the first contact to f̄ over ``ramp_time`` s (f̄ before the contact)."""
+        f_bar = float(obs["f_ref"][0])
+        T = self.gains.ramp_time
+        if T <= 0.0 or state[_CONTACT] == 0.0:
+            return f_bar, 0.0, 0.0
+        tau = min(state[_T_CONTACT] / T, 1.0)
+        df = f_bar - state[_F_CONTACT]
+        s = tau**3 * (10 - 15 * tau + 6 * tau**2)
+        ds = 30 * tau**2 * (1 - tau) ** 2 / T
+        dds = 60 * tau * (1 - tau) * (1 - 2 * tau) / T**2
+        return state[_F_CONTACT] + df * s, df * ds, df * dds
 
     def approach(self, state: np.ndarray, holding: bool) -> tuple[float, float]:
         """The guarded approach's depth coordinate z (along n̂ from s₀) and its rate."""
@@ -380,7 +411,10 @@ class ImpedanceGains(_CommonGains):
     mass: apparent mass M_d (kg, every direction).
     normal_stiffness: K_d along n̂ (N/m); tangential_stiffness: K_d in the plane (N/m).
     zeta: damping ratio: D_d = 2ζ√(M_d K_d) per direction.
-    use_force_ref: sink the setpoint by f̄/K_d,n below the nominal surface (else x_d is the path).
+    use_force_ref: sink the setpoint below the nominal surface so that the equilibrium force is
+        f̄ (else x_d is the path).
+    surface_compliance: the sink includes the surface's deflection f̄/k̂ (the equilibrium of the
+        impedance against the environment's stiffness); False = f̄/K_d,n alone.
     """
 
     mass: float = 10.0
@@ -388,6 +422,7 @@ class ImpedanceGains(_CommonGains):
     tangential_stiffness: float = 5000.0
     zeta: float = 1.0
     use_force_ref: bool = True
+    surface_compliance: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -417,11 +452,18 @@ class Impedance(_Interaction):
             )
         )
 
+    def sink(self, f_bar: float) -> float:
+        """The setpoint's depth below the nominal surface (m) whose equilibrium force is f̄:
+        f̄ (1/K_d,n + 1/k̂), or f̄/K_d,n without ``surface_compliance``."""
+        g = self.gains
+        compliance = 1.0 / g.normal_stiffness
+        if g.surface_compliance:
+            compliance += 1.0 / self.k_hat
+        return f_bar * compliance if g.use_force_ref else 0.0
+
     def setpoint(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """x_d and ẋ_d: the path reference, sunk by f̄/K_d,n when ``use_force_ref``."""
-        x_d = obs["tool_pos_ref"].copy()
-        if self.gains.use_force_ref:
-            x_d -= self.normal * obs["f_ref"][0] / self.gains.normal_stiffness
+        """x_d and ẋ_d: the path reference, sunk by :meth:`sink`."""
+        x_d = obs["tool_pos_ref"] - self.normal * self.sink(float(obs["f_ref"][0]))
         return x_d, obs["tool_vel_ref"]
 
     def law(
@@ -480,8 +522,9 @@ class Admittance(_PositionBased):
 
     def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
         z, z_dot = state[_COMMON], state[_COMMON + 1]
-        # M_d z̈ + D_d ż + K_d z = f̂ − f̄ (z up along n̂: pressing too hard moves up)
-        z_ddot = f - obs["f_ref"][0] - self.D_d * z_dot - self.gains.stiffness_normal * z
+        # M_d z̈ + D_d ż + K_d z = f̂ − f_r (z up along n̂: pressing too hard moves up)
+        f_r = self.force_reference(obs, state)[0]
+        z_ddot = f - f_r - self.D_d * z_dot - self.gains.stiffness_normal * z
         z_ddot /= self.M_d
         # semi-implicit Euler, exact for the damping term
         z_dot = (z_dot + self.dt * (z_ddot + self.D_d / self.M_d * z_dot)) / (
@@ -500,23 +543,19 @@ class ExplicitForceGains(_CommonGains):
     crossover_ratio: K_if = ω_cf = ratio · ω_n, ω_n = √(k̂/m̂) (the rule: ratio < 1).
     zeta: ζ of the active damping d = 2ζ√(k̂ m̂) along n̂.
     cap_at_sensor: also cap K_if at the sensor's ω_s.
-    ramp_time: the force reference f_r rises from f̂ at contact to f̄ along a quintic in this
-        time (s); 0 = a step to f̄ (the integrator then starts at (f̂ − f̄)/K_if, bumpless);
-        None = 4/ω_n.
-    feedforward: add the nominal plant's inverse on the ramp, (d ḟ_r + m̂ f̈_r)/k̂; None = only
-        when the stiffness is known (with a worst-case k̂ it over-drives a stiffer surface).
+    feedforward: add the nominal plant's inverse on the reference ramp, (d ḟ_r + m̂ f̈_r)/k̂
+        (acts only with ``ramp_time`` > 0 and the stiffness known: with a worst-case k̂ it
+        over-drives a stiffer surface).
     """
 
     crossover_ratio: float = 0.5
     zeta: float = 1.0
     cap_at_sensor: bool = True
-    ramp_time: float | None = 0.3
-    feedforward: bool | None = None
+    feedforward: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _positive(self, "crossover_ratio", "zeta")
-        _positive(self, "ramp_time", allow_zero=("ramp_time",))
 
 
 class ExplicitForce(_Interaction):
@@ -526,7 +565,7 @@ class ExplicitForce(_Interaction):
     Gains = ExplicitForceGains
     worst_case = 0
     needs_torque = True
-    law_size = 3  # ∫(f_r − f̂) dt, time since contact (s), f̂ at contact (N)
+    law_size = 1  # ∫(f_r − f̂) dt
 
     def design(self, q: np.ndarray) -> None:
         g = self.gains
@@ -537,31 +576,12 @@ class ExplicitForce(_Interaction):
             self.k_if = min(self.k_if, self.omega_s)
         self.d = 2.0 * g.zeta * math.sqrt(self.k_hat * self.m_hat)
         known = g.stiffness is not None or self.context.extras.get("stiffness") is not None
-        self.ff = (known if g.feedforward is None else g.feedforward) and self.ramp_time > 0.0
+        self.ff = g.feedforward and known and g.ramp_time > 0.0
 
     def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
-        # bumpless transfer: u starts at the measured force, not at a step to f̄
-        if self.ramp_time > 0.0:  # the reference ramps from f̂ at contact: ∫e starts at 0
-            state[_COMMON : _COMMON + 3] = (0.0, 0.0, f)
-        else:
-            state[_COMMON] = (f - obs["f_ref"][0]) / self.k_if
-
-    @property
-    def ramp_time(self) -> float:
-        g = self.gains
-        return float(g.ramp_time) if g.ramp_time is not None else 4.0 / self.omega_n
-
-    def reference(self, f_bar: float, state: np.ndarray) -> tuple[float, float, float]:
-        """f_r, ḟ_r, f̈_r: a quintic from f̂ at contact to f̄ over ``ramp_time`` (f̄ if 0)."""
-        T = self.ramp_time
-        if T <= 0.0:
-            return f_bar, 0.0, 0.0
-        tau = min(state[_COMMON + 1] / T, 1.0)
-        df = f_bar - state[_COMMON + 2]
-        s = tau**3 * (10 - 15 * tau + 6 * tau**2)
-        ds = 30 * tau**2 * (1 - tau) ** 2 / T
-        dds = 60 * tau * (1 - tau) * (1 - 2 * tau) / T**2
-        return state[_COMMON + 2] + df * s, df * ds, df * dds
+        # bumpless transfer: u = f_r + K_if ∫e starts at the measured force f̂
+        f_r = self.force_reference(obs, state)[0]
+        state[_COMMON] = (f - f_r) / self.k_if
 
     def law(
         self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
@@ -575,8 +595,7 @@ class ExplicitForce(_Interaction):
             x_n = float(self.normal @ (obs["tool_pos"] - self.surface_point))
             f_n = self.m_hat * (w * w * (z - x_n) + 2 * w * (z_dot - x_dot_n))
         else:
-            f_r, df_r, ddf_r = self.reference(obs["f_ref"][0], state)
-            state[_COMMON + 1] += self.dt
+            f_r, df_r, ddf_r = self.force_reference(obs, state)
             e = f_r - f
             state[_COMMON] += e * self.dt
             # u = f_r + K_if ∫e, with the plant's inverse on the ramp: f = k x ⇒
@@ -626,7 +645,7 @@ class ImplicitForce(_PositionBased):
 
     def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
         s = state[_COMMON : _COMMON + 4]
-        e = obs["f_ref"][0] - f
+        e = self.force_reference(obs, state)[0] - f
         s[2] += e * self.dt
         r = self.k_pf * e + self.k_if * s[2]  # R_f(s) e
         # C(s) = 1/(k̂_e s (1 + s/ω_i)):  (k̂_e/ω_i) Δ̈ + k̂_e Δ̇ = r
@@ -675,7 +694,7 @@ class ParallelForcePosition(_PositionBased):
         state[_COMMON] = (z_bar - state[_Z]) / self.k_i
 
     def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
-        e = obs["f_ref"][0] - f
+        e = self.force_reference(obs, state)[0] - f
         state[_COMMON] += e * self.dt
         z_bar = float(self.normal @ (obs["tool_pos_ref"] - self.surface_point))
         zd_bar = float(self.normal @ obs["tool_vel_ref"])

@@ -9,15 +9,23 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from cir_gym import rendering
 from cir_gym.context import TaskContext
-from cir_gym.envs.base import (
-    _MAX_SPEED_SQ,
-    _STATE,
-    _UNSTABLE_CONTIGUOUS,
-    MIN_CONTROL_FREQ,
-    RobotEnv,
+from cir_gym.envs import admittance_scene as scene
+from cir_gym.envs.admittance_scene import (
+    JOINTS,
+    SITE,
+    START_Q,
+    SURFACE_NORMAL,
+    SURFACE_POINT,
+    TIMESTEP,
+    TOOL_COM,
+    TOOL_MASS,
+    TOOL_QUAT,
+    build_model,
+    surface_force,
+    tool_robot,
 )
+from cir_gym.envs.base import MIN_CONTROL_FREQ, RobotEnv
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
     PRESETS,
@@ -28,44 +36,25 @@ from cir_gym.ft_sensor import (
 )
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
-from cir_gym.numeric import _SUM, CLIP, index_view, max_of, mean_of, rms_of
-from cir_gym.robot import (
-    ASSETS,
-    PAYLOAD_OFFSET,
-    PAYLOAD_RADIUS,
-    ModelError,
-    Robot,
-    apply_model_error,
-)
+from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
+    "JOINTS",
+    "START_Q",
+    "TOOL_COM",
+    "TOOL_MASS",
     "AdmittanceContactEnv",
     "build_model",
     "surface_force",
     "tool_robot",
 ]
 
-SCENE = ASSETS / "scenes" / "admittance_contact.xml"
-JOINTS = [f"joint{i}" for i in range(1, 8)]
-SITE = "tcp"  # the tool tip: the lowest point of the hemisphere when the tool points down
-TOOL_MASS = 0.3  # kg, centre of mass PAYLOAD_OFFSET beyond the flange (the payload model)
-TOOL_COM = np.array([0.0, 0.0, PAYLOAD_OFFSET])  # m, in the sensor (flange) frame
-TOOL_RADIUS = 0.012  # m, hemispherical tip
-TOOL_LENGTH = 0.1  # m, flange to tip (the tcp site)
-#: nominal surface: a point of its top face and its outward normal (world frame)
-SURFACE_POINT = np.array([0.6, 0.0, 0.20])
-SURFACE_NORMAL = np.array([0.0, 0.0, 1.0])
-#: tool orientation of the task (tool axis along −z): rotation π about y, quaternion (w, x, y, z)
-TOOL_QUAT = np.array([0.0, 0.0, 1.0, 0.0])
-#: start: the tip 3 cm above the nominal surface point, tool pointing down (IK with posture
-#: regularisation towards the iiwa's home; smallest singular value of J there 0.214)
-START_Q = np.array([0.0, 0.69776, 0.0, -1.47298, 0.0, 0.97085, 0.0])
 APPROACH_HEIGHT = 0.03  # m
 WIPE_START = 2.0  # s
 WIPE_AMPLITUDE = 0.05  # m
 WIPE_FREQUENCY = 0.25  # Hz: peak speed 2π A f = 0.079 m/s
-CONTACT_THRESHOLD = 0.5  # N: true normal force above which the tool is in contact
+CONTACT_THRESHOLD = 0.5  # N: the tool's normal contact force above which it touches the plate
 STIFFNESS_RANGE = (1.0e3, 1.0e5)  # N/m
 FORCE_REF_RANGE = (5.0, 30.0)  # N
 #: position interface: action 1 = this speed (m/s for δp, rad/s for δφ) over one period
@@ -78,101 +67,21 @@ RANDOM_RANGES = {
     "sensor_bias_torque": (-0.1, 0.1),  # N m, each axis
 }
 CONTROLS = ("torque", "position")
-#: physics step (s). 0.25 ms, not the robot file's 1 ms: the tool-plate contact is stiff (solref
-#: time constant 2 ms) and the tool slides on it with friction; at a 1-ms step (time constant =
-#: 2 steps, MuJoCo's limit) the sliding contact chatters in 1-ms bounces that ring the plate
-#: (measured at 1e5 N/m, 20 N, admittance: force RMS error 4.05 N at 1 ms, 1.40 N at 0.5 ms,
-#: 0.67 N at 0.25 ms; frictionless, 0.46 N at 1 ms): a discretisation error, not physics, so the
-#: step is refined until it is small (scripts/eval_contact.py, "physics step").
-TIMESTEP = 0.00025
-_SITE_OBJ = mujoco.mjtObj.mjOBJ_SITE  # _obs's mj_objectVelocity (an attribute lookup less)
-#: what the next mj_step reads, and the sensors' history: _motion_period's undo
-_UNDO_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION | mujoco.mjtState.mjSTATE_HISTORY)
-_isfinite = math.isfinite
-
-
-def build_model(
-    stiffness: float, damping: float, timestep: float = TIMESTEP, history: int = 1
-) -> mujoco.MjModel:
-    """The scene (robot, tool, sprung plate) with the plate's spring (N/m) and damper (N s/m),
-    simulated with the physics step ``timestep`` (s).
-
-    The wrist sensors ``ft_force``/``ft_torque`` and a ``plate_contact`` sensor (the net contact
-    force on the plate, world frame, N: MuJoCo's contact sensor, ``reduce="netforce"``) keep
-    their last ``history`` physics steps' values in MuJoCo's sensor history (``nsample``), so
-    a control period of that many steps runs in one ``mj_step`` call and the env reads every
-    step's values afterwards.
-
-    The tool is added to the robot's ``payload`` body (beyond ``ft_site``) with MjSpec: the
-    payload's inertial is the tool's (:data:`TOOL_MASS`, the centre of mass and inertia of
-    :func:`cir_gym.robot.apply_model_error`'s payload model), so :func:`tool_robot` is an exact
-    nominal model. Geoms carry no mass (``inertiafromgeom="false"`` in the robot file).
-    """
-    spec = mujoco.MjSpec.from_file(str(SCENE))
-    spec.option.timestep = timestep
-    spec.add_sensor(
-        name="plate_contact",
-        type=mujoco.mjtSensor.mjSENS_CONTACT,
-        objtype=mujoco.mjtObj.mjOBJ_GEOM,
-        objname="surface_geom",
-        intprm=[2, 3, 1],  # data: force; reduce: netforce; one (net) contact
-    )
-    for name in ("ft_force", "ft_torque", "plate_contact"):
-        spec.sensor(name).nsample = history
-    payload = spec.body("payload")
-    payload.mass = TOOL_MASS
-    payload.ipos = TOOL_COM
-    payload.inertia = [0.4 * TOOL_MASS * PAYLOAD_RADIUS**2] * 3
-    surface = spec.geom("surface_geom")
-    shaft = payload.add_geom()
-    shaft.name = "tool_shaft"
-    shaft.type = mujoco.mjtGeom.mjGEOM_CYLINDER
-    shaft.fromto = [0.0, 0.0, 0.0, 0.0, 0.0, TOOL_LENGTH - TOOL_RADIUS]
-    shaft.size = [0.8 * TOOL_RADIUS, 0.0, 0.0]
-    shaft.contype = shaft.conaffinity = 0
-    shaft.rgba = [0.3, 0.3, 0.35, 1.0]
-    tip = payload.add_geom()
-    tip.name = "tool_tip"
-    tip.type = mujoco.mjtGeom.mjGEOM_SPHERE
-    tip.pos = [0.0, 0.0, TOOL_LENGTH - TOOL_RADIUS]
-    tip.size = [TOOL_RADIUS, 0.0, 0.0]
-    tip.contype, tip.conaffinity = 1, 0
-    tip.rgba = [0.9, 0.5, 0.1, 1.0]
-    # the same stiff contact parameters on both sides (MuJoCo mixes the two geoms' values)
-    tip.solref, tip.solimp, tip.friction = surface.solref, surface.solimp, surface.friction
-    tip.margin, tip.gap = surface.margin, surface.gap
-    joint = spec.joint("surface_slide")
-    joint.stiffness = [stiffness, 0.0, 0.0]
-    joint.damping = [damping, 0.0, 0.0]
-    return spec.compile()
-
-
-def tool_robot() -> Robot:
-    """The nominal iiwa14 with the tool (a controller's model: the robot file plus the tool)."""
-    robot = Robot.from_name("iiwa14")
-    apply_model_error(robot.model, ModelError(payload_mass=TOOL_MASS))
-    robot.invalidate()
-    return robot
-
-
-def surface_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.ndarray:
-    """Total contact force (3,) on geom ``geom`` (the plate) from every contact, world frame (N)."""
-    total = np.zeros(3)
-    f = np.zeros(6)
-    for i in range(data.ncon):
-        c = data.contact[i]
-        if geom not in (c.geom1, c.geom2):
-            continue
-        mujoco.mj_contactForce(model, data, i, f)
-        world = c.frame.reshape(3, 3).T @ f[:3]  # on geom2, pushing it along the normal
-        total += world if c.geom2 == geom else -world
-    return total
-
-
-def _quat(R: np.ndarray) -> np.ndarray:
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, R.reshape(9))
-    return q if q[0] >= 0 else -q
+#: observation keys: (size, bound); every array is float64 and clipped to ±bound (f_ref ≥ 0)
+OBSERVATION = {
+    "q": (7, 2 * np.pi),
+    "qd": (7, 50.0),
+    "tool_pos": (3, 2.0),
+    "tool_quat": (4, 1.0),
+    "tool_vel": (3, 10.0),
+    "tool_angvel": (3, 50.0),
+    "wrench": (6, 1000.0),
+    "f_ref": (1, 100.0),
+    "tool_pos_ref": (3, 2.0),
+    "tool_vel_ref": (3, 10.0),
+    "setpoint_pos": (3, 2.0),
+    "setpoint_quat": (4, 1.0),
+}
 
 
 class AdmittanceContactEnv(RobotEnv):
@@ -182,13 +91,14 @@ class AdmittanceContactEnv(RobotEnv):
     Chapter 6's interaction-control problem. The KUKA iiwa 14 carries a 0.3 kg tool with a
     hemispherical tip behind a wrist force/torque sensor. Below it, a 0.2-kg plate on a prismatic
     joint with a real spring and damper (``stiffness`` N/m, ``damping`` N s/m: the surface's
-    contact stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref``
-    cannot do; the tool-plate contact itself is stiff: < 1 µm of penetration at 20 N; scene
-    ``assets/scenes/admittance_contact.xml``). At 1e5 N/m the plate's own mode is at
-    √(k/m)/2π ≈ 110 Hz, lightly damped at the default damping (ζ = 0.07). The physics step is
-    0.25 ms (``timestep``, :data:`TIMESTEP`): at MuJoCo's usual 1 ms the sliding stiff contact
-    chattered in 1-ms bounces that rang this mode (a ±5 N ripple at 1e5 N/m that shrinks as the
-    step is refined, so a discretisation error).
+    stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref`` cannot do)
+    and a stiff end stop 12 cm below its rest position. The tool-plate contact is stiff (< 10 µm
+    of penetration at 20 N) with Coulomb friction μ = 0.1; its friction rows have their own
+    reference time constant so that the tip stays on the plate while it slides
+    (:mod:`cir_gym.envs.admittance_scene` gives the cause: with MuJoCo's default the tip left
+    the plate for one physics step in ~13 while wiping). The arm's links collide with the
+    plate too. At 1e5 N/m the plate's own mode is at √(k/m)/2π ≈ 110 Hz (ζ = 0.07 at the
+    default damping). The physics step is 0.25 ms (``timestep``).
     The tool starts 3 cm above the *nominal* surface (the plane z = 0.20 m, normal +z); the
     true surface is off by a height and a tilt drawn per episode (U(±``height_error``) m,
     U(±``tilt_error``) rad about a random horizontal axis), known to the controllers only
@@ -197,12 +107,15 @@ class AdmittanceContactEnv(RobotEnv):
     surface: from t = 2 s the tip's reference moves by 5 cm · sin(2π · 0.25 Hz · (t − 2)) along
     a random horizontal direction (peak 0.079 m/s), on the nominal surface.
 
-    The true normal force f (N, ``info["contact_force"]``, never observed) is the load in the
-    surface's spring and damper, k x + c ẋ: what a load cell under the plate reads, equal to the
-    tool's contact force at rest. MuJoCo's per-step contact force is not used for it: it is not
-    smooth from one physics step to the next while the tool slides; the plate's spring carries
-    the mean. ``info["in_contact"]``: the tool touched the plate during the control period. The
-    controllers measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`), which
+    The env reads MuJoCo's contact forces at every physics step. The normal force f (N,
+    ``info["contact_force"]``, never observed) is the tool's: the tool-plate contact force
+    along the true inward normal, averaged over the control period. ``info["in_contact"]``: the
+    tool pressed on the plate (> 0.5 N) at every physics step of the period;
+    ``info["contact_steps"]``: the fraction of the period's physics steps it did;
+    ``info["peak_contact_force"]``: the largest single contact force on the plate (the tool's
+    or a link's) at any physics step of the period; ``info["plate_load"]``: the load in the
+    plate's spring and damper, k x + c ẋ (what a load cell under the plate reads).
+    The controllers measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`), which
     includes the tool's weight, a bias, noise, quantisation, a low-pass filter, a delay and
     sampling with zero-order hold (presets ``"robotiq_ft300"``, ``"ati_gamma"``, ``"ideal"``);
     the reading lags the true wrench by one further physics step (MuJoCo computes sensors before
@@ -243,16 +156,18 @@ class AdmittanceContactEnv(RobotEnv):
     r = r_force + r_path + r_action_rate + r_force_limit + r_diverged, each in
     ``info["reward_<name>"]``:
     - r_force = −(1 − ½ Σ_s exp(−(f − f̄)² / s²)), s ∈ (``force_scale``, ``force_scale``/5) N, in
-      [−1, 0], from the true normal force;
+      [−1, 0];
     - r_path = −``path_weight`` (1 − exp(−‖e_t‖² / ``path_scale``²)), e_t the tip's path error
       in the nominal surface's plane;
     - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / dim(a);
-    - r_force_limit = −(``force_limit_penalty`` + N_left (1 + ``path_weight``)) on the step the
-      force exceeds ``force_limit``, N_left the steps the stop leaves unplayed: the rest of the
-      horizon at the worst per-step reward, as the metrics score a stopped episode, so that
-      ending an episode early never pays (with all rewards ≤ 0 a fixed penalty made slamming
-      into the surface the best return for an agent that cannot yet press well);
-    - r_diverged = −(``divergence_penalty`` + N_left (1 + ``path_weight``)) likewise.
+    - r_force_limit = −``force_limit_penalty`` on the step the force limit stops the episode;
+    - r_diverged = −``divergence_penalty`` on the step the physics diverged.
+
+    With ``charge_unplayed_steps=True`` (the default) a stopped or diverged episode also loses,
+    on its last step, the worst reward of every step it did not play, (T − k)(1 +
+    ``path_weight`` + 4 ``action_rate_weight``) (T the episode's steps, k the steps played; in
+    its r_force_limit or r_diverged): ending early never raises the return, at any discount
+    γ ≤ 1, as the metrics score a stopped episode over the whole horizon.
 
     ## Starting State
     At rest at ``START_Q`` (tip 3 cm above the nominal surface, tool pointing down), the sensor
@@ -260,17 +175,17 @@ class AdmittanceContactEnv(RobotEnv):
 
     ## Episode End
     Truncated after ``episode_duration`` s. Terminated when the physics diverges
-    (``info["diverged"]``) or the normal force exceeds ``force_limit`` (a failure,
-    ``info["force_limit_exceeded"]``); a stopped episode is scored over the whole horizon with
-    the force error f̄ and contact lost for the steps it did not play.
+    (``info["diverged"]``) or, at any physics step, a single contact force on the plate (the
+    tool's or a link's) or the plate's load exceeds ``force_limit`` (a failure,
+    ``info["force_limit_exceeded"]``). ``step`` after the end or before ``reset`` raises.
 
     ## Arguments
     | argument | default | meaning |
     |---|---|---|
     | control | "torque" | "torque" (joint torques) or "position" (Cartesian setpoint increments) |
     | control_freq | 500.0 | control frequency (Hz), the physics rate divided by an integer |
-    | timestep | 0.00025 | physics step (s), in [1e-4, 1e-3] (see :data:`TIMESTEP`) |
     | episode_duration | 5.0 | s |
+    | timestep | 0.00025 | physics step (s), in [1e-4, 1e-3] |
     | stiffness | 10000.0 | surface stiffness (N/m), in [1e3, 1e5] |
     | damping | 20.0 | surface damping (N s/m), in [0, 1e4] |
     | force_ref | None | reference normal force f̄ (N) in [0, 50]; None = U(5, 30) per episode |
@@ -284,48 +199,57 @@ class AdmittanceContactEnv(RobotEnv):
     | sensor_rate | None | sample rate (Hz, ≤ 1000, or inf); None = preset's |
     | sensor_cutoff | None | low-pass cut-off (Hz, or inf); None = preset's |
     | sensor_delay | None | transport delay (s); None = preset's |
-    | force_limit | 100.0 | normal force (N) that ends the episode as a failure |
+    | force_limit | 100.0 | contact force (N) that ends the episode as a failure |
     | settle_time | 0.5 | s after the first contact before the force error is scored |
     | force_scale | 10.0 | force reward kernel width (N), in [1e-3, 1e3] |
     | path_scale | 0.01 | path reward kernel width (m), in [1e-6, 10] |
     | path_weight | 0.5 | weight of the path term |
     | action_rate_weight | 0.01 | weight of the action-rate term |
-    | force_limit_penalty | 50.0 | reward lost when the force limit ends the episode (plus the rest of the horizon) |
-    | divergence_penalty | 100.0 | reward lost when the physics diverges (plus the rest of the horizon) |
+    | force_limit_penalty | 50.0 | reward lost when the force limit ends the episode |
+    | divergence_penalty | 100.0 | reward lost when the physics diverges |
+    | charge_unplayed_steps | True | a stopped or diverged episode also loses the worst reward of each unplayed step (see Rewards) |
     | success_threshold | 1.0 | normal-force RMS error (N) below which an episode succeeds |
     | render_mode | None | None, "human" or "rgb_array" |
     | width | 480 | frame width (px) |
     | height | 480 | frame height (px) |
 
     ## Metrics
-    Over the scoring window, from ``settle_time`` after the first contact to the end:
-    ``force_rms_error`` (primary, N; f̄ if the tool never touched), ``contact_loss`` (fraction of
-    the window's steps with f < 0.5 N; 1 if never touched), ``path_error`` (m, RMS of e_t).
-    Over the episode: ``peak_overshoot`` (N, max(f − f̄, 0) after the first contact) and
-    ``max_force`` (N). Success: no divergence, no force-limit stop, ``force_rms_error`` <
+    Over the scoring window, from ``settle_time`` after the first contact to the end of the
+    horizon: ``force_rms_error`` (primary, N; f̄ if the tool never touched), ``contact_loss``
+    (the fraction of the window's *physics steps* in which the tool's normal contact force is
+    below 0.5 N; 1 if never touched), ``path_error`` (m, RMS of e_t). Over the episode:
+    ``peak_overshoot`` (N, max(f − f̄, 0) after the first contact) and ``max_force`` (N, the
+    largest single contact force on the plate at any physics step: what the force limit
+    tests). A stopped episode is scored over the whole horizon, its unplayed steps with f = 0
+    and no contact. Success: no divergence, no force-limit stop, ``force_rms_error`` <
     ``success_threshold`` and ``contact_loss`` < 0.01.
 
     ## Reference controllers
     ``baselines.available("cir_gym/AdmittanceContact-v0")``: impedance, admittance,
-    explicit_force, implicit_force, parallel_force_position (:mod:`baselines.interaction`).
+    explicit_force, implicit_force, parallel_force_position (:mod:`cir_gym.baselines.interaction`).
 
     ## Version History
     - v0: initial version. Changed before the issue closed (no v1): the physics step 1 ms →
       0.25 ms (``timestep``) and a stop's cost includes the rest of the horizon; the shipped
       agents were retrained on this version.
+    - Next version: the force is the tool's contact force (period mean), contact and contact
+      loss the tool's at physics-step resolution, the force limit on any single contact force
+      at physics-step resolution, a stiff end stop under the plate, friction rows with a 100-ms
+      reference time constant (the tip no longer leaves the plate while wiping),
+      ``charge_unplayed_steps`` (on) with the action-rate term in the worst step.
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
         MetricSpec("force_rms_error", "N", "lower", "normal-force RMS error after settling"),
         MetricSpec("peak_overshoot", "N", "lower", "max normal force above f_ref after contact"),
-        MetricSpec("contact_loss", "", "lower", "fraction of scored steps without contact"),
+        MetricSpec("contact_loss", "", "lower", "fraction of scored physics steps without contact"),
         MetricSpec("path_error", "m", "lower", "RMS path error in the surface plane"),
-        MetricSpec("max_force", "N", "lower", "maximum normal force"),
+        MetricSpec("max_force", "N", "lower", "largest single contact force, any physics step"),
     )
     primary_metric: ClassVar[str] = "force_rms_error"
     reward_arguments: ClassVar[frozenset[str]] = frozenset((
         "force_scale", "path_scale", "path_weight", "action_rate_weight",
-        "force_limit_penalty", "divergence_penalty",
+        "force_limit_penalty", "divergence_penalty", "charge_unplayed_steps",
     ))
     leaderboard_variants: ClassVar[dict[str, dict[str, Any]]] = {
         "stiffness 1e3 N/m": {"stiffness": 1.0e3, "force_ref": 20.0},
@@ -362,6 +286,7 @@ class AdmittanceContactEnv(RobotEnv):
         action_rate_weight: float = 0.01,
         force_limit_penalty: float = 50.0,
         divergence_penalty: float = 100.0,
+        charge_unplayed_steps: bool = True,
         success_threshold: float = 1.0,
         render_mode: str | None = None,
         width: int = 480,
@@ -378,9 +303,11 @@ class AdmittanceContactEnv(RobotEnv):
         # + 0.0 turns −0.0 into 0.0 (uniform(−0.0, 0.0) is an error in numpy)
         self.height_error = check_number("height_error", height_error, 0.0, 0.02) + 0.0
         self.tilt_error = check_number("tilt_error", tilt_error, 0.0, 0.2) + 0.0
-        if not isinstance(randomize, (bool, np.bool_)):
-            raise InvalidArgument(f"randomize must be True or False, got {randomize!r}")
+        for name, flag in (("randomize", randomize), ("charge_unplayed_steps", charge_unplayed_steps)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise InvalidArgument(f"{name} must be True or False, got {flag!r}")
         self.randomize = bool(randomize)
+        self.charge_unplayed_steps = bool(charge_unplayed_steps)
         if not isinstance(sensor, str) or sensor not in PRESETS:
             raise InvalidArgument(f"sensor must be one of {sorted(PRESETS)}, got {sensor!r}")
         spec = PRESETS[sensor]
@@ -412,16 +339,13 @@ class AdmittanceContactEnv(RobotEnv):
         self.success_threshold = check_number(
             "success_threshold", success_threshold, 0.0, 100.0, low_open=True
         )
-
         # the solref time constant (2 ms) must stay ≥ 2 physics steps
         self.timestep = check_number("timestep", timestep, 1.0e-4, 1.0e-3)
-        # physics steps per control period, checked as RobotEnv checks them (the model keeps
-        # that many steps of sensor history, so it is built only for a valid control_freq)
         control_freq = check_number(
             "control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / self.timestep
         )
-        history = physics_steps(control_freq, self.timestep)
-        model = build_model(self.stiffness, self.damping, self.timestep, history)
+        physics_steps(control_freq, self.timestep)  # a whole number of steps, else a clear error
+        model = build_model(self.stiffness, self.damping, self.timestep)
         super().__init__(
             model,
             control_freq=control_freq,
@@ -430,11 +354,10 @@ class AdmittanceContactEnv(RobotEnv):
             width=width,
             height=height,
         )
-        # the control period holds self._substeps = frame_skip physics steps: one _simulate
-        # call on the torque interface (the sensors' history holds every step's values), one
-        # call per physics step on the position interface (its motion controller runs at the
-        # physics rate)
-        self._substeps = self.frame_skip
+        # a control period is `substeps` physics steps, simulated one at a time (the motion
+        # controller of the position interface runs at every physics step, and the contact
+        # forces are read at every one): RobotEnv._simulate advances one physics step
+        self.substeps, self.frame_skip = self.frame_skip, 1
         self.robot = Robot(model, JOINTS)  # the simulator's arm
         self.n = self.robot.n
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
@@ -444,22 +367,15 @@ class AdmittanceContactEnv(RobotEnv):
         self._plate_geom = model.geom("surface_geom").id
         self._mount = model.body("surface_mount").id
         self._mount_pos0 = model.body_pos[self._mount].copy()
-        self._mount_quat0 = model.body_quat[self._mount].copy()
         slide = model.joint("surface_slide")
         self._slide_jnt, self._slide_dof = slide.id, int(model.jnt_dofadr[slide.id])
         self._slide_qpos = int(model.jnt_qposadr[slide.id])
-        adr = [int(model.sensor_adr[model.sensor(s).id]) for s in ("ft_force", "ft_torque")]
-        self._sensor_adr = np.r_[adr[0] : adr[0] + 3, adr[1] : adr[1] + 3]
-        self._contact_adr = int(model.sensor_adr[model.sensor("plate_contact").id])
-        # MuJoCo's sensor history of one sensor: [·, newest slot, n times, n × dim values]
-        self._history_adr = [
-            int(model.sensor_historyadr[model.sensor(s).id])
-            for s in ("ft_force", "ft_torque", "plate_contact")
-        ]
-        self._history_index: dict[int, np.ndarray] = {}  # newest ring slot -> value indices
-        # newest ring slot -> (the period's wrenches (n, 6) and contact forces (n, 3) in
-        # MuJoCo's history, oldest first): _read_history's two gathers
-        self._period_index: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        adr = {s: int(model.sensor_adr[model.sensor(s).id]) for s in
+               ("ft_force", "ft_torque", "tool_contact", "peak_contact")}
+        self._wrench_at = np.r_[adr["ft_force"] : adr["ft_force"] + 3,
+                                adr["ft_torque"] : adr["ft_torque"] + 3]
+        self._tool_at = slice(adr["tool_contact"], adr["tool_contact"] + 3)
+        self._peak_at = adr["peak_contact"]  # its first value: the normal force
         try:
             self.sensor = WrenchSensor(self.sensor_spec, model.opt.timestep)
         except InvalidArgument as exc:  # the only physics-dependent limit: the sample rate
@@ -470,60 +386,29 @@ class AdmittanceContactEnv(RobotEnv):
         self.increment_scale = MAX_SPEED * self.dt
         dim = self.n if control == "torque" else 6
         self.action_space = spaces.Box(-1.0, 1.0, (dim,), dtype=np.float32)
-        self._bounds = {
-            "q": (7, 2 * np.pi),
-            "qd": (7, 50.0),
-            "tool_pos": (3, 2.0),
-            "tool_quat": (4, 1.0),
-            "tool_vel": (3, 10.0),
-            "tool_angvel": (3, 50.0),
-            "wrench": (6, 1000.0),
-            "f_ref": (1, 100.0),
-            "tool_pos_ref": (3, 2.0),
-            "tool_vel_ref": (3, 10.0),
-            "setpoint_pos": (3, 2.0),
-            "setpoint_quat": (4, 1.0),
-        }
-        self.observation_space = spaces.Dict(
-            {
-                k: spaces.Box(0.0 if k == "f_ref" else -b, b, (n,), dtype=np.float64)
-                for k, (n, b) in self._bounds.items()
-            }
-        )
-        # _obs fills one array (the keys in the order of _bounds) and clips it once
-        sizes = [n for n, _ in self._bounds.values()]
-        ends = np.cumsum(sizes)
-        self._obs_slices = [slice(int(e - n), int(e)) for n, e in zip(sizes, ends, strict=True)]
-        self._obs_size = int(ends[-1])
-        self._obs_low = np.concatenate([self.observation_space[k].low for k in self._bounds])
-        self._obs_high = np.concatenate([self.observation_space[k].high for k in self._bounds])
-        self._obs_items = tuple(zip(self._bounds, self._obs_slices, strict=True))
-        at = dict(self._obs_items)
-        self._q_at, self._qd_at = index_view(self._qa), index_view(self._da)
-        # the observation's slices that _obs fills (setpoint pose: next to each other, as
-        # the tool's pose is)
-        self._pose_at = slice(at["tool_pos"].start, at["tool_quat"].stop)
-        self._setpoint_at = slice(at["setpoint_pos"].start, at["setpoint_quat"].stop)
-        self._refs_at = slice(at["f_ref"].start, at["tool_vel_ref"].stop)
-        self._vel_buf = np.zeros(6)  # mj_objectVelocity's [ω; v] of the tcp
-        self._period_start = np.zeros(mujoco.mj_stateSize(model, _UNDO_STATE))
-        self._pass_state = np.zeros(mujoco.mj_stateSize(model, _STATE))
+        self.observation_space = spaces.Dict({
+            key: spaces.Box(0.0 if key == "f_ref" else -bound, bound, (size,), dtype=np.float64)
+            for key, (size, bound) in OBSERVATION.items()
+        })
         steps = self.max_steps
+        # the last control period, one entry per physics step
+        self.tool_force_steps = np.zeros(self.substeps)  # tool's normal contact force (N)
+        self.peak_force_steps = np.zeros(self.substeps)  # largest single contact force (N)
+        # per control step of the episode
+        self._force = np.zeros(steps)  # f: the tool's normal force, period mean (N)
+        self._touch = np.zeros(steps)  # fraction of the period's physics steps in contact
+        self._peak = np.zeros(steps)  # largest single contact force in the period (N)
+        self._path = np.zeros(steps)  # tangential path error (m)
         self._pos_ref = np.zeros((steps + 1, 3))
         self._vel_ref = np.zeros((steps + 1, 3))
-        self._ref_rows = np.zeros((steps + 1, 7))  # [f_ref, pos_ref, vel_ref] (reset)
-        self._force = np.zeros(steps)  # true normal force after each step
-        self._path = np.zeros(steps)  # tangential path error (m)
-        self._touch = np.zeros(steps, dtype=bool)  # tool-plate contact during the period
         self._k = 0
+        self._ended = True  # no episode yet: step() needs reset()
         self._first_contact: int | None = None
         self._stopped_at: int | None = None
         self._a_prev = np.zeros(dim)
         self._f_ref = 0.0
         self._normal = SURFACE_NORMAL.copy()
-        self._surface = {}
-        self._episode_stiffness = self.stiffness
-        self._episode_damping = self.damping
+        self._surface: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ episode set-up
     def _draw_surface(self) -> dict[str, Any]:
@@ -532,30 +417,26 @@ class AdmittanceContactEnv(RobotEnv):
             lo, hi = RANDOM_RANGES["stiffness"]
             k = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
             c = float(rng.uniform(*RANDOM_RANGES["damping"]))
-            bias = np.concatenate(
-                (
-                    rng.uniform(*RANDOM_RANGES["sensor_bias_force"], 3),
-                    rng.uniform(*RANDOM_RANGES["sensor_bias_torque"], 3),
-                )
-            )
+            bias = np.concatenate((
+                rng.uniform(*RANDOM_RANGES["sensor_bias_force"], 3),
+                rng.uniform(*RANDOM_RANGES["sensor_bias_torque"], 3),
+            ))
         else:
             k, c, bias = self.stiffness, self.damping, np.array(self.sensor_spec.bias)
         dh = float(rng.uniform(-self.height_error, self.height_error))
         tilt = float(rng.uniform(-self.tilt_error, self.tilt_error))
         phi = float(rng.uniform(0.0, 2 * np.pi))
-        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         f_ref = float(rng.uniform(*FORCE_REF_RANGE)) if self.force_ref is None else self.force_ref
         psi = float(rng.uniform(0.0, 2 * np.pi))
-        direction = np.array([np.cos(psi), np.sin(psi), 0.0])
         return {
             "stiffness": k,
             "damping": c,
             "sensor_bias": bias,
             "height_error": dh,
             "tilt": tilt,
-            "tilt_axis": axis,
+            "tilt_axis": np.array([np.cos(phi), np.sin(phi), 0.0]),
             "force_ref": f_ref,
-            "wipe_direction": direction,
+            "wipe_direction": np.array([np.cos(psi), np.sin(psi), 0.0]),
         }
 
     def _apply_surface(self, s: dict[str, Any]) -> None:
@@ -571,9 +452,9 @@ class AdmittanceContactEnv(RobotEnv):
         self._normal = R.reshape(3, 3) @ SURFACE_NORMAL
 
     def _make_reference(self, s: dict[str, Any]) -> None:
+        """Descend from the start to the nominal surface point in 1 s (quintic), then wipe."""
         t = np.arange(self.max_steps + 1) * self.dt
         start = SURFACE_POINT + APPROACH_HEIGHT * SURFACE_NORMAL
-        # descend to the nominal surface over the first second (quintic), then wipe
         tau = np.clip(t / 1.0, 0.0, 1.0)
         blend = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
         dblend = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) * (t <= 1.0)
@@ -593,11 +474,6 @@ class AdmittanceContactEnv(RobotEnv):
         self._apply_surface(s)
         self._make_reference(s)
         self._f_ref = s["force_ref"]
-        # _obs's f_ref, tool_pos_ref, tool_vel_ref (neighbours) of every step, one row each
-        refs = self._ref_rows = np.empty((len(self._pos_ref), 7))
-        refs[:, 0] = self._f_ref
-        refs[:, 1:4] = self._pos_ref
-        refs[:, 4:7] = self._vel_ref
         qpos = self.model.qpos0.copy()
         qpos[self._qa] = START_Q
         self._reset_physics(qpos, np.zeros(self.model.nv))
@@ -605,73 +481,86 @@ class AdmittanceContactEnv(RobotEnv):
             self.interface.reset(START_Q)
         # the arm was held at rest: the sensor starts in steady state at the tool's weight
         R = self.data.site_xmat[self._ft_site].reshape(3, 3)
-        rest = tool_gravity_wrench(TOOL_MASS, TOOL_COM, R)
-        self.sensor.reset(self.np_random, rest, s["sensor_bias"])
+        self.sensor.reset(self.np_random, tool_gravity_wrench(TOOL_MASS, TOOL_COM, R),
+                          s["sensor_bias"])
         self._k = 0
+        self._ended = False
         self._first_contact = None
         self._stopped_at = None
         self._a_prev[:] = 0.0
-        info = {
-            "surface": {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in s.items()}
-        }
+        info = {"surface": {k: (v.copy() if isinstance(v, np.ndarray) else v)
+                            for k, v in s.items()}}
         return self._obs(), info
 
+    def _advance(self, a: np.ndarray) -> bool:
+        """One control period, one physics step at a time; return True if the physics diverged.
+
+        The torque interface holds τ = a ⊙ τ_max; the position interface's motion controller
+        computes τ at every physics step (clipped to τ_max). After each step the wrist's true
+        wrench goes to the sensor model, and the tool's normal contact force and the largest
+        single contact force on the plate go to ``tool_force_steps``/``peak_force_steps``
+        (0 for the steps a divergence leaves unplayed)."""
+        d, n = self.data, self.substeps
+        self.tool_force_steps[:] = 0.0
+        self.peak_force_steps[:] = 0.0
+        tau = a * self.torque_limit if self.interface is None else None
+        for i in range(n):
+            if self.interface is not None:
+                tau = self.interface.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / n)
+                tau = np.clip(tau, -self.torque_limit, self.torque_limit)
+            if self._simulate(tau):
+                return True
+            values = d.sensordata
+            self.sensor.advance(values[self._wrench_at])
+            # the sensor reads the plate's force on the tip: n̂ · it is the tool's push
+            self.tool_force_steps[i] = self._normal @ values[self._tool_at]
+            self.peak_force_steps[i] = values[self._peak_at]
+        return False
+
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        if self._k >= self.max_steps:
-            raise RuntimeError("step() called after the episode ended; call reset()")
-        a = self._check_action_peak(action)[0]
-        if self.interface is None:  # one call: the torque is held over the period
-            diverged = self._simulate(a * self.torque_limit)
-            contact = 0.0 if diverged else self._read_history()
-        else:
+        if self._ended:
+            raise RuntimeError(
+                "step() called before reset() or after the episode ended; call reset()"
+            )
+        a = self._check_action(action)[0]
+        if self.interface is not None:
             self.interface.command(a * self.increment_scale, self.dt)
-            diverged, contact = self._motion_period()
-        # fresh poses and velocities for the observation (the stages of mj_forward it needs:
-        # contacts and constraint forces stay those of the period's last physics step)
+        diverged = self._advance(a)
+        # poses and velocities of the state reached, for the observation and the path error
         m, d = self.model, self.data
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_camlight(m, d)
         mujoco.mj_comVel(m, d)
         k = self._k
-        self._k = k1 = k + 1
-        touching = contact / self._substeps > CONTACT_THRESHOLD
-        # normal_force() and _path_error_vector() on the views _simulate refreshed, in Python
-        # floats (the same IEEE operations as numpy's scalars)
-        _, qpos, qvel = self._views
-        stiffness, damping = self._spring_views
-        dof = self._slide_dof
-        x = -qpos.item(self._slide_qpos)  # compression (m)
-        force = stiffness.item(self._slide_jnt) * x - damping.item(dof) * qvel.item(dof)
-        self._force[k] = force
-        e = self._pos_ref[min(k1, self.max_steps)] - self._tcp_views[0]
-        # e_t = e − (e·n̂) n̂ with n̂ = SURFACE_NORMAL = e_z: e·n̂ is e_z (the other products
-        # are zeros), so e_t = (e_x, e_y, ±0) and ‖e_t‖² the same dot of (e_x, e_y, 0)
-        e[2] = 0.0
-        path_sq = float(e.dot(e))
-        self._path[k] = math.sqrt(path_sq)  # = np.linalg.norm(e_t)
-        self._touch[k] = touching
-        if self._first_contact is None and touching:
+        self._k = k + 1
+        force = float(np.mean(self.tool_force_steps))
+        touch = float(np.mean(self.tool_force_steps > CONTACT_THRESHOLD))
+        peak = float(np.max(self.peak_force_steps))
+        load = self.normal_force()
+        e_t = self._path_error_vector()
+        self._force[k], self._touch[k], self._peak[k] = force, touch, peak
+        self._path[k] = float(np.linalg.norm(e_t))
+        if self._first_contact is None and touch > 0.0:
             self._first_contact = k
-        over = bool(not diverged and force > self.force_limit)
+        over = not diverged and max(peak, load) > self.force_limit
 
         err = force - self._f_ref
         s = self.force_scale
         r_force = -(1.0 - 0.5 * (math.exp(-((err / s) ** 2)) + math.exp(-((5 * err / s) ** 2))))
-        r_path = -self.path_weight * (1.0 - math.exp(-path_sq / self.path_scale**2))
-        da = a - self._a_prev
-        r_rate = -self.action_rate_weight * float(da.dot(da)) / a.size
-        # a stop also costs the rest of the horizon at the worst per-step reward (as the metrics
-        # score it): ending the episode early never pays
-        rest = (self.max_steps - self._k) * (1.0 + self.path_weight)
-        r_limit = -(self.force_limit_penalty + rest) if over else 0.0
-        r_div = -(self.divergence_penalty + rest) if diverged else 0.0
+        r_path = -self.path_weight * (1.0 - math.exp(-float(e_t @ e_t) / self.path_scale**2))
+        r_rate = -self.action_rate_weight * float(np.sum((a - self._a_prev) ** 2)) / a.size
         self._a_prev[:] = a
+        unplayed = (self.max_steps - self._k) * self.worst_step_reward()
+        charge = unplayed if self.charge_unplayed_steps else 0.0
+        r_limit = -(self.force_limit_penalty + charge) if over else 0.0
+        r_div = -(self.divergence_penalty + charge) if diverged else 0.0
         reward = r_force + r_path + r_rate + r_limit + r_div
         terminated = diverged or over
+        truncated = self._k >= self.max_steps and not terminated
         if terminated:
             self._stopped_at = self._k
-        truncated = self._k >= self.max_steps and not terminated
+        self._ended = terminated or truncated
         info: dict[str, Any] = {
             "reward_force": r_force,
             "reward_path": r_path,
@@ -679,13 +568,16 @@ class AdmittanceContactEnv(RobotEnv):
             "reward_force_limit": r_limit,
             "reward_diverged": r_div,
             "contact_force": force,
-            "in_contact": touching,
+            "in_contact": touch == 1.0,
+            "contact_steps": touch,
+            "peak_contact_force": peak,
+            "plate_load": load,
             "force_error": err,
             "path_error": self._path[k],
             "force_limit_exceeded": over,
             "diverged": diverged,
         }
-        if terminated or truncated:
+        if self._ended:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
             info["is_success"] = bool(
@@ -695,171 +587,16 @@ class AdmittanceContactEnv(RobotEnv):
             )
         return self._obs(), reward, terminated, truncated, info
 
-    def sensor_history(self, which: int) -> np.ndarray:
-        """The last control period's values of sensor ``which`` (0 ``ft_force``, 1 ``ft_torque``,
-        2 ``plate_contact``), one row per physics step, oldest first: (substeps, 3)."""
-        return self._history()[which]
-
-    def _history(self) -> np.ndarray:
-        """(3, substeps, 3): the three sensors' last control period, oldest step first."""
-        hist = self.data.history
-        # every sensor records every physics step, so their ring buffers turn together
-        newest = int(hist[self._history_adr[0] + 1])
-        index = self._history_index.get(newest)
-        if index is None:
-            n = self._substeps
-            order = (np.arange(1, n + 1) + newest) % n  # ring slots, oldest first
-            index = np.array(
-                [h + 2 + n + 3 * order[:, None] + np.arange(3) for h in self._history_adr]
-            )
-            self._history_index[newest] = index
-        return hist[index]
-
-    def _read_history(self) -> float:
-        """Feed the period's wrenches to the sensor model (oldest first) from MuJoCo's sensor
-        history; return Σ over the period's physics steps of the tool-plate normal force (N).
-
-        Two gathers from ``d.history`` with indices built once per ring position: the
-        wrenches (n, 6) as :meth:`_history`'s force and torque rows side by side, and the
-        contact forces (n, 3), the very array :meth:`_history` gives for sensor 2."""
-        hist = self._hist
-        newest = int(hist.item(self._history_adr[0] + 1))
-        index = self._period_index.get(newest)
-        if index is None:
-            rows = self._history_index.get(newest)
-            if rows is None:
-                self._history()  # builds self._history_index[newest]
-                rows = self._history_index[newest]
-            index = (np.concatenate((rows[0], rows[1]), axis=1), rows[2].copy())
-            self._period_index[newest] = index
-        self.sensor.advance_many(hist[index[0]].tolist())
-        # the sensor's net force is the one the plate exerts (−surface_force): n̂ · it = the
-        # push along the inward normal
-        return float(self._normal.dot(_SUM(hist[index[1]], 0)))  # = .sum(axis=0)
-
-    def _refresh_views(self, d: mujoco.MjData) -> None:
-        """RobotEnv's views, and those of ``d`` that step and _obs read: the sensor history,
-        the tcp's position and rotation rows, the slide joint's position and velocity."""
-        super()._refresh_views(d)
-        self._hist = d.history
-        self._tcp_views = (d.site_xpos[self._site], d.site_xmat[self._site])
-        m = self.model
-        self._spring_views = (m.jnt_stiffness, m.dof_damping)
-        self._warn_all = (d.warning.number, d.warning.lastinfo)  # _motion_period's undo
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = super().__getstate__()
-        for name in (
-            "_hist",
-            "_tcp_views",
-            "_spring_views",
-            "_warn_all",
-        ):  # rebuilt on the new MjData
-            state.pop(name, None)
-        return state
-
-    def _motion_period(self) -> tuple[bool, float]:
-        """The position interface: the motion controller's torque recomputed at every physics
-        step; return (diverged, Σ of the tool-plate normal force).
-
-        A fast pass as PegInHole's (``_advance``): _simulate's speed test per physics step,
-        its warning and finite-q tests at the end, its saved state set only on success; on
-        any failure the period is undone (MuJoCo's integration state, sensor history and whole
-        warning state, every counter and last info) and run again through _simulate
-        (:meth:`_motion_period_simulate`). MuJoCo logs a warning's text when its counter leaves
-        0, so a warning met in the undone pass is logged again by the rerun (a repeated line
-        in MuJoCo's log, not in any value)."""
-        m, d = self.model, self.data
-        if self._warn_data is not d:
-            self._refresh_views(d)
-        if not _UNSTABLE_CONTIGUOUS:
-            return self._motion_period_simulate()
-        n = self._substeps
-        _, qpos, qvel = self._views
-        warn = self._warn_view
-        sd = d.sensordata
-        f0, t0, c0 = self._sensor_adr[0], self._sensor_adr[3], self._contact_adr
-        both = t0 == f0 + 3  # force and torque side by side: one slice
-        torque, limit = self.interface.torque, self.torque_limit
-        q_at, qd_at, normal = self._q_at, self._qd_at, self._normal
-        step, get_state = mujoco.mj_step, mujoco.mj_getState
-        start, saved, last = self._period_start, self._pass_state, n - 1
-        get_state(m, d, start, _UNDO_STATE)
-        before = warn.tobytes()
-        # MuJoCo's whole warning state, to undo (a pass may also count e.g. CONTACTFULL)
-        number, lastinfo = self._warn_all
-        warnings_before = (number.tobytes(), lastinfo.tobytes())
-        if not last:
-            get_state(m, d, saved, _STATE)
-        rows: list[list[float]] = []
-        contact, ok = 0.0, True
-        d_ctrl = self._views[0]
-        for i in range(n):
-            tau = torque(qpos[q_at], qvel[qd_at], (i + 1) / n)
-            d_ctrl[:] = CLIP(tau, -limit, limit)
-            if i == last and i:
-                get_state(m, d, saved, _STATE)
-            step(m, d)
-            if not qvel.dot(qvel) <= _MAX_SPEED_SQ:
-                ok = False
-                break
-            if both:
-                rows.append(sd[f0 : f0 + 6].tolist())
-            else:
-                rows.append(sd[f0 : f0 + 3].tolist() + sd[t0 : t0 + 3].tolist())
-            contact += float(normal @ sd[c0 : c0 + 3])
-        if ok and warn.tobytes() == before and _isfinite(qpos.dot(qpos)):
-            if _isfinite(saved.dot(saved)):  # _simulate's last save (an overflow skips it)
-                self._safe_state, self._pass_state = saved, self._safe_state
-            self.sensor.advance_many(rows)
-            return False, contact
-        mujoco.mj_setState(m, d, start, _UNDO_STATE)
-        number[:] = np.frombuffer(warnings_before[0], dtype=number.dtype)
-        lastinfo[:] = np.frombuffer(warnings_before[1], dtype=lastinfo.dtype)
-        return self._motion_period_simulate()
-
-    def _motion_period_simulate(self) -> tuple[bool, float]:
-        """:meth:`_motion_period` through _simulate, one physics step per call.
-
-        The period's true wrenches are fed to the sensor model in one call after the loop
-        (nothing in the loop reads the sensor or draws from its generator: the same rows in
-        the same order, the same noise stream); the joint state goes to the motion controller
-        as views of MuJoCo's arrays (read before the step)."""
-        d, n = self.data, self._substeps
-        _, qpos, qvel = self._data_views()
-        sd = d.sensordata
-        f0, t0, c0 = self._sensor_adr[0], self._sensor_adr[3], self._contact_adr
-        both = t0 == f0 + 3  # force and torque side by side: one slice
-        torque, limit = self.interface.torque, self.torque_limit
-        q_at, qd_at, normal = self._q_at, self._qd_at, self._normal
-        rows: list[list[float]] = []
-        contact = 0.0
-        skip, self.frame_skip = self.frame_skip, 1
-        try:
-            for i in range(n):
-                tau = torque(qpos[q_at], qvel[qd_at], (i + 1) / n)
-                if self._simulate(CLIP(tau, -limit, limit)):
-                    return True, contact
-                if both:
-                    rows.append(sd[f0 : f0 + 6].tolist())
-                else:
-                    rows.append(sd[f0 : f0 + 3].tolist() + sd[t0 : t0 + 3].tolist())
-                contact += float(normal @ sd[c0 : c0 + 3])
-        finally:
-            self.frame_skip = skip
-            self.sensor.advance_many(rows)
-        return False, contact
+    def worst_step_reward(self) -> float:
+        """The magnitude of the worst reward of one step (r_force = −1, e_t large, ‖Δa‖² =
+        4 dim(a)): what ``charge_unplayed_steps`` charges per unplayed step."""
+        return 1.0 + self.path_weight + 4.0 * self.action_rate_weight
 
     # ------------------------------------------------------------------ measurements
     def normal_force(self) -> float:
-        """True normal force (N): the load in the surface's spring and damper, k x + c ẋ.
-
-        What a load cell under the plate reads; it equals the tool's contact force at rest and
-        differs from it by the plate's inertial force (0.2 kg). MuJoCo's per-step contact force
-        itself is not smooth: with a contact as stiff as this one the tip and the light plate
-        exchange the load in bounces of one physics step (worst at a 1-ms step, see
-        :data:`TIMESTEP`).
-        """
+        """The load in the plate's spring and damper, k x + c ẋ (N): what a load cell under the
+        plate reads. It equals the tool's contact force at rest when only the tool touches,
+        and differs from it by the plate's inertial force (0.2 kg)."""
         m, d = self.model, self.data
         x = -d.qpos[self._slide_qpos]  # compression (m)
         return float(
@@ -868,7 +605,8 @@ class AdmittanceContactEnv(RobotEnv):
         )
 
     def contact_normal_force(self) -> float:
-        """The tool-plate contact force along the true inward normal (N), this physics step."""
+        """The net contact force on the plate (the tool's and any link's) along the true inward
+        normal (N), this physics step."""
         return float(-self._normal @ surface_force(self.model, self.data, self._plate_geom))
 
     def plate_deflection(self) -> float:
@@ -876,72 +614,66 @@ class AdmittanceContactEnv(RobotEnv):
         return float(-self.data.qpos[self._slide_qpos])
 
     def _path_error_vector(self) -> np.ndarray:
-        k = min(self._k, self.max_steps)
-        e = self._pos_ref[k] - self.data.site_xpos[self._site]
+        e = self._pos_ref[min(self._k, self.max_steps)] - self.data.site_xpos[self._site]
         return e - (e @ SURFACE_NORMAL) * SURFACE_NORMAL
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs`` and the Metrics section)."""
-        k = max(self._k, 1)
-        end = self.max_steps if self._stopped_at is not None else k
-        force = np.zeros(end)
-        force[: self._k] = self._force[: self._k]  # steps not played: no contact (f = 0)
-        touch = np.zeros(end, dtype=bool)
-        touch[: self._k] = self._touch[: self._k]
-        path = np.zeros(end)
-        path[: self._k] = self._path[: self._k]
-        if self._k < end:
-            path[self._k :] = path[self._k - 1] if self._k else 0.0
+        played = self._k
+        end = self.max_steps if self._stopped_at is not None else max(played, 1)
+        force = np.zeros(end)  # steps not played: no contact (f = 0)
+        touch = np.zeros(end)
+        force[:played] = self._force[:played]
+        touch[:played] = self._touch[:played]
+        path = np.full(end, self._path[played - 1] if played else 0.0)
+        path[:played] = self._path[:played]
         f_ref = self._f_ref
-        played = self._force[: self._k]
         if self._first_contact is None:
-            rms, loss, path_rms, overshoot = f_ref, 1.0, rms_of(path), 0.0
+            rms, loss, path_rms, overshoot = f_ref, 1.0, math.sqrt(np.mean(path**2)), 0.0
         else:
             start = min(self._first_contact + round(self.settle_time / self.dt), end - 1)
-            window = force[start:end]
-            rms = rms_of(window - f_ref)
-            loss = 1.0 - mean_of(touch[start:end])
-            path_rms = rms_of(path[start:end])
-            overshoot = max(max_of(played[self._first_contact :]) - f_ref, 0.0)
+            rms = math.sqrt(np.mean((force[start:] - f_ref) ** 2))
+            loss = 1.0 - float(np.mean(touch[start:]))
+            path_rms = math.sqrt(np.mean(path[start:] ** 2))
+            overshoot = max(float(np.max(self._force[self._first_contact : played])) - f_ref, 0.0)
         return {
-            "force_rms_error": rms,
+            "force_rms_error": float(rms),
             "peak_overshoot": overshoot,
             "contact_loss": loss,
-            "path_error": path_rms,
-            "max_force": max_of(played) if played.size else 0.0,
+            "path_error": float(path_rms),
+            "max_force": float(np.max(self._peak[:played])) if played else 0.0,
         }
 
     def _obs(self) -> dict[str, np.ndarray]:
-        """One new flat buffer in the layout of ``_bounds``, filled, clipped once, handed out
-        as views (each step's arrays are new; nothing is shared with the env's state)."""
         m, d = self.model, self.data
-        _, qpos, qvel = self._data_views()
-        pos, xmat = self._tcp_views
         k = min(self._k, self.max_steps)
-        vel = self._vel_buf
-        mujoco.mj_objectVelocity(m, d, _SITE_OBJ, self._site, vel, 0)
-        buf = np.empty(self._obs_size)
-        sl = self._obs_slices  # q, qd, tool_pos, tool_quat, tool_vel, tool_angvel, wrench,
-        # f_ref, tool_pos_ref, tool_vel_ref, setpoint_pos, setpoint_quat
-        buf[sl[0]] = qpos[self._q_at]
-        buf[sl[1]] = qvel[self._qd_at]
-        buf[sl[2]] = pos
-        quat = buf[sl[3]]
-        mujoco.mju_mat2Quat(quat, xmat)
-        if not quat[0] >= 0:  # _quat: w ≥ 0
-            np.negative(quat, out=quat)
-        buf[sl[4]] = vel[3:]
-        buf[sl[5]] = vel[:3]
-        buf[sl[6]] = self.sensor.reading
-        buf[self._refs_at] = self._ref_rows[k]  # f_ref, tool_pos_ref, tool_vel_ref
+        vel = np.zeros(6)  # [ω; v] of the tcp, world frame
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
+        tool_pos = d.site_xpos[self._site].copy()
+        tool_quat = scene.quat_of(d.site_xmat[self._site].reshape(3, 3))
         if self.interface is not None:
-            sp, sR = self.interface.setpoint_pose()
-            buf[sl[10]] = sp
-            buf[sl[11]] = _quat(sR)
+            setpoint_pos, setpoint_R = self.interface.setpoint_pose()
+            setpoint_quat = scene.quat_of(setpoint_R)
         else:
-            buf[self._setpoint_at] = buf[self._pose_at]
-        CLIP(buf, self._obs_low, self._obs_high, out=buf)
-        return {key: buf[s] for key, s in self._obs_items}
+            setpoint_pos, setpoint_quat = tool_pos, tool_quat
+        obs = {
+            "q": d.qpos[self._qa],
+            "qd": d.qvel[self._da],
+            "tool_pos": tool_pos,
+            "tool_quat": tool_quat,
+            "tool_vel": vel[3:],
+            "tool_angvel": vel[:3],
+            "wrench": self.sensor.reading,
+            "f_ref": np.array([self._f_ref]),
+            "tool_pos_ref": self._pos_ref[k],
+            "tool_vel_ref": self._vel_ref[k],
+            "setpoint_pos": setpoint_pos,
+            "setpoint_quat": setpoint_quat,
+        }
+        return {
+            key: np.clip(value, self.observation_space[key].low, self.observation_space[key].high)
+            for key, value in obs.items()
+        }
 
     def measured_contact_wrench(self) -> np.ndarray:
         """The sensor's reading compensated with the true bias and tool weight (world, (6,))."""
@@ -953,15 +685,12 @@ class AdmittanceContactEnv(RobotEnv):
     # ------------------------------------------------------------------ controllers
     def controller_context(self) -> TaskContext:
         spec = self.sensor_spec
+        torque = self.control == "torque"
         return TaskContext(
             robot=self.robot_name,
             dt=self.dt,
-            action_kind="joint_torque" if self.control == "torque" else "cartesian_increment",
-            action_scale=(
-                self.torque_limit.copy()
-                if self.control == "torque"
-                else self.increment_scale.copy()
-            ),
+            action_kind="joint_torque" if torque else "cartesian_increment",
+            action_scale=self.torque_limit.copy() if torque else self.increment_scale.copy(),
             site=SITE,
             extras={
                 "tool_mass": TOOL_MASS,
@@ -981,22 +710,17 @@ class AdmittanceContactEnv(RobotEnv):
         )
 
     # ------------------------------------------------------------------ pictures
-    def draw_task(self, scene: mujoco.MjvScene) -> None:
+    def draw_task(self, mjv_scene: mujoco.MjvScene) -> None:
         """The wiping path, the reference force (blue) and the measured force (red) at the tip."""
         k = min(self._k, self.max_steps)
-        rendering.add_polyline(
-            scene, self._pos_ref[:: max(1, len(self._pos_ref) // 120)], 0.003, rendering.REFERENCE
+        scene.draw(
+            mjv_scene,
+            self._pos_ref,
+            self._pos_ref[k],
+            self.data.site_xpos[self._site],
+            self._f_ref,
+            self.measured_contact_wrench()[:3],
         )
-        tip = self.data.site_xpos[self._site]
-        scale = 0.005  # m per N; arrows end at the tip, pushing on the surface
-        rendering.add_sphere(scene, self._pos_ref[k], 0.008, rendering.TARGET)
-        side = np.array([0.0, 0.05, 0.0])
-        if self._f_ref > 0:  # reference force (blue), beside the measured one
-            f_ref = -self._f_ref * scale * SURFACE_NORMAL
-            rendering.add_arrow(scene, tip - f_ref + side[[1, 0, 2]], f_ref, 0.006, rendering.BLUE)
-        f = self.measured_contact_wrench()[:3] * scale  # measured (red): the sensor, compensated
-        if np.linalg.norm(f) > 0.2 * scale:
-            rendering.add_arrow(scene, tip - f - side, f, 0.006, rendering.RED)
 
     def caption(self) -> str:
         k = min(self._k, self.max_steps)

@@ -1,0 +1,201 @@
+"""AdmittanceContact's scene: the iiwa 14 with its tool over a sprung plate, and its drawing.
+
+:func:`build_model` completes ``assets/scenes/admittance_contact.xml`` with MjSpec: the tool,
+the tool-plate contact pair, the plate's spring and damper, and the sensors the env reads at
+every physics step.
+
+The tool-plate contact (an explicit contact pair, elliptic friction cone):
+
+* stiff along the normal (``solref`` 2 ms, ``solimp`` 0.99): < 10 µm of penetration at 20 N,
+  so the plate's spring, not the contact, is the surface's compliance;
+* Coulomb friction μ = :data:`FRICTION` with its own reference time constant
+  :data:`FRICTION_TIMECONST` (``solreffriction``). With the normal's 2 ms on the friction rows
+  too (MuJoCo's default), the friction rows' reference acceleration −b v_t (b = 2/(d · 2 ms) ≈
+  1000 s⁻¹) enters the cone's normal dynamics while the tool slides: at the wiping speed it is
+  larger than the static term that keeps the tip pressed ((1 − d)/d · f / m ≈ 1 m/s² at
+  20 N on the 0.2-kg plate), the contact separated for one physics step in ~13 and came back
+  at 25 N (a 0 → 25 N sawtooth every ~3 ms: the tip left the plate on 5.8 % of the physics
+  steps at 1e4 N/m, in 47 % of the 2-ms control periods; frictionless, never). The friction
+  rows' 100-ms time constant makes that term 50 × smaller (b ≈ 20 s⁻¹): no physics step
+  without contact while wiping (0.079 m/s) nor while sliding at the position interface's
+  0.25 m/s on a flat plate (20-ms: 3.8 % of the steps there; 50-ms: 2 % at 1e5 N/m), and
+  sliding friction is still Coulomb's (|f_t| / f_n = μ while the tool slides; tests).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from cir_gym import rendering
+from cir_gym.robot import (
+    ASSETS,
+    PAYLOAD_OFFSET,
+    PAYLOAD_RADIUS,
+    ModelError,
+    Robot,
+    apply_model_error,
+)
+
+__all__ = [
+    "FRICTION",
+    "FRICTION_TIMECONST",
+    "JOINTS",
+    "PLATE_TRAVEL",
+    "SCENE",
+    "SITE",
+    "START_Q",
+    "SURFACE_NORMAL",
+    "SURFACE_POINT",
+    "TIMESTEP",
+    "TOOL_COM",
+    "TOOL_LENGTH",
+    "TOOL_MASS",
+    "TOOL_QUAT",
+    "TOOL_RADIUS",
+    "build_model",
+    "draw",
+    "quat_of",
+    "surface_force",
+    "tool_robot",
+]
+
+SCENE = ASSETS / "scenes" / "admittance_contact.xml"
+JOINTS = [f"joint{i}" for i in range(1, 8)]
+SITE = "tcp"  # the tool tip: the lowest point of the hemisphere when the tool points down
+TOOL_MASS = 0.3  # kg, centre of mass PAYLOAD_OFFSET beyond the flange (the payload model)
+TOOL_COM = np.array([0.0, 0.0, PAYLOAD_OFFSET])  # m, in the sensor (flange) frame
+TOOL_RADIUS = 0.012  # m, hemispherical tip
+TOOL_LENGTH = 0.1  # m, flange to tip (the tcp site)
+#: nominal surface: a point of its top face and its outward normal (world frame)
+SURFACE_POINT = np.array([0.6, 0.0, 0.20])
+SURFACE_NORMAL = np.array([0.0, 0.0, 1.0])
+#: tool orientation of the task (tool axis along −z): rotation π about y, quaternion (w, x, y, z)
+TOOL_QUAT = np.array([0.0, 0.0, 1.0, 0.0])
+#: start: the tip 3 cm above the nominal surface point, tool pointing down (IK with posture
+#: regularisation towards the iiwa's home; smallest singular value of J there 0.214)
+START_Q = np.array([0.0, 0.69776, 0.0, -1.47298, 0.0, 0.97085, 0.0])
+#: physics step (s). 0.25 ms, not the robot file's 1 ms: the tool-plate contact is stiff (solref
+#: time constant 2 ms = 8 steps); at 1 ms (2 steps, MuJoCo's limit) the sliding contact
+#: chattered in 1-ms bounces that rang the plate (scripts/research/eval_contact.py).
+TIMESTEP = 0.00025
+FRICTION = 0.1  # Coulomb friction coefficient of the tool-plate contact
+FRICTION_TIMECONST = 0.1  # s, the friction rows' reference time constant (module docstring)
+#: the plate's travel below its rest position (m): a stiff end stop (the slide joint's range)
+PLATE_TRAVEL = 0.12
+#: the tool-plate contact's normal parameters (the plate's class in the scene file)
+_SOLREF = (0.002, 1.0)
+_SOLIMP = (0.99, 0.99, 0.001, 0.5, 2.0)
+
+
+def build_model(stiffness: float, damping: float, timestep: float = TIMESTEP) -> mujoco.MjModel:
+    """The scene with the plate's spring (N/m) and damper (N s/m), physics step ``timestep`` (s).
+
+    The tool is added to the robot's ``payload`` body (beyond ``ft_site``): the payload's
+    inertial is the tool's (:data:`TOOL_MASS`, the centre of mass and inertia of
+    :func:`cir_gym.robot.apply_model_error`'s payload model), so :func:`tool_robot` is an exact
+    nominal model. Only the tip collides with the plate through the explicit pair (module
+    docstring); the arm's links collide with the plate through the default contact rules.
+
+    Sensors, after the wrist's ``ft_force`` and ``ft_torque`` (sensordata[:6]):
+
+    * ``tool_contact`` (3,): the net force of the tool-plate contact, world frame (N), the
+      force the plate exerts on the tip: n̂ · it is the tool's push along the inward normal;
+    * ``peak_contact`` (3,): the contact on the plate (the tool or any link) with the largest
+      force, in its contact frame: [0] is its normal force (N).
+    """
+    spec = mujoco.MjSpec.from_file(str(SCENE))
+    spec.option.timestep = timestep
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    payload = spec.body("payload")
+    payload.mass = TOOL_MASS
+    payload.ipos = TOOL_COM
+    payload.inertia = [0.4 * TOOL_MASS * PAYLOAD_RADIUS**2] * 3
+    shaft = payload.add_geom()
+    shaft.name = "tool_shaft"
+    shaft.type = mujoco.mjtGeom.mjGEOM_CYLINDER
+    shaft.fromto = [0.0, 0.0, 0.0, 0.0, 0.0, TOOL_LENGTH - TOOL_RADIUS]
+    shaft.size = [0.8 * TOOL_RADIUS, 0.0, 0.0]
+    shaft.contype = shaft.conaffinity = 0
+    shaft.rgba = [0.3, 0.3, 0.35, 1.0]
+    tip = payload.add_geom()
+    tip.name = "tool_tip"
+    tip.type = mujoco.mjtGeom.mjGEOM_SPHERE
+    tip.pos = [0.0, 0.0, TOOL_LENGTH - TOOL_RADIUS]
+    tip.size = [TOOL_RADIUS, 0.0, 0.0]
+    tip.contype = tip.conaffinity = 0  # the pair below is its only contact
+    tip.rgba = [0.9, 0.5, 0.1, 1.0]
+    pair = spec.add_pair()
+    pair.name = "tool_plate"
+    pair.geomname1, pair.geomname2 = "surface_geom", "tool_tip"
+    pair.condim = 3
+    pair.friction = [FRICTION, FRICTION, 0.005, 0.0001, 0.0001]
+    pair.solref = list(_SOLREF)
+    pair.solreffriction = [FRICTION_TIMECONST, 1.0]
+    pair.solimp = list(_SOLIMP)
+    for name, reduce, ref in (("tool_contact", 3, "tool_tip"), ("peak_contact", 2, None)):
+        sensor = spec.add_sensor(
+            name=name,
+            type=mujoco.mjtSensor.mjSENS_CONTACT,
+            objtype=mujoco.mjtObj.mjOBJ_GEOM,
+            objname="surface_geom",
+            intprm=[2, reduce, 1],  # data: force; reduce: 3 netforce, 2 maxforce; one contact
+        )
+        if ref is not None:
+            sensor.reftype, sensor.refname = mujoco.mjtObj.mjOBJ_GEOM, ref
+    joint = spec.joint("surface_slide")
+    joint.stiffness = [stiffness, 0.0, 0.0]
+    joint.damping = [damping, 0.0, 0.0]
+    joint.range = [-PLATE_TRAVEL, 0.05]
+    return spec.compile()
+
+
+def tool_robot() -> Robot:
+    """The nominal iiwa14 with the tool (a controller's model: the robot file plus the tool)."""
+    robot = Robot.from_name("iiwa14")
+    apply_model_error(robot.model, ModelError(payload_mass=TOOL_MASS))
+    robot.invalidate()
+    return robot
+
+
+def surface_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.ndarray:
+    """Total contact force (3,) on geom ``geom`` from every contact, world frame (N)."""
+    total = np.zeros(3)
+    f = np.zeros(6)
+    for i in range(data.ncon):
+        c = data.contact[i]
+        if geom not in (c.geom1, c.geom2):
+            continue
+        mujoco.mj_contactForce(model, data, i, f)
+        world = c.frame.reshape(3, 3).T @ f[:3]  # on geom2, pushing it along the normal
+        total += world if c.geom2 == geom else -world
+    return total
+
+
+def quat_of(R: np.ndarray) -> np.ndarray:
+    """The unit quaternion (w, x, y, z) of rotation matrix ``R`` (3, 3), with w ≥ 0."""
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R).reshape(9))
+    return q if q[0] >= 0 else -q
+
+
+def draw(
+    scene: mujoco.MjvScene,
+    path: np.ndarray,
+    target: np.ndarray,
+    tip: np.ndarray,
+    f_ref: float,
+    f_measured: np.ndarray,
+) -> None:
+    """The wiping ``path`` (N, 3), the reference point ``target`` (3,), and at the ``tip`` (3,)
+    the reference force f̄ (N, blue, along −n̂) beside the measured force (3,) (N, red)."""
+    scale = 0.005  # m per N; arrows end at the tip, pushing on the surface
+    rendering.add_polyline(scene, path[:: max(1, len(path) // 120)], 0.003, rendering.REFERENCE)
+    rendering.add_sphere(scene, target, 0.008, rendering.TARGET)
+    side = np.array([0.0, 0.05, 0.0])
+    if f_ref > 0:
+        arrow = -f_ref * scale * SURFACE_NORMAL
+        rendering.add_arrow(scene, tip - arrow + side[[1, 0, 2]], arrow, 0.006, rendering.BLUE)
+    arrow = f_measured * scale
+    if np.linalg.norm(arrow) > 0.2 * scale:
+        rendering.add_arrow(scene, tip - arrow - side, arrow, 0.006, rendering.RED)
