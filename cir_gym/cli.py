@@ -161,7 +161,7 @@ def record_video(
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from cir_gym.scoring.leaderboard import run_leaderboard
+    from cir_gym.scoring.leaderboard import FAILED_HEADING, run_leaderboard
 
     if args.from_dir is not None:
         from cir_gym.scoring.leaderboard import leaderboard_from
@@ -175,14 +175,14 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
         return 0
     if args.episodes < 1:
         raise CliError(f"--episodes must be >= 1, got {args.episodes}")
-    run_leaderboard(
+    md = run_leaderboard(
         Path(args.out or LEADERBOARD_OUT),
         episodes=args.episodes,
         seed=args.seed,
         envs=[check_env_id(e) for e in args.env] if args.env else None,
         videos=not args.no_videos,
     )
-    return 0
+    return 1 if md is not None and FAILED_HEADING in md.read_text() else 0
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -221,7 +221,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from cir_gym.scoring.sweep import GridError, run_sweep
+    from cir_gym.scoring.sweep import GridError, RayUnavailable, run_sweep
 
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
@@ -231,7 +231,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         summary = run_sweep(
             args.grid, args.out, workers=args.workers, ray=args.ray, retries=args.retries
         )
-    except GridError as exc:
+    except (GridError, RayUnavailable) as exc:
         raise CliError(str(exc)) from exc
     except ImportError as exc:  # --ray without the sweep extra
         raise CliError(str(exc)) from exc
@@ -345,7 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a grid (YAML) of evaluations and training runs as "
         "independent tasks, on a local pool or Ray",
     )
-    sw.add_argument("grid", metavar="GRID", help="grid file (see scripts/sweep.py, sweeps/)")
+    sw.add_argument("grid", metavar="GRID", help="grid file (docs/sweeps.md; examples in sweeps/)")
     sw.add_argument(
         "--out",
         required=True,
@@ -362,8 +362,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--ray",
         metavar="ADDRESS",
         default=None,
-        help="run on Ray: a cluster address, 'auto' (the running cluster) or "
-        "'local' (start one here); needs the sweep extra",
+        help="run on Ray: a cluster address, 'auto' (the cluster running here, started with "
+        "`ray start --head`) or 'local' (start one for this sweep); needs the sweep extra. "
+        "On one machine the local pool (the default) is as fast",
     )
     sw.add_argument(
         "--retries",

@@ -100,9 +100,17 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
     argv = ["leaderboard", "--episodes", "1", "--seed", "3", "--out", str(tmp_path)]
     assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v3", "--env", ENV]) == 0
     assert calls == [
-        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v3", ENV]})
+        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v3", ENV],
+                    "videos": True})
     ]
     assert main([*argv, "--env", "cir_gym/Nope-v1"]) == 2
+    calls.clear()
+    assert main(["leaderboard", "--env", "JointTracking-v1", "--no-videos"]) == 0
+    assert calls == [
+        (cir_gym.cli.Path("runs/leaderboard"),
+         {"episodes": cir_gym.cli.LEADERBOARD_EPISODES, "seed": 1000, "envs": [ENV],
+          "videos": False})
+    ]
 
 
 def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
@@ -315,3 +323,179 @@ def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():
         for r in json.loads(path.read_text()):
             kwargs = cls.leaderboard_variants[r["variant"]]
             assert tuned_gains(env_id, r["controller"], kwargs) == r["tuned"], (env_id, r)
+
+
+# ---------------------------------------------------------------------- a new user's mistakes
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--env", "cir_gym/JointTraking-v1", "--policy", "pd_gravity"],
+         "did you mean 'cir_gym/JointTracking-v1'"),
+        (["--env", "JointTracking", "--policy", "pd_gravity"],
+         "did you mean 'cir_gym/JointTracking-v1'"),
+        (["--env", ENV, "--policy", "pd_gravty"], "did you mean 'pd_gravity'"),
+        (["--env", ENV, "--policy", "computed_torqe"], "did you mean 'computed_torque'"),
+        (["--env", ENV, "--policy", "ppo_100hz"], "did you mean 'agent:ppo_100hz'"),
+        (["--env", ENV, "--policy", "pd_gravity", "--set", "paylod_mass=3"],
+         "did you mean 'payload_mass'"),
+    ],
+)
+def test_a_misspelled_id_policy_or_setting_gets_a_did_you_mean(argv, needle, capsys):
+    assert main(["evaluate", *argv, "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cir-gym: error:") and needle in err and "Traceback" not in err
+
+
+def test_the_cir_gym_prefix_is_optional(capsys):
+    assert main(["evaluate", "--env", "JointTracking-v1", "--policy", "pd_gravity", *SHORT]) == 0
+    assert "pd_gravity" in capsys.readouterr().out
+
+
+def test_a_bad_environment_value_is_reported_in_our_words_before_any_work(monkeypatch, capsys):
+    """``--set payload_mass=abc``: the option, the argument, the value and what is allowed, not
+    Gymnasium's "was raised from the environment creator" wrapper; nothing evaluated."""
+    monkeypatch.setattr(cir_gym.cli, "evaluate", lambda *a, **k: pytest.fail("evaluated"))
+    for setting, allowed in [("payload_mass=abc", "must be a number"),
+                             ("payload_mass=-1", "must be in [0.0, 50.0]"),
+                             ("drive=fast", "one of ['ideal', 'industrial']")]:
+        assert main(evaluate_argv("--set", setting, policy="pd_gravity")) == 2
+        err = capsys.readouterr().err
+        assert f"--set {setting}:" in err and allowed in err, err
+        assert "environment creator" not in err and "Traceback" not in err
+    assert main(evaluate_argv("--set", "payload_mass=abc")) == 2
+    assert "payload_mass defaults to 0.0" in capsys.readouterr().err
+
+
+def test_every_evaluate_option_has_help_and_its_default(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["evaluate", "--help"])
+    assert exit_.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps the lines
+    parser = cir_gym.cli.build_parser()
+    evaluate = next(
+        a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "evaluate"
+    )[1]
+    for action in evaluate._actions:
+        if action.dest == "help":
+            continue
+        assert action.help, action.dest
+        assert action.required or "default" in action.help, action.dest
+    assert "(default: 5)" in text and "(default: 0)" in text
+
+
+def test_version(capsys):
+    import importlib.metadata
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"cir-gym {importlib.metadata.version('cir-gym')}"
+
+
+def test_ray_auto_without_a_cluster_says_how_to_start_one(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("ray")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    grid = tmp_path / "grid.yaml"
+    grid.write_text(f"evaluate: {{envs: [{ENV}], policies: [pd_gravity], episodes: 1}}")
+    assert main(["sweep", str(grid), "--out", str(tmp_path / "out"), "--ray", "auto"]) == 2
+    err = capsys.readouterr().err
+    assert "ray start --head" in err and "Traceback" not in err and "--address" not in err
+
+
+# ---------------------------------------------------------------------- plugin policies
+PLUGIN = """
+import numpy as np
+
+
+class HoldStill:
+    \"\"\"Zero torque: a third party's policy with SB3's predict.\"\"\"
+
+    def __init__(self, n):
+        self.n = n
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return np.zeros(self.n), state
+
+
+def make(env_id, env_kwargs):
+    import cir_gym  # noqa: F401
+    import gymnasium as gym
+
+    env = gym.make(env_id, **env_kwargs)
+    n = env.action_space.shape[0]
+    env.close()
+    return HoldStill(n)
+
+
+make.env_ids = ["cir_gym/JointTracking-v1"]
+
+
+def broken(env_id, env_kwargs):
+    return object()
+"""
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    """A distribution on sys.path (a folder with a ``*.dist-info/entry_points.txt``) that adds
+    ``plugin:hold_still`` (JointTracking only) and ``plugin:broken`` (no predict)."""
+    site = tmp_path / "site"
+    (site / "my_policies-0.1.dist-info").mkdir(parents=True)
+    (site / "my_policies.py").write_text(PLUGIN)
+    (site / "my_policies-0.1.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: my-policies\nVersion: 0.1\n"
+    )
+    (site / "my_policies-0.1.dist-info" / "entry_points.txt").write_text(
+        "[cir_gym.policies]\nhold_still = my_policies:make\nbroken = my_policies:broken\n"
+    )
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setenv("PYTHONPATH", str(site))  # the leaderboard's spawned workers
+    cir_gym.scoring.policies.plugin_factories(refresh=True)
+    yield site
+    monkeypatch.undo()
+    cir_gym.scoring.policies._LOADED.clear()
+    cir_gym.scoring.policies.plugin_factories(refresh=True)
+
+
+def test_an_installed_plugin_policy_is_listed_evaluated_and_ranked(plugin, tmp_path, capsys):
+    from cir_gym.scoring.policies import policy_names
+
+    assert "plugin:hold_still" in policy_names(ENV)
+    assert "plugin:hold_still" not in policy_names("cir_gym/PegInHole-v1")  # its env_ids
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "plugin:hold_still (my_policies:make)" in out
+    assert "plugin:hold_still" in out.split(ENV, 1)[1].split("\ncir_gym/", 1)[0]
+
+    assert main(evaluate_argv(policy="plugin:hold_still")) == 0
+    assert "plugin:hold_still" in capsys.readouterr().out
+    assert main(evaluate_argv(policy="plugin:hold_stil")) == 2
+    assert "did you mean 'plugin:hold_still'" in capsys.readouterr().err
+    assert main(evaluate_argv(policy="plugin:broken")) == 2
+    assert "no predict" in capsys.readouterr().err
+
+    from cir_gym.scoring.leaderboard import jobs_for, run_job
+
+    jobs = [j for j in jobs_for(ENV, {"episode_duration": 0.1}) if j[3].startswith("plugin:")]
+    assert {j[3] for j in jobs} == {"plugin:hold_still", "plugin:broken"}
+    hold = next(j for j in jobs if j[3] == "plugin:hold_still")
+    key, result, _ = run_job(hold, 1, 1000)
+    assert key[2] == result.policy_name == "plugin:hold_still" and len(result.episodes) == 1
+
+
+def test_a_failing_run_is_listed_and_the_main_job_goes_on(plugin, tmp_path, monkeypatch, capsys):
+    """``plugin:broken`` fails in its worker: the other runs are ranked, the failure is listed
+    in leaderboard.md and on stderr, and ``cir-gym leaderboard`` exits 1."""
+    from cir_gym.scoring import leaderboard
+
+    only = ("pd_gravity", "plugin:broken")
+    real = leaderboard.jobs_for
+    monkeypatch.setattr(leaderboard, "jobs_for",
+                        lambda e, o=None: [j for j in real(e, o) if j[3] in only])
+    monkeypatch.setattr(leaderboard, "_multi_seed_agents", lambda e, kw: [])
+    out = tmp_path / "lb"
+    argv = ["leaderboard", "--env", ENV, "--episodes", "1", "--out", str(out), "--no-videos"]
+    assert main(argv) == 1
+    md = (out / "leaderboard.md").read_text()
+    assert "| pd_gravity |" in md and "## Failed runs" in md and "broken" in md
+    assert "has no predict" in capsys.readouterr().err

@@ -101,7 +101,11 @@ JOB_SECONDS = {"agent": 1.5, "other": 0.2}
 #: wall seconds of one comparison figure and of one variant's GIF (two episodes rendered)
 FIGURE_SECONDS = 0.8
 VIDEO_SECONDS = 20.0
+#: a seed table's cost against its agents' seeds run as leaderboard jobs (its bootstrap CIs)
+SEED_TABLE_FACTOR = 1.5
 TIMINGS = "timings.json"
+#: the heading of the failed runs in leaderboard.md (the command line exits 1 when present)
+FAILED_HEADING = "## Failed runs"
 
 
 def _name(env_id: str) -> str:
@@ -202,6 +206,20 @@ def job_cost(job: tuple[str, str, dict[str, Any], str], episodes: int,
     return JOB_SECONDS[kind] + episodes * float(per_episode)
 
 
+def seed_table_cost(env_id: str, variant: str, env_kwargs: dict[str, Any], episodes: int,
+                    timings: dict[str, Any] | None = None) -> float:
+    """Planned seconds of one worker for a variant's :func:`multi_seed_table`: the previous
+    run's where ``<out>/timings.json`` has it, else every seed of every agent as a job."""
+    per_episode = (timings or {}).get("seed_table", {}).get(f"{_name(env_id)} {variant}")
+    if per_episode is not None:
+        return episodes * float(per_episode)
+    return sum(
+        SEED_TABLE_FACTOR * len(_seeds(env_id, n))
+        * job_cost((env_id, variant, env_kwargs, f"agent:{n}"), episodes, timings)
+        for n in _multi_seed_agents(env_id, env_kwargs)
+    )
+
+
 def missing_extras(figures: bool, videos: bool) -> list[str]:
     """What the figures (matplotlib) and the videos (Pillow) need but cannot import."""
     from cir_gym.scoring.policies import module_missing
@@ -264,13 +282,7 @@ def run_leaderboard(
     timings = _load_timings(out)
 
     cost = [job_cost(j, episodes, timings) for j in jobs]
-    seed_cost = {
-        (e, v): sum(
-            len(_seeds(e, n)) * job_cost((e, v, kw, f"agent:{n}"), episodes, timings)
-            for n in _multi_seed_agents(e, kw)
-        )
-        for e, v, kw in seed_jobs
-    }
+    seed_cost = {(e, v): seed_table_cost(e, v, kw, episodes, timings) for e, v, kw in seed_jobs}
     plan = {
         "episodes": (sum(cost) + sum(seed_cost.values())) / workers,
         "figures": FIGURE_SECONDS * len(variants) * figures,
@@ -289,6 +301,8 @@ def run_leaderboard(
     results: dict[tuple[str, str, str], EvaluationResult] = {}
     seconds: dict[tuple[str, str, str], float] = {}
     seed_tables: dict[tuple[str, str], str] = {}
+    seed_seconds: dict[tuple[str, str], float] = {}
+    failed: dict[str, str] = {}
     bar = Progress("episodes", len(jobs) + len(seed_jobs),
                    sum(cost) + sum(seed_cost.values()), workers, "runs")
     # spawn, not fork: a child forked from a parent that has already run torch (an agent's
@@ -305,17 +319,21 @@ def run_leaderboard(
         )
         for fut in as_completed(futures):
             kind, what = futures[fut]
-            if kind == "seeds":
-                key2, md, _ = fut.result()
-                seed_tables[key2] = md
-                bar.update(seed_cost[key2], f"seed table {_name(key2[0])} {key2[1]}")
-            else:
-                key, result, sec = fut.result()
-                results[key], seconds[key] = result, sec
-                bar.update(cost[what], f"{_name(key[0])} {key[1]} {key[2]}")
+            label = (f"seed table {_name(what[0])} {what[1]}" if kind == "seeds"
+                     else f"{_name(jobs[what][0])} {jobs[what][1]} {jobs[what][3]}")
+            try:
+                if kind == "seeds":
+                    key2, md_table, sec = fut.result()
+                    seed_tables[key2], seed_seconds[key2] = md_table, sec
+                else:
+                    key, result, sec = fut.result()
+                    results[key], seconds[key] = result, sec
+            except Exception as exc:  # a plugin's bug, a missing file: the others go on
+                failed[label] = f"{type(exc).__name__}: {exc}".split("\n")[0]
+            bar.update(seed_cost[what] if kind == "seeds" else cost[what], label)
     bar.close()
     out.mkdir(parents=True, exist_ok=True)
-    _save_timings(out, timings, jobs, seconds, episodes)
+    _save_timings(out, timings, jobs, seconds, seed_seconds, episodes)
 
     lines = [
         "# cir_gym leaderboard",
@@ -352,6 +370,10 @@ def run_leaderboard(
                     figure_bar.update(FIGURE_SECONDS, fig.name)
     if figure_bar is not None:
         figure_bar.close()
+    if failed:
+        lines += [FAILED_HEADING, "", "| run | error |", "|---|---|"]
+        lines += [f"| {k} | {v.replace('|', '/')} |" for k, v in sorted(failed.items())]
+        lines.append("")
     md = out / "leaderboard.md"
     md.write_text("\n".join(lines))
 
@@ -372,6 +394,10 @@ def run_leaderboard(
         watch.stop()
     total = time.perf_counter() - t_start
     print(summary(results, env_ids), file=sys.stderr)
+    if failed:
+        print(f"{len(failed)} run(s) failed (listed in {md}):", file=sys.stderr)
+        for k, v in sorted(failed.items()):
+            print(f"  {k}: {v}", file=sys.stderr)
     print(
         f"done in {_clock(total)} (slowest run {max(seconds.values(), default=0):.0f} s)\n"
         f"page: {(out / 'index.html').resolve()}\ntables: {md.resolve()}",
@@ -410,9 +436,11 @@ def _by_variant(
 
 
 def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
-                  seconds: dict[tuple[str, str, str], float], episodes: int) -> None:
-    """Merge this run's wall time per episode of each (environment, policy) into
-    ``out/timings.json`` (the mean over its variants, building the policy left out)."""
+                  seconds: dict[tuple[str, str, str], float],
+                  seed_seconds: dict[tuple[str, str], float], episodes: int) -> None:
+    """Merge this run's wall time per episode of each (environment, policy) (the mean over
+    its variants, building the policy left out) and of each seed table into
+    ``out/timings.json``: the next run's estimate (:func:`job_cost`)."""
     per: dict[str, list[float]] = {}
     for env_id, variant, _, policy in jobs:
         sec = seconds.get((env_id, variant, policy))
@@ -423,7 +451,12 @@ def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
             )
     episode = {**timings.get("episode", {}),
                **{k: round(float(np.mean(v)), 4) for k, v in per.items()}}
-    (out / TIMINGS).write_text(json.dumps({"episode": episode}, indent=1, sort_keys=True) + "\n")
+    seeds = {**timings.get("seed_table", {}),
+             **{f"{_name(e)} {v}": round(sec / episodes, 4)
+                for (e, v), sec in seed_seconds.items()}}
+    (out / TIMINGS).write_text(
+        json.dumps({"episode": episode, "seed_table": seeds}, indent=1, sort_keys=True) + "\n"
+    )
 
 
 class _VideoWatch:

@@ -84,6 +84,7 @@ from typing import Any
 
 __all__ = [
     "GridError",
+    "RayUnavailable",
     "SweepSummary",
     "expand",
     "load_grid",
@@ -125,6 +126,10 @@ ONE_THREAD = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 class GridError(ValueError):
     """A grid file that cannot be expanded: the message names the entry and what is allowed."""
+
+
+class RayUnavailable(RuntimeError):
+    """``ray=ADDRESS`` or ``"auto"`` found no Ray cluster: the message says how to start one."""
 
 
 # ---------------------------------------------------------------------- the grid
@@ -740,7 +745,15 @@ def _run_ray(
             os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         else:
-            ray.init(address=address, log_to_driver=False)
+            try:
+                ray.init(address=address, log_to_driver=False)
+            except ConnectionError as exc:  # no cluster there ("auto": none on this machine)
+                raise RayUnavailable(
+                    f"--ray {address}: no Ray cluster found ({str(exc).split('.')[0]}); start "
+                    "one with `ray start --head` (then --ray auto), or pass --ray local to "
+                    "start one for this sweep; on one machine the local pool (no --ray) is as "
+                    "fast (docs/sweeps.md)"
+                ) from None
         started = True
     try:
         remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=True)(run_task)
