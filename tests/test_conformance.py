@@ -262,6 +262,82 @@ def test_gymnasium_and_sb3_checkers_pass_without_warnings(env_id: str, variant: 
     assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
 
 
+def test_robot_env_docstring_says_to_skip_the_render_check_headless() -> None:
+    """Gymnasium's check_env opens the human mode (a RuntimeError without a display): the
+    base class's docstring tells the user to pass skip_render_check=True."""
+    from cir_gym.envs.base import RobotEnv
+
+    assert "check_env(env.unwrapped, skip_render_check=True)" in " ".join(
+        (RobotEnv.__doc__ or "").split()
+    )
+
+
+# ---------------------------------------------------------------------- order of calls
+def _ends(env: gym.Env, actions: np.ndarray) -> tuple[bool, bool]:
+    """Step ``actions`` until the episode ends; return (terminated, truncated)."""
+    for a in actions:
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            return terminated, truncated
+    raise AssertionError("the episode did not end")
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_step_and_render_before_reset_raise_reset_needed(env_id: str) -> None:
+    """An env class built directly (no gymnasium.make, so no OrderEnforcing): step and render
+    before the first reset raise gymnasium's ResetNeeded saying to call reset() (they raised
+    AttributeError or ZeroDivisionError), in every render mode; after reset both work."""
+    cls = _cls(env_id)
+    for mode in (None, "rgb_array", "rgb_array_list"):
+        env = cls(render_mode=mode, width=32, height=24)
+        zero = np.zeros(env.action_space.shape)
+        with pytest.raises(gym.error.ResetNeeded, match=r"before reset\(\); call reset\(\)"):
+            env.step(zero)
+        with pytest.raises(gym.error.ResetNeeded, match=r"before reset\(\); call reset\(\)"):
+            env.render()
+        env.reset(seed=0)
+        env.step(zero)
+        env.render()
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_step_after_the_episode_ended_raises_reset_needed(env_id: str) -> None:
+    """step() after truncation, and after termination (a divergence, where the env can
+    diverge), raises ResetNeeded saying to call reset() (7 envs repeated the terminal step
+    silently); the env, direct or through gymnasium.make, is unchanged by the refused call
+    and reset starts a new episode."""
+    for env in (_cls(env_id)(**_short(env_id)), gym.make(env_id, **_short(env_id))):
+        env.reset(seed=0)
+        zero = np.zeros(env.action_space.shape)
+        terminated, truncated = _ends(env, np.zeros((10_000, *env.action_space.shape)))
+        state = env.unwrapped.data.qpos.copy(), env.unwrapped.data.time
+        with pytest.raises(gym.error.ResetNeeded, match=r"after the episode ended.*reset\(\)"):
+            env.step(zero)
+        assert np.array_equal(env.unwrapped.data.qpos, state[0])
+        assert env.unwrapped.data.time == state[1]
+        env.reset(seed=1)
+        if env_id not in NEVER_DIVERGES:  # terminated by a divergence
+            undo = _scale_actuation(env.unwrapped, 1e12)
+            terminated, truncated = _ends(env, np.ones((10, *env.action_space.shape)))
+            undo()
+            assert terminated and not truncated
+            with pytest.raises(gym.error.ResetNeeded, match="call reset"):
+                env.step(zero)
+            env.reset(seed=2)
+        env.step(zero)
+        env.close()
+
+
+def test_reset_needed_is_gymnasiums_and_a_runtime_error() -> None:
+    """cir_gym's ResetNeeded is gymnasium.error.ResetNeeded (what OrderEnforcing raises) and
+    a RuntimeError (what the envs raised after truncation before)."""
+    from cir_gym.envs.base import ResetNeeded
+
+    assert issubclass(ResetNeeded, gym.error.ResetNeeded)
+    assert issubclass(ResetNeeded, RuntimeError)
+
+
 # ---------------------------------------------------------------------- determinism
 @pytest.mark.parametrize(
     ("env_id", "stochastic"),
@@ -287,7 +363,9 @@ def test_reset_with_seed_reproduces_and_forgets_the_past(env_id: str) -> None:
     used, fresh = gym.make(env_id, **kwargs), gym.make(env_id, **kwargs)
     obs_a, info_a = used.reset(seed=11)
     for a in _random_actions(used, 10):
-        used.step(a)
+        _, _, terminated, truncated, _ = used.step(a)
+        if terminated or truncated:
+            used.reset()
     obs_b, info_b = used.reset(seed=11)
     _assert_bitwise_equal((obs_a, info_a), (obs_b, info_b), "reset(seed) twice")
     for a in _random_actions(used, 30, seed=3):

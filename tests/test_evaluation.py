@@ -430,3 +430,57 @@ def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
     ours = evaluate(Opaque(), ENV, 2, **SHORT)
     theirs = evaluate(Opaque(), ENV, 2, batched=False, **SHORT)
     assert _episode_fields(ours) == _episode_fields(theirs)
+
+
+# ---------------------------------------------------------------------- diverged episodes
+class _DivergesAt:
+    """``policy``'s actions, with a NaN planted in the simulator's q̇ before step ``at``: the
+    physics diverges there (the env restores its last finite state and terminates)."""
+
+    def __init__(self, policy, env: gym.Env, at: int) -> None:
+        self.policy, self.env, self.at, self.k = policy, env, at, 0
+        self.name = f"{policy.name}+divergence"
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        if episode_start is not None and np.any(episode_start):
+            self.k = 0
+        if self.k == self.at:
+            self.env.unwrapped.data.qvel[0] = np.nan
+        self.k += 1
+        return self.policy.predict(obs, state, episode_start, deterministic)
+
+
+#: (env, controller, primary metric, the unplayed steps' least charge: the failure value per
+#: step in the metric's own mean square, from the env at reset)
+DIVERGING = [
+    ("cir_gym/JointTracking-v1", "pd_gravity", "rms_error",
+     lambda u: u._following_error_limit**2 / u.n),  # ‖q̃‖ = L over n joints
+    ("cir_gym/CartesianTracking-v0", "os_pd_gravity", "position_rms",
+     lambda u: u._limits[0] ** 2),
+]
+
+
+@pytest.mark.xfail(strict=True, reason="needs the change in the env modules' step (a diverged "
+                   "episode held at the following-error limit); remove this mark with it")
+@pytest.mark.parametrize(("env_id", "controller", "metric", "charge"), DIVERGING,
+                         ids=[d[0] for d in DIVERGING])
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_a_diverged_episode_is_scored_over_the_whole_horizon(env_id, controller, metric, charge):
+    """A divergence at step 20 of a 2000-step episode is scored over the whole horizon, as a
+    stopped one is: every unplayed step is charged at least the following-error limit, so the
+    diverged episode scores worse than the finished one (it scored 0.00047 rad against 0.008
+    rad, CartesianTracking 3e-6 m against 0.0075 m: the diverging policy ranked first among
+    failing ones)."""
+    env = gym.make(env_id)
+    finished = evaluate(baselines.make(controller, env_id, env=env), env_id, env=env)
+    policy = _DivergesAt(baselines.make(controller, env_id, env=env), env, at=20)
+    diverged = evaluate(policy, env_id, env=env)
+    u = env.unwrapped
+    played, horizon = diverged.episodes[0].length, u.max_steps
+    env.close()
+    assert diverged.episodes[0].diverged and played == 21 and not diverged.episodes[0].success
+    least = np.sqrt((horizon - played) / horizon * charge(u))
+    value = diverged.episodes[0].metrics[metric]
+    assert value >= least, (value, least)
+    assert value > finished.episodes[0].metrics[metric]
+    assert rank([diverged, finished])[0] is finished

@@ -8,6 +8,7 @@ rendering is measured by ``benchmarks/bench_render.py``, not asserted here.
 from __future__ import annotations
 
 import os
+import warnings
 
 import gymnasium as gym
 import mujoco
@@ -440,3 +441,133 @@ def test_a_cached_overlay_draws_the_same_pixels_and_follows_the_camera() -> None
     assert not np.array_equal(moved, fresh)
     rendering._MASKS.clear()
     assert np.array_equal(frame(), moved)  # the same as drawn without the cache
+
+
+# ---------------------------------------------------------------------- videos and pacing
+def _steps_to_end(env: gym.Env, render_each_step: bool = False) -> int:
+    """Zero actions until the episode ends; the number of steps played."""
+    steps = 0
+    while True:
+        _, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+        steps += 1
+        if render_each_step:
+            env.render()
+        if terminated or truncated:
+            return steps
+
+
+@needs_gl
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_record_video_plays_in_real_time_at_most_60_fps(env_id: str, tmp_path) -> None:
+    """gymnasium's RecordVideo on render_mode="rgb_array_list" writes an MP4 of at most 60 fps
+    (it was 500 fps: the control rate) whose frames / fps is the episode's simulated duration
+    within a frame."""
+    pytest.importorskip("moviepy")
+    ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    from gymnasium.wrappers import RecordVideo
+
+    env = gym.make(env_id, render_mode="rgb_array_list", width=64, height=48,
+                   episode_duration=0.4, max_episode_steps=-1)
+    fps = env.metadata["render_fps"]
+    assert 0 < fps <= 60
+    env = RecordVideo(env, str(tmp_path / "videos"), episode_trigger=lambda episode: True,
+                      name_prefix="video")
+    env.reset(seed=0)
+    with warnings.catch_warnings():  # RecordVideo's note on each step between two frames
+        warnings.filterwarnings("ignore", ".*frame cannot be captured")
+        steps = _steps_to_end(env)
+    env.close()
+    duration = steps * env.unwrapped.dt
+    reader = ffmpeg.read_frames(str(tmp_path / "videos" / "video-episode-0.mp4"))
+    meta = next(reader)
+    frames = sum(1 for _ in reader)
+    assert meta["fps"] == pytest.approx(fps, rel=1e-3)
+    assert abs(frames / fps - duration) <= 1.0 / fps + 1e-9, (frames, fps, steps, duration)
+
+
+@needs_gl
+def test_rgb_array_list_draws_the_states_at_a_fixed_rate_of_simulated_time() -> None:
+    """rgb_array_list: a frame at reset and every render_stride steps (50 fps at the 500-Hz
+    control rate), each the rgb_array frame of the same state; render() hands each frame out
+    once. rgb_array's render_fps is the control rate (one frame per step is real time)."""
+    kwargs = {"width": 64, "height": 48, "episode_duration": 0.2}
+    listed = gym.make("cir_gym/JointTracking-v1", render_mode="rgb_array_list", **kwargs)
+    single = gym.make("cir_gym/JointTracking-v1", render_mode="rgb_array", **kwargs)
+    u = listed.unwrapped
+    assert (u.render_stride, listed.metadata["render_fps"]) == (10, 50)
+    assert single.metadata["render_fps"] == round(1 / single.unwrapped.dt) == 500
+    listed.reset(seed=3)
+    single.reset(seed=3)
+    expected, got = [single.render()], listed.render()
+    rng = np.random.default_rng(0)
+    for k in range(1, u.max_steps + 1):
+        a = rng.uniform(-0.3, 0.3, listed.action_space.shape)
+        listed.step(a)
+        single.step(a)
+        if k % 10 == 0:
+            expected.append(single.render())
+        if k % 7 == 0:  # any call pattern: the frames drawn since the last call
+            got += listed.render()
+    got += listed.render()
+    assert listed.render() == []
+    listed.close()
+    single.close()
+    assert len(got) == len(expected) == u.max_steps // 10 + 1
+    for a, b in zip(got, expected, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+class _StubViewer:
+    """mujoco.viewer.launch_passive's handle, counting syncs (no window)."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.user_scn = mujoco.MjvScene(model, 1000)
+        self.synced_at: list[float] = []
+
+    def lock(self):
+        import contextlib
+
+        return contextlib.nullcontext()
+
+    def sync(self) -> None:
+        import time
+
+        self.synced_at.append(time.perf_counter())
+
+    def close(self) -> None:
+        pass
+
+
+def test_human_mode_shows_frames_at_render_fps_in_real_time(monkeypatch) -> None:
+    """human: render() called every step syncs the viewer once per frame (render_fps of
+    simulated time) and no faster than the wall clock: 0.3 s of episode take ≥ 0.3 s."""
+    import sys
+    import time
+
+    from cir_gym.envs import base
+
+    viewers: list[_StubViewer] = []
+
+    def launch_passive(model: mujoco.MjModel, data: mujoco.MjData) -> _StubViewer:
+        viewers.append(_StubViewer(model))
+        return viewers[-1]
+
+    fake = type(sys)("mujoco.viewer")
+    fake.launch_passive = launch_passive  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "mujoco.viewer", fake)
+    monkeypatch.setattr(mujoco, "viewer", fake, raising=False)
+    monkeypatch.setattr(base, "_has_display", lambda: True)
+    env = gym.make("cir_gym/JointTracking-v1", render_mode="human", episode_duration=0.3,
+                   reference="regulation")  # at rest on a setpoint: no early stop
+    fps = env.metadata["render_fps"]
+    assert fps <= 60
+    env.reset(seed=0)
+    start = time.perf_counter()
+    env.render()
+    steps = _steps_to_end(env, render_each_step=True)
+    elapsed = time.perf_counter() - start
+    env.close()
+    duration = steps * env.unwrapped.dt
+    assert steps == env.unwrapped.max_steps
+    assert len(viewers) == 1 and len(viewers[0].synced_at) == round(duration * fps) + 1
+    assert elapsed >= duration - 1.5 / fps, (elapsed, duration)

@@ -18,10 +18,12 @@ metrics. The base class owns what every task does the same way:
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 import os
 import sys
+import time
 import warnings
 from typing import Any, ClassVar
 
@@ -37,10 +39,13 @@ from cir_gym.robot import ModelError
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
+    "MAX_VIDEO_FPS",
     "EpisodeLongerThanSpec",
+    "ResetNeeded",
     "RobotEnv",
     "check_kwargs",
     "make_env",
+    "video_stride",
 ]
 
 GL_HELP = (
@@ -61,14 +66,9 @@ MIN_CONTROL_FREQ = 1.0  # Hz: below, one step would hold ≥ 1 s of physics (1e-
 
 MAX_JOINT_SPEED = 1.0e3  # rad/s: beyond this the simulation is declared diverged
 
-# Hot-path helpers of _check_action/_simulate: the ufuncs themselves (np.max, np.clip add a
-# Python dispatch layer that costs more than the 7-element work), the state mj_getState copies.
-_ABS = np.absolute
-_SUB = np.subtract
-_MUL = np.multiply
-_EXP = np.exp
-_RINT = np.rint  # np.round(x) with decimals=0 is rint (half to even), without its wrapper
-_isfinite = math.isfinite
+#: most frames per second of simulated time that ``rgb_array_list`` and ``human`` show
+MAX_VIDEO_FPS = 60.0
+
 _MAX_SPEED_SQ = MAX_JOINT_SPEED**2  # ‖q̇‖² bound of the pre-check in _simulate
 _STATE = int(
     mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL | mujoco.mjtState.mjSTATE_ACT
@@ -231,10 +231,162 @@ class EntryPoint:
         return env
 
 
-class RobotEnv(gym.Env[dict, np.ndarray]):
-    """Base class of the cir_gym environments (see the module docstring)."""
+class ResetNeeded(gym.error.ResetNeeded, RuntimeError):
+    """``step`` before the first ``reset`` or after the episode ended, or ``render`` before
+    the first ``reset``: the message says to call ``reset()``. Gymnasium's ``ResetNeeded``
+    (what its ``OrderEnforcing`` wrapper raises), and a RuntimeError."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+def video_stride(dt: float) -> int:
+    """Control steps per video frame for a control period ``dt`` (s): the fewest whose frame
+    rate 1 / (stride · dt) is at most :data:`MAX_VIDEO_FPS`, a whole number of frames per
+    second where a stride up to twice that allows it (500 Hz → 10: 50 fps; 1 kHz → 20;
+    50 Hz → 1)."""
+    first = max(1, math.ceil(1.0 / (dt * MAX_VIDEO_FPS) - 1e-9))
+    for stride in range(first, 2 * first + 1):
+        fps = 1.0 / (stride * dt)
+        if abs(fps - round(fps)) <= 1e-9 * fps:
+            return stride
+    return first
+
+
+def _guard_reset(reset: Any) -> Any:
+    """``reset`` that marks the episode running (and shows its first frame, see render)."""
+
+    @functools.wraps(reset)
+    def guarded(self: RobotEnv, *args: Any, **kwargs: Any) -> Any:
+        result = reset(self, *args, **kwargs)
+        if type(self).reset is not guarded:  # a parent's reset: the subclass's guard marks
+            return result
+        self._needs_reset = False
+        self._ever_reset = True
+        self._steps = 0
+        self._frames = []
+        self._shown_frame = -1
+        if self._video:
+            self._video_frame()
+        return result
+
+    guarded.__cir_gym_guard__ = True  # type: ignore[attr-defined]
+    return guarded
+
+
+def _guard_step(step: Any) -> Any:
+    """``step`` that raises :class:`ResetNeeded` before a reset or after the episode's end,
+    and marks the end (see :meth:`RobotEnv.__init_subclass__`)."""
+
+    @functools.wraps(step)
+    def guarded(self: RobotEnv, action: Any) -> Any:
+        if self._needs_reset:
+            raise self._reset_needed("step")
+        result = step(self, action)
+        if type(self).step is not guarded:  # a parent's step: the subclass's guard counts
+            return result
+        self._steps += 1
+        if result[2] or result[3]:  # terminated or truncated
+            self._needs_reset = True
+        if self._video and self._steps % self.render_stride == 0:
+            self._video_frame()
+        return result
+
+    guarded.__cir_gym_guard__ = True  # type: ignore[attr-defined]
+    return guarded
+
+
+def _guard_render(render: Any) -> Any:
+    """A subclass's ``render``: :class:`ResetNeeded` before a reset; in ``rgb_array_list``
+    mode the frames collected since the last call (the subclass's render draws each one)."""
+
+    @functools.wraps(render)
+    def guarded(self: RobotEnv) -> Any:
+        if self._in_render:  # drawing one frame (_frame) or a parent's render
+            return render(self)
+        if not self._ever_reset:
+            raise self._reset_needed("render")
+        if self.render_mode == "rgb_array_list":
+            return self._take_frames()
+        if self.render_mode == "human":
+            return self._show(render)
+        return self._draw(render)
+
+    guarded.__cir_gym_guard__ = True  # type: ignore[attr-defined]
+    return guarded
+
+
+def _guard_init(init: Any) -> Any:
+    """``__init__`` after which a reset is needed, even if the constructor reset the env
+    itself (e.g. to check an argument)."""
+
+    @functools.wraps(init)
+    def guarded(self: RobotEnv, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        if type(self).__init__ is guarded:
+            self._needs_reset = True
+            self._ever_reset = False
+            self._frames = []
+
+    guarded.__cir_gym_guard__ = True  # type: ignore[attr-defined]
+    return guarded
+
+
+_GUARDS = {
+    "__init__": _guard_init,
+    "reset": _guard_reset,
+    "step": _guard_step,
+    "render": _guard_render,
+}
+
+
+class RobotEnv(gym.Env[dict, np.ndarray]):
+    """Base class of the cir_gym environments (see the module docstring).
+
+    Order of calls: ``step`` before the first ``reset`` or after an episode ended
+    (terminated or truncated), and ``render`` before the first ``reset``, raise
+    :class:`ResetNeeded` saying to call ``reset()`` (checked here for every subclass, not only
+    under ``gymnasium.make``'s ``OrderEnforcing``).
+
+    Render modes:
+
+    * ``"rgb_array"``: ``render()`` returns the frame of the current state, uint8
+      (height, width, 3), on every call; ``metadata["render_fps"]`` is then the control rate
+      1 / ``dt`` (one frame per step is real time).
+    * ``"rgb_array_list"``: the env draws a frame at ``reset`` and every ``render_stride``
+      steps (a fixed rate of simulated time, at most ``MAX_VIDEO_FPS``: 50 Hz at a 500-Hz
+      control rate), and ``render()`` returns the frames drawn since its last call (a list,
+      often empty); ``render_fps`` is that frame rate. ``gymnasium.wrappers.RecordVideo``
+      on this mode writes a video that plays in real time (it warns once that a call
+      between two frames returned none).
+    * ``"human"``: a MuJoCo viewer, synced when ``render()`` is called at most once per
+      frame (``render_fps`` of simulated time) and paced to the wall clock.
+
+    Gymnasium's ``check_env`` opens the ``human`` mode: on a machine without a display pass
+    ``check_env(env.unwrapped, skip_render_check=True)``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["human", "rgb_array", "rgb_array_list"],
+        "render_fps": 50,
+    }
+    # the order of calls (see _guard_step); class defaults until the first reset
+    _needs_reset: bool = True
+    _ever_reset: bool = False
+    _in_render: bool = False  # inside _frame: drawing one frame
+    _video: bool = False  # rgb_array_list: frames drawn at reset and every render_stride steps
+    _steps: int = 0  # steps since the last reset
+    _frames: list[np.ndarray] = []  # noqa: RUF012 (replaced per instance at reset)
+    _shown_frame: int = -1  # human: index of the last frame shown (steps // render_stride)
+    _wall_start: float = 0.0  # human: wall-clock time of simulated time 0 (time.perf_counter)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Wrap the subclass's own ``__init__``, ``reset``, ``step`` and ``render`` (see
+        :data:`_GUARDS`): the order of calls is checked and the video frames drawn here, once
+        for every env. Only the guard of ``type(self)``'s own method acts (a subclass's ``step`` may call its
+        parent's). The cost per step is a few attribute reads (~0.6 µs)."""
+        super().__init_subclass__(**kwargs)
+        for name, guard in _GUARDS.items():
+            method = vars(cls).get(name)
+            if callable(method) and not getattr(method, "__cir_gym_guard__", False):
+                setattr(cls, name, guard(method))
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = ()
     primary_metric: ClassVar[str] = ""
     #: constructor arguments that shape only the reward: the dynamics, observations, episode
@@ -273,7 +425,14 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         self.width = int(check_number("width", width, 16, 4096))
         self.height = int(check_number("height", height, 16, 4096))
         self.camera = camera
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
+        #: control steps per frame of rgb_array_list and human (see the class docstring)
+        self.render_stride = 1 if render_mode == "rgb_array" else video_stride(self.dt)
+        fps = 1.0 / (self.render_stride * self.dt)
+        self.metadata = {
+            **self.metadata,
+            "render_fps": round(fps) if abs(fps - round(fps)) <= 1e-9 * fps else fps,
+        }
+        self._video = render_mode == "rgb_array_list"
         self._renderer: mujoco.Renderer | None = None
         self._viewer: Any = None
         size = mujoco.mj_stateSize(model, _STATE)
@@ -315,7 +474,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         values = a.tolist() if a.ndim == 1 else a.ravel().tolist()
         # the common case, finite and in range: a finite sum means no NaN/inf (an overflow
         # of finite values only takes the exact path below)
-        if values and _isfinite(sum(values)):
+        if values and math.isfinite(sum(values)):
             peak = max(map(abs, values))
             if peak <= 1.0:
                 return a, False, peak
@@ -379,7 +538,7 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         warn = self._warn_view
         scratch = self._scratch_state
         mujoco.mj_getState(m, d, scratch, _STATE)
-        if _isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
+        if math.isfinite(scratch.dot(scratch)):  # all finite (an overflow only skips this save)
             self._scratch_state, self._safe_state = self._safe_state, scratch
         d_ctrl[:] = ctrl
         if qfrc is not None:
@@ -454,8 +613,12 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
         """One line drawn on ``rgb_array`` frames: the time and the task's primary error."""
         return f"t = {self.data.time:5.2f} s"
 
-    def render(self) -> np.ndarray | None:
-        if self.render_mode == "rgb_array":
+    def render(self) -> np.ndarray | list[np.ndarray] | None:
+        """The frame of the current state (``rgb_array``), the frames drawn since the last call
+        (``rgb_array_list``), or None after syncing the viewer (``human``); see the class
+        docstring. A subclass that overrides it draws one frame: it calls ``super().render()``
+        and returns the frame it made of it (the modes are handled around it)."""
+        if self.render_mode in ("rgb_array", "rgb_array_list"):
             if self._renderer is None:
                 self._renderer = self._make_renderer()
             self._renderer.update_scene(self.data, camera=self.camera)
@@ -482,6 +645,47 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
                     self._viewer.user_scn.ngeom = 0
                     self.draw_task(self._viewer.user_scn)
             self._viewer.sync()
+        return None
+
+    def _reset_needed(self, call: str) -> ResetNeeded:
+        name = type(self).__name__
+        if not self._ever_reset:
+            return ResetNeeded(f"{name}.{call}() called before reset(); call reset() first")
+        return ResetNeeded(
+            f"{name}.{call}() called after the episode ended (terminated or truncated); call "
+            "reset() to start a new episode"
+        )
+
+    def _draw(self, render: Any) -> Any:
+        """``render(self)`` as one frame: the modes' handling of the render guard skipped."""
+        self._in_render = True
+        try:
+            return render(self)
+        finally:
+            self._in_render = False
+
+    def _video_frame(self) -> None:
+        """rgb_array_list: draw the frame of the current state into the list render returns."""
+        self._frames.append(self._draw(type(self).render))
+
+    def _take_frames(self) -> list[np.ndarray]:
+        frames, self._frames = self._frames, []
+        return frames
+
+    def _show(self, render: Any) -> None:
+        """human: sync the viewer if a frame instant (every ``render_stride`` steps) passed
+        since the last one shown, then wait until the wall clock reaches the simulated time."""
+        index = self._steps // self.render_stride
+        if index == self._shown_frame:
+            return None
+        self._draw(render)
+        now, sim_time = time.perf_counter(), self._steps * self.dt
+        if self._shown_frame < 0:
+            self._wall_start = now - sim_time
+        else:  # behind the wall clock (a slow step): no catching up, the pace restarts here
+            self._wall_start = max(self._wall_start, now - sim_time)
+            time.sleep(max(0.0, self._wall_start + sim_time - now))
+        self._shown_frame = index
         return None
 
     def _make_renderer(self) -> mujoco.Renderer:
@@ -529,3 +733,6 @@ class RobotEnv(gym.Env[dict, np.ndarray]):
     def controller_context(self) -> TaskContext:
         """What a controller may know of this task (see :class:`TaskContext`)."""
         raise NotImplementedError
+
+
+RobotEnv.render = _guard_render(RobotEnv.render)  # type: ignore[method-assign]
