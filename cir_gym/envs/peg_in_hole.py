@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any, ClassVar
 
@@ -19,6 +20,7 @@ from cir_gym.envs.peg_in_hole_scene import ALIGNED, draw_task, start_posture
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument, check_number
 
@@ -311,8 +313,7 @@ class PegInHoleEnv(RobotEnv):
         self._ft = model.site("ft_site").id
         self._block = model.body("block").id
         self._peg_geom = model.geom("peg_geom").id
-        self._block_geoms = model.geom_bodyid == self._block  # (ngeom,) masks
-        self._robot_geoms = ~self._block_geoms & (model.geom_bodyid > 0)
+        self._block_geoms = model.geom_bodyid == self._block  # (ngeom,) mask
         self._force_adr = model.sensor_adr[model.sensor("ft_force").id]
         self._torque_adr = model.sensor_adr[model.sensor("ft_torque").id]
         self.hole_pos = np.asarray(geo.HOLE_POSITION, dtype=float)  # nominal, world
@@ -496,7 +497,7 @@ class PegInHoleEnv(RobotEnv):
                     break
                 wrenches.append(self._true_wrench().tolist())
                 self._contacts = self._measure_contacts()
-                net = float(np.linalg.norm(self._contacts.net))
+                net = math.sqrt(self._contacts.net @ self._contacts.net)
                 largest = max(largest, self._contacts.largest)
                 net_peak = max(net_peak, net)
                 net_sum += net
@@ -508,15 +509,14 @@ class PegInHoleEnv(RobotEnv):
         return diverged, largest, net_peak, net_sum
 
     def _measure_contacts(self) -> BlockContacts:
-        return BlockContacts.measure(self.model, self.data, self._robot_geoms, self._block_geoms)
+        return BlockContacts.measure(self.model, self.data, self._block_geoms)
 
     def _true_wrench(self) -> np.ndarray:
         """The wrist's true wrench (6,): force, torque in the sensor frame (N, N m)."""
-        d = self.data
-        return np.concatenate((
-            d.sensordata[self._force_adr : self._force_adr + 3],
-            d.sensordata[self._torque_adr : self._torque_adr + 3],
-        ))
+        f, t = self._force_adr, self._torque_adr
+        if t == f + 3:  # neighbours in sensordata (the robot file's order)
+            return self.data.sensordata[f : f + 6]
+        return np.concatenate((self.data.sensordata[f : f + 3], self.data.sensordata[t : t + 3]))
 
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:
@@ -529,6 +529,8 @@ class PegInHoleEnv(RobotEnv):
 
     def _contact_flags(self, depth: float) -> ContactFlags:
         """Two-point contact, wedging and jamming of the peg now (see Episode End)."""
+        if len(self._contacts.force) < 2:  # two-point contact needs two contacts
+            return ContactFlags()
         peg = self._contacts.of_geom(self._peg_geom)
         axis = self.true_hole_R[:, 2]
         jacp = np.zeros((3, self.model.nv))
@@ -580,7 +582,7 @@ class PegInHoleEnv(RobotEnv):
             "hole_quat": self.hole_quat.copy(),
         }
         bounds = self._obs_bounds
-        return {key: np.clip(x, -bounds[key], bounds[key]) for key, x in obs.items()}
+        return {key: CLIP(x, -bounds[key], bounds[key]) for key, x in obs.items()}
 
     @staticmethod
     def _quat(R: np.ndarray) -> np.ndarray:

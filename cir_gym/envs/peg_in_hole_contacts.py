@@ -33,61 +33,55 @@ class BlockContacts:
         force: (k, 3) force of the block on the robot at each contact, world frame (N).
         normal: (k, 3) unit contact normal pushing the robot away from the block, world frame.
         pressing: (k,) normal force of each contact (N; > 0 when the contact pushes).
+        largest: the largest single contact force max_i ‖f_i‖ (N; 0 without contact).
+        net: (3,) the net force of the block on the robot Σ_i f_i, world frame (N).
     """
 
     robot_geom: np.ndarray
     force: np.ndarray
     normal: np.ndarray
     pressing: np.ndarray
+    largest: float
+    net: np.ndarray
 
     @classmethod
     def measure(
-        cls, model: mujoco.MjModel, data: mujoco.MjData, robot: np.ndarray, block: np.ndarray
+        cls, model: mujoco.MjModel, data: mujoco.MjData, block: np.ndarray
     ) -> BlockContacts:
-        """The contacts between a geom with ``robot[g]`` and one with ``block[g]`` ((ngeom,)
-        bool masks). A contact's frame has its normal from geom1 to geom2 and
-        ``mj_contactForce`` gives the force on geom2, so the force on the robot is +frameᵀ f
-        where the robot is geom2 and −frameᵀ f where it is geom1."""
+        """Every contact of the step, each between the robot and a geom with ``block[g]``
+        ((ngeom,) bool mask; the scene's collision bits allow no other pair). A contact's
+        frame has its normal from geom1 to geom2 and ``mj_contactForce`` gives the force on
+        geom2, so the force on the robot is +frameᵀ f where the block is geom1 and −frameᵀ f
+        where it is geom2."""
         n = data.ncon
         if n == 0:
             return _NO_CONTACT
         geom = data.contact.geom[:n]
-        robot_second = robot[geom[:, 1]] & block[geom[:, 0]]
-        robot_first = robot[geom[:, 0]] & block[geom[:, 1]]
-        idx = np.flatnonzero(robot_first | robot_second)
-        if idx.size == 0:
-            return _NO_CONTACT
-        f = np.zeros((idx.size, 6))
-        for row, i in enumerate(idx):
-            mujoco.mj_contactForce(model, data, int(i), f[row])
-        frames = data.contact.frame[idx].reshape(-1, 3, 3)  # rows: normal, two tangents
-        sign = np.where(robot_second[idx], 1.0, -1.0)[:, None]
+        block_first = block[geom[:, 0]]
+        f = np.zeros((n, 6))
+        for i in range(n):
+            mujoco.mj_contactForce(model, data, i, f[i])
+        frames = data.contact.frame[:n].reshape(n, 3, 3)  # rows: normal, two tangents
+        sign = np.where(block_first, 1.0, -1.0)[:, None]
         force = sign * np.einsum("kji,kj->ki", frames, f[:, :3])  # frameᵀ f
-        normal = sign * frames[:, 0, :]
-        robot_geom = np.where(robot_second[idx], geom[idx, 1], geom[idx, 0])
-        return cls(robot_geom, force, normal, f[:, 0].copy())
-
-    @property
-    def largest(self) -> float:
-        """Largest single contact force ‖f_i‖ (N); 0 without contact."""
-        if len(self.force) == 0:
-            return 0.0
-        return float(np.sqrt(np.max(np.sum(self.force**2, axis=1))))
-
-    @property
-    def net(self) -> np.ndarray:
-        """Net force of the block on the robot Σ f_i (3,), world frame (N)."""
-        return self.force.sum(axis=0)
+        largest = float(np.sqrt(np.max(np.einsum("ki,ki->k", f[:, :3], f[:, :3]))))
+        robot_geom = np.where(block_first, geom[:, 1], geom[:, 0])
+        return cls(robot_geom, force, sign * frames[:, 0, :], f[:, 0], largest, force.sum(0))
 
     def of_geom(self, geom: int) -> BlockContacts:
         """The contacts of one robot geom (e.g. the peg)."""
         keep = self.robot_geom == geom
+        force = self.force[keep]
+        largest = float(np.sqrt(np.max(np.sum(force**2, axis=1)))) if len(force) else 0.0
         return BlockContacts(
-            self.robot_geom[keep], self.force[keep], self.normal[keep], self.pressing[keep]
+            self.robot_geom[keep], force, self.normal[keep], self.pressing[keep], largest,
+            force.sum(axis=0),
         )
 
 
-_NO_CONTACT = BlockContacts(np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+_NO_CONTACT = BlockContacts(
+    np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), 0.0, np.zeros(3)
+)
 
 
 @dataclass(frozen=True)
