@@ -141,6 +141,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--stage", choices=("main", "sweeps", "laws", "all"), default="all")
     parser.add_argument(
+        "--law",
+        type=int,
+        action="append",
+        default=None,
+        help="with --stage laws: only this entry of LAWS (index, repeatable; default: all); "
+        "rows are merged into <out>/laws.json by label, so runs of different laws can share it",
+    )
+    parser.add_argument(
         "--law-episodes",
         type=int,
         default=30,
@@ -207,7 +215,7 @@ def main() -> None:
         return done.get(key) or run(name, n, gains, **kwargs)
 
     if args.stage == "laws":
-        print(compare_laws(args.law_episodes, args.out))
+        print(compare_laws(args.law_episodes, args.out, args.law))
         return
     if args.stage in ("main", "all"):
         results["main"] = []
@@ -260,17 +268,19 @@ def wilson(successes: int, n: int) -> tuple[float, float, float]:
     return p, max(0.0, centre - half), min(1.0, centre + half)
 
 
-def compare_laws(n: int, out: Path) -> str:
-    """The laws of :data:`LAWS` on ``n`` held-out seeds from :data:`LAW_SEED` (through
-    cir_gym.evaluation.evaluate); writes ``<out>/laws.json``, ``<out>/laws.md`` and the
-    single-contact force figure ``<out>/contact_forces.png``; returns the markdown."""
-    rows = []
-    for label, name, gains in LAWS:
+def compare_laws(n: int, out: Path, which: list[int] | None = None) -> str:
+    """The laws of :data:`LAWS` (or the entries ``which``) on ``n`` held-out seeds from
+    :data:`LAW_SEED` (through cir_gym.evaluation.evaluate); each law's row is merged into
+    ``<out>/laws.json`` by label as it finishes, and ``<out>/laws.md`` and the single-contact
+    force figure ``<out>/contact_forces.png`` are rebuilt from every stored row; returns the
+    markdown."""
+    for index in which if which is not None else range(len(LAWS)):
+        label, name, gains = LAWS[index]
         policy = make_policy(name, gains)
         t0 = time.perf_counter()
         result = evaluate(policy, ENV_ID, n, seed=LAW_SEED, batched=False)
         eps = result.episodes
-        rows.append({
+        row = {
             "label": label,
             "controller": name,
             "gains": gains,
@@ -281,14 +291,18 @@ def compare_laws(n: int, out: Path) -> str:
             "success": [bool(ep.success) for ep in eps],
             "force_limit": [bool(ep.terminated and not ep.success and not ep.diverged)
                             for ep in eps],
-        })
-        print(label, f"{np.mean(rows[-1]['success']):.2f}", flush=True)
+        }
+        print(label, f"{np.mean(row['success']):.2f}", flush=True)
         with locked(out):
-            _replace(out / "laws.json", json.dumps(rows, indent=1))
-    text = laws_markdown(rows)
-    with locked(out):
-        _replace(out / "laws.md", text)
-    contact_force_figure(rows, out / "contact_forces.png")
+            path = out / "laws.json"
+            stored = json.loads(path.read_text()) if path.exists() else []
+            rows = [r for r in stored if r["label"] != label] + [row]
+            order = [entry[0] for entry in LAWS]
+            rows.sort(key=lambda r: order.index(r["label"]) if r["label"] in order else 99)
+            _replace(path, json.dumps(rows, indent=1))
+            text = laws_markdown(rows)
+            _replace(out / "laws.md", text)
+            contact_force_figure(rows, out / "contact_forces.png")
     return text
 
 
