@@ -15,7 +15,8 @@ are the frame's axes in the world, colours as RGBA in [0, 1] (alpha < 1: translu
 scene.maxgeom``) the rest is dropped silently, so a marker never raises in the middle of a video
 (``mujoco.Renderer`` makes room for ``max_geom`` = 10 000 geoms).
 
-:func:`draw_caption` writes one line of text into an RGB frame (``mujoco.Renderer`` has no text
+:func:`draw_caption` writes a caption (wrapped onto more lines when it is wider than the
+frame) into an RGB frame (``mujoco.Renderer`` has no text
 overlay) with a built-in 5 × 7 pixel font: ASCII plus ° ± × · Δ θ τ µ ≤ ≥ ω ‖ →; combining marks
 (q̄) are dropped, any other character is drawn as "?".
 
@@ -39,6 +40,7 @@ The second half of the module draws the shipped environments' tasks (their ``dra
 from __future__ import annotations
 
 import itertools
+import re
 import unicodedata
 import weakref
 from typing import Any
@@ -80,6 +82,7 @@ __all__ = [
     "text_mask",
     "tint_bodies",
     "tint_joint_limits",
+    "wrap_caption",
 ]
 
 RED = (0.9, 0.15, 0.1, 1.0)
@@ -643,6 +646,41 @@ def caption_scale(height: int) -> int:
     return max(1, 1 + (int(height) - 60) // 240)
 
 
+def wrap_caption(text: str, width: int, scale: int) -> list[str]:
+    """``text`` broken into lines of at most ``width`` px at ``scale``: between fields first
+    (two or more spaces before a word that is not a number: ``"t  0.62 s  depth  -0.07 mm"``
+    has the fields ``t  0.62 s`` and ``depth  -0.07 mm``), then between words; a word longer
+    than a line is cut where it overflows."""
+    chars = max(1, width // ((GLYPH_W + 1) * scale))
+    line = " ".join(text.split("\n"))
+    if len(_printable(line)) <= chars:
+        return [line]
+    lines: list[str] = []
+    current = ""
+    for field in (f.strip() for f in re.split(r" {2,}(?=[^\d\s+\-.])", line) if f.strip()):
+        joined = f"{current}  {field}" if current else field
+        if len(_printable(joined)) <= chars:
+            current = joined
+            continue
+        if current:
+            lines.append(current)
+        current = ""
+        for word in field.split():
+            joined = f"{current} {word}" if current else word
+            if len(_printable(joined)) <= chars:
+                current = joined
+                continue
+            if current:
+                lines.append(current)
+            while len(_printable(word)) > chars:  # a word wider than the line: cut it
+                lines.append(word[:chars])
+                word = word[chars:]
+            current = word
+    if current:
+        lines.append(current)
+    return lines
+
+
 def draw_caption(
     image: np.ndarray,
     text: str,
@@ -650,32 +688,38 @@ def draw_caption(
     colour: tuple[int, int, int] = (255, 255, 255),
     background: float = 0.55,
     margin: int = 4,
+    max_lines: int = 2,
 ) -> np.ndarray:
     """Write ``text`` at the top-left of ``image`` (h, w, 3) uint8, in place; return ``image``.
 
-    The text sits on a dark band (the pixels under it are multiplied by ``1 - background``)
-    and is clipped at the right edge. ``scale`` defaults to :func:`caption_scale`, reduced
-    (down to 1) until the line fits the width.
+    The text sits on a dark band (the pixels under it are multiplied by ``1 - background``).
+    ``scale`` defaults to :func:`caption_scale`; a caption wider than the frame is wrapped
+    (:func:`wrap_caption`) onto at most ``max_lines`` lines, the default scale reduced (down
+    to 1) until it fits them; at scale 1 (or a given ``scale``) it takes the lines it needs.
     """
     if not text:
         return image
-    s = caption_scale(image.shape[0]) if scale is None else max(1, int(scale))
-    width = (GLYPH_W + 1) * len(_printable(text))
-    while s > 1 and scale is None and width * s > image.shape[1] - 2 * margin:
-        s -= 1  # the default scale shrinks until the line fits
-    mask = text_mask(text, s)
     h, w = image.shape[:2]
+    s = caption_scale(h) if scale is None else max(1, int(scale))
+    lines = wrap_caption(text, w - 2 * margin, s)
+    while scale is None and s > 1 and len(lines) > max_lines:
+        s -= 1  # the default scale shrinks until the caption fits its lines
+        lines = wrap_caption(text, w - 2 * margin, s)
+    pad, step = s, (GLYPH_H + 3) * s
     y0 = x0 = margin
-    mh = min(mask.shape[0], h - y0)
-    mw = min(mask.shape[1], w - x0)
-    if mh <= 0 or mw <= 0:
-        return image
-    pad = s
-    band = image[max(0, y0 - pad) : y0 + mh + pad, max(0, x0 - pad) : x0 + mw + pad]
     keep = round(256 * (1.0 - background))
-    band[:] = ((band.astype(np.uint16) * keep) >> 8).astype(image.dtype)
-    region = image[y0 : y0 + mh, x0 : x0 + mw]
-    region[mask[:mh, :mw]] = colour
+    for i, line in enumerate(lines):
+        mask = text_mask(line, s)
+        y = y0 + i * step
+        mh = min(mask.shape[0], h - y)
+        mw = min(mask.shape[1], w - x0)
+        if mh <= 0 or mw <= 0:
+            break
+        top = max(0, y - pad) if i == 0 else y - 2 * s  # the bands of two lines join
+        band = image[top : y + mh + pad, max(0, x0 - pad) : x0 + mw + pad]
+        band[:] = ((band.astype(np.uint16) * keep) >> 8).astype(image.dtype)
+        region = image[y : y + mh, x0 : x0 + mw]
+        region[mask[:mh, :mw]] = colour
     return image
 
 
