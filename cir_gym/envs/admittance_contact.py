@@ -13,8 +13,10 @@ from cir_gym.context import TaskContext
 from cir_gym.envs import admittance_scene as scene
 from cir_gym.envs.admittance_scene import (
     JOINTS,
+    RANDOM_RANGES,
     SITE,
     START_Q,
+    STIFFNESS_RANGE,
     SURFACE_NORMAL,
     SURFACE_POINT,
     TIMESTEP,
@@ -22,16 +24,13 @@ from cir_gym.envs.admittance_scene import (
     TOOL_MASS,
     TOOL_QUAT,
     build_model,
-    surface_force,
     tool_robot,
 )
 from cir_gym.envs.base import MIN_CONTROL_FREQ, RobotEnv
 from cir_gym.envs.base import frame_skip as physics_steps
 from cir_gym.ft_sensor import (
-    PRESETS,
     WrenchSensor,
     contact_wrench,
-    sensor_spec,
     tool_gravity_wrench,
 )
 from cir_gym.metrics import MetricSpec
@@ -41,31 +40,18 @@ from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "JOINTS",
+    "RANDOM_RANGES",
     "START_Q",
     "TOOL_COM",
     "TOOL_MASS",
     "AdmittanceContactEnv",
     "build_model",
-    "surface_force",
     "tool_robot",
 ]
 
-APPROACH_HEIGHT = 0.03  # m
-WIPE_START = 2.0  # s
-WIPE_AMPLITUDE = 0.05  # m
-WIPE_FREQUENCY = 0.25  # Hz: peak speed 2π A f = 0.079 m/s
 CONTACT_THRESHOLD = 0.5  # N: the tool's normal contact force above which it touches the plate
-STIFFNESS_RANGE = (1.0e3, 1.0e5)  # N/m
-FORCE_REF_RANGE = (5.0, 30.0)  # N
 #: position interface: action 1 = this speed (m/s for δp, rad/s for δφ) over one period
 MAX_SPEED = np.array([0.25, 0.25, 0.25, 1.0, 1.0, 1.0])
-#: ranges drawn per episode when randomize=True (stiffness log-uniform, others uniform)
-RANDOM_RANGES = {
-    "stiffness": STIFFNESS_RANGE,  # N/m, log-uniform
-    "damping": (5.0, 50.0),  # N s/m
-    "sensor_bias_force": (-2.0, 2.0),  # N, each axis
-    "sensor_bias_torque": (-0.1, 0.1),  # N m, each axis
-}
 CONTROLS = ("torque", "position")
 #: observation keys: (size, bound); every array is float64 and clipped to ±bound (f_ref ≥ 0)
 OBSERVATION = {
@@ -91,14 +77,11 @@ class AdmittanceContactEnv(RobotEnv):
     Chapter 6's interaction-control problem. The KUKA iiwa 14 carries a 0.3 kg tool with a
     hemispherical tip behind a wrist force/torque sensor. Below it, a 0.2-kg plate on a prismatic
     joint with a real spring and damper (``stiffness`` N/m, ``damping`` N s/m: the surface's
-    stiffness and damping realised exactly, which MuJoCo's mass-normalised ``solref`` cannot do)
-    and a stiff end stop 12 cm below its rest position. The tool-plate contact is stiff (< 10 µm
-    of penetration at 20 N) with Coulomb friction μ = 0.1; its friction rows have their own
-    reference time constant so that the tip stays on the plate while it slides
-    (:mod:`cir_gym.envs.admittance_scene` gives the cause: with MuJoCo's default the tip left
-    the plate for one physics step in ~13 while wiping). The arm's links collide with the
-    plate too. At 1e5 N/m the plate's own mode is at √(k/m)/2π ≈ 110 Hz (ζ = 0.07 at the
-    default damping). The physics step is 0.25 ms (``timestep``).
+    stiffness and damping in SI units, which MuJoCo's mass-normalised ``solref`` cannot give)
+    and a stiff end stop 12 cm down. The tool-plate contact is stiff (< 10 µm at 20 N) with
+    Coulomb friction μ = 0.1; the arm's links collide with the plate too (scene, contact
+    parameters and why: :mod:`cir_gym.envs.admittance_scene`). At 1e5 N/m the plate's mode is
+    at √(k/m)/2π ≈ 110 Hz (ζ = 0.07 at the default damping). Physics step 0.25 ms.
     The tool starts 3 cm above the *nominal* surface (the plane z = 0.20 m, normal +z); the
     true surface is off by a height and a tilt drawn per episode (U(±``height_error``) m,
     U(±``tilt_error``) rad about a random horizontal axis), known to the controllers only
@@ -107,22 +90,20 @@ class AdmittanceContactEnv(RobotEnv):
     surface: from t = 2 s the tip's reference moves by 5 cm · sin(2π · 0.25 Hz · (t − 2)) along
     a random horizontal direction (peak 0.079 m/s), on the nominal surface.
 
-    The env reads MuJoCo's contact forces at every physics step. The normal force f (N,
-    ``info["contact_force"]``, never observed) is the tool's: the tool-plate contact force
-    along the true inward normal, averaged over the control period. ``info["in_contact"]``: the
-    tool pressed on the plate (> 0.5 N) at every physics step of the period;
-    ``info["contact_steps"]``: the fraction of the period's physics steps it did;
-    ``info["peak_contact_force"]``: the largest single contact force on the plate (the tool's
-    or a link's) at any physics step of the period; ``info["plate_load"]``: the load in the
-    plate's spring and damper, k x + c ẋ (what a load cell under the plate reads).
-    The controllers measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`), which
-    includes the tool's weight, a bias, noise, quantisation, a low-pass filter, a delay and
-    sampling with zero-order hold (presets ``"robotiq_ft300"``, ``"ati_gamma"``, ``"ideal"``);
-    the reading lags the true wrench by one further physics step (MuJoCo computes sensors before
-    it integrates). With ``randomize=True`` each reset draws the stiffness (log-uniform in
-    [1e3, 1e5] N/m), the damping (U(5, 50) N s/m) and the sensor bias (U(±2) N, U(±0.1) N m per
-    axis) and ignores ``stiffness``, ``damping`` and ``sensor_bias``; the draw is in
-    ``info["surface"]`` of ``reset``.
+    Contact forces are read at every physics step. The normal force f (N,
+    ``info["contact_force"]``, never observed) is the tool's: its contact force on the plate
+    along the true normal, averaged over the control period. ``info["in_contact"]``: the tool
+    pressed (> 0.5 N) at every physics step of the period (``info["contact_steps"]``: the
+    fraction it did); ``info["peak_contact_force"]``: the largest single contact force on the
+    plate (the tool's or a link's) in the period; ``info["plate_load"]``: k x + c ẋ, what a
+    load cell under the plate reads. The controllers measure the wrench through the sensor
+    model (:mod:`cir_gym.ft_sensor`: the tool's weight, bias, noise, quantisation, low-pass
+    filter, delay, zero-order-hold sampling; presets ``"robotiq_ft300"``, ``"ati_gamma"``,
+    ``"ideal"``), one physics step late (MuJoCo computes sensors before it integrates). With
+    ``randomize=True`` each reset draws the stiffness (log-uniform in [1e3, 1e5] N/m), the
+    damping (U(5, 50) N s/m) and the sensor bias (U(±2) N, U(±0.1) N m per axis) and ignores
+    ``stiffness``, ``damping`` and ``sensor_bias``; the draw is in ``info["surface"]`` of
+    ``reset``.
 
     ## Action Space
     ``control="torque"``: ``Box(-1, 1, (7,), float32)``, τ = a ⊙ τ_max (τ_max = 320, 320, 176,
@@ -232,11 +213,9 @@ class AdmittanceContactEnv(RobotEnv):
     - v0: initial version. Changed before the issue closed (no v1): the physics step 1 ms →
       0.25 ms (``timestep``) and a stop's cost includes the rest of the horizon; the shipped
       agents were retrained on this version.
-    - Next version: the force is the tool's contact force (period mean), contact and contact
-      loss the tool's at physics-step resolution, the force limit on any single contact force
-      at physics-step resolution, a stiff end stop under the plate, friction rows with a 100-ms
-      reference time constant (the tip no longer leaves the plate while wiping),
-      ``charge_unplayed_steps`` (on) with the action-rate term in the worst step.
+    - Next version: the force, contact and contact loss are the tool's, at every physics step;
+      the force limit on any single contact; the plate's end stop; friction rows with their own
+      time constant (the tip stays on the plate while wiping); ``charge_unplayed_steps``.
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
@@ -303,28 +282,21 @@ class AdmittanceContactEnv(RobotEnv):
         # + 0.0 turns −0.0 into 0.0 (uniform(−0.0, 0.0) is an error in numpy)
         self.height_error = check_number("height_error", height_error, 0.0, 0.02) + 0.0
         self.tilt_error = check_number("tilt_error", tilt_error, 0.0, 0.2) + 0.0
-        for name, flag in (("randomize", randomize), ("charge_unplayed_steps", charge_unplayed_steps)):
+        flags = (("randomize", randomize), ("charge_unplayed_steps", charge_unplayed_steps))
+        for name, flag in flags:
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidArgument(f"{name} must be True or False, got {flag!r}")
         self.randomize = bool(randomize)
         self.charge_unplayed_steps = bool(charge_unplayed_steps)
-        if not isinstance(sensor, str) or sensor not in PRESETS:
-            raise InvalidArgument(f"sensor must be one of {sorted(PRESETS)}, got {sensor!r}")
-        spec = PRESETS[sensor]
-        for argument, field, value in (
-            ("sensor_bias", "bias", sensor_bias),
-            ("sensor_noise", "noise_std", sensor_noise),
-            ("sensor_resolution", "resolution", sensor_resolution),
-            ("sensor_rate", "sample_rate", sensor_rate),
-            ("sensor_cutoff", "cutoff", sensor_cutoff),
-            ("sensor_delay", "delay", sensor_delay),
-        ):
-            if value is not None:
-                try:
-                    spec = sensor_spec(spec, **{field: value})
-                except InvalidArgument as exc:
-                    raise InvalidArgument(f"{argument}: {exc}") from exc
-        self.sensor_spec = spec
+        self.sensor_spec = scene.wrist_sensor_spec(
+            sensor,
+            sensor_bias=sensor_bias,
+            sensor_noise=sensor_noise,
+            sensor_resolution=sensor_resolution,
+            sensor_rate=sensor_rate,
+            sensor_cutoff=sensor_cutoff,
+            sensor_delay=sensor_delay,
+        )
         self.sensor_name = sensor
         self.force_limit = check_number("force_limit", force_limit, 1.0, 1000.0)
         self.settle_time = check_number("settle_time", settle_time, 0.0, 10.0)
@@ -410,69 +382,26 @@ class AdmittanceContactEnv(RobotEnv):
         self._normal = SURFACE_NORMAL.copy()
         self._surface: dict[str, Any] = {}
 
-    # ------------------------------------------------------------------ episode set-up
-    def _draw_surface(self) -> dict[str, Any]:
-        rng = self.np_random
-        if self.randomize:
-            lo, hi = RANDOM_RANGES["stiffness"]
-            k = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-            c = float(rng.uniform(*RANDOM_RANGES["damping"]))
-            bias = np.concatenate((
-                rng.uniform(*RANDOM_RANGES["sensor_bias_force"], 3),
-                rng.uniform(*RANDOM_RANGES["sensor_bias_torque"], 3),
-            ))
-        else:
-            k, c, bias = self.stiffness, self.damping, np.array(self.sensor_spec.bias)
-        dh = float(rng.uniform(-self.height_error, self.height_error))
-        tilt = float(rng.uniform(-self.tilt_error, self.tilt_error))
-        phi = float(rng.uniform(0.0, 2 * np.pi))
-        f_ref = float(rng.uniform(*FORCE_REF_RANGE)) if self.force_ref is None else self.force_ref
-        psi = float(rng.uniform(0.0, 2 * np.pi))
-        return {
-            "stiffness": k,
-            "damping": c,
-            "sensor_bias": bias,
-            "height_error": dh,
-            "tilt": tilt,
-            "tilt_axis": np.array([np.cos(phi), np.sin(phi), 0.0]),
-            "force_ref": f_ref,
-            "wipe_direction": np.array([np.cos(psi), np.sin(psi), 0.0]),
-        }
-
-    def _apply_surface(self, s: dict[str, Any]) -> None:
-        m = self.model
-        m.jnt_stiffness[self._slide_jnt] = s["stiffness"]
-        m.dof_damping[self._slide_dof] = s["damping"]
-        quat = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(quat, s["tilt_axis"], s["tilt"])
-        m.body_quat[self._mount] = quat
-        m.body_pos[self._mount] = self._mount_pos0 + s["height_error"] * SURFACE_NORMAL
-        R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, quat)
-        self._normal = R.reshape(3, 3) @ SURFACE_NORMAL
-
-    def _make_reference(self, s: dict[str, Any]) -> None:
-        """Descend from the start to the nominal surface point in 1 s (quintic), then wipe."""
-        t = np.arange(self.max_steps + 1) * self.dt
-        start = SURFACE_POINT + APPROACH_HEIGHT * SURFACE_NORMAL
-        tau = np.clip(t / 1.0, 0.0, 1.0)
-        blend = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
-        dblend = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) * (t <= 1.0)
-        w = 2 * np.pi * WIPE_FREQUENCY
-        active = t >= WIPE_START
-        s_wipe = np.where(active, WIPE_AMPLITUDE * np.sin(w * (t - WIPE_START)), 0.0)
-        v_wipe = np.where(active, WIPE_AMPLITUDE * w * np.cos(w * (t - WIPE_START)), 0.0)
-        d = s["wipe_direction"]
-        self._pos_ref = start + np.outer(blend, SURFACE_POINT - start) + np.outer(s_wipe, d)
-        self._vel_ref = np.outer(dblend, SURFACE_POINT - start) + np.outer(v_wipe, d)
-
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
-        s = self._draw_surface()
+        s = scene.draw_surface(
+            self.np_random,
+            (self.stiffness, self.damping, np.array(self.sensor_spec.bias)),
+            self.randomize,
+            self.height_error,
+            self.tilt_error,
+            self.force_ref,
+        )
         self._surface = s
-        self._apply_surface(s)
-        self._make_reference(s)
+        m = self.model
+        m.jnt_stiffness[self._slide_jnt] = s["stiffness"]
+        m.dof_damping[self._slide_dof] = s["damping"]
+        m.body_pos[self._mount] = self._mount_pos0 + s["height_error"] * SURFACE_NORMAL
+        m.body_quat[self._mount], R = scene.tilt_rotation(s["tilt_axis"], s["tilt"])
+        self._normal = R @ SURFACE_NORMAL
+        t = np.arange(self.max_steps + 1) * self.dt
+        self._pos_ref, self._vel_ref = scene.wipe_reference(t, s["wipe_direction"])
         self._f_ref = s["force_ref"]
         qpos = self.model.qpos0.copy()
         qpos[self._qa] = START_Q
@@ -603,11 +532,6 @@ class AdmittanceContactEnv(RobotEnv):
             m.jnt_stiffness[self._slide_jnt] * x
             - m.dof_damping[self._slide_dof] * d.qvel[self._slide_dof]
         )
-
-    def contact_normal_force(self) -> float:
-        """The net contact force on the plate (the tool's and any link's) along the true inward
-        normal (N), this physics step."""
-        return float(-self._normal @ surface_force(self.model, self.data, self._plate_geom))
 
     def plate_deflection(self) -> float:
         """Compression of the surface's spring (m, positive when pressed)."""

@@ -24,10 +24,13 @@ The tool-plate contact (an explicit contact pair, elliptic friction cone):
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 
 from cir_gym import rendering
+from cir_gym.ft_sensor import PRESETS, SensorSpec, sensor_spec
 from cir_gym.robot import (
     ASSETS,
     PAYLOAD_OFFSET,
@@ -36,15 +39,19 @@ from cir_gym.robot import (
     Robot,
     apply_model_error,
 )
+from cir_gym.validation import InvalidArgument
 
 __all__ = [
+    "FORCE_REF_RANGE",
     "FRICTION",
     "FRICTION_TIMECONST",
     "JOINTS",
     "PLATE_TRAVEL",
+    "RANDOM_RANGES",
     "SCENE",
     "SITE",
     "START_Q",
+    "STIFFNESS_RANGE",
     "SURFACE_NORMAL",
     "SURFACE_POINT",
     "TIMESTEP",
@@ -55,9 +62,13 @@ __all__ = [
     "TOOL_RADIUS",
     "build_model",
     "draw",
+    "draw_surface",
     "quat_of",
     "surface_force",
+    "tilt_rotation",
     "tool_robot",
+    "wipe_reference",
+    "wrist_sensor_spec",
 ]
 
 SCENE = ASSETS / "scenes" / "admittance_contact.xml"
@@ -83,6 +94,19 @@ FRICTION = 0.1  # Coulomb friction coefficient of the tool-plate contact
 FRICTION_TIMECONST = 0.1  # s, the friction rows' reference time constant (module docstring)
 #: the plate's travel below its rest position (m): a stiff end stop (the slide joint's range)
 PLATE_TRAVEL = 0.12
+APPROACH_HEIGHT = 0.03  # m
+WIPE_START = 2.0  # s
+WIPE_AMPLITUDE = 0.05  # m
+WIPE_FREQUENCY = 0.25  # Hz: peak speed 2π A f = 0.079 m/s
+STIFFNESS_RANGE = (1.0e3, 1.0e5)  # N/m
+FORCE_REF_RANGE = (5.0, 30.0)  # N
+#: ranges drawn per episode when randomize=True (stiffness log-uniform, others uniform)
+RANDOM_RANGES = {
+    "stiffness": STIFFNESS_RANGE,  # N/m, log-uniform
+    "damping": (5.0, 50.0),  # N s/m
+    "sensor_bias_force": (-2.0, 2.0),  # N, each axis
+    "sensor_bias_torque": (-0.1, 0.1),  # N m, each axis
+}
 #: the tool-plate contact's normal parameters (the plate's class in the scene file)
 _SOLREF = (0.002, 1.0)
 _SOLIMP = (0.99, 0.99, 0.001, 0.5, 2.0)
@@ -150,6 +174,34 @@ def build_model(stiffness: float, damping: float, timestep: float = TIMESTEP) ->
     return spec.compile()
 
 
+def wrist_sensor_spec(sensor: str, **overrides: Any) -> SensorSpec:
+    """The wrist sensor: preset ``sensor`` with the env's ``sensor_*`` arguments that are not
+    None (``sensor_bias``, ``sensor_noise``, ``sensor_resolution``, ``sensor_rate``,
+    ``sensor_cutoff``, ``sensor_delay``).
+
+    Raises:
+        InvalidArgument: naming the argument and what is allowed.
+    """
+    if not isinstance(sensor, str) or sensor not in PRESETS:
+        raise InvalidArgument(f"sensor must be one of {sorted(PRESETS)}, got {sensor!r}")
+    fields = {
+        "sensor_bias": "bias",
+        "sensor_noise": "noise_std",
+        "sensor_resolution": "resolution",
+        "sensor_rate": "sample_rate",
+        "sensor_cutoff": "cutoff",
+        "sensor_delay": "delay",
+    }
+    spec = PRESETS[sensor]
+    for argument, value in overrides.items():
+        if value is not None:
+            try:
+                spec = sensor_spec(spec, **{fields[argument]: value})
+            except InvalidArgument as exc:
+                raise InvalidArgument(f"{argument}: {exc}") from exc
+    return spec
+
+
 def tool_robot() -> Robot:
     """The nominal iiwa14 with the tool (a controller's model: the robot file plus the tool)."""
     robot = Robot.from_name("iiwa14")
@@ -170,6 +222,73 @@ def surface_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.n
         world = c.frame.reshape(3, 3).T @ f[:3]  # on geom2, pushing it along the normal
         total += world if c.geom2 == geom else -world
     return total
+
+
+def draw_surface(
+    rng: np.random.Generator,
+    nominal: tuple[float, float, np.ndarray],
+    randomize: bool,
+    height_error: float,
+    tilt_error: float,
+    force_ref: float | None,
+) -> dict[str, Any]:
+    """One episode's surface and task: the stiffness (N/m), damping (N s/m) and sensor bias
+    (6,) (``nominal``'s, or drawn from :data:`RANDOM_RANGES` when ``randomize``), the height
+    error U(±``height_error``) m, the tilt U(±``tilt_error``) rad about a random horizontal
+    axis, f̄ (``force_ref``, or U(:data:`FORCE_REF_RANGE`) N when None) and the wiping
+    direction (a random horizontal unit vector)."""
+    if randomize:
+        lo, hi = RANDOM_RANGES["stiffness"]
+        k = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+        c = float(rng.uniform(*RANDOM_RANGES["damping"]))
+        bias = np.concatenate((
+            rng.uniform(*RANDOM_RANGES["sensor_bias_force"], 3),
+            rng.uniform(*RANDOM_RANGES["sensor_bias_torque"], 3),
+        ))
+    else:
+        k, c, bias = nominal[0], nominal[1], np.array(nominal[2])
+    dh = float(rng.uniform(-height_error, height_error))
+    tilt = float(rng.uniform(-tilt_error, tilt_error))
+    phi = float(rng.uniform(0.0, 2 * np.pi))
+    f_ref = float(rng.uniform(*FORCE_REF_RANGE)) if force_ref is None else force_ref
+    psi = float(rng.uniform(0.0, 2 * np.pi))
+    return {
+        "stiffness": k,
+        "damping": c,
+        "sensor_bias": bias,
+        "height_error": dh,
+        "tilt": tilt,
+        "tilt_axis": np.array([np.cos(phi), np.sin(phi), 0.0]),
+        "force_ref": f_ref,
+        "wipe_direction": np.array([np.cos(psi), np.sin(psi), 0.0]),
+    }
+
+
+def tilt_rotation(axis: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation by ``angle`` (rad) about the unit ``axis`` (3,): its quaternion (4,) and its
+    matrix (3, 3)."""
+    quat, R = np.zeros(4), np.zeros(9)
+    mujoco.mju_axisAngle2Quat(quat, axis, angle)
+    mujoco.mju_quat2Mat(R, quat)
+    return quat, R.reshape(3, 3)
+
+
+def wipe_reference(t: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tip's reference position and velocity (len(t), 3) at the times ``t`` (s): from the
+    start, :data:`APPROACH_HEIGHT` above the nominal surface point, down to it in 1 s
+    (quintic), then from :data:`WIPE_START` a sine of :data:`WIPE_AMPLITUDE` and
+    :data:`WIPE_FREQUENCY` along ``direction`` (3,) in the nominal surface."""
+    start = SURFACE_POINT + APPROACH_HEIGHT * SURFACE_NORMAL
+    tau = np.clip(t / 1.0, 0.0, 1.0)
+    blend = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+    dblend = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) * (t <= 1.0)
+    w = 2 * np.pi * WIPE_FREQUENCY
+    active = t >= WIPE_START
+    s_wipe = np.where(active, WIPE_AMPLITUDE * np.sin(w * (t - WIPE_START)), 0.0)
+    v_wipe = np.where(active, WIPE_AMPLITUDE * w * np.cos(w * (t - WIPE_START)), 0.0)
+    position = start + np.outer(blend, SURFACE_POINT - start) + np.outer(s_wipe, direction)
+    velocity = np.outer(dblend, SURFACE_POINT - start) + np.outer(v_wipe, direction)
+    return position, velocity
 
 
 def quat_of(R: np.ndarray) -> np.ndarray:

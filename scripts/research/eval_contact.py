@@ -1,7 +1,8 @@
 """The chapter-6 laws on AdmittanceContact compared on equal terms (tables and a summary).
 
     python scripts/research/eval_contact.py [--episodes 30] [--seed 5000]
-        [--out results/admittance_contact] [--only GROUP ...] [--render-only]
+        [--out results/admittance_contact] [--only GROUP ...] [--settings S ...]
+        [--laws LABEL ...] [--render-only]
 
 Every law runs on the same held-out seeds (``--seed`` … ``--seed + episodes − 1``; the
 leaderboard uses 1000+, tuning and training other seeds) at stiffness 1e3, 1e4 and 1e5 N/m
@@ -199,6 +200,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("results/admittance_contact"))
     parser.add_argument("--only", nargs="*", choices=sorted(GROUPS), default=None)
     parser.add_argument("--settings", nargs="*", choices=list(SETTINGS), default=None)
+    parser.add_argument("--laws", nargs="*", default=None, help="only the rows with these labels")
     parser.add_argument("--render-only", action="store_true", help="README from results.json")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -209,6 +211,8 @@ def main(argv: list[str] | None = None) -> None:
     if not args.render_only:
         for group in args.only or list(GROUPS):
             for label, controller, gains, settings in GROUPS[group]:
+                if args.laws and label not in args.laws:
+                    continue
                 for setting in settings:
                     if args.settings and setting not in args.settings:
                         continue
