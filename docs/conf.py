@@ -98,11 +98,16 @@ _LITERAL = re.compile(r"(``.+?``)")
 def _escape_bars(app, what, name, obj, options, lines) -> None:
     """The docstrings write norms and absolute values as ``|x|``, which reST reads as a
     substitution: escape every bar outside inline literals (no docstring uses substitutions
-    or reST tables)."""
+    or reST tables), and the star of a path glob (``dir/*.yml``), which reST reads as
+    emphasis."""
     for i, line in enumerate(lines):
-        if "|" in line:
+        if "|" in line or "/*" in line:
             parts = _LITERAL.split(line)
-            lines[i] = "".join(p if p.startswith("``") else p.replace("|", r"\|") for p in parts)
+            lines[i] = "".join(p if p.startswith("``") else _escape(p) for p in parts)
+
+
+def _escape(text: str) -> str:
+    return text.replace("|", r"\|").replace("/*", r"/\*")
 
 
 def setup(app):

@@ -295,9 +295,20 @@ def site_path(repo_path: str) -> str | None:
     return None
 
 
+def held(repo_path: str) -> bool:
+    """Whether the site holds a copy of this repository file (:func:`stage` copies it)."""
+    path = REPO / repo_path
+    if not path.is_file():
+        return False
+    if repo_path.startswith("results/"):
+        return path.suffix.lower() in RESULT_FILES
+    return site_path(repo_path) is not None
+
+
 def rewrite_links(text: str, repo_file: str, site_file: str) -> str:
     """Rewrite the relative markdown links of ``repo_file`` (a repository path) for its copy
-    at ``site_file`` (a site path): a target the site mounts points to the site's copy."""
+    at ``site_file`` (a site path): a target the site holds points to the site's copy; a
+    repository file or folder it does not hold becomes its path in code font."""
 
     def one(match: re.Match) -> str:
         target = match.group(2)
@@ -307,9 +318,14 @@ def rewrite_links(text: str, repo_file: str, site_file: str) -> str:
         if not path:
             return match.group(0)
         resolved = os.path.normpath(os.path.join(os.path.dirname(repo_file), path))
-        mapped = site_path(resolved.replace(os.sep, "/"))
-        if mapped is None:
-            return match.group(0)
+        resolved = resolved.replace(os.sep, "/")
+        mapped = site_path(resolved)
+        if mapped is None or not held(resolved):
+            if match.group(1).startswith("!") or not (REPO / resolved).exists():
+                return match.group(0)  # an image, or a missing file: left for the link check
+            # a repository file or folder the site does not hold: its path, in code font
+            text = match.group(1)[1:-2]
+            return text if text.strip("`") == resolved else f"{text} (`{resolved}`)"
         new = os.path.relpath(mapped, os.path.dirname(site_file) or ".").replace(os.sep, "/")
         if path.endswith("/") and not new.endswith("/"):
             new += "/"
