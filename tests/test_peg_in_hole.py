@@ -598,3 +598,29 @@ def test_the_force_gains_are_designed_against_the_contact_stiffness() -> None:
     off = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v1", crossover_ratio=0.0)
     state = np.zeros(off.state_size)
     assert not np.any(off.force_loop(f, _fields(state, HYBRID_STATE), sigma, np.zeros(6)))
+
+
+def test_a_peg_slid_flat_across_the_face_into_the_hole_is_inserted() -> None:
+    """The true hole 6+ mm off (no tilt): the peg pressed flat on the face (its tip a few µm
+    into the face's plane, beside the opening), slid across to the true axis and pushed in
+    counts as inserted: the entry rule does not refuse a peg that reached the opening along
+    the face."""
+    env = PegInHoleEnv(  # the landing at 50 mm/s is an impact: no force limit here
+        control="position", position_uncertainty=0.008, tilt_uncertainty=0.0, sensor="ideal",
+        force_limit=1e4,
+    )
+    offsets = {s: np.linalg.norm(env.reset(seed=s)[1]["hole_offset"]) for s in range(100)}
+    seed = next(s for s, r in offsets.items() if r > 0.006)
+    obs, info = env.reset(seed=seed)
+    true_xy = info["hole_offset"][:2]
+    waypoints = [(0.0, 0.0, -2e-5), (*true_xy, -2e-5), (*true_xy, -0.024)]
+    for target in waypoints:
+        for _ in range(2000):
+            dp = np.asarray(target) - obs["peg_pos"]
+            action = np.clip(np.r_[dp, np.zeros(3)] / env.increment_scale, -1, 1)
+            obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
+            if terminated or truncated or np.linalg.norm(dp) < 1e-5:
+                break
+        if terminated or truncated:
+            break
+    assert info["is_success"], info

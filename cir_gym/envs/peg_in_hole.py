@@ -36,6 +36,10 @@ GOAL_SCALE = 0.05  # m: distance at which the distance reward saturates at −1
 #: m: how far below the bore's bottom the tip may read (contact penetration, < 20 µm at 100 N)
 #: and still count as in the bore
 BOTTOM_TOLERANCE = 5e-4
+#: m: the tip counts as gone into the block's top face when it is this far below the face's
+#: plane (contact penetration of a peg resting on the face is µm; a square peg's tip can go
+#: this deep only through the opening)
+ENTRY_DEPTH = 5e-4
 
 
 class PegInHoleEnv(RobotEnv):
@@ -131,8 +135,8 @@ class PegInHoleEnv(RobotEnv):
     Terminated with success when the peg is inserted (``info["is_success"]``): its tip in the
     true bore, at a depth between the goal (``success_depth`` × 25 mm) and the bottom (plus
     0.5 mm for contact penetration), radially within the bore's radius, having entered through
-    the top opening (the tip crossed the top face's plane within the opening's radius, chamfer
-    included, and has not left above it since). Terminated as a failure when any single
+    the top opening (the tip went 0.5 mm below the top face's plane within the opening's
+    radius, chamfer included, and has not come back above that since). Terminated as a failure when any single
     robot–block contact force exceeds ``force_limit`` at a physics step (the period stops
     there, ``info["force_limit_exceeded"]``) or when the physics diverges
     (``info["diverged"]``, the last finite state kept); truncated after ``episode_duration``.
@@ -401,9 +405,9 @@ class PegInHoleEnv(RobotEnv):
         flags = self._contact_flags(depth)
         self._jammed_steps += flags.jammed
         radial = float(np.hypot(tip[0], tip[1]))
-        if tip[2] > 0.0:  # above the top face: not in the bore
+        if tip[2] > -ENTRY_DEPTH:  # at or above the top face: not in the bore
             self._entered = False
-        elif z_before > 0.0:  # crossed the top face's plane this step
+        elif z_before > -ENTRY_DEPTH:  # went below the top face this step: through the opening?
             self._entered = radial < self.geometry.hole_radius + self.geometry.chamfer
         inserted = bool(
             not diverged
