@@ -139,7 +139,9 @@ HEADER = (
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--stage", choices=("main", "sweeps", "laws", "all"), default="all")
+    parser.add_argument(
+        "--stage", choices=("main", "sweeps", "laws", "physics-cost", "all"), default="all"
+    )
     parser.add_argument(
         "--law",
         type=int,
@@ -214,6 +216,9 @@ def main() -> None:
                     "gains": gains})
         return done.get(key) or run(name, n, gains, **kwargs)
 
+    if args.stage == "physics-cost":
+        print(physics_cost(args.out))
+        return
     if args.stage == "laws":
         print(compare_laws(args.law_episodes, args.out, args.law))
         return
@@ -246,6 +251,88 @@ def main() -> None:
                 _write(args.out, results, SWEEP_PARTS)
         _figures(results, args.out)
     print(_write(args.out, results, ()))
+
+
+#: ``--stage physics-cost``: (polygon sides of the bore, cone, solver, timestep (s)) of the model
+#: variants timed; the first is the shipped model
+PHYSICS_VARIANTS = (
+    (64, "ELLIPTIC", "NEWTON", 5e-4),
+    (32, "ELLIPTIC", "NEWTON", 5e-4),
+    (16, "ELLIPTIC", "NEWTON", 5e-4),
+    (64, "PYRAMIDAL", "NEWTON", 5e-4),
+    (64, "ELLIPTIC", "CG", 5e-4),
+    (64, "ELLIPTIC", "PGS", 5e-4),
+    (64, "ELLIPTIC", "NEWTON", 1e-3),
+)
+
+
+def physics_cost(out: Path, seconds: float = 0.6) -> str:
+    """CPU time of ``mj_step`` for PegInHole's model variants (:data:`PHYSICS_VARIANTS`) with
+    the peg pressed (15 N, a lateral spring to 4.6 mm off the axis) on the bore's rim, timed
+    over the second half of ``seconds`` of simulated time; writes ``<out>/physics_cost.md``."""
+    import mujoco
+
+    from cir_gym import peg_hole_geometry as geo
+    from cir_gym.envs.peg_in_hole_scene import start_posture
+
+    lines = [
+        "# PegInHole's physics cost against the bore's model",
+        "",
+        "`python scripts/research/eval_peg_in_hole.py --stage physics-cost`: CPU time of one "
+        "`mj_step` (process time, so other jobs' slices are not counted) with the peg pressed "
+        "15 N on the rim of the bore, 4.6 mm off the axis (contacts with the top face and the "
+        "edge), per model variant. The corner room is what the polygon adds to the round bore "
+        "at its corners, R_h (1/cos(π/N) − 1): it must stay well below the smallest radial gap "
+        "(50 µm at 0.1 mm clearance). A 1-ms timestep makes MuJoCo clamp the contact's time "
+        "constant to 2 ms (it is 1 ms = 2 steps now); the geometry tests (penetration < 20 µm "
+        "at 100 N, no tunnelling at 0.5 m/s, the jam and wedge flags) were not run on any "
+        "variant, so none was adopted: the shipped model is the first row. Timings on a "
+        "shared, loaded machine: compare rows of one run.",
+        "",
+        "| sides | cone | solver | timestep (ms) | µs per mj_step | CPU s per simulated s | "
+        "contacts | deepest penetration (µm) | corner room (µm) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    saved = (geo.N_SIDES, geo.CONE, geo.SOLVER, geo.TIMESTEP)
+    for sides, cone, solver, timestep in PHYSICS_VARIANTS:
+        geo.N_SIDES, geo.TIMESTEP = sides, timestep
+        geo.CONE = getattr(mujoco.mjtCone, f"mjCONE_{cone}")
+        geo.SOLVER = getattr(mujoco.mjtSolver, f"mjSOL_{solver}")
+        try:
+            model, g = geo.build_peg_in_hole()
+        finally:
+            geo.N_SIDES, geo.CONE, geo.SOLVER, geo.TIMESTEP = saved
+        d = mujoco.MjData(model)
+        d.qpos[:7] = start_posture(0.01)
+        mujoco.mj_forward(model, d)
+        tip = model.site("peg_tip").id
+        target = np.array(geo.HOLE_POSITION[:2]) + 0.0045 * np.array([1.0, 0.3])
+        jp, jr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        n = int(seconds / timestep)
+        cost, contacts, depth = 0.0, [], 0.0
+        for k in range(n):
+            mujoco.mj_jacSite(model, d, jp, jr, tip)
+            f = np.array([0.0, 0.0, -15.0])
+            f[:2] += 3000.0 * (target - d.site_xpos[tip][:2]) - 100.0 * (jp @ d.qvel)[:2]
+            mu = -5.0 * (jr @ d.qvel)
+            d.ctrl[:] = d.qfrc_bias[:7] + jp.T @ f + jr.T @ mu - 2.0 * d.qvel
+            t0 = time.process_time()
+            mujoco.mj_step(model, d)
+            if k >= n // 2:
+                cost += time.process_time() - t0
+                contacts.append(d.ncon)
+                depth = max([depth, *(-d.contact.dist[: d.ncon])])
+        us = 1e6 * cost / (n - n // 2)
+        room = 1e6 * g.hole_radius * (1 / np.cos(np.pi / sides) - 1)
+        lines.append(
+            f"| {sides} | {cone.lower()} | {solver.lower()} | {1e3 * timestep:.1f} | {us:.1f} | "
+            f"{us / timestep / 1e6:.3f} | {np.mean(contacts):.1f} | {1e6 * depth:.1f} | "
+            f"{room:.1f} |"
+        )
+    text = "\n".join(lines) + "\n"
+    with locked(out):
+        _replace(out / "physics_cost.md", text)
+    return text
 
 
 def mean_ci(values: Any) -> tuple[float, float, float]:
