@@ -386,3 +386,16 @@ def test_the_force_laws_take_f_ref_as_a_step_unless_every_one_is_given_the_ramp(
             assert ref(t)[2] == pytest.approx((ref(t + h)[1] - ref(t - h)[1]) / (2 * h), rel=1e-4)
         refs.append([ref(t) for t in (0.1, 0.2)])
     assert all(np.array_equal(refs[0], r) for r in refs)
+
+
+def test_one_simulation_loop() -> None:
+    """Both interfaces step the physics in one loop (``_advance``): one call of RobotEnv's
+    ``_simulate`` in the module, no ``mj_step`` of its own, no fast-path twin."""
+    import inspect
+
+    from cir_gym.envs import admittance_contact
+
+    source = inspect.getsource(admittance_contact)
+    assert source.count("._simulate(") == 1 and "mj_step" not in source
+    assert "_simulate(" in inspect.getsource(AdmittanceContactEnv._advance)
+    assert len(source.splitlines()) <= 660

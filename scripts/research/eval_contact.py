@@ -188,6 +188,9 @@ NOTES = [
     "- The RMS runs from 0.5 s after the first contact to the end of the 5-s episode, wiping "
     "from t = 2 s (a 5 cm, 0.25 Hz sweep on a surface tilted by up to 3°); a stopped episode "
     "is scored over the whole horizon with f = 0 and no contact after the stop.",
+    "- `agents/`, `residual_base.md` and `learning_curves.png` are the agents' records on the "
+    "previous version of the env (its control-period contact and spring-load force): not "
+    "re-evaluated here.",
     "",
     "Numbers per episode in `results.json`.",
 ]
