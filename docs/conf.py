@@ -48,11 +48,15 @@ autodoc_default_options = {
     "ignore-module-all": True,  # a package's re-exports are documented where they are defined
 }
 autodoc_typehints = "description"
+# a method without a docstring of its own (an env's step) is not given Gymnasium's
+autodoc_inherit_docstrings = False
 # functions and classes are not entries of the navigation (hundreds of them: slow, and noise)
 toc_object_entries = False
 autodoc_mock_imports: list[str] = []
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
+# a class docstring's "Attributes:" as fields, not a second description of each attribute
+napoleon_use_ivar = True
 
 html_theme = "furo"
 html_title = f"cir_gym {release}"
