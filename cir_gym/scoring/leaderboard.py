@@ -60,43 +60,45 @@ def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
 ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
     """One (environment, variant, policy) of the leaderboard: its episodes, ranked on the
-    variant's primary metric, and the wall time (s) it took."""
+    variant's primary metric, and the CPU time (s) it took (its process's: the time it takes
+    one free core, whatever else the machine runs)."""
     from cir_gym.scoring.policies import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     policy = make_policy(env_id, policy_name, env_kwargs, {})
     result = evaluate(policy, env_id, episodes, seed, policy_name=policy_name, **env_kwargs)
     result = result.ranked_on(variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant))
-    return (env_id, variant, policy_name), result, time.perf_counter() - t0
+    return (env_id, variant, policy_name), result, time.process_time() - t0
 
 
 def run_seed_table(
     env_id: str, variant: str, env_kwargs: dict[str, Any], episodes: int, seed: int
 ) -> tuple[tuple[str, str], str, float]:
-    """One variant's :func:`multi_seed_table` and the wall time (s) it took."""
-    t0 = time.perf_counter()
+    """One variant's :func:`multi_seed_table` and the CPU time (s) it took."""
+    t0 = time.process_time()
     return (env_id, variant), multi_seed_table(env_id, env_kwargs, episodes, seed), (
-        time.perf_counter() - t0
+        time.process_time() - t0
     )
 
 
 # ---------------------------------------------------------------------- progress and estimates
-#: wall seconds of one episode on one core of the machine the defaults were chosen on (2 cores,
-#: measured with ``cir-gym leaderboard --episodes 1``, every policy of the environment): the
-#: estimate before a run; a run's own timings (``<out>/timings.json``) replace them next time
+#: CPU seconds of one episode (one core), the mean over a few policies of the environment
+#: (two controllers and an agent, 2 episodes each, on the shared 2-core machine the defaults
+#: were chosen on): the estimate before a first run; a run's own timings
+#: (``<out>/timings.json``, per policy) replace them for the next run into the same folder
 EPISODE_SECONDS: dict[str, float] = {
-    "JointTracking-v1": 0.35,
-    "ElasticJointTracking-v2": 0.45,
-    "RedundantIK-v3": 0.25,
-    "RedundantIK7-v4": 0.30,
-    "VisualServo-v0": 0.60,
-    "VisualServoEyeToHand-v0": 0.60,
-    "AdmittanceContact-v0": 0.40,
-    "PegInHole-v1": 1.50,
-    "CartesianTracking-v0": 0.50,
+    "JointTracking-v1": 0.45,
+    "ElasticJointTracking-v2": 0.5,
+    "RedundantIK-v3": 0.45,
+    "RedundantIK7-v4": 0.45,
+    "VisualServo-v0": 0.6,
+    "VisualServoEyeToHand-v0": 0.5,
+    "AdmittanceContact-v0": 2.5,
+    "PegInHole-v1": 5.0,
+    "CartesianTracking-v0": 0.9,
 }
-#: wall seconds to build a policy (an agent loads torch and its network) before its episodes
+#: CPU seconds to build a policy (an agent loads torch and its network) before its episodes
 JOB_SECONDS = {"agent": 1.5, "other": 0.2}
 #: wall seconds of one comparison figure and of one variant's GIF (two episodes rendered)
 FIGURE_SECONDS = 0.8
@@ -104,6 +106,8 @@ VIDEO_SECONDS = 20.0
 #: a seed table's cost against its agents' seeds run as leaderboard jobs (its bootstrap CIs)
 SEED_TABLE_FACTOR = 1.5
 TIMINGS = "timings.json"
+#: the fewest episodes per policy behind a number worth quoting (the summary says so below)
+HEADLINE_EPISODES = 30
 #: the heading of the failed runs in leaderboard.md (the command line exits 1 when present)
 FAILED_HEADING = "## Failed runs"
 
@@ -394,12 +398,18 @@ def run_leaderboard(
         watch.stop()
     total = time.perf_counter() - t_start
     print(summary(results, env_ids), file=sys.stderr)
+    if episodes < HEADLINE_EPISODES:
+        print(
+            f"({episodes} episodes per policy: a first look; numbers to quote need "
+            f"--episodes {HEADLINE_EPISODES} or more, with the 95 % intervals of the tables)",
+            file=sys.stderr,
+        )
     if failed:
         print(f"{len(failed)} run(s) failed (listed in {md}):", file=sys.stderr)
         for k, v in sorted(failed.items()):
             print(f"  {k}: {v}", file=sys.stderr)
     print(
-        f"done in {_clock(total)} (slowest run {max(seconds.values(), default=0):.0f} s)\n"
+        f"done in {_clock(total)} (slowest run {max(seconds.values(), default=0):.0f} CPU s)\n"
         f"page: {(out / 'index.html').resolve()}\ntables: {md.resolve()}",
         file=sys.stderr,
     )
