@@ -11,6 +11,7 @@ environment, every policy. ``bash scripts/test.sh`` installs ``chromium`` when i
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -19,7 +20,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cir_gym.scoring.page import labelled, markdown_to_html, save_gif, side_by_side
+from cir_gym.scoring.page import (
+    glossary_html,
+    label_lines,
+    labelled,
+    markdown_to_html,
+    ranked_html,
+    save_gif,
+    side_by_side,
+    with_units,
+)
 
 CHROMIUM = "/usr/bin/chromium"
 #: flags from the machine notes: no sandbox as root, no GPU, no background network traffic
@@ -95,10 +105,66 @@ def test_gif_round_trip_keeps_the_frames_and_stays_small(tmp_path: Path) -> None
 def test_labelled_side_by_side_frames() -> None:
     a = [np.zeros((50, 40, 3), np.uint8)] * 3
     b = [np.full((50, 40, 3), 100, np.uint8)] * 5
-    pair = side_by_side(labelled(a, "pid"), labelled(b, "agent:ppo"))
-    assert len(pair) == 5 and pair[0].shape == (62, 84, 3)
+    left, right = labelled(a, "pid"), labelled(b, "agent:ppo")
+    assert right[0].shape[0] > left[0].shape[0] > 50  # "agent:ppo" wraps after its ":"
+    pair = side_by_side(left, right)
+    assert len(pair) == 5 and pair[0].shape == (right[0].shape[0], 84, 3)
     assert np.any(pair[0][50:, :40] > 200)  # the label's ink in the strip
     np.testing.assert_array_equal(pair[4][:50, :40], a[-1])  # the shorter clip holds
+
+
+def test_a_label_keeps_the_whole_policy_name() -> None:
+    """A long agent name wraps at ``:`` and ``_`` over lines of the strip, never cut off."""
+    from cir_gym import rendering
+
+    name = "agent:residual_ppo_hybrid_force_position"
+    lines = label_lines(name, 180, 1)
+    assert "".join(lines) == name and len(lines) == 2
+    assert all(len(line) * 6 <= 180 for line in lines)
+    assert label_lines("pid", 180, 2) == ["pid"]
+    frame = labelled([np.zeros((180, 180, 3), np.uint8)], name)[0]
+    strip = frame[180:] > 200
+    ink = sum(rendering.text_mask(line, 1).sum() for line in lines)
+    assert strip.all(axis=2).sum() == ink  # every glyph of both lines is drawn
+
+
+def test_the_ranked_table_has_units_on_every_metric_and_family_rows() -> None:
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+    from cir_gym.evaluation import EpisodeResult, EvaluationResult
+
+    specs = PegInHoleEnv.metric_specs
+
+    def result(name: str, success: bool, seconds: float) -> EvaluationResult:
+        metrics = {s.name: 1.0 for s in specs} | {"insertion_time": seconds}
+        episodes = [EpisodeResult(0, -1.0, 1, success, False, metrics)]
+        return EvaluationResult("cir_gym/PegInHole-v1", name, episodes, specs, "insertion_time")
+
+    rows = [result("agent:ppo", False, 3.0), result("tuned:hybrid_spiral", True, 5.0),
+            result("hybrid_spiral", True, 4.0)]
+    out = ranked_html(rows)
+    cells = re.findall(r'<td class="policy \w+">(.*?)</td>', out)
+    order = [c.replace("<wbr>", "") for c in cells]
+    assert order == ["hybrid_spiral", "tuned:hybrid_spiral", "agent:ppo"]  # success first
+    assert '"policy course"' in out and '"policy tuned"' in out and '"policy agent"' in out
+    head = re.sub(r"<wbr>|</?strong>", "", out.split("</thead>")[0])
+    for s in specs:
+        if s.unit:
+            assert f"{s.name} ({s.unit.replace(' ', '&nbsp;')})" in head, s.name
+    assert "worst (s)" in head and "CVaR&nbsp;20&nbsp;% (s)" in head
+
+
+def test_markdown_tables_get_the_metric_units() -> None:
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+
+    md = "| variant | ranked on | IQM insertion_time |\n|---|---|---|\n| a | `insertion_time` | 3 |"
+    out = with_units(md, PegInHoleEnv.metric_specs)
+    assert "| IQM insertion_time (s) |" in out and "| `insertion_time` (s) |" in out
+
+
+def test_the_glossary_explains_the_rl_terms() -> None:
+    text = glossary_html()
+    for term in ("return", "success", "CVaR 20 %", "IQM", "bootstrap CI", "tuned:"):
+        assert f"<th>{html.escape(term)}" in text, term
 
 
 def _chromium(*args: str, user_dir: Path) -> subprocess.CompletedProcess:

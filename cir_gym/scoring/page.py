@@ -8,7 +8,11 @@ beside it, the learning curves in ``results/learning_curves``, the videos in
 ranked table, the comparison figure and a GIF of one episode (the leaderboard's first seed)
 of the best controller and the best agent side by side (best =
 :func:`cir_gym.scoring.tables.best`: the highest success rate, then the best primary metric),
-each frame showing the task (:meth:`cir_gym.envs.base.RobotEnv.draw_task`) and its caption.
+each frame showing the task (:meth:`cir_gym.envs.base.RobotEnv.draw_task`) and its caption,
+through the camera of :data:`VIDEO_CAMERAS` where one is set. The ranked tables are HTML
+written here from the results (:func:`ranked_html`: every metric column with its unit, long
+names wrapped to fit a 1366-px laptop screen), each environment lists its metrics (unit,
+direction, meaning), and a glossary (:data:`GLOSSARY`) explains the RL terms the tables use.
 A small inline script marks the page (``<html data-broken="N">``) with the number of images
 that failed to load, which the browser test reads; it changes nothing else.
 """
@@ -20,10 +24,12 @@ import multiprocessing
 import os
 import re
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 import cir_gym
@@ -31,27 +37,105 @@ from cir_gym.envs.base import make_env
 from cir_gym.evaluation import interface_env_kwargs
 
 #: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
-VIDEO_SIZE = 180
-VIDEO_FPS = 8
+VIDEO_SIZE = 320
+VIDEO_FPS = 15
 VIDEO_SECONDS = 6.0
 #: where the learning curves live (scripts/plot_learning_curves.py)
 LEARNING_CURVES = Path(__file__).resolve().parents[2] / "results" / "learning_curves"
 
 CSS = """
-body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1200px; padding: 0 1em;
-       color: #1d1f24; background: #fafafa; }
+body { font-family: system-ui, sans-serif; margin: 0 auto; max-width: 1240px; padding: 0 1em;
+       color: #1d1f24; background: #fafafa; line-height: 1.4; }
 h1 { margin-top: 0.6em; } h2 { border-bottom: 2px solid #c8ccd4; padding-top: 0.6em; }
 nav a { margin-right: 1em; }
-table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.85em; background: #fff; }
-th, td { border: 1px solid #c8ccd4; padding: 0.2em 0.5em; text-align: right; }
-th { background: #eceef2; } td:nth-child(2), th:nth-child(2) { text-align: left; }
-.summary td, .summary th { text-align: left; }
+table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.82em; background: #fff; }
+th, td { border: 1px solid #c8ccd4; padding: 0.2em 0.4em; text-align: right; }
+th { background: #eceef2; vertical-align: bottom; }
+td:nth-child(2), th:nth-child(2) { text-align: left; }
+.summary td, .summary th, .glossary td, .glossary th, .metrics td, .metrics th {
+  text-align: left; }
+table.ranked { width: 100%; } table.ranked td { white-space: nowrap; }
+table.ranked td.policy { white-space: normal; overflow-wrap: anywhere; min-width: 9em;
+  border-left-width: 5px; }
+td.course { border-left-color: #1f77b4; } td.tuned { border-left-color: #ff7f0e; }
+td.agent { border-left-color: #2ca02c; }
+.key span { display: inline-block; width: 0.8em; height: 0.8em; margin: 0 0.3em 0 0.8em; }
 .row { display: flex; flex-wrap: wrap; gap: 1em; align-items: flex-start; }
-figure { margin: 0; } figcaption { font-size: 0.8em; color: #555; max-width: 380px; }
-img.figure { max-width: 560px; width: 100%; } img.curve { max-width: 640px; width: 100%; }
+.row figure.figure { flex: 1 1 420px; }
+figure { margin: 0; } figcaption { font-size: 0.85em; color: #444; max-width: 660px; }
+img.figure { max-width: 640px; width: 100%; } img.curve { max-width: 100%; }
+img.video { display: block; max-width: 100%; height: auto; }
 code { background: #eceef2; padding: 0 0.2em; }
 .scroll { overflow-x: auto; }
+details.glossary-box { background: #fff; border: 1px solid #c8ccd4; padding: 0.4em 0.8em; }
+details.glossary-box summary { font-weight: bold; cursor: pointer; }
 """
+
+#: the RL and statistics vocabulary of the page, for control students: (term, meaning)
+GLOSSARY: tuple[tuple[str, str], ...] = (
+    (
+        "success",
+        "the environment's own pass/fail test of one episode (its docstring's Episode "
+        "End: e.g. the peg at the goal depth without exceeding the force limit, a tracking error "
+        "below a threshold); the success rate is the share of episodes that passed. Rankings put "
+        "it first: an episode that stops early can show a small error it stopped accumulating.",
+    ),
+    (
+        "primary metric",
+        "the physical quantity a variant is ranked on after success (its unit "
+        "in the column header), e.g. the RMS joint error in rad or the insertion time in s.",
+    ),
+    (
+        "worst",
+        "the worst episode's value of the primary metric (the largest error, the "
+        "longest time; the smallest where higher is better).",
+    ),
+    (
+        "CVaR 20 %",
+        "conditional value at risk: the mean of the worst 20 % of the episodes (at "
+        "least one). Between the mean and the worst: how bad the bad cases are.",
+    ),
+    (
+        "return",
+        "the sum of the per-step rewards over an episode, the number an RL agent is "
+        "trained to maximise. Each reward term is in the env docstring's Rewards section "
+        "(tracking kernels, torque and force penalties); it is unitless and not a control "
+        "metric: compare controllers on the metrics, read the return as the agents' objective.",
+    ),
+    (
+        "diverged",
+        "the share of episodes in which the simulation blew up (non-finite state): "
+        "the episode ends with a flag.",
+    ),
+    (
+        "tuned:<controller>",
+        "the same control law at gains found for this variant by "
+        "scripts/tune_gains.py (Optuna on training seeds, disjoint from the leaderboard's "
+        "1000–1009); without the prefix, the course's gains.",
+    ),
+    (
+        "agent:<name>",
+        "a trained RL policy (Stable-Baselines3). A residual agent adds a learned "
+        "correction to a course controller's action; from-scratch agents act alone.",
+    ),
+    (
+        "IQM",
+        "interquartile mean: the mean of the middle 50 % of the values (the best and worst "
+        "quarters left out), robust to a few outlying training runs (Agarwal et al. 2021).",
+    ),
+    (
+        "bootstrap CI",
+        "a 95 % confidence interval from resampling: the statistic is recomputed "
+        "on thousands of samples drawn with replacement from the runs (stratified: per training "
+        "seed) and the interval holds the middle 95 % of those values.",
+    ),
+    (
+        "mean ± std",
+        "mean over episodes ± their standard deviation (the spread of the episodes, "
+        "not an interval of the mean); with fewer than 30 episodes, read the ranking as "
+        "indicative.",
+    ),
+)
 
 #: counts the images that did not load (naturalWidth 0) into <html data-broken>
 CHECK_SCRIPT = """
@@ -147,6 +231,28 @@ def html_page(title: str, body: str) -> str:
 
 
 # ---------------------------------------------------------------------- videos
+def peg_in_hole_camera(env: Any) -> mujoco.MjvCamera:
+    """A low side view of PegInHole's hole: 12 cm from a point 16 mm down the nominal bore,
+    12° from horizontal, from the side of the env's ``hole_cam``. The bore (its near wall drawn
+    translucent by ``draw_task``), the peg and the block stay in view to the end of the
+    insertion, where ``hole_cam``, 14 cm away and 24° above, has the wrist above the frame's
+    top."""
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = np.asarray(env.hole_pos, dtype=float) + np.array([0.0, 0.0, -0.016])
+    camera.distance = 0.12
+    camera.azimuth = 116.6  # looking along (−0.06, 0.12): hole_cam's direction
+    camera.elevation = -12.0
+    return camera
+
+
+#: env name (without version) → the camera of its videos (a function of the unwrapped env);
+#: others use the env's own camera. Visual only: the model is unchanged.
+VIDEO_CAMERAS: dict[str, Callable[[Any], mujoco.MjvCamera]] = {
+    "PegInHole": peg_in_hole_camera,
+}
+
+
 def episode_frames(
     env_id: str,
     policy_name: str,
@@ -157,13 +263,17 @@ def episode_frames(
     seconds: float = VIDEO_SECONDS,
 ) -> list[np.ndarray]:
     """Frames (size × size RGB) of one episode of ``policy_name`` at ≈ ``fps`` frames/s, the
-    first ``seconds`` of it (the episode goes on to its end: the last frame is its end)."""
+    first ``seconds`` of it (the episode goes on to its end: the last frame is its end),
+    through the camera of :data:`VIDEO_CAMERAS` where one is set."""
 
     from cir_gym.scoring.policies import make_policy
 
     policy = make_policy(env_id, policy_name, env_kwargs, {})
     env_kwargs = interface_env_kwargs(policy, env_kwargs)
     env = make_env(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs)
+    camera = VIDEO_CAMERAS.get(env_id.split("/")[-1].rsplit("-v", 1)[0])
+    if camera is not None:
+        env.unwrapped.camera = camera(env.unwrapped)
     dt = env.unwrapped.dt
     every = max(1, round(1.0 / (fps * dt)))
     limit = max(1, round(seconds * fps))
@@ -184,23 +294,54 @@ def episode_frames(
     return frames
 
 
-def labelled(frames: list[np.ndarray], label: str) -> list[np.ndarray]:
-    """``frames`` with a 12 px dark strip below carrying ``label``."""
+def label_lines(label: str, width: int, scale: int) -> list[str]:
+    """A policy name broken into lines of at most ``width`` px at font ``scale``, after a
+    ``:`` or ``_`` (``agent:residual_ppo_…``) or a space, never inside a word part."""
     from cir_gym import rendering
 
-    w = frames[0].shape[1]
-    strip = np.full((12, w, 3), 30, dtype=np.uint8)
-    mask = rendering.text_mask(label, 1)[:, : w - 4]
-    strip[3 : 3 + mask.shape[0], 2 : 2 + mask.shape[1]][mask] = 235
+    chars = max(1, width // ((rendering.GLYPH_W + 1) * scale))
+    lines, current = [], ""
+    for part in re.split(r"(?<=[:_ ])", label):
+        if current and len(current) + len(part.rstrip()) > chars:
+            lines.append(current.rstrip())
+            current = ""
+        current += part
+    return [*lines, current.rstrip()] if current else lines
+
+
+def labelled(frames: list[np.ndarray], label: str) -> list[np.ndarray]:
+    """``frames`` with a dark strip below carrying ``label`` whole: the font scale of the
+    frame's caption (:func:`cir_gym.rendering.caption_scale`) when the name fits two lines,
+    else a smaller one, down to 1 over as many lines as it needs (:func:`label_lines`)."""
+    from cir_gym import rendering
+
+    h, w = frames[0].shape[:2]
+    scale = rendering.caption_scale(h)
+    while scale > 1 and len(label_lines(label, w - 4, scale)) > 2:
+        scale -= 1
+    lines = label_lines(label, w - 4, scale)
+    step = (rendering.GLYPH_H + 3) * scale
+    strip = np.full((len(lines) * step + 2 * scale + 1, w, 3), 30, dtype=np.uint8)
+    for i, line in enumerate(lines):
+        mask = rendering.text_mask(line, scale)[:, : w - 4]
+        y = 2 * scale + i * step
+        strip[y : y + mask.shape[0], 2 : 2 + mask.shape[1]][mask] = 235
     return [np.vstack((f, strip)) for f in frames]
 
 
 def side_by_side(left: list[np.ndarray], right: list[np.ndarray]) -> list[np.ndarray]:
-    """Pairs of frames with a 4 px gap; the shorter clip holds its last frame."""
+    """Pairs of frames with a 4 px gap; the shorter clip holds its last frame, the lower one
+    is padded at the bottom with its label strip's colour."""
     n = max(len(left), len(right))
-    gap = np.full((left[0].shape[0], 4, 3), 250, dtype=np.uint8)
+    height = max(left[0].shape[0], right[0].shape[0])
+
+    def pad(frame: np.ndarray) -> np.ndarray:
+        extra = np.full((height - frame.shape[0], *frame.shape[1:]), 30, dtype=np.uint8)
+        return np.vstack((frame, extra)) if len(extra) else frame
+
+    gap = np.full((height, 4, 3), 250, dtype=np.uint8)
     return [
-        np.hstack((left[min(i, len(left) - 1)], gap, right[min(i, len(right) - 1)]))
+        np.hstack((pad(left[min(i, len(left) - 1)]), gap, pad(right[min(i, len(right) - 1)])))
         for i in range(n)
     ]
 
@@ -262,6 +403,135 @@ def make_video(job: tuple[str, dict[str, Any], list[str], int, str]) -> str:
 
 
 # ---------------------------------------------------------------------- the page
+def _breakable(text: str) -> str:
+    """``text`` escaped, with a line-break opportunity (``<wbr>``) after each ``_`` and ``:``
+    (long policy and metric names wrap there instead of widening their column)."""
+    return re.sub(r"([_:])", r"\1<wbr>", html.escape(text))
+
+
+def _unit(unit: str) -> str:
+    """`` (unit)`` for a header, never broken inside the parentheses; "" without a unit."""
+    return f" ({html.escape(unit).replace(' ', '&nbsp;')})" if unit else ""
+
+
+def _family_class(policy_name: str) -> str:
+    if policy_name.startswith("agent:"):
+        return "agent"
+    return "tuned" if policy_name.startswith("tuned:") else "course"
+
+
+FAMILY_KEY = (
+    '<p class="key">Policy families (left border of each row, bar colours in the figures):'
+    '<span style="background:#1f77b4"></span>controller at the course\'s gains'
+    '<span style="background:#ff7f0e"></span>controller at tuned gains (<code>tuned:</code>)'
+    '<span style="background:#2ca02c"></span>RL agent (<code>agent:</code>)</p>'
+)
+
+
+def ranked_html(rows: list[Any]) -> str:
+    """The ranked table of one variant as HTML: rows in :func:`cir_gym.evaluation.rank` order
+    (success rate, then the primary metric's mean), the success rate, the primary metric's
+    mean ± std, worst episode and CVaR 20 %, every other metric's mean, the return and the
+    share of diverged episodes; every metric header carries its unit, each row its family's
+    colour (:data:`FAMILY_KEY`)."""
+    from cir_gym.evaluation import rank
+
+    if not rows:
+        return "<p>(no results)</p>"
+    ranked = rank(rows)
+    primary = ranked[0].primary_metric
+    spec = ranked[0].spec(primary)
+    others = [m for m in ranked[0].specs if m.name != primary]
+    head = [
+        "#",
+        "policy",
+        "success",
+        f"<strong>{_breakable(primary)}</strong>{_unit(spec.unit)} mean ± std",
+        f"worst{_unit(spec.unit)}",
+        f"CVaR&nbsp;20&nbsp;%{_unit(spec.unit)}",
+        *(f"{_breakable(m.name)}{_unit(m.unit)}" for m in others),
+        "return",
+        "diverged",
+    ]
+    body = []
+    for i, r in enumerate(ranked, 1):
+        p = r.summary[primary]
+        cells = [
+            str(i),
+            f"{100 * r.success_rate:.0f} %",
+            f"{p['mean']:.3g} ± {p['std']:.2g}",
+            f"{p['worst']:.3g}",
+            f"{p['cvar']:.3g}",
+            *(f"{r.summary[m.name]['mean']:.3g}" for m in others),
+            f"{r.summary['return']['mean']:.1f}",
+            f"{100 * r.divergence_rate:.0f} %",
+        ]
+        family = _family_class(r.policy_name)
+        policy = f'<td class="policy {family}">{_breakable(r.policy_name)}</td>'
+        body.append(
+            f"<tr><td>{cells[0]}</td>{policy}"
+            + "".join(f"<td>{c}</td>" for c in cells[1:])
+            + "</tr>"
+        )
+    return (
+        '<div class="scroll"><table class="ranked"><thead><tr>'
+        + "".join(f"<th>{h}</th>" for h in head)
+        + "</tr></thead><tbody>"
+        + "".join(body)
+        + "</tbody></table></div>"
+    )
+
+
+def metrics_html(specs: Any) -> str:
+    """An environment's metrics (:class:`cir_gym.metrics.MetricSpec`): name, unit, which way is
+    better, meaning."""
+    rows = "".join(
+        f"<tr><td><code>{html.escape(m.name)}</code></td><td>{html.escape(m.unit) or '–'}</td>"
+        f"<td>{m.better}</td><td>{html.escape(m.description)}"
+        + (" (a failed episode scores the limit)" if m.failure_scores_limit else "")
+        + "</td></tr>"
+        for m in specs
+    )
+    return (
+        "<details><summary>Metrics of this environment (units, which way is better)</summary>"
+        '<table class="metrics"><thead><tr><th>metric</th><th>unit</th><th>better</th>'
+        f"<th>meaning</th></tr></thead><tbody>{rows}</tbody></table></details>"
+    )
+
+
+def with_units(md: str, specs: Any) -> str:
+    """``md`` (the leaderboards' markdown) with each metric's unit after its name where a table
+    names it without one: a header cell ending in a metric name (``IQM insertion_time``) and a
+    cell that is only a metric name in backticks (the summary's "ranked on")."""
+    units = {m.name: m.unit for m in specs if m.unit}
+    if not units:
+        return md
+    names = "|".join(sorted(map(re.escape, units), key=len, reverse=True))
+
+    def cell(match: re.Match[str]) -> str:
+        return f"{match[0]} ({units[match[1] or match[2]]})"
+
+    out = []
+    for line in md.split("\n"):
+        if line.startswith("|"):
+            line = re.sub(rf"(?<=[| ])`({names})`(?= \|)|(?<= )({names})(?= \|)", cell, line)
+        out.append(line)
+    return "\n".join(out)
+
+
+def glossary_html() -> str:
+    """:data:`GLOSSARY` as a collapsible table."""
+    rows = "".join(
+        f"<tr><th>{html.escape(term)}</th><td>{html.escape(text)}</td></tr>"
+        for term, text in GLOSSARY
+    )
+    return (
+        '<details class="glossary-box" open><summary>How to read the tables (glossary for '
+        "control students)</summary>"
+        f'<table class="glossary"><tbody>{rows}</tbody></table></details>'
+    )
+
+
 def _learning_curve(env_id: str) -> Path | None:
     """results/learning_curves/<Name>-vN.png, else the newest version's curve of <Name>."""
     name = env_id.split("/")[-1]
@@ -302,7 +572,7 @@ def write_page(
         extra: (env_id, variant) → markdown shown under that variant's ranked table (the
             multi-seed agents' table).
     """
-    from cir_gym.scoring.tables import best, ranked_table, rl_summary, slug
+    from cir_gym.scoring.tables import best, rl_summary, slug
 
     out.mkdir(parents=True, exist_ok=True)
     sections: list[tuple[str, str, list[tuple[str, str, str, list[Any], str, list[str]]]]] = []
@@ -346,15 +616,16 @@ def write_page(
 
     body = [
         "<h1>cir_gym leaderboard</h1>",
-        f"<p>{episodes} episodes per policy, seeds {seed}…{seed + episodes - 1} (the same "
-        "for every policy), ranked by success rate, then by each variant's primary metric "
-        "(mean over episodes); <em>worst</em> is the worst episode, CVaR20% the mean of the "
-        "worst 20 %. Each video is one episode (seed "
+        f"<p>{episodes} episode{'s' if episodes != 1 else ''} per policy, seeds {seed}…"
+        f"{seed + episodes - 1} (the same for every policy), ranked by success rate, then by "
+        "each variant's primary metric (mean over episodes). Each video is one episode (seed "
         f"{seed}, the first {VIDEO_SECONDS:g} s at {VIDEO_FPS} frames/s) of the best "
         "controller (left) and the best agent (right) with the task drawn: the reference "
-        "(cyan), the target (yellow), obstacles and forces. Generated by "
+        "(cyan), the target (yellow), obstacles and forces (red arrows). Generated by "
         "<code>cir-gym leaderboard</code>; the same tables are in "
         '<a href="leaderboard.md">leaderboard.md</a>.</p>',
+        glossary_html(),
+        FAMILY_KEY,
         "<nav>"
         + "".join(
             f'<a href="#{slug(e)}">{html.escape(e.split("/")[-1])}</a>' for e, _, _ in sections
@@ -362,8 +633,10 @@ def write_page(
         + "</nav>",
     ]
     for env_id, description, entries in sections:
+        specs = cir_gym.ENVIRONMENTS[env_id][0].metric_specs
         body.append(f'<h2 id="{slug(env_id)}">{html.escape(env_id)}</h2>')
-        body.append(markdown_to_html(description, "summary"))
+        body.append(markdown_to_html(with_units(description, specs), "summary"))
+        body.append(metrics_html(specs))
         curve = _learning_curve(env_id)
         if curve is not None:
             body.append(
@@ -375,9 +648,13 @@ def write_page(
             body.append(f"<h3>{html.escape(variant)} <small>({html.escape(setting)})</small></h3>")
             row = []
             if gif and gif not in errors:
-                who = " vs ".join(html.escape(s) for s in shown)
+                sides = ("left", "right") if len(shown) == 2 else ("",)
+                who = "; ".join(
+                    f"{side + ': ' if side else ''}<code>{html.escape(s)}</code>"
+                    for side, s in zip(sides, shown, strict=False)
+                )
                 row.append(
-                    f'<figure><img src="{_rel(Path(gif), out)}" alt="video '
+                    f'<figure><img class="video" src="{_rel(Path(gif), out)}" alt="video '
                     f'{html.escape(env_id)} {html.escape(variant)}"><figcaption>{who}'
                     "</figcaption></figure>"
                 )
@@ -385,13 +662,13 @@ def write_page(
                 row.append(f"<p>video failed: {html.escape(errors[gif])}</p>")
             if Path(fig).is_file():
                 row.append(
-                    f'<figure><img class="figure" src="{_rel(Path(fig), out)}" '
+                    f'<figure class="figure"><img class="figure" src="{_rel(Path(fig), out)}" '
                     f'alt="{html.escape(env_id)} {html.escape(variant)}"></figure>'
                 )
             body.append('<div class="row">' + "".join(row) + "</div>")
-            body.append(markdown_to_html(ranked_table(rows)))
+            body.append(ranked_html(rows))
             if (extra or {}).get((env_id, variant)):
-                body.append(markdown_to_html(extra[(env_id, variant)]))
+                body.append(markdown_to_html(with_units(extra[(env_id, variant)], specs)))
     index = out / "index.html"
     index.write_text(html_page("cir_gym leaderboard", "\n".join(body)), encoding="utf-8")
     print(

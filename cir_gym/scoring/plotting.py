@@ -111,56 +111,46 @@ def comparison_bars(
 
 
 def plot_comparison(results: list[EvaluationResult], path: str | Path, title: str = "") -> Path:
-    """Bar chart of the primary metric's mean per policy with its worst episode (a dot), in
-    :func:`cir_gym.evaluation.rank` order (success rate, then the mean), bars coloured by
-    :func:`family`, each bar's success rate above it; a log axis when the values span a
-    decade or more."""
+    """Horizontal bar chart of the primary metric's mean per policy with its worst episode (a
+    tick), best first from the top in :func:`cir_gym.evaluation.rank` order (success rate,
+    then the mean), bars coloured by :func:`family`, each policy's success rate in a column
+    on the right; a log axis when the values span a decade or more."""
     plt = _plt()
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
+    from matplotlib.transforms import blended_transform_factory
 
     ranked = rank(results)
     primary = ranked[0].primary_metric
     spec = ranked[0].spec(primary)
     names, means, worst, colours = comparison_bars(results)
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.42 * len(names) + 2.5), 4.6))
-    x = np.arange(len(names))
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(7.2, 0.27 * n + 1.9))  # a row of 0.27 in per policy
+    y = np.arange(n)
     log = _spans_decades(np.concatenate((means, worst)))
-    shown = np.where(np.isfinite(means), means, np.nan)
-    ax.bar(x, shown, color=colours, width=0.75)
-    ax.scatter(x, worst, color="black", marker="_", s=160, linewidths=2, zorder=3)
+    ax.barh(y, np.where(np.isfinite(means), means, np.nan), color=colours, height=0.72)
+    ax.scatter(worst, y, color="black", marker="|", s=110, linewidths=1.8, zorder=3)
     if log:
-        ax.set_yscale("log")
-    ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
-    ax.set_xlim(-0.6, len(names) - 0.4)
+        ax.set_xscale("log")
+    ax.set_yticks(y, [f"{i}. {name}" for i, name in enumerate(names, 1)], fontsize=8)
+    ax.set_ylim(n - 0.4, -0.6)  # rank 1 at the top
+    right = blended_transform_factory(ax.transAxes, ax.transData)
+    ax.text(1.01, -1.0, "success", transform=right, fontsize=7.5, va="center", weight="bold")
     for i, r in enumerate(ranked):
-        ends = [v for v in (means[i], worst[i]) if np.isfinite(v)] + ([] if log else [0.0])
-        ax.annotate(
-            f"{100 * r.success_rate:.0f}%" if np.isfinite(means[i]) else "n/a",
-            (i, max(ends) if ends else 1.0),
-            xytext=(0, 3),
-            textcoords="offset points",
-            ha="center",
-            va="bottom",
-            fontsize=6.5,
-            color="#333",
-        )
+        text = f"{100 * r.success_rate:.0f} %" if np.isfinite(means[i]) else "n/a"
+        ax.text(1.01, i, text, transform=right, fontsize=7.5, va="center")
     direction = "lower is better" if spec.better == "lower" else "higher is better"
-    ax.set_ylabel(_metric_label(primary, spec.unit, f"mean ({direction})"))
-    ax.set_xlabel("policy, best first (success rate, then the mean); % = success rate", fontsize=8)
+    ax.set_xlabel(f"{_metric_label(primary, spec.unit)}: mean over episodes, {direction}")
     ax.set_title(title or ranked[0].env_id, fontsize=10)
-    ax.grid(True, axis="y", which="both", alpha=0.3)
-    ax.margins(y=0.12)
-    fams = [f for f in FAMILY_COLOURS if any(family(n) == f for n in names)]
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    fams = [f for f in FAMILY_COLOURS if any(family(name) == f for name in names)]
     handles = [Patch(color=FAMILY_COLOURS[f], label=f) for f in fams]
-    from matplotlib.lines import Line2D
-
     handles.append(
-        Line2D([], [], color="black", marker="_", ls="", ms=12, mew=2, label="worst episode")
+        Line2D([], [], color="black", marker="|", ls="", ms=10, mew=1.8, label="worst episode")
     )
-    ax.legend(
-        handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False
-    )
-    fig.tight_layout()
+    height = 0.27 * n + 1.9  # in
+    fig.legend(handles=handles, fontsize=7, loc="lower center", ncol=len(handles), frameon=False)
+    fig.tight_layout(rect=(0.0, 0.3 / height, 1.0, 1.0))  # the legend's row at the bottom
     return _save(fig, path, plt)
 
 
@@ -233,9 +223,11 @@ def plot_sweep_axis(rows: list[dict[str, Any]], env_id: str, axis: str, path: Pa
             float(value) if value is not None else np.nan
         )
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    styles = line_styles(sorted(lines))
+    order = sorted(lines, key=lambda label: (list(FAMILY_STYLES).index(family(label)), label))
+    styles = line_styles(order)  # course gains, then tuned, then agents (as in the legend)
     every: list[np.ndarray] = []
-    for label, points in sorted(lines.items()):
+    for label in order:
+        points = lines[label]
         x = np.array(sorted(points))
         with np.errstate(all="ignore"):
             mean = np.array(
