@@ -65,7 +65,7 @@ def test_the_main_job_leaves_the_checkout_clean_and_writes_its_folder(in_reposit
     captured = capsys.readouterr()
     assert captured.out == ""  # nothing dumped on stdout: progress and summary on stderr
     err = captured.err
-    for phase in ("estimate:", "episodes:", "figures:", "videos:"):
+    for phase in ("estimate with", "episodes:", "figures:", "videos:"):
         assert phase in err, phase
     assert "best per environment" in err and "ibvs_eye_to_hand" in err
     assert f"page: {(out / 'index.html').resolve()}" in err

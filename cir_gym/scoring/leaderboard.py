@@ -296,7 +296,8 @@ def run_leaderboard(
         f"cir-gym leaderboard: {len(env_ids)} environment(s), {len(variants)} variants, "
         f"{len(jobs)} runs × {episodes} episode(s) (seeds {seed}…{seed + episodes - 1})"
         + (f" and the agents' seed tables of {len(seed_jobs)} variant(s)" if seed_jobs else "")
-        + f" on {workers} worker(s) → {out}/\n  estimate: ~{_clock(sum(plan.values()))} ("
+        + f" on {workers} worker(s) → {out}/\n  estimate with {workers} free core(s): "
+        + f"~{_clock(sum(plan.values()))} ("
         + ", ".join(f"{k} ~{_clock(v)}" for k, v in plan.items() if v > 0)
         + ")",
         file=sys.stderr,
