@@ -258,7 +258,9 @@ def test_the_user_pages_carry_no_work_history(site: Path) -> None:
     hand-written pages or any built user page (environment pages, API reference: the
     docstrings), only in the research logs."""
     sources = [REPO / "README.md", REPO / "CHANGELOG.md"] + [
-        p for p in (REPO / "docs").rglob("*.md") if "research" not in p.relative_to(REPO).parts
+        p
+        for p in (REPO / "docs").rglob("*.md")
+        if not {"research", "_build"} & set(p.relative_to(REPO / "docs").parts)
     ]
     found = []
     for path in sources:
