@@ -306,3 +306,14 @@ def test_the_readme_layer_table_names_every_module() -> None:
     folders = [f"{p.name}/" for p in package.iterdir() if (p / "__init__.py").is_file()]
     missing = [m for m in modules + folders if m not in table]
     assert not missing, f"modules missing from the README's layer table: {missing}"
+
+
+def test_the_readme_quick_start_runs() -> None:
+    """The README's quick start (the user guide's, in one block) runs as written."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    code = re.search(r"## Quick start\n\n```python\n(.*?)```", text, re.S)
+    assert code, "no python block under '## Quick start'"
+    namespace: dict = {}
+    exec(compile(code.group(1), "README.md quick start", "exec"), namespace)
+    assert 0.0 <= namespace["result"].success_rate <= 1.0
+    assert namespace["result"].summary["rms_error"]["mean"] > 0.0
