@@ -1,6 +1,6 @@
 """Stable-Baselines3 agents: training, residual RL, and the shipped trained models.
 
->>> import agents
+>>> from cir_gym import agents
 >>> agents.available("cir_gym/JointTracking-v1")          # doctest: +SKIP
 ['ppo_100hz', 'ppo_100hz_industrial', 'ppo_batched', 'residual_ppo_computed_torque']
 >>> policy = agents.load("cir_gym/JointTracking-v1", "ppo_100hz")  # doctest: +SKIP

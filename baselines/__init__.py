@@ -1,6 +1,6 @@
 """The course's controllers as policies with SB3's ``predict`` protocol.
 
->>> import baselines
+>>> from cir_gym import baselines
 >>> baselines.available("cir_gym/JointTracking-v1")   # doctest: +SKIP
 >>> policy = baselines.make("computed_torque", "cir_gym/JointTracking-v1", omega_n=25.0)
 """
