@@ -149,7 +149,8 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             "env it was trained on (`agents.load`), on every variant: where a variant tells the "
             "controllers more than training did (AdmittanceContact's fixed stiffnesses, against "
             "an agent trained on `randomize=True`, whose `admittance` designs for the worst "
-            "case), the gap to the best controller includes that information (docs/research/agents.md).",
+            "case), the gap to the best controller includes that information "
+            "(docs/research/agents.md).",
         ]
     if censored:
         names = ", ".join(f"`{m}`" for m in sorted(censored))
