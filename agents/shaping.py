@@ -145,7 +145,8 @@ class LogErrorBonus(gym.Wrapper):
     of the error, and, being ≥ 0 up to the following-error limit (``max_error`` = 0.5 rad),
     it is also an alive bonus: a stopped episode loses every bonus it does not play. The error
     norm is read from ``info["joint_error"]`` or ``info["task_error"]`` (with
-    ``orientation_scale`` s > 0: max(‖e‖, s · θ), :func:`error_norm`); evaluation, learning curves and shipped scores use the env's reward.
+    ``orientation_scale`` s > 0: max(‖e‖, s · θ), :func:`error_norm`); evaluation, learning
+    curves and shipped scores use the env's reward.
     """
 
     def __init__(self, env: gym.Env, weight: float = 1.0, max_error: float = 0.5,
