@@ -140,7 +140,9 @@ HEADER = (
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument(
-        "--stage", choices=("main", "sweeps", "laws", "physics-cost", "all"), default="all"
+        "--stage",
+        choices=("main", "sweeps", "laws", "laws-report", "physics-cost", "all"),
+        default="all",
     )
     parser.add_argument(
         "--law",
@@ -149,6 +151,13 @@ def main() -> None:
         default=None,
         help="with --stage laws: only this entry of LAWS (index, repeatable; default: all); "
         "rows are merged into <out>/laws.json by label, so runs of different laws can share it",
+    )
+    parser.add_argument(
+        "--law-first-seed",
+        type=int,
+        default=None,
+        help="with --stage laws: first seed of this run (default LAW_SEED); runs of one law on "
+        "consecutive seed ranges are merged into one row",
     )
     parser.add_argument(
         "--law-episodes",
@@ -219,8 +228,16 @@ def main() -> None:
     if args.stage == "physics-cost":
         print(physics_cost(args.out))
         return
+    if args.stage == "laws-report":  # laws.md and the figure from the stored runs only
+        rows = join_runs(json.loads((args.out / "laws.json").read_text()))
+        text = laws_markdown(rows)
+        with locked(args.out):
+            _replace(args.out / "laws.md", text)
+        contact_force_figure(rows, args.out / "contact_forces.png")
+        print(text)
+        return
     if args.stage == "laws":
-        print(compare_laws(args.law_episodes, args.out, args.law))
+        print(compare_laws(args.law_episodes, args.out, args.law, args.law_first_seed))
         return
     if args.stage in ("main", "all"):
         results["main"] = []
@@ -355,17 +372,21 @@ def wilson(successes: int, n: int) -> tuple[float, float, float]:
     return p, max(0.0, centre - half), min(1.0, centre + half)
 
 
-def compare_laws(n: int, out: Path, which: list[int] | None = None) -> str:
+def compare_laws(
+    n: int, out: Path, which: list[int] | None = None, first_seed: int | None = None
+) -> str:
     """The laws of :data:`LAWS` (or the entries ``which``) on ``n`` held-out seeds from
-    :data:`LAW_SEED` (through cir_gym.evaluation.evaluate); each law's row is merged into
-    ``<out>/laws.json`` by label as it finishes, and ``<out>/laws.md`` and the single-contact
-    force figure ``<out>/contact_forces.png`` are rebuilt from every stored row; returns the
-    markdown."""
+    ``first_seed`` (default :data:`LAW_SEED`; through cir_gym.evaluation.evaluate); each run's
+    row is stored in ``<out>/laws.json`` as it finishes (replacing the row of the same law
+    and first seed), and ``<out>/laws.md`` and the single-contact force figure
+    ``<out>/contact_forces.png`` are rebuilt from every stored row, a law's runs on different
+    seeds joined (:func:`join_runs`); returns the markdown."""
+    seed = LAW_SEED if first_seed is None else first_seed
     for index in which if which is not None else range(len(LAWS)):
         label, name, gains = LAWS[index]
         policy = make_policy(name, gains)
         t0 = time.perf_counter()
-        result = evaluate(policy, ENV_ID, n, seed=LAW_SEED, batched=False)
+        result = evaluate(policy, ENV_ID, n, seed=seed, batched=False)
         eps = result.episodes
         row = {
             "label": label,
@@ -383,14 +404,31 @@ def compare_laws(n: int, out: Path, which: list[int] | None = None) -> str:
         with locked(out):
             path = out / "laws.json"
             stored = json.loads(path.read_text()) if path.exists() else []
-            rows = [r for r in stored if r["label"] != label] + [row]
-            order = [entry[0] for entry in LAWS]
-            rows.sort(key=lambda r: order.index(r["label"]) if r["label"] in order else 99)
-            _replace(path, json.dumps(rows, indent=1))
+            runs = [r for r in stored if (r["label"], r["seeds"][0]) != (label, seed)] + [row]
+            _replace(path, json.dumps(runs, indent=1))
+            rows = join_runs(runs)
             text = laws_markdown(rows)
             _replace(out / "laws.md", text)
             contact_force_figure(rows, out / "contact_forces.png")
     return text
+
+
+def join_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per law (in :data:`LAWS`' order): its runs' per-episode lists joined in seed
+    order, wall times added."""
+    order = [entry[0] for entry in LAWS]
+    rows = []
+    for label in order:
+        parts = sorted((r for r in runs if r["label"] == label), key=lambda r: r["seeds"][0])
+        if not parts:
+            continue
+        row = dict(parts[0])
+        for key, value in parts[0].items():
+            if isinstance(value, list):
+                row[key] = [v for part in parts for v in part[key]]
+        row["wall_time_s"] = sum(part["wall_time_s"] for part in parts)
+        rows.append(row)
+    return rows
 
 
 def laws_markdown(rows: list[dict[str, Any]]) -> str:
