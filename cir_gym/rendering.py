@@ -688,7 +688,7 @@ def draw_caption(
     colour: tuple[int, int, int] = (255, 255, 255),
     background: float = 0.55,
     margin: int = 4,
-    max_lines: int = 2,
+    max_lines: int = 3,
 ) -> np.ndarray:
     """Write ``text`` at the top-left of ``image`` (h, w, 3) uint8, in place; return ``image``.
 

@@ -4,7 +4,9 @@
 
 Each GIF is one episode (seed ``--seed``, at most its first ``--seconds`` s at ``--fps``
 frames/s) of a reference controller, with the task drawn by the environment's ``draw_task``
-and its caption. The controller and the setting per environment are in :data:`SHOWN` (chosen
+and its caption (wrapped onto more lines when wider than the frame), through the camera
+the leaderboard's videos use (:data:`cir_gym.scoring.page.VIDEO_CAMERAS`: PegInHole's low
+side view). The controller and the setting per environment are in :data:`SHOWN` (chosen
 to show the task: the obstacle variant of the redundancy envs, the controller that solves it);
 an environment not listed there shows its first controller in default settings. Frames are
 written by :func:`cir_gym.scoring.page.save_gif` (one palette, unchanged pixels
