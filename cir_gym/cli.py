@@ -88,7 +88,8 @@ def cmd_list(args: argparse.Namespace) -> int:
     plugins = sorted(plugin_factories())
     print(
         f"\nPlugin policies ({ENTRY_POINT_GROUP} entry points): "
-        + (", ".join(f"{p} ({plugin_factories()[p].value})" for p in plugins) or "none installed")
+        + (", ".join(f"{p} ({plugin_factories()[p].value})" for p in plugins)
+           or "none installed (docs/policies.md: how to add your own)")
     )
     return 0
 
