@@ -171,8 +171,8 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
             md = leaderboard_from(Path(args.from_dir), Path(args.out) if args.out else None)
         except FileNotFoundError as exc:  # no sweep table in DIR
             raise CliError(str(exc)) from exc
-        print(md.read_text())
-        print(f"wrote {md} and {md.parent / 'index.html'}", file=sys.stderr)
+        print(f"page: {(md.parent / 'index.html').resolve()}\ntables: {md.resolve()}",
+              file=sys.stderr)
         return 0
     if args.episodes < 1:
         raise CliError(f"--episodes must be >= 1, got {args.episodes}")
