@@ -326,10 +326,10 @@ class AdmittanceContactEnv(RobotEnv):
             width=width,
             height=height,
         )
-        # a control period is `substeps` physics steps, simulated one at a time (the motion
-        # controller of the position interface runs at every physics step, and the contact
-        # forces are read at every one): RobotEnv._simulate advances one physics step
-        self.substeps, self.frame_skip = self.frame_skip, 1
+        # a control period is `substeps` = frame_skip physics steps, simulated one at a time
+        # (_advance: the position interface's motion controller runs at every physics step,
+        # and the contact forces are read at every one)
+        self.substeps = self.frame_skip
         self.robot = Robot(model, JOINTS)  # the simulator's arm
         self.n = self.robot.n
         self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
@@ -433,17 +433,21 @@ class AdmittanceContactEnv(RobotEnv):
         self.tool_force_steps[:] = 0.0
         self.peak_force_steps[:] = 0.0
         tau = a * self.torque_limit if self.interface is None else None
-        for i in range(n):
-            if self.interface is not None:
-                tau = self.interface.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / n)
-                tau = np.clip(tau, -self.torque_limit, self.torque_limit)
-            if self._simulate(tau):
-                return True
-            values = d.sensordata
-            self.sensor.advance(values[self._wrench_at])
-            # the sensor reads the plate's force on the tip: n̂ · it is the tool's push
-            self.tool_force_steps[i] = self._normal @ values[self._tool_at]
-            self.peak_force_steps[i] = values[self._peak_at]
+        self.frame_skip = 1  # RobotEnv._simulate: one physics step per call
+        try:
+            for i in range(n):
+                if self.interface is not None:
+                    tau = self.interface.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / n)
+                    tau = np.clip(tau, -self.torque_limit, self.torque_limit)
+                if self._simulate(tau):
+                    return True
+                values = d.sensordata
+                self.sensor.advance(values[self._wrench_at])
+                # the sensor reads the plate's force on the tip: n̂ · it is the tool's push
+                self.tool_force_steps[i] = self._normal @ values[self._tool_at]
+                self.peak_force_steps[i] = values[self._peak_at]
+        finally:
+            self.frame_skip = n
         return False
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
