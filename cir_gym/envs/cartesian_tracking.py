@@ -22,6 +22,7 @@ from cir_gym.envs.cartesian_reference import (
 from cir_gym.envs.cartesian_scene import cartesian_caption, draw_cartesian_tracking
 from cir_gym.envs.tracking_reward import TERMS, TrackingReward
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import CLIP, index_view
 from cir_gym.robot import (
     Robot,
     apply_model_error,
@@ -302,7 +303,8 @@ class CartesianTrackingEnv(RobotEnv):
         )
         n = self.n = self.robot.n
         self.torque_limit = self.robot.torque_limit.copy()
-        self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr
+        # the joints' addresses in qpos and qvel (slices where evenly spaced: views)
+        self._qa, self._da = index_view(self.robot.qpos_adr), index_view(self.robot.dof_adr)
         self._site = self.robot.site_id(SITE)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         bounds = {  # key: (size, bound)
@@ -515,7 +517,7 @@ class CartesianTrackingEnv(RobotEnv):
                 self._acc_ref[k],
             )
         )
-        np.clip(flat, self._obs_low, self._obs_high, out=flat)
+        CLIP(flat, self._obs_low, self._obs_high, out=flat)
         return {key: flat[at] for key, at in self._obs_slices.items()}
 
     def controller_context(self) -> TaskContext:

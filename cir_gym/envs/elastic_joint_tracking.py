@@ -10,6 +10,7 @@ import numpy as np
 from cir_gym.context import TaskContext
 from cir_gym.drives import DriveState
 from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.numeric import index_view
 from cir_gym.robot import ModelError, Robot, apply_model_error, robot_path
 from cir_gym.validation import InvalidArgument, as_float_array, check_number
 
@@ -154,8 +155,9 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
         self.stiffness = scale * k  # the simulator's springs
         super().__init__(*args, **kwargs)
         m = self.model
-        self._ma = np.array([m.jnt_qposadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
-        self._md = np.array([m.jnt_dofadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
+        # the motor hinges' addresses in qpos and qvel (slices where evenly spaced: views)
+        self._ma = index_view([m.jnt_qposadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
+        self._md = index_view([m.jnt_dofadr[m.joint(f"motor{i}").id] for i in range(1, 8)])
         self._motor_drive = None if self.drive is None else DriveState(self.drive, 7)
         self._set_observation_space({**self._obs_bounds, "q_motor": 2 * np.pi, "qd_motor": 50.0})
 

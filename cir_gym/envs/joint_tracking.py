@@ -12,8 +12,9 @@ from cir_gym.context import TaskContext
 from cir_gym.drives import DRIVES, DriveModel, DriveState
 from cir_gym.envs.base import RobotEnv, model_error_arguments
 from cir_gym.envs.joint_reference import REFERENCES, draw_joint_reference
-from cir_gym.envs.tracking_reward import TERMS, TrackingReward, squared_norm
+from cir_gym.envs.tracking_reward import TERMS, TrackingReward
 from cir_gym.metrics import MetricSpec
+from cir_gym.numeric import CLIP, index_view
 from cir_gym.robot import (
     MODEL_ERROR_RANGES,
     ModelError,
@@ -237,6 +238,7 @@ class JointTrackingEnv(RobotEnv):
         self.encoder_resolution = check_encoder_resolution(encoder_resolution)
         self.randomize = check_flag("randomize", randomize)
         self.initial_error = check_number("initial_error", initial_error, 0.0, 1.0)
+        # the reward's weights (error_scales in rad, of the joint error ‖q̃‖)
         self.reward_model = TrackingReward.from_arguments(
             error_scales,
             "rad",
@@ -294,7 +296,8 @@ class JointTrackingEnv(RobotEnv):
         )
         self.torque_limit = self.robot.torque_limit.copy()
         self.n = n
-        self._qa, self._da = self.robot.qpos_adr, self.robot.dof_adr  # the link joints
+        # the link joints' addresses in qpos and qvel (slices where evenly spaced: views)
+        self._qa, self._da = index_view(self.robot.qpos_adr), index_view(self.robot.dof_adr)
         self.action_space = spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
         self._set_observation_space(
             {"q": 2 * np.pi, "qd": 50.0, "q_ref": 2 * np.pi, "qd_ref": 50.0, "qdd_ref": 500.0}
@@ -429,7 +432,7 @@ class JointTrackingEnv(RobotEnv):
         q_err = self._ref[0, self._k] - self.data.qpos[self._qa]  # q̃ = q̄ − q
         self._err[k] = q_err
         self._sat[k] = peak >= 1.0  # clipped, or a joint at its torque limit
-        error_sq = float(squared_norm(q_err))
+        error_sq = float(q_err @ q_err)
         joint_error = math.sqrt(error_sq)
         stopped = (
             not diverged
@@ -511,8 +514,8 @@ class JointTrackingEnv(RobotEnv):
         rows[2:5] = self._ref[:, min(self._k, self.max_steps)]  # q̄, q̄̇, q̄̈
         if more:
             rows[5:] = more
-        np.clip(rows, self._obs_low, self._obs_high, out=rows)
-        return dict(zip(self._obs_keys, rows, strict=True))
+        CLIP(rows, self._obs_low, self._obs_high, out=rows)
+        return {key: rows[i] for i, key in enumerate(self._obs_keys)}
 
     def controller_context(self) -> TaskContext:
         return TaskContext(

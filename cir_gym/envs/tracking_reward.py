@@ -22,6 +22,7 @@ return, at any discount γ ≤ 1.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -96,6 +97,11 @@ class TrackingReward:
             charge_unplayed_steps=check_flag("charge_unplayed_steps", charge_unplayed_steps),
         )
 
+    @cached_property
+    def _scales_sq(self) -> tuple[float, ...]:
+        """s² of each kernel."""
+        return tuple((self.error_scales**2).tolist())
+
     @property
     def worst_step(self) -> float:
         """The lowest reward of one played step: r_tracking = −1, ‖a‖²/n = 1, ‖Δa‖²/n = 4."""
@@ -124,13 +130,13 @@ class TrackingReward:
             ``TERMS`` → array (...): the five terms (0-d arrays for one step).
         """
         n = action.shape[-1]
-        kernels = np.exp(-np.expand_dims(error_sq, -1) / self.error_scales**2)
+        kernels = [np.exp(-error_sq / s_sq) for s_sq in self._scales_sq]  # S of them, each (...)
         unplayed = unplayed_steps * self.worst_step if self.charge_unplayed_steps else 0.0
         return {
-            "reward_tracking": -(1.0 - kernels.sum(axis=-1) / kernels.shape[-1]),
-            "reward_torque": -self.torque_weight * squared_norm(action) / n,
+            "reward_tracking": sum(kernels) / len(kernels) - 1.0,
+            "reward_torque": (-self.torque_weight / n) * squared_norm(action),
             "reward_action_rate": (
-                -self.action_rate_weight * squared_norm(action - previous_action) / n
+                (-self.action_rate_weight / n) * squared_norm(action - previous_action)
             ),
             "reward_following_error": np.where(
                 stopped, -(self.following_error_penalty + unplayed), 0.0
