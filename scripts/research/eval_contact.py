@@ -144,6 +144,7 @@ def write_readme(out: Path, results: dict[str, Any], episodes: int, seed: int) -
         "which the tool's normal contact force is below 0.5 N, mean (worst episode).",
         "",
     ]
+    lines += headlines(results)
     titles = {
         "course": "The laws as the course designs them (f̄ a step at the first contact)",
         "shaped": f"The same reference shaping for every force law (a {RAMP}-s quintic from "
@@ -158,11 +159,39 @@ def write_readme(out: Path, results: dict[str, Any], episodes: int, seed: int) -
             cells = []
             for setting in SETTINGS:
                 cell = results.get(f"{label} @ {setting}")
-                cells.append(cell_text(cell) if cell and setting in settings else "–")
+                if setting not in settings:
+                    cells.append("–")
+                else:
+                    cells.append(cell_text(cell) if cell else "not run yet")
             lines.append(f"| {label} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += NOTES
     (out / "README.md").write_text("\n".join(lines) + "\n")
+
+
+#: (text, cell key) of the comparisons the issue asked for, in this order
+HEADLINES = (
+    ("admittance at 1e5 N/m", "admittance @ k = 1e5 N/m"),
+    ("impedance at 1e3 N/m, sink f̄ (1/K_d + 1/k) (the equilibrium with the surface)",
+     "impedance @ k = 1e3 N/m"),
+    ("impedance at 1e3 N/m, sink f̄/K_d only", "impedance, sink f̄/K_d only @ k = 1e3 N/m"),
+    ("explicit_force at 1e3 N/m, course form (f̄ a step)", "explicit_force @ k = 1e3 N/m"),
+    (f"explicit_force at 1e3 N/m, {RAMP}-s ramp", f"explicit_force + ramp {RAMP} s @ k = 1e3 N/m"),
+    (f"explicit_force at 1e3 N/m, {RAMP}-s ramp + plant-inverse feed-forward",
+     f"explicit_force + ramp {RAMP} s + plant-inverse feed-forward @ k = 1e3 N/m"),
+)
+
+
+def headlines(results: dict[str, Any]) -> list[str]:
+    """The issue's comparisons, each over its cell's episodes (none from fewer than 30)."""
+    lines = ["## Headlines", ""]
+    for text, key in HEADLINES:
+        cell = results.get(key)
+        if cell is None:
+            lines.append(f"- {text}: not run yet")
+            continue
+        lines.append(f"- {text}: {cell_text(cell)} ({len(cell['seeds'])} episodes)")
+    return [*lines, ""]
 
 
 NOTES = [
