@@ -180,15 +180,15 @@ def _env_ids(where: str, block: dict[str, Any]) -> list[str]:
         raise GridError(
             f"{where}: 'envs' must list environment ids; valid: {sorted(cir_gym.ENVIRONMENTS)}"
         )
+    from cir_gym.scoring.policies import PolicyError, check_env_id
+
     envs = [envs] if isinstance(envs, str) else list(envs)
     out = []
     for e in envs:
-        key = str(e).split(":")[-1]
-        if key not in cir_gym.ENVIRONMENTS:
-            raise GridError(
-                f"{where}: unknown environment {e!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}"
-            )
-        out.append(key)
+        try:
+            out.append(check_env_id(str(e)))  # the cir_gym/ prefix optional, as on the CLI
+        except PolicyError as exc:
+            raise GridError(f"{where}: {exc}") from None
     return out
 
 
@@ -542,6 +542,7 @@ def _hyperparams_file(task: dict[str, Any], directory: Path) -> Path | None:
     ``training`` and, for a residual run, ``residual``), so the set wins whatever the file
     says; the file itself when the set is empty (None: the shipped file)."""
     import yaml
+
     from cir_gym.agents.hyperparameters import HYPERPARAMS_DIR, _read_yaml
 
     hp = task["hyperparams"]
@@ -562,10 +563,9 @@ def _hyperparams_file(task: dict[str, Any], directory: Path) -> Path | None:
 
 
 def _train_task(task: dict[str, Any], out: Path) -> tuple[list[dict[str, Any]], Path]:
+    from cir_gym import agents
     from cir_gym.agents import env_dir_name
     from cir_gym.agents.train import train
-
-    from cir_gym import agents
 
     runs = out / "runs"
     run_dir = runs / env_dir_name(task["env_id"]) / task["run_name"]
