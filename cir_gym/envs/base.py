@@ -13,7 +13,11 @@ metrics. The base class owns what every task does the same way:
   RuntimeError saying what is missing (GL libraries, a display) instead of crashing. Both
   show the task: :meth:`RobotEnv.draw_task` adds visual-only markers (cir_gym.rendering) and
   ``rgb_array`` frames carry :meth:`RobotEnv.caption`; the robot files hold the checker floor
-  and the free camera's framing.
+  and the free camera's framing. ``rgb_array_list`` draws frames at a fixed rate of simulated
+  time (at most :data:`MAX_VIDEO_FPS`) for real-time videos;
+* the order of calls: ``step`` or ``render`` before ``reset``, and ``step`` after the
+  episode's end, raise :class:`ResetNeeded` (``RobotEnv.__init_subclass__`` wraps each
+  task's ``step``, ``reset`` and ``render`` once).
 """
 
 from __future__ import annotations
@@ -299,7 +303,7 @@ def _guard_render(render: Any) -> Any:
 
     @functools.wraps(render)
     def guarded(self: RobotEnv) -> Any:
-        if self._in_render:  # drawing one frame (_frame) or a parent's render
+        if self._in_render:  # drawing one frame (_draw): a parent's render, or a video frame
             return render(self)
         if not self._ever_reset:
             raise self._reset_needed("render")
