@@ -1,4 +1,5 @@
-"""Vision science for visual servoing (chapter 7): pinhole camera, point features, pose.
+"""Vision science for visual servoing (chapter 7): pinhole camera, point features, pose,
+the interaction matrix and its damped inverse, line of sight, colour-marker detection.
 
 Conventions (stated once, used everywhere):
 
