@@ -38,11 +38,12 @@ value of L̂ is 8.7 … 13 px (current, desired and mean L̂, 12 seeds), so μ =
 direction whose σ falls below μ is attenuated instead of inverted: ‖L̂* e‖ ≤ ‖e‖ / (2 μ). The
 mean L̂ is singular at a rotation of π about the optical axis (s = −s* about the principal
 point: the v_z and ω_z columns of L(s) and L(s*) cancel, smallest σ 8e-11 px), where the
-pseudo-inverse turned the camera by a direction its round-off chose; with the damping the
-law gives no turn there without feature noise (the error is orthogonal to the range of L̂:
-an equilibrium, which the noise leaves in a direction it chooses). ``damping=0`` is the
-pseudo-inverse. PBVS inverts nothing: its rotation error θu has no defined axis at θ = π,
-so there too the direction of the turn is chosen by the noise of the pose estimate.
+pseudo-inverse turned the camera at full speed in a direction its round-off chose (1/σ ≈ 1e10).
+With the damping the law asks for no turn at the singular point itself (the error is
+orthogonal to the range of L̂: an unstable equilibrium); whatever breaks the symmetry (feature
+noise, the start pose's last bits) grows and chooses the direction, at the law's own rate.
+``damping=0`` is the pseudo-inverse. PBVS inverts nothing: its rotation error θu has no
+defined axis at θ = π, so there too the noise of the pose estimate chooses the turn.
 
 Gains: λ = 0.5 1/s, ViSP's tutorial-ibvs-4pts value at its 40 ms period (the default
 control period here); the adaptive option's ViSP values are λ₀ = 4, λ∞ = 0.4, λ'₀ = 30.
