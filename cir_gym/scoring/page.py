@@ -69,6 +69,7 @@ code { background: #eceef2; padding: 0 0.2em; }
 .scroll { overflow-x: auto; }
 details.glossary-box { background: #fff; border: 1px solid #c8ccd4; padding: 0.4em 0.8em; }
 details.glossary-box summary { font-weight: bold; cursor: pointer; }
+.glossary th { vertical-align: top; white-space: nowrap; }
 """
 
 #: the RL and statistics vocabulary of the page, for control students: (term, meaning)
