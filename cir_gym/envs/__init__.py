@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
+from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv, PegInHoleImpedanceEnv
 from cir_gym.envs.base import EntryPoint, RobotEnv, default_max_episode_steps
 from cir_gym.envs.cartesian_tracking import CartesianTrackingEnv
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
@@ -49,6 +50,14 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
     "cir_gym/CartesianTracking-v0": (
         CartesianTrackingEnv,
         "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)",
+    ),
+    "cir_gym/PegInHoleImpedance-v0": (
+        PegInHoleImpedanceEnv,
+        "PegInHole for agents: 20-Hz pose-setpoint increments of a Cartesian impedance loop (ch. 6)",
+    ),
+    "cir_gym/AdmittanceContactImpedance-v0": (
+        AdmittanceContactImpedanceEnv,
+        "AdmittanceContact for agents: 20-Hz setpoint increments of a Cartesian impedance loop",
     ),
 }
 

@@ -1,0 +1,325 @@
+"""A normalized score on a leaderboard variant's primary metric: 0 = hold still, 1 = the best
+tuned controller.
+
+For a policy whose primary metric has mean m over the variant's episodes, with m_hold the mean
+of the hold-still policy (:func:`hold_still_policy`, the same seeds) and m_best the mean of the
+best tuned controller (:func:`best_controller`):
+
+* linear: score = (m_hold − m) / (m_hold − m_best);
+* log, where the metric spans decades: score = log(m_hold / m) / log(m_hold / m_best).
+
+Both formulas hold whichever way the metric is better (lower or higher): the score grows as m
+moves from m_hold towards m_best and beyond. It is not clipped: < 0 is worse than holding
+still, > 1 better than the best controller. The log scale is used when m_hold and m_best are
+both > 0 and at least ``LOG_DECADES`` (one) decade apart: a tracking error going from 1e-1 to
+1e-4 rad counts each decade alike, instead of scoring 0.9 for 1e-2 rad. On the log scale a value
+m ≤ 0 or below m_best / 1000 is floored at m_best / 1000 when lower is better, so that a perfect
+episode scores finitely, 1 + 3 / log10(m_hold / m_best); when higher is better m is clamped to
+[m_hold / 1000, 1000 m_best].
+
+"Hold still" is the policy that commands no motion on the variant's interface
+(:data:`HOLD_STILL`, keyed by ``TaskContext.action_kind``): a zero action where the action is a
+motion increment or a velocity (joint velocities, a camera twist, a Cartesian or impedance
+setpoint increment); on a torque interface, where a zero action lets the arm fall, the course's
+PD + gravity regulation to the posture of the first observation (``control-laws.md`` §5,
+τ = ĝ(q) + K_P (q₀ − q) − K_D q̇ with the task's nominal model and tool; ω = 10 rad/s, ζ = 1,
+scaled by diag B̂(q₀)).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cir_gym.context import TaskContext
+from cir_gym.evaluation import EvaluationResult
+from cir_gym.impedance import tool_robot
+
+__all__ = [
+    "HOLD_STILL",
+    "LOG_DECADES",
+    "LOG_FLOOR",
+    "HoldStill",
+    "NormalizedScore",
+    "best_controller",
+    "episode_scores",
+    "hold_still_policy",
+    "is_agent",
+    "normalized_score",
+    "normalized_scores",
+    "uses_log_scale",
+]
+
+#: decades between m_hold and m_best from which the score is on a log scale
+LOG_DECADES = 1.0
+#: on the log scale, values are floored at m_best × LOG_FLOOR (lower is better; module docstring)
+LOG_FLOOR = 1e-3
+
+#: action kind → what the hold-still policy commands on it
+HOLD_STILL: dict[str, str] = {
+    "joint_torque": "PD + gravity to the first observed posture (the arm would fall at τ = 0)",
+    "motor_torque": "PD on the motor positions to their first observed values + ĝ(q) of the link "
+    "positions (the springs' static deflection holds)",
+    "joint_velocity": "zero joint velocities",
+    "twist": "a zero camera twist",
+    "cartesian_increment": "a zero setpoint increment",
+    "impedance_setpoint_increment": "a zero setpoint increment (the impedance loop holds)",
+}
+_TORQUE_KINDS = ("joint_torque", "motor_torque")
+POSTURE_OMEGA = 10.0  # rad/s: the hold-still PD on a torque interface
+POSTURE_ZETA = 1.0
+
+
+class HoldStill:
+    """The hold-still policy of one interface (module docstring), with SB3's ``predict``.
+
+    Its state is the posture q₀ (or motor positions θ₀) of the episode's first observation on a
+    torque interface, None elsewhere. Use :func:`hold_still_policy` to build it.
+    """
+
+    name = "hold_still"
+    batches_exactly = True
+
+    def __init__(self, context: TaskContext, action_shape: tuple[int, ...]) -> None:
+        if context.action_kind not in HOLD_STILL:
+            raise ValueError(
+                f"no hold-still policy for action kind {context.action_kind!r}; known: "
+                f"{sorted(HOLD_STILL)}"
+            )
+        self.kind = context.action_kind
+        self.action_shape = tuple(action_shape)
+        self.scale = np.asarray(context.action_scale, dtype=float)
+        self.robot = tool_robot(context) if self.kind in _TORQUE_KINDS else None
+
+    def _torque(self, obs: dict[str, np.ndarray], q0: np.ndarray) -> np.ndarray:
+        assert self.robot is not None
+        q = np.asarray(obs["q"], dtype=float)
+        if self.kind == "motor_torque":  # PD on the motor side, gravity of the links
+            x, xd = np.asarray(obs["q_motor"], float), np.asarray(obs["qd_motor"], float)
+        else:
+            x, xd = q, np.asarray(obs["qd"], dtype=float)
+        b = np.diag(self.robot.inertia(q0))
+        tau = (
+            self.robot.gravity(q)
+            + POSTURE_OMEGA**2 * b * (q0 - x)
+            - 2 * POSTURE_ZETA * POSTURE_OMEGA * b * xd
+        )
+        return np.clip(tau / self.scale, -1.0, 1.0)
+
+    def _start(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        key = "q_motor" if self.kind == "motor_torque" else "q"
+        return np.array(obs[key], dtype=float)
+
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """Zeros, or the PD + gravity torque (one observation, or a batch: leading axis)."""
+        if self.robot is None:
+            batch = _batch_size(observation, self.action_shape)
+            shape = self.action_shape if batch is None else (batch, *self.action_shape)
+            return np.zeros(shape, dtype=np.float32), state
+        batch = _batch_size(observation, self.action_shape, key="q")
+        rows = [observation] if batch is None else [
+            {k: v[i] for k, v in observation.items()} for i in range(batch)
+        ]
+        starts = np.ones(len(rows), bool) if episode_start is None else np.atleast_1d(episode_start)
+        q0s = [None] * len(rows) if state is None else list(np.atleast_2d(state))
+        actions, new_state = [], []
+        for row, start, q0 in zip(rows, starts, q0s, strict=True):
+            q0 = self._start(row) if start or q0 is None else np.asarray(q0, float)
+            actions.append(self._torque(row, q0))
+            new_state.append(q0)
+        if batch is None:
+            return actions[0].astype(np.float32), new_state[0]
+        return np.array(actions, dtype=np.float32), np.array(new_state)
+
+
+def _batch_size(
+    observation: Any, action_shape: tuple[int, ...], key: str | None = None
+) -> int | None:
+    """None for one observation, else the number of stacked observations (vector envs)."""
+    if isinstance(observation, dict):
+        key = key or next(iter(observation))
+        x = np.asarray(observation[key])
+        return None if x.ndim <= 1 else int(x.shape[0])
+    x = np.asarray(observation)
+    return None if x.ndim <= 1 else int(x.shape[0])
+
+
+def hold_still_policy(env: Any) -> HoldStill:
+    """The hold-still policy of ``env``'s interface (its ``controller_context().action_kind``)."""
+    base = env.unwrapped
+    return HoldStill(base.controller_context(), base.action_space.shape)
+
+
+def uses_log_scale(hold: float, best: float) -> bool:
+    """True when m_hold and m_best are both > 0 and at least ``LOG_DECADES`` decades apart."""
+    if not (hold > 0 and best > 0 and math.isfinite(hold) and math.isfinite(best)):
+        return False
+    return abs(math.log10(hold / best)) >= LOG_DECADES
+
+
+def normalized_score(value: float, hold: float, best: float, *, log: bool | None = None) -> float:
+    """The score of a metric value between the anchors (module docstring).
+
+    Args:
+        value: the policy's metric value m.
+        hold: m_hold, the hold-still policy's value (score 0).
+        best: m_best, the best tuned controller's value (score 1).
+        log: the scale; None: :func:`uses_log_scale`.
+
+    Returns:
+        The score (NaN if ``value`` is NaN).
+
+    Raises:
+        ValueError: the anchors are equal or not finite (no scale), or ``log`` is True with an
+            anchor ≤ 0.
+    """
+    if not (math.isfinite(hold) and math.isfinite(best)) or hold == best:
+        raise ValueError(
+            f"the anchors must be finite and differ: hold-still {hold!r}, best {best!r}"
+        )
+    if log is None:
+        log = uses_log_scale(hold, best)
+    if math.isnan(value):
+        return float("nan")
+    if not log:
+        return (hold - value) / (hold - best)
+    if hold <= 0 or best <= 0:
+        raise ValueError(f"a log scale needs anchors > 0: hold-still {hold!r}, best {best!r}")
+    if best < hold:  # lower is better
+        value = max(value, best * LOG_FLOOR)
+    else:
+        value = min(max(value, hold * LOG_FLOOR), best / LOG_FLOOR)
+    return math.log(hold / value) / math.log(hold / best)
+
+
+@dataclass(frozen=True)
+class NormalizedScore:
+    """One policy's normalized score on a metric, with its anchors.
+
+    Attributes:
+        policy_name: the result's policy.
+        metric: the metric scored (the result's primary metric by default).
+        score: the normalized score of the mean.
+        value: the policy's mean m.
+        hold, best: the anchors' means m_hold and m_best.
+        best_policy: the policy whose mean is m_best.
+        log_scale: whether the log formula was used.
+    """
+
+    policy_name: str
+    metric: str
+    score: float
+    value: float
+    hold: float
+    best: float
+    best_policy: str
+    log_scale: bool
+
+
+def _mean(result: EvaluationResult, metric: str) -> float:
+    if metric not in result.summary:
+        raise ValueError(
+            f"{result.policy_name!r} on {result.env_id} has no metric {metric!r}; metrics: "
+            f"{[s.name for s in result.specs]}"
+        )
+    return float(result.summary[metric]["mean"])
+
+
+def is_agent(result: EvaluationResult) -> bool:
+    """Whether a result is a trained agent's (the leaderboard's ``agent:`` names)."""
+    return result.policy_name.startswith("agent:")
+
+
+def best_controller(
+    results: Iterable[EvaluationResult], metric: str | None = None
+) -> EvaluationResult:
+    """The controller (not an ``agent:`` and not the hold-still policy) with the best mean of
+    ``metric`` (default: the results' primary metric) in the metric's direction.
+
+    Raises:
+        ValueError: no controller result with a finite mean.
+    """
+    rows = [r for r in results if not is_agent(r) and r.policy_name != HoldStill.name]
+    if not rows:
+        raise ValueError("no controller result to anchor the score at 1")
+    name = metric or rows[0].primary_metric
+    better = rows[0].spec(name).better
+    finite = [r for r in rows if math.isfinite(_mean(r, name))]
+    if not finite:
+        raise ValueError(f"no controller has a finite mean of {name!r}")
+    sign = 1.0 if better == "lower" else -1.0
+    return min(finite, key=lambda r: sign * _mean(r, name))
+
+
+def normalized_scores(
+    results: Iterable[EvaluationResult],
+    hold: EvaluationResult,
+    best: EvaluationResult | None = None,
+    metric: str | None = None,
+    *,
+    log: bool | None = None,
+) -> dict[str, NormalizedScore]:
+    """The normalized score of every result on one leaderboard variant.
+
+    Args:
+        results: the variant's results (controllers and agents, same env and seeds).
+        hold: the hold-still policy's result on the same seeds (score 0).
+        best: the result scoring 1; None: :func:`best_controller` of ``results``.
+        metric: the metric scored; None: ``hold``'s primary metric (a variant's own
+            primary metric: pass ``EvaluationResult.ranked_on`` results, or name it).
+        log: the scale; None: :func:`uses_log_scale` of the anchors.
+
+    Returns:
+        policy name → :class:`NormalizedScore`.
+    """
+    rows = list(results)
+    name = metric or hold.primary_metric
+    anchor = best if best is not None else best_controller(rows, name)
+    m_hold, m_best = _mean(hold, name), _mean(anchor, name)
+    scale = uses_log_scale(m_hold, m_best) if log is None else log
+    out = {}
+    for r in rows:
+        if r.env_id != hold.env_id:
+            raise ValueError(f"{r.policy_name!r} is on {r.env_id}, the anchors on {hold.env_id}")
+        value = _mean(r, name)
+        out[r.policy_name] = NormalizedScore(
+            r.policy_name,
+            name,
+            normalized_score(value, m_hold, m_best, log=scale),
+            value,
+            m_hold,
+            m_best,
+            anchor.policy_name,
+            scale,
+        )
+    return out
+
+
+def episode_scores(
+    result: EvaluationResult,
+    hold: EvaluationResult,
+    best: EvaluationResult,
+    metric: str | None = None,
+    *,
+    log: bool | None = None,
+) -> np.ndarray:
+    """Per-episode normalized scores (n_episodes,) of ``result``, for an IQM with a bootstrap
+    interval: each episode's metric scored between the anchors' means (the scale of
+    :func:`normalized_scores`). NaN metrics give NaN."""
+    name = metric or hold.primary_metric
+    m_hold, m_best = _mean(hold, name), _mean(best, name)
+    scale = uses_log_scale(m_hold, m_best) if log is None else log
+    return np.array([
+        normalized_score(float(ep.metrics.get(name, np.nan)), m_hold, m_best, log=scale)
+        for ep in result.episodes
+    ])
