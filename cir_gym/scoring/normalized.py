@@ -253,6 +253,7 @@ def best_controller(
     if not rows:
         raise ValueError("no controller result to anchor the score at 1")
     name = metric or rows[0].primary_metric
+    _mean(rows[0], name)  # a clear error for an unknown metric
     better = rows[0].spec(name).better
     finite = [r for r in rows if math.isfinite(_mean(r, name))]
     if not finite:
