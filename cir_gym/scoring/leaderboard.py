@@ -314,14 +314,13 @@ def run_leaderboard(
     # policy, a test that trained one) can deadlock in torch's thread pool at its first op.
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=spawn) as pool:
-        # the seed tables first: each is the longest single item, so none is left for last
-        futures = {
+        # the runs first, so the count moves from the start; then the seed tables (each one
+        # evaluates every training seed of a variant's agents: the longest items)
+        futures = {pool.submit(run_job, j, episodes, seed): ("run", i) for i, j in enumerate(jobs)}
+        futures.update({
             pool.submit(run_seed_table, e, v, kw, episodes, seed): ("seeds", (e, v))
             for e, v, kw in seed_jobs
-        }
-        futures.update(
-            {pool.submit(run_job, j, episodes, seed): ("run", i) for i, j in enumerate(jobs)}
-        )
+        })
         for fut in as_completed(futures):
             kind, what = futures[fut]
             label = (f"seed table {_name(what[0])} {what[1]}" if kind == "seeds"
