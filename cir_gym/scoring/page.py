@@ -240,7 +240,8 @@ def peg_in_hole_camera(env: Any) -> mujoco.MjvCamera:
     top."""
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-    camera.lookat[:] = np.asarray(env.hole_pos, dtype=float) + np.array([0.0, 0.0, -0.016])
+    block = env.model.body("block").pos  # the nominal hole's top centre (world), m
+    camera.lookat[:] = np.asarray(block, dtype=float) + np.array([0.0, 0.0, -0.016])
     camera.distance = 0.12
     camera.azimuth = 116.6  # looking along (−0.06, 0.12): hole_cam's direction
     camera.elevation = -12.0
@@ -251,6 +252,7 @@ def peg_in_hole_camera(env: Any) -> mujoco.MjvCamera:
 #: others use the env's own camera. Visual only: the model is unchanged.
 VIDEO_CAMERAS: dict[str, Callable[[Any], mujoco.MjvCamera]] = {
     "PegInHole": peg_in_hole_camera,
+    "PegInHoleImpedance": peg_in_hole_camera,
 }
 
 
