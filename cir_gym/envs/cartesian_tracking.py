@@ -400,9 +400,7 @@ class CartesianTrackingEnv(RobotEnv):
         return self._obs(), {"model_error": self.episode_model_error}
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        k = self._k
-        if k >= self.max_steps:
-            raise RuntimeError("step() called after the episode ended; call reset()")
+        k = self._k  # (RobotEnv raises ResetNeeded on a step after the episode's end)
         a, _, peak = self._check_action_peak(action)
         tau = a * self.torque_limit
         self._tau[k] = tau  # recorded without the noise

@@ -413,9 +413,7 @@ class JointTrackingEnv(RobotEnv):
             self._drive_state.reset(d.qpos[self._qa], d.qvel[self._da], self.dt)
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        k = self._k
-        if k >= self.max_steps:
-            raise RuntimeError("step() called after the episode ended; call reset()")
+        k = self._k  # (RobotEnv raises ResetNeeded on a step after the episode's end)
         a, _, peak = self._check_action_peak(action)
         tau = a * self.torque_limit  # commanded: the metrics' τ (drive and noise act on it)
         self._tau[k] = tau
