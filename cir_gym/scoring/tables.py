@@ -18,8 +18,9 @@ def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
     other = [s for s in results[0].specs if s.name != primary]
     unit = f" ({spec.unit})" if spec.unit else ""
     head = (
-        ["rank", "policy", f"{primary}{unit} mean ± std", "worst", "CVaR20%", "success"]
-        + [f"{s.name}" for s in other]
+        ["rank", "policy", f"{primary}{unit} mean ± std", f"worst{unit}", f"CVaR 20 %{unit}",
+         "success"]
+        + [f"{s.name} ({s.unit})" if s.unit else s.name for s in other]
         + ["return", "diverged"]
     )
     rows = []
@@ -90,6 +91,12 @@ def censored_ratio(r: EvaluationResult, reference: EvaluationResult) -> bool:
     return spec.failure_scores_limit and min(r.success_rate, reference.success_rate) < 1.0
 
 
+def _metric_cell(r: EvaluationResult) -> str:
+    """The primary metric's name and unit: `insertion_time` (s)."""
+    unit = r.spec(r.primary_metric).unit
+    return f"`{r.primary_metric}`" + (f" ({unit})" if unit else "")
+
+
 def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
     """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse);
     :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`)."""
@@ -136,7 +143,7 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             if r is not None and ctrl is not None and censored_ratio(r, ctrl):
                 censored.add(r.primary_metric)
         lines.append(
-            f"| {variant} | `{rows[0].primary_metric}` | {_summary_cell(course, None)} | "
+            f"| {variant} | {_metric_cell(rows[0])} | {_summary_cell(course, None)} | "
             f"{_summary_cell(tuned, None)} | "
             f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
         )
