@@ -256,9 +256,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-#: the main job's episodes per (variant, policy): the most that keep ``bash scripts/run.sh``
-#: under 15 minutes on 2 cores (docs: README)
-LEADERBOARD_EPISODES = 5
+#: the main job's episodes per (variant, policy): a first look that keeps ``bash scripts/run.sh``
+#: within 15 minutes on 2 free cores (299 runs and 22 agents' seed tables; quoted numbers need
+#: ``--episodes 30`` and take about 10 times as long)
+LEADERBOARD_EPISODES = 3
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -318,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Every policy on every environment's variants, on the same seeds: ranked "
         "tables (leaderboard.md), figures, a video per variant and a page (index.html) in "
         f"--out (default {LEADERBOARD_OUT}, untracked; --out results/ regenerates the "
-        "repository's). About 10 minutes on 2 cores at the default episodes.",
+        "repository's). The time is estimated at the start and shown as it runs.",
     )
     lb.add_argument("--episodes", type=int, default=LEADERBOARD_EPISODES,
                     help="episodes per (variant, policy) (default: %(default)s)")

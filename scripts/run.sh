@@ -2,7 +2,7 @@
 # Sets up (if needed) and runs the main job: the leaderboard of every policy on every environment,
 # written into runs/leaderboard/ (untracked): index.html (the page), leaderboard.md, figures,
 # videos. Progress and estimates go to stderr; a summary and the page's path at the end.
-#   bash scripts/run.sh                       # the default episodes (~10 min on 2 cores)
+#   bash scripts/run.sh                       # 3 episodes per policy: a first look
 #   bash scripts/run.sh --episodes 30         # more episodes per policy (longer)
 #   bash scripts/run.sh --out results/        # regenerate the repository's results/ on purpose
 set -euo pipefail
