@@ -38,8 +38,8 @@ def _float_observation(observation: Observation) -> Observation:
     """``observation`` with float64 arrays (the same arrays where they are already), checked:
     ValueError naming the first key with a NaN or inf value.
 
-    One dot product of all the values decides the common case (finite unless NaN/inf, or an
-    overflow of the squares, which sends it to the exact per-key check). A cir_gym env's
+    One finiteness test of all the values decides the common case; only a failing one looks
+    for the key to name. A cir_gym env's
     observation is the rows of one float64 array: then that array is checked as it is (a
     superset of the values) and the dict is used as it is; else the values are converted
     and concatenated.
@@ -56,7 +56,7 @@ def _float_observation(observation: Observation) -> Observation:
     else:
         obs = {k: np.asarray(v, dtype=float) for k, v in observation.items()}
         flat = np.concatenate(tuple(obs.values()), axis=None)
-    if _isfinite(flat.dot(flat)):
+    if np.isfinite(flat).all():
         return obs
     for key, value in obs.items():
         if not np.all(np.isfinite(value)):

@@ -460,8 +460,6 @@ DIVERGING = [
 ]
 
 
-@pytest.mark.xfail(strict=True, reason="needs the change in the env modules' step (a diverged "
-                   "episode held at the following-error limit); remove this mark with it")
 @pytest.mark.parametrize(("env_id", "controller", "metric", "charge"), DIVERGING,
                          ids=[d[0] for d in DIVERGING])
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")

@@ -141,7 +141,8 @@ class CartesianTrackingEnv(RobotEnv):
     ``max_orientation_following_error`` (``info["following_error_exceeded"] = True``; the
     start offset of ``regulation`` or ``initial_error`` is not a following error). A stopped
     episode is scored over the whole horizon: its last errors are held for the steps it did
-    not play.
+    not play; a diverged one too, its last finite errors held at least at the following-error
+    limits (so a divergence never scores better than being stopped).
 
     ## Arguments
     | argument | default | meaning |
@@ -433,9 +434,12 @@ class CartesianTrackingEnv(RobotEnv):
             following_error_exceeded=stopped,
             diverged=diverged,
         )
-        if stopped:  # scored over the whole horizon: the last errors held
-            self._pos_err[self._k :] = e_pos
-            self._ang_err[self._k :] = e_ang
+        if stopped or diverged:  # scored over the whole horizon: the last errors held, a
+            # divergence at least at the following-error limits (section Episode End)
+            held_pos, held_ang = (max(e_pos, limit_pos), max(e_ang, limit_ang)) if diverged else (
+                e_pos, e_ang)
+            self._pos_err[self._k :] = e_pos if np.isinf(held_pos) else held_pos
+            self._ang_err[self._k :] = e_ang if np.isinf(held_ang) else held_ang
             self._k_scored = self.max_steps
         if terminated or truncated:
             info["episode_metrics"] = self.episode_metrics()

@@ -40,6 +40,21 @@ MAX_GEAR_RATIO = 1.0e4
 RANDOM_RANGES = MODEL_ERROR_RANGES
 
 
+
+def held_error(q_err: np.ndarray, limit: float) -> np.ndarray:
+    """The joint error (n,) held over a diverged episode's unplayed steps (rad): its last finite
+    error, at least the following-error limit ``limit`` (scaled up to ‖q̃‖ = limit, or limit/√n
+    per joint from zero); the last error itself when there is no limit (inf). A divergence is
+    scored at least as badly as being stopped by the following-error monitor."""
+    if not math.isfinite(limit):
+        return q_err
+    norm = float(np.linalg.norm(q_err))
+    if norm >= limit:
+        return q_err
+    if norm > 0.0:
+        return q_err * (limit / norm)
+    return np.full(q_err.shape, limit / math.sqrt(q_err.size))
+
 class JointTrackingEnv(RobotEnv):
     """Track a joint trajectory (q̄, q̄̇, q̄̈) of the KUKA iiwa 14 with joint torques.
 
@@ -108,8 +123,10 @@ class JointTrackingEnv(RobotEnv):
     (``info["diverged"] = True``; the last finite state is kept) or, like the following-error
     monitor of an industrial drive, when ‖q̄ − q‖ exceeds ‖q̄(0) − q(0)‖ +
     ``max_following_error`` (``info["following_error_exceeded"] = True``; the initial offset of
-    ``initial_error`` or of a ``regulation`` start is not a following error). A stopped episode is scored over the whole
-    horizon: its last error is held for the steps it did not play.
+    ``initial_error`` or of a ``regulation`` start is not a following error). A stopped episode is scored over the
+    whole horizon: its last error is held for the steps it did not play; a diverged one too,
+    its last finite error held at least at the following-error limit (so a divergence never
+    scores better than being stopped).
 
     ## Drive (sensing and actuation)
     ``drive=None`` (default) is ideal: exact q̇, the torque applied at once (plus the optional
@@ -448,8 +465,10 @@ class JointTrackingEnv(RobotEnv):
         info.update(
             joint_error=joint_error, following_error_exceeded=stopped, diverged=diverged
         )
-        if stopped:  # scored over the whole horizon: the last error held (section Episode End)
-            self._err[self._k :] = q_err
+        if stopped or diverged:  # scored over the whole horizon (section Episode End)
+            self._err[self._k :] = (
+                held_error(q_err, self._following_error_limit) if diverged else q_err
+            )
             self._k_scored = self.max_steps
         if terminated or truncated:
             info["episode_metrics"] = self.episode_metrics()

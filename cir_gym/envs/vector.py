@@ -58,7 +58,7 @@ from cir_gym.envs.base import (
 )
 from cir_gym.envs.base import MAX_JOINT_SPEED, check_kwargs
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
-from cir_gym.envs.joint_tracking import JointTrackingEnv
+from cir_gym.envs.joint_tracking import JointTrackingEnv, held_error
 from cir_gym.envs.tracking_reward import TERMS, squared_norm
 from cir_gym.validation import InvalidArgument, check_number
 
@@ -339,8 +339,8 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
     ) -> dict[str, Any]:
         """Episode end of copy ``i``: metrics and success as the single env, then its reset."""
         t = self.template
-        if stopped:  # scored over the whole horizon: the last error held
-            self._err[i, self._k[i] :] = q_err
+        if stopped or diverged:  # scored over the whole horizon, as the single env
+            self._err[i, self._k[i] :] = held_error(q_err, self._limit[i]) if diverged else q_err
             self._k_scored[i] = t.max_steps
         t._err[:] = self._err[i]
         t._tau[:] = self._tau[i]
