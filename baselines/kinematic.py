@@ -358,38 +358,40 @@ class WeightedCLIK(CLIK):
 # ---------------------------------------------------------------------- null space
 @dataclass(frozen=True)
 class NullSpaceCLIKGains:
-    """K (1/s) as CLIK; k₀ of q̇₀ = k₀ ∇w for each objective (the env's ``objective``):
+    """Gains of ``clik_nullspace``: K (1/s) as CLIK, and k₀ of q̇₀ = k₀ ∇w for each objective
+    (the env's ``objective``).
 
-    - k0_manipulability (rad² s⁻¹): w = sqrt(det J Jᵀ), ascended along ∇ ln w = ∇w / w (the
-      same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian). Chosen by
-      a sweep on the v2 "manipulability" episodes (seeds 0–29, gain in mean minimum w over
-      ``clik``): iiwa 6 → +9.5 %, 20 → +19.7 %, 30 → +21 %, 60 → +22.9 % with 1/30 episodes
-      driven into a joint limit (w peaks near the q2/q6 limits on the iiwa); RMS task error
-      +12 % at 20. The plane is insensitive (6 → +49.8 %, 20 → +50.7 %, equal task error);
-    - k0_joint_limits (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))²;
-    - in every objective, a barrier of k0_limit_barrier (rad/s) times (m_act − m_i)₊ / m_i on
-      each joint whose margin m_i to a limit is below ``limit_activation`` m_act (rad), pushing
-      away from that limit (the quadratic term alone, the textbook's, left 2/30 planar and
-      3/30 iiwa "joint_limits" episodes of v1 at a limit; with the barrier 1/30 and 0/30);
-    - k0_obstacle (rad/s per unit ∇d): a barrier on the clearance d (m): q̇₀ =
-      k₀ ((d_act − d)₊ / d) ∇d pushes away within ``activation_distance`` d_act (m) and grows
-      without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d let 16/20 planar episodes
-      collide; this barrier with k₀ = 5: 3/10 on the first 10 seeds, vs 9/10 for ``clik``).
+    - ``k0_manipulability`` (rad² s⁻¹): w = sqrt(det J Jᵀ), ascended along ∇ ln w = ∇w / w
+      (the same maximiser, but scale-free: one k₀ serves the 2×3 and the 6×7 Jacobian).
+      Chosen by a sweep on the "manipulability" episodes (seeds 0–29, gain in mean minimum w
+      over ``clik``): iiwa 6 → +9.5 %, 20 → +19.7 %, 30 → +21 %, 60 → +22.9 % with 1/30
+      episodes driven into a joint limit (w peaks near the q2/q6 limits on the iiwa), RMS
+      task error +12 % at 20; the plane is insensitive (6 → +49.8 %, 20 → +50.7 %).
+    - ``k0_joint_limits`` (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))².
+    - In every objective, a barrier of ``k0_limit_barrier`` (rad/s) times
+      (m_act − m_i)₊ / m_i on each joint whose margin m_i to a limit is below
+      ``limit_activation`` m_act (rad), pushing away from that limit (the quadratic term
+      alone, the textbook's, left 2/30 planar and 3/30 iiwa "joint_limits" episodes at a
+      limit; with the barrier 1/30 and 0/30).
+    - ``k0_obstacle`` (rad/s per unit ∇d): a barrier on the clearance d (m),
+      q̇₀ = k₀ ((d_act − d)₊ / d) ∇d, pushes away within ``activation_distance`` d_act (m)
+      and grows without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d let 16/20 planar
+      episodes collide).
+
     ``fd_step`` (rad): central-difference step of the numerical gradients.
 
-    Self-motion search ("manipulability" only; ``search_arc`` = 0 leaves the gradient alone):
-    every ``search_period`` control steps the self-motion through the measured q (holding its
-    pose) is walked ± ``search_arc`` rad in ``search_step`` rad steps, and the most
-    manipulable posture with every joint ≥ ``search_margin`` rad inside its limits, at arc
-    length s* (rad), becomes the target: q̇₀ = k_search s* v (v the unit null vector, 1/s)
-    until the next search, the gradient taking over when the current posture is the best
-    (within 2 %). Why: w along the iiwa's self-motion has several local maxima (a plateau in
-    the middle of the arc, the best postures 2–3 rad away), and the gradient alone stops at
-    the nearest one: on the v2 "manipulability" episodes (100 seeds) it gained +16.6 % over
-    ``clik``, with the search +39.9 % (higher on 100/100; seeds 0–19: +50.7 %;
-    ``search_margin`` 0.2 or 0.3, k_search 2 or 5, a search every 10 or 25 steps: all within
-    0.1 %; 0.45 rad: +44.7 %). On the plane w is unimodal along the self-motion and both
-    reach ≈ +50 %.
+    Self-motion search ("manipulability" only; ``search_arc`` = 0 leaves the gradient
+    alone): every ``search_period`` control steps the self-motion through the measured q
+    (holding its pose) is walked ± ``search_arc`` rad in ``search_step`` rad steps, and the
+    most manipulable posture with every joint ≥ ``search_margin`` rad inside its limits, at
+    arc length s* (rad), becomes the target: q̇₀ = k_search s* v (v the unit null vector,
+    ``k_search`` in 1/s) until the next search, the gradient taking over when the current
+    posture is the best (within 2 %). Why: w along the iiwa's self-motion has several local
+    maxima (a plateau in the middle of the arc, the best postures 2–3 rad away), and the
+    gradient alone stops at the nearest one: on 100 "manipulability" episodes it gained
+    +16.6 % over ``clik``, with the search +39.9 % (``search_margin`` 0.2 or 0.3,
+    ``k_search`` 2 or 5, a search every 10 or 25 steps: all within 0.1 %). On the plane w is
+    unimodal along the self-motion and both reach ≈ +50 %.
     """
 
     K: float = 50.0
@@ -595,20 +597,22 @@ class NullSpaceCLIK(CLIK):
 # ---------------------------------------------------------------------- textbook null space
 @dataclass(frozen=True)
 class ProjectedGradientGains:
-    """K (1/s) as CLIK; k₀ of the projected gradient q̇₀ = k₀ ∇w for each objective:
+    """Gains of ``clik_projected_gradient``: K (1/s) as CLIK, and k₀ of the projected
+    gradient q̇₀ = k₀ ∇w for each objective.
 
-    - k0_manipulability (rad² s⁻¹ per unit of w, m² on the plane): w = sqrt(det J Jᵀ)
+    - ``k0_manipulability`` (rad² s⁻¹ per unit of w, m² on the plane): w = sqrt(det J Jᵀ)
       (∇w itself, not ∇ ln w: its size follows w's units, so one k₀ means more on the plane,
-      where w ≈ 0.1–0.3 m², than on the iiwa, where the 6×7 w ≈ 0.02–0.1). Sweep on the
+      where w ≈ 0.1–0.3 m², than on the iiwa, where the 6×7 w ≈ 0.02–0.1). A sweep on the
       "manipulability" episodes, seeds 0–4 (mean minimum w against ``clik``'s, RMS task
       error): plane 30 → +50.5 %, 3.8e-4 m (clik 3.2e-5 m); 100 → +50.8 %, 6.9e-3 m (the
       unscaled null-space motion runs into the velocity limits, whose clipping bends the
       task); iiwa 30 → +0.0 %, 100 → +3.6 %, 300 → +12.9 % at 2.6e-3 m, 1000 → +16.5 % at
-      8.6e-3 m. No single k₀ serves both robots: 30 keeps the task on both;
-    - k0_joint_limits (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))² (as
-      ``clik_nullspace``'s, which is already the textbook term);
-    - k0_obstacle (rad/s per unit ∇d): w = d, the clearance (m) to the obstacle, ascended
+      8.6e-3 m. No single k₀ serves both robots: 30 keeps the task on both.
+    - ``k0_joint_limits`` (rad² s⁻¹): w = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))² (as
+      ``clik_nullspace``'s, which is already the textbook term).
+    - ``k0_obstacle`` (rad/s per unit ∇d): w = d, the clearance (m) to the obstacle, ascended
       everywhere (the textbook's distance objective: no activation distance, no barrier).
+
     ``fd_step`` (rad): central-difference step of the numerical gradients.
     """
 

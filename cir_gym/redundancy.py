@@ -1,12 +1,13 @@
 """Redundancy science (chapter 1): what a redundant arm's self-motion can be used for.
 
 Kinematic measures shared by the RedundantIK environments (:mod:`cir_gym.envs.redundant_ik`)
-and the controllers of :mod:`baselines.kinematic`: Yoshikawa's manipulability, the
+and the controllers of :mod:`cir_gym.baselines.kinematic`: Yoshikawa's manipulability, the
 joint-limit objective, its gradient and the joint-limit margin, the null vector of J and the
 self-motion through a configuration, the SO(3) orientation error (through unit quaternions),
 the analytic capsule–obstacle clearance of the robot's links, and the search for a motion
-through sampled self-motion configurations (:func:`lap_witness`). Nothing here knows a task:
-the environment draws references and scores episodes, the controllers choose q̇.
+through sampled self-motion configurations (:func:`lap_witness`; the lap itself, carried
+along a reference, is :mod:`cir_gym.self_motion`). Nothing here knows a task: the environment
+draws references and scores episodes, the controllers choose q̇.
 """
 
 from __future__ import annotations
@@ -207,20 +208,10 @@ def orientation_error(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
     return quat_orientation_error(quat_ref, quat)
 
 
-def orientation_errors(R_ref: np.ndarray, R: np.ndarray, out: np.ndarray,
-                       scratch: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
-    """:func:`orientation_error` of one reference R_ref (3, 3) against each rotation of R
-    (N, 9) (rows of MuJoCo's ``xmat``), into ``out`` (N, 3), which it returns: the same C
-    helpers on each row, without the per-call arrays. ``scratch``: four (4,) quaternion
-    buffers to work in (a caller on a hot path keeps them), else made here."""
-    quat_ref, quat, conj, err = scratch or (np.empty(4), np.empty(4), np.empty(4), np.empty(4))
-    mujoco.mju_mat2Quat(quat_ref, np.ascontiguousarray(R_ref).ravel())
-    for i in range(len(R)):
-        mujoco.mju_mat2Quat(quat, R[i])
-        mujoco.mju_negQuat(conj, quat)
-        mujoco.mju_mulQuat(err, quat_ref, conj)
-        mujoco.mju_quat2Vel(out[i], err, 1.0)
-    return out
+def orientation_errors(R_ref: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """:func:`orientation_error` (N, 3) of one reference R_ref (3, 3) against each rotation of
+    R (N, 9) (rows of MuJoCo's ``xmat``)."""
+    return np.array([orientation_error(R_ref, Ri.reshape(3, 3)) for Ri in R]).reshape(-1, 3)
 
 
 def quat_orientation_error(quat_ref: np.ndarray, quat: np.ndarray) -> np.ndarray:
@@ -259,65 +250,34 @@ class LinkCapsules:
             and model.geom_contype[g] != 0
         ]
         self.geom_ids = np.array(ids, dtype=int)
-        self.radius = model.geom_size[self.geom_ids, 0].copy()  # (k,) m
-        self.half_length = model.geom_size[self.geom_ids, 1].copy()  # (k,) m
-        self._half_column = self.half_length[:, None]
-        self._capsules = list(  # (geom id, half length, radius) as Python numbers
-            zip(
-                self.geom_ids.tolist(),
-                self.half_length.tolist(),
-                self.radius.tolist(),
-                strict=True,
-            )
-        )
+        self.radius = model.geom_size[self.geom_ids, 0].copy()  # (c,) m
+        self.half_length = model.geom_size[self.geom_ids, 1].copy()  # (c,) m
 
     def segments(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        """End points a, b (k, 3) in the world frame (after ``mj_kinematics``)."""
+        """End points a, b (c, 3) in the world frame (after ``mj_kinematics``)."""
         return self.ends(data.geom_xpos[self.geom_ids], data.geom_xmat[self.geom_ids])
 
     def ends(self, centre: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """End points a, b (..., k, 3) of the capsules with centres (..., k, 3) and rotations
-        (..., k, 9) (MuJoCo's ``geom_xpos`` and ``geom_xmat`` of ``geom_ids``)."""
-        half = self._half_column * xmat[..., 6:9]  # along the geom z axis
+        """End points a, b (..., c, 3) of the capsules with centres (..., c, 3) and rotations
+        (..., c, 9) (MuJoCo's ``geom_xpos`` and ``geom_xmat`` of ``geom_ids``)."""
+        half = self.half_length[:, None] * xmat[..., 6:9]  # along the geom z axis
         return centre - half, centre + half
 
     def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:
-        """Minimum distance (m) between the obstacle sphere and the capsules (< 0: collision).
-
-        :meth:`segment_clearance` of :meth:`segments` in Python floats (a few capsules: numpy's
-        per-call cost would dominate), operation for operation, so bit for bit: the dot
-        products summed as numpy's einsum sums three terms, (x₀y₀ + x₂y₂) + x₁y₁ (tested).
-        """
-        cx, cy, cz = centre.tolist()
-        xpos, xmat = data.geom_xpos, data.geom_xmat
-        best = math.inf
-        for g, h, r in self._capsules:
-            px, py, pz = xpos[g].tolist()
-            zx, zy, zz = xmat[g, 6:9].tolist()
-            hx, hy, hz = h * zx, h * zy, h * zz
-            ax, ay, az = px - hx, py - hy, pz - hz
-            abx, aby, abz = (px + hx) - ax, (py + hy) - ay, (pz + hz) - az
-            dx, dy, dz = cx - ax, cy - ay, cz - az
-            t = ((dx * abx + dz * abz) + dy * aby) / max((abx * abx + abz * abz) + aby * aby, 1e-18)
-            t = min(max(t, 0.0), 1.0)
-            ex, ey, ez = cx - (ax + t * abx), cy - (ay + t * aby), cz - (az + t * abz)
-            best = min(best, math.sqrt((ex * ex + ey * ey) + ez * ez) - r)
-        return best - radius
+        """Minimum distance (m) between the obstacle sphere and the capsules (< 0: collision):
+        :meth:`segment_clearance` of :meth:`segments`."""
+        return float(self.segment_clearance(*self.segments(data), centre, radius))
 
     def segment_clearance(
         self, a: np.ndarray, b: np.ndarray, centre: np.ndarray, radius: float
     ) -> np.ndarray:
-        """:meth:`clearance` of stored capsule end points a, b (..., k, 3): shape (...)."""
+        """:meth:`clearance` of stored capsule end points a, b (..., c, 3): shape (...)."""
         return (point_segment_distance(centre, a, b) - self.radius).min(axis=-1) - radius
 
 
 def point_segment_distance(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance (...,) from the point c (3,) to the segments [a, b] (..., 3)."""
-    ab = b - a
-    # einsum kept for the dot products (its kernel rounds differently from a sum of products);
-    # clip as min(max()) and norm as sqrt(sum of squares): numpy's own operations, fewer calls
-    t = np.einsum("...j,...j->...", c - a, ab) / np.maximum(
-        np.einsum("...j,...j->...", ab, ab), 1e-18
-    )
-    d = c - (a + np.minimum(np.maximum(t, 0.0), 1.0)[..., None] * ab)
-    return np.sqrt(np.add.reduce(d * d, axis=-1))
+    ab, ac = b - a, c - a
+    t = np.einsum("...j,...j->...", ac, ab) / np.maximum(np.einsum("...j,...j->...", ab, ab), 1e-18)
+    d = ac - np.minimum(np.maximum(t, 0.0), 1.0)[..., None] * ab  # c − closest point
+    return np.sqrt(np.einsum("...j,...j->...", d, d))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ast
-import inspect
 import re
 
 import gymnasium as gym
@@ -14,13 +13,15 @@ from cir_gym.baselines.base import InvalidGain
 from gymnasium.utils.env_checker import check_env
 
 import cir_gym  # noqa: F401  (registers the environments it knows)
-from cir_gym import redundancy
-from cir_gym.envs import redundant_ik as env_module
+from cir_gym import redundancy, self_motion
+from cir_gym.envs import redundant_ik_scene as scene
+from cir_gym.envs.base import default_arguments
 from cir_gym.envs.redundant_ik import (
     REDUNDANT_IK_ENVIRONMENTS,
     RedundantIK7Env,
     RedundantIKEnv,
 )
+from cir_gym.envs.redundant_ik_config import MANIPULABILITY_WINDOW
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument
 
@@ -312,8 +313,8 @@ def test_controllers_raise_or_stay_finite_at_the_upright_iiwa(name):
     obs, _ = env.reset(seed=0)
     obs = {k: v.copy() for k, v in obs.items()}
     obs["q"] = np.zeros(7)
-    obs["x"] = env.unwrapped._forward(obs["q"])[0]
-    J = env.unwrapped._task_jacobian(obs["q"])
+    obs["x"] = env.unwrapped.kin.pose(obs["q"])[0]
+    J = env.unwrapped.kin.jacobian(obs["q"])
     assert np.linalg.svd(J, compute_uv=False)[-1] < 1e-9
     policy = controller(name, env)
     try:
@@ -341,9 +342,9 @@ def test_augmented_jacobian_detects_an_algorithmic_singularity_and_stays_finite(
     obs, _ = env.reset(seed=0)
     obs = {k: v.copy() for k, v in obs.items()}
     obs["q"] = np.array([0.3, 0.0, 0.8])
-    J = env.unwrapped._task_jacobian(obs["q"])
+    J = env.unwrapped.kin.jacobian(obs["q"])
     assert np.linalg.svd(J, compute_uv=False)[-1] > 0.1  # the task Jacobian is fine
-    obs["x"] = env.unwrapped._forward(obs["q"])[0]
+    obs["x"] = env.unwrapped.kin.pose(obs["q"])[0]
     obs["x_ref"] = obs["x"] + np.array([0.01, -0.01])
     action, state = policy.predict(obs)
     assert policy.last_sigma_min < policy.gains.region and policy.singular_steps == 1
@@ -375,10 +376,12 @@ def test_check_env_passes(cls):
 
 @pytest.mark.parametrize("cls", [RedundantIKEnv, RedundantIK7Env])
 def test_arguments_table_matches_the_signature(cls):
-    table = dict(re.findall(r"^\s*\| (\w+) \| ([^|]+) \|", cls.__doc__, flags=re.M))
-    for name, param in inspect.signature(cls.__init__).parameters.items():
-        if name != "self":
-            assert ast.literal_eval(table[name].strip()) == param.default, name
+    section = cls.__doc__.split("## Arguments")[1].split("##")[0]
+    table = dict(re.findall(r"^\s*\| (\w+) \| ([^|]+) \|", section, flags=re.M))
+    defaults = default_arguments(cls)  # the arm's own, then the ones both arms share
+    assert set(defaults) == set(table) - {"argument"}
+    for name, default in defaults.items():
+        assert ast.literal_eval(table[name].strip()) == default, name
 
 
 def test_joint_limit_is_hard_and_terminates():
@@ -390,7 +393,8 @@ def test_joint_limit_is_hard_and_terminates():
         if terminated:
             break
     assert info["joint_limit_violation"] and terminated
-    assert np.all(base._q <= base.upper) and np.any(base._q == base.upper)
+    q = base.joint_positions
+    assert np.all(q <= base.upper) and np.any(q == base.upper)
 
 
 @pytest.mark.parametrize(("env_id", "seed"), [(ENV, 2), (ENV7, 10)])
@@ -406,16 +410,16 @@ def test_terminated_episode_is_scored_against_the_reference_it_no_longer_follows
     k, terminated = len(errors), info["joint_limit_violation"]
     assert terminated and k < base.max_steps and info["reward_termination"] == -50.0
     assert not info["is_success"]
-    p, R = base._forward(base._q)  # the stopped arm
+    p, R = base.kin.pose(base.joint_positions)  # the stopped arm
     later = range(k + 1, base.max_steps + 1)  # the references it would have followed
-    e = np.array(errors + [np.linalg.norm(base._x_ref[j] - p) for j in later])
+    e = np.array(errors + [np.linalg.norm(base.reference.x[j] - p) for j in later])
     metrics = info["episode_metrics"]
     assert metrics["rms_task_error"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
     assert metrics["max_task_error"] == pytest.approx(np.max(e), rel=1e-12)
     assert errors[-1] < 1e-4 < 0.01 < metrics["max_task_error"]  # the reference moved on
     if base.task_dim == 6:
-        r = np.array(rotations + [np.linalg.norm(redundancy.orientation_error(base._R_ref[j], R))
-                                  for j in later])
+        r = np.array(rotations + [
+            np.linalg.norm(redundancy.orientation_error(base.reference.R[j], R)) for j in later])
         assert metrics["rms_orientation_error"] == pytest.approx(np.sqrt(np.mean(r**2)),
                                                                  rel=1e-12)
     assert metrics["min_joint_limit_margin"] == 0.0  # the stopped arm sits on its limit
@@ -425,8 +429,7 @@ def test_an_obstacle_episode_never_starts_without_an_obstacle(monkeypatch):
     """v3 went on without an obstacle when no draw could be placed (e.g. on short laps, where
     the links cannot sweep past one); now reset raises, naming episode_duration."""
     env = RedundantIKEnv(objective="obstacle", episode_duration=0.5)
-    no_obstacle = np.array([env_module.DUMMY_OBSTACLE_CENTRE] * 3 + [0.0])
-    monkeypatch.setattr(env, "_draw_obstacle", lambda q0: no_obstacle.copy())
+    monkeypatch.setattr(scene, "draw_obstacle", lambda *args: (scene.DUMMY_OBSTACLE.copy(), None))
     with pytest.raises(InvalidArgument, match=r"no clearable obstacle.*episode_duration=0.5 s"):
         env.reset(seed=0)
 
@@ -484,7 +487,7 @@ def test_the_clearing_motion_played_in_the_env_finishes_the_lap_clear_of_the_obs
     env.reset(seed=seed)
     base = env.unwrapped
     path = base.clearing_motion()
-    stride = env_module.LAP_STRIDE
+    stride = self_motion.LAP_STRIDE
     assert path.shape == (base.max_steps // stride + 1, base.n)
     np.testing.assert_allclose(path[0], base._q0)
     qd = np.diff(path, axis=0) / (stride * base.dt)
@@ -524,21 +527,21 @@ def test_manipulability_start_is_the_worst_feasible_lap_of_the_self_motion(env_i
     limits and no more manipulable than the home-IK solution's (when that lap is feasible)."""
     env = gym.make(env_id)
     base = env.unwrapped
-    start = int(env_module.MANIPULABILITY_WINDOW * base.max_steps / 10)
+    start = int(MANIPULABILITY_WINDOW * base.max_steps / 10)
 
     def lap(q):
-        motion, w = base._min_norm_motion(q[None], stride=10)
+        motion, w = self_motion.min_norm_motion(base.kin, base.reference, q[None], stride=10)
         inside = np.all(motion >= base.file_lower) and np.all(motion <= base.file_upper)
         return bool(inside), float(np.min(w[start:]))
 
     for seed in range(4):
         obs, _ = env.reset(seed=seed)
         np.testing.assert_allclose(obs["x"], obs["x_ref"], atol=1e-9)
-        q_home = base._solve_ik(base.home.copy(), base._x_ref[0], base._R_ref[0])
+        q_home = base.kin.solve_ik(base.home.copy(), base.reference.x[0], base.reference.R[0])
         margin = redundancy.joint_limit_margin
         lower, upper = obs["q_lower"], obs["q_upper"]
         assert margin(obs["q"], lower, upper) >= min(
-            env_module.START_MARGIN, margin(q_home, lower, upper)) - 1e-9
+            scene.START_MARGIN, margin(q_home, lower, upper)) - 1e-9
         inside, w_start = lap(obs["q"])
         home_inside, w_home = lap(q_home)
         assert inside
@@ -618,21 +621,25 @@ def test_orientation_error_is_the_rotation_vector():
 @pytest.mark.parametrize("env_id", [ENV, ENV7])
 def test_row_kinematics_equal_the_robots_row_by_row(env_id):
     """The episode set-up's batched kinematics (mujoco.batch) give Robot.site_pose,
-    Robot.jacobian and LinkCapsules.segments bit for bit, whatever rows a call has."""
+    Robot.jacobian and LinkCapsules.segments, whatever rows a call has (to 1e-12)."""
     base = gym.make(env_id).unwrapped
-    rows = env_module.RowKinematics(base.model, base.robot, base._site_id, base.capsules.geom_ids)
+    kin = base.kin
+    rows = self_motion.RowKinematics(base.model, base.robot, kin.site_id, kin.capsules.geom_ids)
     rng = np.random.default_rng(0)
     for count in (9, 1, 12):
         q = base.home + rng.uniform(-1.0, 1.0, (count, base.n))
-        p, R, jacp, jacr, centre, xmat = rows.evaluate(q)
+        poses = rows.evaluate(q)
         for i, qi in enumerate(q):
-            p_i, R_i = base.robot.site_pose(base._site_id, qi)
-            J = base.robot.jacobian(base._site_id, qi)
-            assert np.array_equal(p[i], p_i) and np.array_equal(R[i], R_i.ravel())
-            assert np.array_equal(jacp[i], J[:3]) and np.array_equal(jacr[i], J[3:])
-            mine = base.capsules.ends(centre[i], xmat[i])
-            robots = base.capsules.segments(base.data)
-            assert all(map(np.array_equal, mine, robots))
+            p_i, R_i = base.robot.site_pose(kin.site_id, qi)
+            J = base.robot.jacobian(kin.site_id, qi)
+            close = dict(rtol=0, atol=1e-12)
+            np.testing.assert_allclose(poses.p[i], p_i, **close)
+            np.testing.assert_allclose(poses.R[i], R_i.ravel(), **close)
+            np.testing.assert_allclose(poses.jacp[i], J[:3], **close)
+            np.testing.assert_allclose(poses.jacr[i], J[3:], **close)
+            mine = kin.capsules.ends(poses.geom_xpos[i], poses.geom_xmat[i])
+            for x, y in zip(mine, kin.capsules.segments(base.data), strict=True):
+                np.testing.assert_allclose(x, y, **close)
 
 
 def test_lap_witness_with_precomputed_steps_is_the_same():
@@ -648,22 +655,14 @@ def test_lap_witness_with_precomputed_steps_is_the_same():
     )
 
 
-@pytest.mark.parametrize("env_id", [ENV, ENV7])
-def test_clearance_in_floats_equals_the_vectorised_segment_clearance(env_id):
-    """LinkCapsules.clearance (Python floats, per step) and segment_clearance (numpy, the
-    episode set-up) agree, near the links and for the far dummy obstacle: to 1e-12 relative
-    (bit for bit on the machine that wrote it; numpy's einsum may sum in another order on
-    another CPU, so the test does not ask for the last bit)."""
-    base = gym.make(env_id).unwrapped
-    caps = base.capsules
-    rng = np.random.default_rng(0)
-    for i in range(300):
-        base._forward(base.home + rng.uniform(-2.0, 2.0, base.n))
-        a, b = caps.segments(base.data)
-        centre = a[rng.integers(len(a))] + rng.normal(0.0, 0.1, 3)
-        radius = float(rng.uniform(0.0, 0.07))
-        if i % 5 == 0:
-            centre, radius = np.full(3, env_module.DUMMY_OBSTACLE_CENTRE), 0.0
-        expected = float(caps.segment_clearance(a, b, centre, radius))
-        assert caps.clearance(base.data, centre, radius) == pytest.approx(expected, rel=1e-12,
-                                                                          abs=1e-15)
+def test_point_segment_distance_is_the_nearest_point_of_the_segment():
+    """Against a dense sampling of each segment: the distance is the minimum over its points
+    (to the sampling's resolution), with clamping to the end points."""
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    c = rng.normal(size=3)
+    s = np.linspace(0.0, 1.0, 20001)[:, None, None]
+    sampled = np.min(np.linalg.norm(c - (a + s * (b - a)), axis=-1), axis=0)
+    d = redundancy.point_segment_distance(c, a, b)
+    assert np.all(d <= sampled + 1e-12)
+    np.testing.assert_allclose(d, sampled, atol=1e-6)
