@@ -1,7 +1,7 @@
 """Measure what redundancy buys (chapter 1): the kinematic controllers on RedundantIK-v3 and
 RedundantIK7-v4.
 
-    python scripts/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 2
+    python scripts/research/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 2
 
 On the same seeds for every controller it reports
 * the null-space laws against ``clik`` on "manipulability": minimum manipulability (% increase)
@@ -19,16 +19,15 @@ On the same seeds for every controller it reports
   saved as ``singular_path.png``.
 It prints a markdown table and writes it to ``<out>/redundancy.md``.
 
-Each episode's reset (the "obstacle" placement and the "manipulability" start search take
-seconds) is done once per seed and copied (``copy.deepcopy`` of the reset environment) for
-every controller, which then runs the episode as :func:`cir_gym.evaluation.evaluate` would
-(``--check`` compares the two on a few seeds).
+Every episode runs through :func:`cir_gym.evaluation.evaluate`. Each seed's task is drawn
+once (the "obstacle" placement and the "manipulability" start search take up to seconds) and
+every controller plays it from ``reset(options={"replay": True})``, which restores that task
+exactly (``--check`` compares the replayed episodes with freshly drawn ones on a few seeds).
 """
 
 from __future__ import annotations
 
 import argparse
-import copy
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -68,7 +67,7 @@ class ClearingMotion:
     name = ORACLE
 
     def __init__(self, env: gym.Env) -> None:
-        from cir_gym.envs.redundant_ik import LAP_STRIDE
+        from cir_gym.self_motion import LAP_STRIDE
 
         self.env = env.unwrapped
         self.stride = LAP_STRIDE  # control steps between the path's points
@@ -96,18 +95,32 @@ def make_policy(name: str, env: Any) -> Any:
     return cls(env.unwrapped.controller_context(), **gains)
 
 
-def episode(policy: Any, env: Any) -> dict[str, float]:
-    """One episode of ``policy`` from ``env``'s current (just reset) state, as ``evaluate``
-    runs it: the metrics, success and whether it terminated."""
-    obs, state, start, done = env._obs(), None, np.ones(1, dtype=bool), False
-    while not done:
-        action, state = policy.predict(obs, state=state, episode_start=start)
-        start = np.zeros(1, dtype=bool)
-        obs, _, terminated, truncated, info = env.step(action)
-        done = terminated or truncated
-    out = {m: float(info["episode_metrics"][m]) for m in METRICS}
-    out["success"] = float(info["is_success"])
-    out["completed"] = float(not terminated)
+class ReplayTask(gym.Wrapper):
+    """The env with its last drawn task: ``reset(seed=seed)`` replays the task drawn with
+    ``seed`` (``reset(options={"replay": True})``, exact and without drawing again), so every
+    controller plays the same episode through :func:`cir_gym.evaluation.evaluate`."""
+
+    def __init__(self, env: gym.Env, seed: int) -> None:
+        super().__init__(env)
+        self.seed = seed
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        if seed != self.seed or options:
+            raise ValueError(f"ReplayTask holds the task of seed {self.seed}, not {seed}")
+        return self.env.reset(options={"replay": True})
+
+
+def episode(policy: Any, env: gym.Env, env_id: str, seed: int) -> dict[str, float]:
+    """One :func:`cir_gym.evaluation.evaluate` episode of ``policy`` on the task ``env`` drew
+    with ``seed``: the metrics, success and whether it completed the lap."""
+    from cir_gym.evaluation import evaluate
+
+    result = evaluate(policy, env_id, 1, seed, env=ReplayTask(env, seed),
+                      policy_name=getattr(policy, "name", None))
+    ep = result.episodes[0]
+    out = {m: float(ep.metrics[m]) for m in METRICS}
+    out["success"] = float(ep.success)
+    out["completed"] = float(not ep.terminated)
     out["singular_steps"] = float(getattr(policy, "singular_steps", 0))
     return out
 
@@ -115,19 +128,19 @@ def episode(policy: Any, env: Any) -> dict[str, float]:
 def run(job: tuple[str, str, tuple[str, ...], int, int]
         ) -> dict[tuple[str, str, str], list[dict[str, float] | None]]:
     """(env, objective, policies, first seed, seeds) → per policy, per seed: the episode's
-    numbers (None where the policy raised, e.g. SingularJacobian). Each seed is reset once."""
+    numbers (None where the policy raised, e.g. SingularJacobian). Each seed is drawn once."""
     _register()
     env_name, objective, names, first, count = job
-    env = gym.make(ENVS[env_name], objective=objective).unwrapped
+    env = gym.make(ENVS[env_name], objective=objective)
     out: dict[tuple[str, str, str], list[dict[str, float] | None]] = {
         (env_name, objective, name): [] for name in names}
     for seed in range(first, first + count):
         env.reset(seed=seed)
         for name in names:
-            fresh = copy.deepcopy(env)
-            policy = make_policy(name, fresh)
+            policy = make_policy(name, env)
             try:
-                out[(env_name, objective, name)].append(episode(policy, fresh))
+                out[(env_name, objective, name)].append(
+                    episode(policy, env, ENVS[env_name], seed))
             except FloatingPointError as exc:  # a singular Jacobian: reported, not hidden
                 print(f"{env_name} {objective} {name} seed {seed}: {exc}")
                 out[(env_name, objective, name)].append(None)
@@ -138,7 +151,7 @@ def run(job: tuple[str, str, tuple[str, ...], int, int]
 
 
 def check(episodes: int = 2) -> None:
-    """The copied-reset episodes equal :func:`cir_gym.evaluation.evaluate`'s (every metric)."""
+    """The replayed episodes equal freshly drawn ones (every metric)."""
     from cir_gym.evaluation import evaluate
 
     _register()
@@ -190,7 +203,7 @@ def singular_path(out: Path) -> dict[str, float]:
     heading = np.array([np.cos(0.3), np.sin(0.3)])
     x_ref = (r0 + (r1 - r0) * s)[:, None] * heading
     xd_ref = ((r1 - r0) * sd)[:, None] * heading
-    q0 = env._solve_ik(env.home.copy(), x_ref[0], np.eye(3))
+    q0 = env.kin.solve_ik(env.home.copy(), x_ref[0], np.eye(3))
     speeds, peaks = {}, {}
     for cls in (CLIK, DampedLeastSquaresCLIK):
         policy = cls(context)
@@ -299,7 +312,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="comma-separated: RedundantIK, RedundantIK7")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--check", action="store_true",
-                        help="only compare the copied-reset episodes with evaluate()'s")
+                        help="only compare the replayed episodes with freshly drawn ones")
     args = parser.parse_args(argv)
     if args.check:
         check()
@@ -319,11 +332,11 @@ def main(argv: list[str] | None = None) -> None:
     results = _collect(raw)
 
     lines = [f"# Redundancy measurements ({args.episodes} seeds, 0..{args.episodes - 1})", "",
-             "Generated by `python scripts/eval_redundancy.py`. RMS task error: mean and worst "
-             "episode; a terminated episode is scored over the whole lap against the reference "
-             "the stopped arm no longer follows. Limit hits / collisions: episodes ending at a "
-             "joint limit / on the obstacle. Joint drift: ‖q(T) − q(0)‖ over the completed "
-             "laps only.", ""]
+             "Generated by `python scripts/research/eval_redundancy.py`. RMS task error: mean "
+             "and worst episode; a terminated episode is scored over the whole lap against the "
+             "reference the stopped arm no longer follows. Limit hits / collisions: episodes "
+             "ending at a joint limit / on the obstacle. Joint drift: ‖q(T) − q(0)‖ over the "
+             "completed laps only.", ""]
     for e in envs:
         lines += [f"## {ENVS[e]}", "", *summary(e, results), "", *table(e, results), ""]
     if "RedundantIK" in envs:
