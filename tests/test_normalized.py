@@ -146,3 +146,27 @@ def test_hold_still_batches_row_by_row() -> None:
     two, state = policy.predict(stacked, None, np.ones(2, bool))
     assert two.shape == (2, 7) and np.array_equal(two[0], one) and np.array_equal(two[1], one)
     assert state.shape == (2, 7) and np.array_equal(state[0], q0)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kind"),
+    [("cir_gym/ElasticJointTracking-v2", "motor_torque"),
+     ("cir_gym/CartesianTracking-v0", "joint_torque"),
+     ("cir_gym/VisualServo-v0", "twist")],
+)
+def test_hold_still_on_the_other_interfaces(env_id: str, kind: str) -> None:
+    """The motor-torque hold (PD on the motor positions + ĝ of the links) and the others keep
+    every joint within 1e-5 rad of its start for 300 steps."""
+    env = gym.make(env_id)
+    policy = hold_still_policy(env)
+    assert policy.kind == kind
+    obs, _ = env.reset(seed=0)
+    q0, state, start = obs["q"].copy(), None, np.ones(1, bool)
+    for _ in range(300):
+        action, state = policy.predict(obs, state, start)
+        start = np.zeros(1, bool)
+        obs, _, terminated, truncated, _ = env.step(action)
+        assert not terminated
+        if truncated:
+            break
+    assert np.max(np.abs(obs["q"] - q0)) < 1e-5
