@@ -649,41 +649,6 @@ def _swept_axis(rows: list[dict[str, Any]]) -> str | None:
     return varying[0] if len(varying) == 1 else None
 
 
-def plot_sweep_axis(rows: list[dict[str, Any]], env_id: str, axis: str, path: Path) -> Path:
-    """The primary metric (mean over each policy's episodes) against a swept numeric
-    environment argument, one line per policy: where each controller stops coping."""
-    from cir_gym.scoring.plotting import _plt
-
-    plt = _plt()
-    cls = cir_gym.ENVIRONMENTS[env_id][0]
-    primary = cls.primary_metric
-    spec = next(s for s in cls.metric_specs if s.name == primary)
-    fig, ax = plt.subplots(figsize=(7, 4))
-    lines: dict[str, dict[float, list[float]]] = {}
-    for r in rows:
-        lines.setdefault(_label(r), {}).setdefault(float(r[axis]), []).append(
-            float(r.get(f"metric.{primary}") if r.get(f"metric.{primary}") is not None else np.nan)
-        )
-    positive = True
-    for label, points in sorted(lines.items()):
-        x = np.array(sorted(points))
-        mean = np.array([np.nanmean(points[v]) for v in x])
-        positive &= bool(np.all(mean[np.isfinite(mean)] > 0))
-        ax.plot(x, mean, marker="o", label=label)
-    if positive:
-        ax.set_yscale("log")
-    ax.set_xlabel(axis[4:])
-    ax.set_ylabel(f"{primary} ({spec.unit}), mean" if spec.unit else f"{primary}, mean")
-    ax.set_title(f"{env_id}: {primary} against {axis[4:]}")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def leaderboard_from(directory: Path, out: Path | None = None) -> Path:
     """``cir-gym leaderboard --from DIR``: a sweep's table (``DIR/results.parquet`` or
     ``.csv``) as ``leaderboard.md``, one figure per (environment, variant), a figure against
@@ -692,7 +657,7 @@ def leaderboard_from(directory: Path, out: Path | None = None) -> Path:
     training runs over >= 2 seeds also get :func:`training_seed_table`; failed tasks are listed
     with their errors. Returns the markdown's path."""
     from cir_gym.scoring.page import html_page, markdown_to_html
-    from cir_gym.scoring.plotting import plot_comparison
+    from cir_gym.scoring.plotting import plot_comparison, plot_sweep_axis
     from cir_gym.scoring.sweep import read_table
 
     directory = Path(directory)
