@@ -18,9 +18,25 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-__all__ = ["TRAINED_DIR", "agent_dir", "available", "env_dir_name", "load", "seeds", "trained_for"]
+__all__ = [
+    "EARLIER_VERSIONS",
+    "TRAINED_DIR",
+    "agent_dir",
+    "available",
+    "env_dir_name",
+    "load",
+    "seeds",
+    "trained_for",
+]
 
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
+
+#: Earlier versions of an environment whose shipped agents are also scored on it: the newer
+#: version keeps their observation and action spaces (tested), so an agent trained there runs
+#: unchanged. Such an agent is listed as ``<name>@<Env-vK>``: its name says where it was
+#: trained, and it is never presented as trained on the newer version (what changed between
+#: the versions is in each environment's Version History).
+EARLIER_VERSIONS: dict[str, tuple[str, ...]] = {}
 
 
 def env_dir_name(env_id: str) -> str:
@@ -43,19 +59,37 @@ def _seed_dirs(p: Path) -> dict[int, Path]:
     return dict(sorted(out.items()))
 
 
-def available(env_id: str) -> list[str]:
-    """Names of the shipped agents for ``env_id`` (directories of ``agents/trained/<Env-vN>/``
-    holding one agent, or one per training seed in ``seed_<k>/``)."""
-    root = TRAINED_DIR / env_dir_name(env_id)
+def _names_in(root: Path) -> list[str]:
     if not root.is_dir():
         return []
     return sorted(p.name for p in root.iterdir() if _is_agent(p) or _seed_dirs(p))
 
 
+def available(env_id: str) -> list[str]:
+    """Names of the shipped agents for ``env_id``: directories of ``agents/trained/<Env-vN>/``
+    holding one agent, or one per training seed in ``seed_<k>/``; then those of the versions
+    in :data:`EARLIER_VERSIONS` as ``<name>@<Env-vK>``."""
+    own = env_dir_name(env_id)
+    names = _names_in(TRAINED_DIR / own)
+    for earlier in EARLIER_VERSIONS.get(own, ()):
+        names += [f"{n}@{earlier}" for n in _names_in(TRAINED_DIR / earlier)]
+    return names
+
+
+def _trained_dir(env_id: str, name: str) -> Path:
+    """agents/trained/<Env-vN>/<name>, or <Env-vK>/<agent> for a name ``<agent>@<Env-vK>``."""
+    own = env_dir_name(env_id)
+    agent, _, earlier = name.partition("@")
+    if earlier and earlier not in EARLIER_VERSIONS.get(own, ()):
+        raise ValueError(f"no shipped agent {name!r} for {env_id}: {earlier} is not an earlier "
+                         f"version scored on it; available: {available(env_id)}")
+    return TRAINED_DIR / (earlier or own) / agent
+
+
 def seeds(env_id: str, name: str) -> list[int]:
     """Training seeds of shipped agent ``name``: the k of its ``seed_<k>/`` directories, or the
     one seed in ``config.yml`` of a single-seed agent directory."""
-    d = TRAINED_DIR / env_dir_name(env_id) / name
+    d = _trained_dir(env_id, name)
     found = _seed_dirs(d)
     if found:
         return list(found)
@@ -68,7 +102,7 @@ def seeds(env_id: str, name: str) -> list[int]:
 
 def agent_dir(env_id: str, name: str, seed: int | None = None) -> Path:
     """The directory of shipped agent ``name`` (training seed ``seed``; default: its first)."""
-    d = TRAINED_DIR / env_dir_name(env_id) / name
+    d = _trained_dir(env_id, name)
     found = _seed_dirs(d)
     if not found and not _is_agent(d):
         raise ValueError(f"no shipped agent {name!r} for {env_id}; available: "
@@ -134,4 +168,5 @@ def load(env_id: str, name: str, *, path: str | Path | None = None,
 
     if path is None:
         path = agent_dir(env_id, name, seed)
-    return load_agent(Path(path), env_id=env_id, name=name)
+    return load_agent(Path(path), env_id=env_id, name=name,
+                      earlier=EARLIER_VERSIONS.get(env_dir_name(env_id), ()))

@@ -175,14 +175,17 @@ def _read_normalization(file: Path) -> dict[str, Any]:
     return out
 
 
-def load_agent(path: Path | str, env_id: str | None = None, name: str | None = None
-               ) -> TrainedAgent:
+def load_agent(path: Path | str, env_id: str | None = None, name: str | None = None,
+               earlier: tuple[str, ...] = ()) -> TrainedAgent:
     """Load the agent in directory ``path`` (see the module docstring).
 
     Args:
         path: agent directory (config.yml, model.zip, normalization.npz).
-        env_id: the environment it will run on; must equal the trained id, version included.
+        env_id: the environment it will run on; must equal the trained id, version included,
+            or the trained id must be one of ``earlier``.
         name: the agent's name (default: the directory name).
+        earlier: earlier versions (``"JointTracking-v1"``) whose agents may run on ``env_id``
+            (:data:`cir_gym.agents.EARLIER_VERSIONS`); the spaces are checked on ``env_id``.
 
     Raises:
         AgentFileError (a ValueError): missing/corrupted files, a different env id or version,
@@ -197,11 +200,14 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
     path = Path(path)
     config = read_config(path)
     trained_id = str(config["env_id"])
+    run_id = trained_id
     if env_id is not None and env_id.split(":")[-1] != trained_id:
-        raise AgentFileError(f"agent {path} was trained on {trained_id}, not "
-                             f"{env_id.split(':')[-1]} (different environment or version)")
-    if trained_id not in gym.registry:
-        raise AgentFileError(f"agent {path} needs environment {trained_id}, which is not "
+        if trained_id.split("/")[-1] not in earlier:
+            raise AgentFileError(f"agent {path} was trained on {trained_id}, not "
+                                 f"{env_id.split(':')[-1]} (different environment or version)")
+        run_id = env_id.split(":")[-1]
+    if run_id not in gym.registry:
+        raise AgentFileError(f"agent {path} needs environment {run_id}, which is not "
                              f"registered (removed or renamed version?)")
     try:
         layout = ObservationLayout.from_dict(config["observation"])
@@ -209,12 +215,12 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
         raise AgentFileError(f"{path / CONFIG}: bad observation layout ({exc})") from exc
     hp = config["hyperparams"]
     env_kwargs = config.get("env_kwargs") or {}
-    env = gym.make(trained_id, **env_kwargs)
+    env = gym.make(run_id, **env_kwargs)
     try:
         try:
             layout.check_space(env.observation_space)
         except ValueError as exc:
-            raise AgentFileError(f"agent {path} no longer matches {trained_id}: {exc}") from exc
+            raise AgentFileError(f"agent {path} no longer matches {run_id}: {exc}") from exc
         try:
             flatten = layout.bind(env)
         except ValueError as exc:
@@ -226,7 +232,7 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
             from cir_gym import baselines
 
             try:
-                controller = baselines.make(residual["controller"], trained_id, env=env,
+                controller = baselines.make(residual["controller"], run_id, env=env,
                                             **(residual.get("controller_kwargs") or {}))
                 scale = check_scale(residual["scale"], action_space)
             except (ValueError, TypeError, KeyError) as exc:
@@ -256,5 +262,5 @@ def load_agent(path: Path | str, env_id: str | None = None, name: str | None = N
     if norm["norm_obs"] and norm["obs_mean"].shape != (layout.size,):
         raise AgentFileError(f"{path / NORMALIZATION}: statistics of size "
                              f"{norm['obs_mean'].shape} for an observation of size {layout.size}")
-    return TrainedAgent(name or path.name, trained_id, config, policy, layout, norm,
+    return TrainedAgent(name or path.name, run_id, config, policy, layout, norm,
                         controller, scale, flatten)
