@@ -2,27 +2,50 @@
 the largest error it had *while it played* (the scored error of a terminated episode also counts
 the reference it no longer follows), and chosen episode metrics.
 
-    python scripts/eval_failures.py --env cir_gym/RedundantIK7-v4 --agent ppo_obstacle \
-        --set objective=obstacle --seeds 0 --episodes 20 --metric min_clearance
-    python scripts/eval_failures.py --env cir_gym/CartesianTracking-v0 --agent ppo_100hz
+    python scripts/research/eval_failures.py --env cir_gym/RedundantIK7-v4 \
+        --agent ppo_obstacle --set objective=obstacle --seeds 0 --episodes 20 \
+        --metric min_clearance
+    python scripts/research/eval_failures.py --env cir_gym/CartesianTracking-v0 --agent ppo_100hz
 
 Episodes run on seeds ``--seed`` … (default the leaderboard's 1000-) on the agent's own action
-interface (``cir_gym.evaluation.interface_env_kwargs``); the played error is
-:func:`agents.shaping.error_norm` of each step's ``info`` (joint, task or flange position error).
+interface (``cir_gym.evaluation.interface_env_kwargs``), played by
+:func:`cir_gym.evaluation.evaluate`; the played error is
+:func:`cir_gym.agents.shaping.error_norm` of each step's ``info`` (joint, task or flange
+position error).
 Prints a Markdown table per training seed and a summary line.
 """
 
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import gymnasium as gym
 from cir_gym.agents.shaping import error_norm
 
 import cir_gym  # noqa: F401  (registers the environments)
 from cir_gym import agents
-from cir_gym.evaluation import interface_env_kwargs
+from cir_gym.envs.base import make_env
+from cir_gym.evaluation import evaluate, interface_env_kwargs
 from cir_gym.scoring.policies import parse_value
+
+
+class PlayedError(gym.Wrapper):
+    """The largest :func:`error_norm` of the steps of each episode played (``evaluate`` plays
+    them): ``worst[i]`` for the i-th episode since this wrapper was made."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.worst: list[float] = []
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict]:
+        self.worst.append(0.0)
+        return self.env.reset(**kwargs)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        result = self.env.step(action)
+        self.worst[-1] = max(self.worst[-1], error_norm(result[4]))
+        return result
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -42,24 +65,19 @@ def main(argv: list[str] | None = None) -> None:
     failed = ended = 0
     for k in args.seeds if args.seeds is not None else agents.seeds(args.env, args.agent):
         policy = agents.load(args.env, args.agent, seed=k)
-        env = gym.make(args.env, **interface_env_kwargs(policy, kwargs))
+        env = PlayedError(make_env(args.env, **interface_env_kwargs(policy, kwargs)))
         print(f"\n`{args.agent}` seed {k} on {args.env} {kwargs or ''}\n")
         print("| " + " | ".join(["episode seed", "success", "ended by", "steps",
                                  "max played error", *args.metric]) + " |")
         print("|---" * (5 + len(args.metric)) + "|")
-        for s in range(args.seed, args.seed + args.episodes):
-            obs, _ = env.reset(seed=s)
-            steps, worst, done = 0, 0.0, False
-            while not done:
-                obs, _, terminated, truncated, info = env.step(policy.predict(obs)[0])
-                steps += 1
-                worst = max(worst, error_norm(info))
-                done = terminated or truncated
-            ok = bool(info.get("is_success"))
+        result = evaluate(policy, args.env, args.episodes, args.seed, env=env)
+        for episode, worst in zip(result.episodes, env.worst, strict=True):
+            ok = episode.success
             failed += not ok
-            ended += (not ok) and terminated
-            cells = [str(s), str(ok), "termination" if terminated else "time limit", str(steps),
-                     f"{worst:.3g}", *(f"{info['episode_metrics'][m]:.3g}" for m in args.metric)]
+            ended += (not ok) and episode.terminated
+            cells = [str(episode.seed), str(ok),
+                     "termination" if episode.terminated else "time limit", str(episode.length),
+                     f"{worst:.3g}", *(f"{episode.metrics[m]:.3g}" for m in args.metric)]
             print("| " + " | ".join(cells) + " |")
         env.close()
     print(f"\nfailed episodes: {failed}, of which ended by termination: {ended}")

@@ -1,14 +1,15 @@
 """A policy's joint tracking error between its samples: at every physics step (JointTracking).
 
-    python scripts/eval_intersample.py [--env ID] --agent ppo_100hz [--seed-agent 0]
-    python scripts/eval_intersample.py --controller pd_gravity [--gain omega=53.4 ...]
+    python scripts/research/eval_intersample.py [--env ID] --agent ppo_100hz [--seed-agent 0]
+    python scripts/research/eval_intersample.py --controller pd_gravity [--gain omega=53.4 ...]
         [--control-freq 100] [--episodes 10] [--seed 1000] [--set payload_mass=3.0]
 
 JointTracking's metrics read the error at the control instants only. A policy that acts at
 100 Hz holds each torque for 10 physics steps of 1 ms; if its error between those instants
 were much larger than at them (a policy that is exact at the samples and swings between them),
 its RMS error would flatter it against controllers that act at 500 Hz. This script runs the
-policy in its own environment, records the joint positions at the start of every ``mj_step``
+policy in its own environment (:func:`cir_gym.evaluation.evaluate` plays the episode), records
+the joint positions at the start of every ``mj_step``
 (MuJoCo's control callback, ``mujoco.set_mjcb_control``: the state at t = 0, 1, 2 ... ms) and
 compares them with the same episode's reference evaluated on the physics grid (the reference
 of an env with ``control_freq`` = 1 / timestep — 1 kHz on JointTracking, 2 kHz on
@@ -28,7 +29,8 @@ import mujoco
 import numpy as np
 
 import cir_gym  # noqa: F401  (registers the environments)
-from cir_gym.evaluation import interface_env_kwargs
+from cir_gym.envs.base import make_env
+from cir_gym.evaluation import evaluate, interface_env_kwargs
 
 ENV_ID = "cir_gym/JointTracking-v1"
 ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
@@ -43,51 +45,68 @@ def _value(text: str) -> Any:
     return text
 
 
+class PhysicsSteps(gym.Wrapper):
+    """The joint positions (qpos) at the start of every physics step since the last reset:
+    MuJoCo's control callback (``mujoco.set_mjcb_control``) records them while installed
+    (:meth:`recording`)."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.qpos: list[np.ndarray] = []
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict]:
+        result = self.env.reset(**kwargs)
+        self.qpos = []  # the reset's own forward passes are not steps
+        return result
+
+    def _record(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        if data is self.env.unwrapped.data:
+            self.qpos.append(data.qpos.copy())
+
+    def recording(self) -> Any:
+        """A context in which the callback records (it is process-wide: removed on exit)."""
+        import contextlib
+
+        @contextlib.contextmanager
+        def installed() -> Any:
+            mujoco.set_mjcb_control(self._record)
+            try:
+                yield self
+            finally:
+                mujoco.set_mjcb_control(None)
+
+        return installed()
+
+
 def physics_rate_errors(policy: Any, env_kwargs: dict[str, Any], seed: int,
                         env_id: str = ENV_ID) -> tuple[float, float, int]:
     """(env rms_error at the control instants, RMS error at every physics step, physics steps).
 
-    The episode is one deterministic rollout of ``policy`` in ``gym.make(env_id, **env_kwargs)``
-    reset with ``seed``; the reference on the physics grid comes from the same seed's reset of
-    an env with ``control_freq`` = 1 / timestep (same other arguments)."""
-    env = gym.make(env_id, **env_kwargs)
-    rate = 1.0 / env.unwrapped.model.opt.timestep
+    The episode is one deterministic rollout of ``policy`` by :func:`cir_gym.evaluation.evaluate`
+    in ``make_env(env_id, **env_kwargs)`` reset with ``seed``; the reference on the physics grid
+    comes from the same seed's reset of an env with ``control_freq`` = 1 / timestep (same other
+    arguments)."""
+    env = PhysicsSteps(make_env(env_id, **env_kwargs))
+    base = env.unwrapped
+    rate = 1.0 / base.model.opt.timestep
     with warnings.catch_warnings():  # its episode has more steps than the registered limit
         warnings.simplefilter("ignore")
-        fine = gym.make(env_id, **{**env_kwargs, "control_freq": rate})
+        fine = make_env(env_id, **{**env_kwargs, "control_freq": rate})
     fine.reset(seed=seed)
     ref_fine = fine.unwrapped._ref[0].copy()
     fine.close()
-    base = env.unwrapped
-    joints = base.robot.qpos_adr
-    qs: list[np.ndarray] = []
-
-    def record(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        if data is base.data:
-            qs.append(data.qpos.copy())
-
-    obs, _ = env.reset(seed=seed)
     if hasattr(policy, "reset"):
         policy.reset()
+    with env.recording():
+        episode = evaluate(policy, env_id, 1, seed, env=env).episodes[0]
     if not np.array_equal(ref_fine[0], base._ref[0, 0]):
         raise RuntimeError("the physics-rate reference does not start where the env's does: the "
                            "reference is not grid-independent for these arguments")
-    mujoco.set_mjcb_control(record)
-    try:
-        done = False
-        while not done:
-            action = policy.predict(obs, deterministic=True)[0]
-            obs, _, term, trunc, _ = env.step(action)
-            done = term or trunc
-    finally:
-        mujoco.set_mjcb_control(None)
-    metrics = base.episode_metrics()
-    q = np.array(qs)
-    q = q[:, joints]
+    q = np.array(env.qpos)[:, base.robot.qpos_adr]
     n = min(len(q), len(ref_fine))
     err = ref_fine[:n] - q[:n]  # (steps, joints): the env's rms_error is over both
     env.close()
-    return float(metrics["rms_error"]), float(np.sqrt(np.mean(err**2))), n
+    return float(episode.metrics["rms_error"]), float(np.sqrt(np.mean(err**2))), n
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,13 +1,14 @@
 """RedundantIK agents on many seeds, and where their laps are lost (the 90 % target).
 
-    python scripts/eval_rik_agents.py [--env cir_gym/RedundantIK-v3] [--episodes 100]
+    python scripts/research/eval_rik_agents.py [--env cir_gym/RedundantIK-v3] [--episodes 100]
         [--seed 1000] [--laps 60] [--out results/agents/RedundantIK-v3_agents.md]
         [--agent NAME[:OBJECTIVE] ...] [--path DIR[:OBJECTIVE] ...]
 
 For every training seed of each shipped agent (default: all, each on the objective it was
 trained for) and every agent directory given by ``--path`` (a lever's model), the success rate
 and the median RMS task error over ``--episodes`` episodes from ``--seed``
-(:func:`cir_gym.evaluation.evaluate`, the leaderboard's scorer). Then, for the first agent's
+(:func:`cir_gym.evaluation.evaluate`, the leaderboard's scorer, which plays every episode here).
+Then, for the first agent's
 seed 0 on its first ``--laps`` episodes, each lap is sorted into succeeded (max error < the
 success threshold), near miss (< 10 mm) or lost, with the control step of its largest error and
 its minimum manipulability and joint-limit margin, beside ``clik``'s minimum manipulability on
@@ -26,7 +27,8 @@ import numpy as np
 
 import cir_gym  # noqa: F401  (registers the ids)
 from cir_gym import agents, baselines
-from cir_gym.evaluation import evaluate
+from cir_gym.envs.base import make_env
+from cir_gym.evaluation import evaluate, interface_env_kwargs
 
 NEAR_MISS = 0.01  # m: a lap whose max error stays below this is a near miss, above it lost
 
@@ -41,25 +43,35 @@ def _score(policy, env_id: str, objective: str, episodes: int, seed: int) -> tup
     return float(np.mean([e.success for e in r.episodes])), float(np.median(rms))
 
 
+class StepObservations(gym.Wrapper):
+    """Keeps the observation after each step of the current episode (``evaluate`` plays it)."""
+
+    def reset(self, **kwargs):
+        self.after: list[dict] = []
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        result = self.env.step(action)
+        self.after.append(result[0])
+        return result
+
+
 def _lap(policy, env_id: str, objective: str, seed: int) -> tuple[np.ndarray, dict]:
     """Per control step: the task-position error norm, its components along the reference's
     direction of motion (positive: behind the reference) and across it, and the reference
     speed (rows of a (steps, 4) array); and the episode's metrics."""
-    env = gym.make(env_id, objective=objective)
-    obs, _ = env.reset(seed=seed)
-    state, start, rows, done, info = None, True, [], False, {}
-    while not done:
-        action, state = policy.predict(obs, state, np.array([start]), deterministic=True)
-        start = False
-        obs, _, terminated, truncated, info = env.step(action)
+    kwargs = interface_env_kwargs(policy, {"objective": objective})
+    env = StepObservations(make_env(env_id, **kwargs))
+    episode = evaluate(policy, env_id, 1, seed, env=env).episodes[0]
+    rows = []
+    for obs in env.after:
         e, v = obs["x_ref"] - obs["x"], obs["xd_ref"]
         speed = float(np.linalg.norm(v))
         along = float(e @ v) / speed if speed > 1e-9 else 0.0
         across = float(np.sqrt(max(e @ e - along**2, 0.0)))
         rows.append((float(np.linalg.norm(e)), along, across, speed))
-        done = terminated or truncated
     env.close()
-    return np.array(rows), info["episode_metrics"]
+    return np.array(rows), episode.metrics
 
 
 def laps_table(policy, env_id: str, objective: str, laps: int, seed: int) -> list[str]:
@@ -121,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         policy = agents.load(env_id, Path(path).name, path=path)
         runs.append((f"`{path}`", policy, objective or _objective(policy.config)))
     lines = [f"# {env_id}: agents on seeds {args.seed}-{args.seed + args.episodes - 1}", "",
-             "(`python scripts/eval_rik_agents.py`; each agent on its objective)", "",
+             "(`python scripts/research/eval_rik_agents.py`; each agent on its objective)", "",
              "| agent | objective | success | median RMS task error (mm) |", "|---|---|---|---|"]
     for label, policy, objective in runs:
         ok, rms = _score(policy, env_id, objective, args.episodes, args.seed)
