@@ -1,6 +1,7 @@
 """CPU cost of off-policy training on JointTracking-v1: SB3 SAC/TQC vs SBX (JAX) SAC, beside PPO.
 
-    python scripts/bench_offpolicy.py [--steps 2000] [--out results/agents/offpolicy_bench.md]
+    python scripts/research/bench_offpolicy.py [--steps 2000] \
+        [--out results/agents/offpolicy_bench.md]
 
 Issue 20 asks whether SBX (Stable-Baselines3's API on JAX) makes off-policy training fast
 enough on these CPUs. Each algorithm trains on the same single JointTracking-v1 env (gravity
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = [
-        "# Off-policy training cost on JointTracking-v1 (`scripts/bench_offpolicy.py`)",
+        "# Off-policy training cost on JointTracking-v1 (`scripts/research/bench_offpolicy.py`)",
         "",
         f"Environment steps per CPU-second of the training process (`time.process_time`), "
         f"{args.steps} timed steps after warm-up; off-policy: one gradient step of batch 256 "

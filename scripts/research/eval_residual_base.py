@@ -1,6 +1,6 @@
 """A residual agent against its own base controller and against the variant's controller.
 
-    python scripts/eval_residual_base.py --env cir_gym/AdmittanceContact-v0 \
+    python scripts/research/eval_residual_base.py --env cir_gym/AdmittanceContact-v0 \
         --agent residual_ppo_admittance [--seed-agent 1] [--episodes 3] [--seed 1000] [--out FILE]
 
 A residual agent carries its base controller as :func:`agents.load` builds it, from the context
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     name = agent.controller.name
     variants = getattr(cir_gym.ENVIRONMENTS[key][0], "leaderboard_variants", None) or {"": {}}
     lines = [f"# {key}: `{args.agent}` (seed {args.seed_agent or 'first'}) against its base",
-             "", f"(`python scripts/eval_residual_base.py`; seeds {args.seed}-"
+             "", f"(`python scripts/research/eval_residual_base.py`; seeds {args.seed}-"
              f"{args.seed + args.episodes - 1}; mean of the primary metric)", "",
              f"| variant | residual agent | its base alone (trained context) | `{name}` built "
              "for the variant |", "|---|---|---|---|"]
