@@ -375,8 +375,8 @@ class NullSpaceCLIKGains:
       limit; with the barrier 1/30 and 0/30).
     - ``k0_obstacle`` (rad/s per unit ∇d): a barrier on the clearance d (m),
       q̇₀ = k₀ ((d_act − d)₊ / d) ∇d, pushes away within ``activation_distance`` d_act (m)
-      and grows without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d let 16/20 planar
-      episodes collide).
+      and grows without bound as d → 0 (a quadratic penalty (d_act − d)₊ ∇d stays bounded,
+      so the task's motion can push the arm into the obstacle).
 
     ``fd_step`` (rad): central-difference step of the numerical gradients.
 

@@ -260,7 +260,8 @@ class LinkCapsules:
     def ends(self, centre: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End points a, b (..., c, 3) of the capsules with centres (..., c, 3) and rotations
         (..., c, 9) (MuJoCo's ``geom_xpos`` and ``geom_xmat`` of ``geom_ids``)."""
-        half = self.half_length[:, None] * xmat[..., 6:9]  # along the geom z axis
+        z = xmat[..., [2, 5, 8]]  # the geom's z axis: the third column of the row-major R
+        half = self.half_length[:, None] * z
         return centre - half, centre + half
 
     def clearance(self, data: mujoco.MjData, centre: np.ndarray, radius: float) -> float:

@@ -408,7 +408,9 @@ def test_terminated_episode_is_scored_against_the_reference_it_no_longer_follows
     errors = [step[2]["task_error"] for step in steps]
     rotations = [step[2].get("orientation_error", 0.0) for step in steps]
     k, terminated = len(errors), info["joint_limit_violation"]
-    assert terminated and k < base.max_steps and info["reward_termination"] == -50.0
+    charge = (base.max_steps - k) * base.worst_step_reward()
+    assert terminated and k < base.max_steps
+    assert info["reward_termination"] == pytest.approx(-(50.0 + charge), rel=1e-12)
     assert not info["is_success"]
     p, R = base.kin.pose(base.joint_positions)  # the stopped arm
     later = range(k + 1, base.max_steps + 1)  # the references it would have followed
@@ -423,6 +425,34 @@ def test_terminated_episode_is_scored_against_the_reference_it_no_longer_follows
         assert metrics["rms_orientation_error"] == pytest.approx(np.sqrt(np.mean(r**2)),
                                                                  rel=1e-12)
     assert metrics["min_joint_limit_margin"] == 0.0  # the stopped arm sits on its limit
+
+
+@pytest.mark.parametrize("env_id", [ENV, ENV7])
+def test_failing_early_never_raises_the_return(env_id):
+    """Driving a joint into its narrowed limit ends the episode within a few steps; with the
+    unplayed steps charged (the default) that return is below the one of an arm that stands
+    still for the whole lap while the reference runs away. Without the charge the crash paid
+    (the previous default). Every step's reward is at least −worst_step_reward(), so no policy
+    gains by stopping."""
+    def lap_return(action_value, **kwargs):
+        env = gym.make(env_id, objective="joint_limits", **kwargs)
+        env.reset(seed=0)
+        total, steps, done = 0.0, 0, False
+        worst = env.unwrapped.worst_step_reward()
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(
+                np.full(env.action_space.shape, action_value))
+            if not terminated:
+                assert reward >= -worst - 1e-12
+            total, steps, done = total + reward, steps + 1, terminated or truncated
+        return total, steps, terminated
+
+    still, still_steps, still_stopped = lap_return(0.0)
+    crash, crash_steps, crash_stopped = lap_return(1.0)
+    assert not still_stopped and crash_stopped and crash_steps < still_steps / 4
+    assert crash < still
+    free_crash, _, _ = lap_return(1.0, charge_unplayed_steps=False)
+    assert free_crash > still  # what the charge prevents
 
 
 def test_an_obstacle_episode_never_starts_without_an_obstacle(monkeypatch):
@@ -653,6 +683,32 @@ def test_lap_witness_with_precomputed_steps_is_the_same():
         redundancy.lap_witness(q, usable, bound, 15, steps=steps),
         redundancy.lap_witness(q, usable, bound, 15),
     )
+
+
+@pytest.mark.parametrize("cls", [RedundantIKEnv, RedundantIK7Env])
+def test_clearance_is_mujocos_sphere_capsule_distance(cls):
+    """LinkCapsules.clearance equals MuJoCo's own distance between the obstacle geom and the
+    nearest link capsule (mj_geomDistance; the planar arm's obstacle as a sphere in its plane),
+    to 1e-9 m, apart or overlapping, wherever the arm is. The capsules' axis is the geom's z
+    axis, the third column of MuJoCo's row-major xmat (the third row was off by up to 0.25 m)."""
+    import mujoco
+
+    base = cls(objective="obstacle")
+    caps, model, data = base.kin.capsules, base.model, base.data
+    obstacle = model.geom("obstacle").id
+    model.geom_type[obstacle] = mujoco.mjtGeom.mjGEOM_SPHERE
+    rng = np.random.default_rng(0)
+    for i in range(100):
+        base.kin.pose(base.home + rng.uniform(-2.0, 2.0, base.n))
+        a, _ = caps.segments(data)
+        centre = a[rng.integers(len(a))] + rng.normal(0.0, 0.05, 3)
+        centre[2] *= base.pos_dim == 3  # the planar arm's obstacles lie in its plane
+        radius = float(rng.uniform(0.01, 0.07))
+        model.geom_size[obstacle, 0] = radius
+        data.geom_xpos[obstacle] = centre  # the obstacle is a world geom: its pose, set here
+        theirs = min(mujoco.mj_geomDistance(model, data, obstacle, int(g), 10.0, None)
+                     for g in caps.geom_ids)
+        assert caps.clearance(data, centre, radius) == pytest.approx(theirs, abs=1e-9), i
 
 
 def test_point_segment_distance_is_the_nearest_point_of_the_segment():

@@ -80,7 +80,16 @@ class RedundantIKEnv(RedundantIKBase):
     - r_velocity = −``velocity_weight`` ‖a‖² / 3;
     - r_termination = −``termination_penalty`` on the step that violates a joint limit or
       collides, else 0 (the default, 50 ≈ 1/(1 − γ) for γ = 0.98, charges a lost episode
-      the cost of staying lost; v0's 1000 dominated every return and an agent's value scale).
+      the cost of staying lost).
+
+    With ``charge_unplayed_steps=True`` (the default) a terminated episode also loses, on its
+    last step, the worst reward of every step it did not play, (T − k)(1 +
+    ``secondary_weight`` + ``velocity_weight``) (T the lap's steps, k the steps played; the
+    worst step: r_tracking = −1, a secondary cost of 1, ‖a‖² = n). Playing on can then never
+    lose more than stopping: ending early never raises the return, at any discount γ ≤ 1
+    (``False``: the penalty alone, 50 against up to ~1.1 per remaining step, so an arm that
+    crashes into a joint limit or the obstacle early scores better than one that plays a
+    poor lap to the end).
 
     ## Starting State
     At rest on the path: q(0) is the home keyframe (0.2, 0.8, 0.6) moved to x̄(0) by Newton
@@ -128,7 +137,7 @@ class RedundantIKEnv(RedundantIKBase):
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
     | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
-    | charge_unplayed_steps | False | a terminated episode also loses the worst reward of each unplayed step (see Rewards) |
+    | charge_unplayed_steps | True | a terminated episode also loses the worst reward of each unplayed step (see Rewards) |
     | success_threshold | 0.001 | max position error (m) below which an episode succeeds |
     | render_mode | None | None, "human" or "rgb_array" (camera "top" looks down on the plane) |
     | width | 480 | frame width (px) |
@@ -249,7 +258,8 @@ class RedundantIK7Env(RedundantIKBase):
     ## Rewards
     As ``RedundantIK-v3``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
     orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
-    exp(−w / 0.05).
+    exp(−w / 0.05); the worst step that ``charge_unplayed_steps`` charges per unplayed step is
+    2 + ``secondary_weight`` + ``velocity_weight`` (r_orientation = −1 as well).
 
     ## Starting State
     As ``RedundantIK-v3``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
@@ -270,7 +280,7 @@ class RedundantIK7Env(RedundantIKBase):
     | secondary_weight | 0.1 | weight of the secondary-objective cost |
     | velocity_weight | 0.01 | weight of the joint-velocity term |
     | termination_penalty | 50.0 | reward lost on a joint-limit violation or a collision |
-    | charge_unplayed_steps | False | a terminated episode also loses the worst reward of each unplayed step (see Rewards) |
+    | charge_unplayed_steps | True | a terminated episode also loses the worst reward of each unplayed step (see Rewards) |
     | success_threshold | 0.001 | max position error (m); the orientation must stay below 10× (rad) |
     | render_mode | None | None, "human" or "rgb_array" (MuJoCo's free camera) |
     | width | 480 | frame width (px) |

@@ -103,7 +103,7 @@ class RedundantIKBase(RobotEnv):
         secondary_weight: float = 0.1,
         velocity_weight: float = 0.01,
         termination_penalty: float = 50.0,
-        charge_unplayed_steps: bool = False,
+        charge_unplayed_steps: bool = True,
         success_threshold: float = 0.001,
         render_mode: str | None = None,
         width: int = 480,
