@@ -60,7 +60,7 @@ and inserts.
 ``position_only`` is stiff Cartesian position control of the tip down the nominal hole's axis
 (τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback, no search): the reason force control
 exists. It fails by construction: with the hole off by more than the radial clearance it lands
-on the block and its spring presses K_P × 22.5 mm = 112 N > the 100-N limit.
+on the block and its spring presses K_P × 22.5 mm = 112 N into the face.
 """
 
 from __future__ import annotations
@@ -544,8 +544,10 @@ class PositionOnly(_TipController):
     It fails by construction whenever the true hole is off the nominal axis by more than the
     radial clearance (PegInHole's default ±2 mm against 0.25 mm): the reference goes down to
     the goal depth on the nominal axis, so the tip lands on the face and the spring presses
-    K_P × (goal depth) = 5000 N/m × 22.5 mm = 112 N > the 100-N force limit. It is the foil that
-    shows why force control exists, not a competitor.
+    K_P × (goal depth) = 5000 N/m × 22.5 mm = 112 N into it until the time limit or the 100-N
+    single-contact limit (0/30 inserted, 63 % stopped at the limit on held-out seeds,
+    results/peg_in_hole/laws.md). It is the foil that shows why force control exists, not a
+    competitor.
 
     State: :data:`POSITION_STATE`.
     """
