@@ -66,7 +66,19 @@ class DrawnTask:
 
 class RedundantIKBase(RobotEnv):
     """What :class:`RedundantIKEnv` and :class:`RedundantIK7Env` share; a subclass sets
-    ``arm`` (its :class:`RedundantIKRobot`) and implements ``_draw_reference``."""
+    ``arm`` (its :class:`RedundantIKRobot`) and implements ``_draw_reference``.
+
+    Attributes:
+        kin: the task's kinematics (:class:`cir_gym.self_motion.TaskKinematics`).
+        reference: this episode's lap (:class:`cir_gym.self_motion.Reference`).
+        trace: (T,) structured array, one row per control step with the fields
+            ``TRACE_FIELDS``; a terminated episode's rows after its last step hold the stopped
+            arm's scores (see ``_score_stopped_arm``).
+        lower: (n,) rad, this episode's lower joint limits.
+        upper: (n,) rad, this episode's upper joint limits.
+        obstacle_centre: (3,) m.
+        obstacle_radius: m (0: no obstacle).
+    """
 
     arm: ClassVar[RedundantIKRobot]
     #: arguments that set what the task asks, not a condition it is asked under: an agent
