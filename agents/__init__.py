@@ -1,9 +1,9 @@
 """Stable-Baselines3 agents: training, residual RL, and the shipped trained models.
 
 >>> from cir_gym import agents
->>> agents.available("cir_gym/JointTracking-v1")          # doctest: +SKIP
+>>> agents.available("cir_gym/JointTracking-v2")          # doctest: +SKIP
 ['ppo_100hz', 'ppo_100hz_industrial', 'ppo_batched', 'residual_ppo_computed_torque']
->>> policy = agents.load("cir_gym/JointTracking-v1", "ppo_100hz")  # doctest: +SKIP
+>>> policy = agents.load("cir_gym/JointTracking-v2", "ppo_100hz")  # doctest: +SKIP
 >>> action, state = policy.predict(obs)                      # doctest: +SKIP
 
 Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``: either one agent
@@ -32,15 +32,22 @@ __all__ = [
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 #: Earlier versions of an environment whose shipped agents are also scored on it: the newer
-#: version keeps their observation and action spaces (tested), so an agent trained there runs
-#: unchanged. Such an agent is listed as ``<name>@<Env-vK>``: its name says where it was
-#: trained, and it is never presented as trained on the newer version (what changed between
-#: the versions is in each environment's Version History).
-EARLIER_VERSIONS: dict[str, tuple[str, ...]] = {}
+#: version keeps their observation and action spaces (tested) and their dynamics, so an agent
+#: trained there runs unchanged. Such an agent is listed as ``<name>@<Env-vK>``: its name says
+#: where it was trained, and it is never presented as trained on the newer version (what
+#: changed between the versions, the reward or an episode's end, is in each environment's
+#: Version History). PegInHole-v2 and AdmittanceContact-v1 changed their contact physics and
+#: their residual agents' base laws, so their earlier agents are not carried.
+EARLIER_VERSIONS: dict[str, tuple[str, ...]] = {
+    "JointTracking-v2": ("JointTracking-v1",),
+    "ElasticJointTracking-v3": ("ElasticJointTracking-v2",),
+    "CartesianTracking-v1": ("CartesianTracking-v0",),
+    "VisualServo-v1": ("VisualServo-v0",),
+}
 
 
 def env_dir_name(env_id: str) -> str:
-    """'cir_gym:cir_gym/JointTracking-v1' → 'JointTracking-v1' (the version is part of it)."""
+    """'cir_gym:cir_gym/JointTracking-v2' → 'JointTracking-v2' (the version is part of it)."""
     return env_id.split(":")[-1].split("/")[-1]
 
 

@@ -1,7 +1,7 @@
 """Training on ``cir_gym.envs.vector.JointTrackingVectorEnv``: the batched env as an agent's VecEnv.
 
 ``vec_env: batched`` in a hyperparameter entry (``training`` section) makes :mod:`agents.train`
-step all ``n_envs`` training copies of JointTracking-v1 with one ``mujoco.batch.Batch`` call
+step all ``n_envs`` training copies of JointTracking-v2 with one ``mujoco.batch.Batch`` call
 (~64 k env-steps/s for 64 copies, measured in results/benchmarks.md) instead of a
 ``DummyVecEnv`` of single envs (~3 k). Each copy is the single env step for step (the vector
 env's own test), so an agent trained here is evaluated, shipped and loaded exactly as one
@@ -28,8 +28,8 @@ __all__ = ["BATCHED_ENVS", "BatchedTaskObservation", "make_batched_vec_env"]
 
 #: env ids with a native batched implementation → what it needs
 BATCHED_ENVS = {
-    "cir_gym/JointTracking-v1": "cir_gym.envs.vector.JointTrackingVectorEnv",
-    "cir_gym/ElasticJointTracking-v2": "cir_gym.envs.vector.ElasticJointTrackingVectorEnv",
+    "cir_gym/JointTracking-v2": "cir_gym.envs.vector.JointTrackingVectorEnv",
+    "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector.ElasticJointTrackingVectorEnv",
 }
 
 

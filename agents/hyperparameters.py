@@ -14,17 +14,17 @@ does not know to the algorithm. So every entry is complete by itself (YAML merge
       policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh, log_std_init=-1.0)"
       learning_rate: 3.0e-4           # or "lin_3.0e-4" (linear decay to 0)
       ...                             # any other keyword of the SB3 algorithm
-    cir_gym/JointTracking-v1:
+    cir_gym/JointTracking-v2:
       <<: *default
       n_timesteps: 5000000
 
     training:                         # agents.train only: evaluation, checkpoints, vec env
       default: {vec_env: dummy, eval_freq: 50000, n_eval_episodes: 5, checkpoint_freq: 250000}
-      cir_gym/JointTracking-v1: {eval_freq: 150000}
+      cir_gym/JointTracking-v2: {eval_freq: 150000}
     residual:                         # agents.train only: overrides for --residual CONTROLLER
       default: {scale: 0.25, zero_init_action: true}
 
-``python -m rl_zoo3.train --algo ppo --env cir_gym/JointTracking-v1 --gym-packages cir_gym
+``python -m rl_zoo3.train --algo ppo --env cir_gym/JointTracking-v2 --gym-packages cir_gym
 --conf-file agents/hyperparams/ppo.yml`` trains from the file as it is.
 
 For the project an entry is merged over ``default`` key by key (``policy_kwargs``,
@@ -77,7 +77,7 @@ TRAINING_KEYS = {
     "n_timesteps": "total environment steps",
     "n_envs": "parallel environments (DummyVecEnv, or SubprocVecEnv with vec_env: subproc)",
     "vec_env": "'dummy' (one process), 'subproc' (one process per env) or 'batched' (one "
-               "mujoco.batch for all envs: JointTracking-v1, agents/batched.py)",
+               "mujoco.batch for all envs: JointTracking-v2, agents/batched.py)",
     "normalize": "VecNormalize: true/false or {norm_obs, norm_reward, clip_obs, gamma}",
     "policy_kwargs": "SB3 policy keywords (activation_fn by name)",
     "eval_freq": "environment steps between evaluations",

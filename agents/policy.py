@@ -56,7 +56,7 @@ def registered_defaults(env_id: str) -> tuple[type | None, dict[str, Any]]:
 
 def interface_defaults(env_id: str) -> dict[str, Any]:
     """The defaults of ``env_id``'s :data:`INTERFACE_KEYS` arguments
-    (:func:`registered_defaults`; e.g. ``{"control_freq": 500.0}`` for JointTracking-v1): the
+    (:func:`registered_defaults`; e.g. ``{"control_freq": 500.0}`` for JointTracking-v2): the
     interface of an agent whose ``config.yml`` does not record them. Empty for an env id
     registered without cir_gym's entry point."""
     defaults = registered_defaults(env_id)[1]

@@ -273,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     import cir_gym
 
     p = argparse.ArgumentParser(description="shipped agents over training seeds (IQM, CIs)")
-    p.add_argument("--env", required=True, help="environment id, e.g. cir_gym/JointTracking-v1")
+    p.add_argument("--env", required=True, help="environment id, e.g. cir_gym/JointTracking-v2")
     p.add_argument("--agent", action="append", help="agent name (repeatable; default: all)")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=1000, help="first evaluation seed (leaderboard)")

@@ -1,7 +1,7 @@
 """Train an SB3 agent (from scratch or residual) on a cir_gym environment, reproducibly.
 
     from cir_gym.agents.train import train
-    run = train("cir_gym/JointTracking-v1", "ppo", residual="computed_torque",
+    run = train("cir_gym/JointTracking-v2", "ppo", residual="computed_torque",
                 env_kwargs={"payload_mass": 3.0})
 
 A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
@@ -301,7 +301,7 @@ def train(
     """Train ``algo`` on ``env_id`` and return the run directory (see the module docstring).
 
     Args:
-        env_id: a registered cir_gym id (``cir_gym/JointTracking-v1``).
+        env_id: a registered cir_gym id (``cir_gym/JointTracking-v2``).
         algo: "ppo", "sac" or "td3"; hyperparameters from ``agents/hyperparams/<algo>.yml``.
         timesteps: total environment steps (default: the entry's ``n_timesteps``).
         seed: seed of the model and of the training environments (env i gets seed + i).

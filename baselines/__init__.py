@@ -1,8 +1,8 @@
 """The course's controllers as policies with SB3's ``predict`` protocol.
 
 >>> from cir_gym import baselines
->>> baselines.available("cir_gym/JointTracking-v1")   # doctest: +SKIP
->>> policy = baselines.make("computed_torque", "cir_gym/JointTracking-v1", omega_n=25.0)
+>>> baselines.available("cir_gym/JointTracking-v2")   # doctest: +SKIP
+>>> policy = baselines.make("computed_torque", "cir_gym/JointTracking-v2", omega_n=25.0)
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
 
 
 def task_name(env_id: str) -> str:
-    """'cir_gym:cir_gym/JointTracking-v1' → 'JointTracking'."""
+    """'cir_gym:cir_gym/JointTracking-v2' → 'JointTracking'."""
     return env_id.split(":")[-1].split("/")[-1].rsplit("-v", 1)[0]
 
 

@@ -265,7 +265,7 @@ class RobustGains:
     viscous_friction_bound, coulomb_friction_bound: largest unmodelled joint friction covered
         (N m s/rad, N m; the ranges ``randomize`` draws): F_v q̇ + F_c sign(q̇) enters ñ.
     error_bound: assumed bound on ‖ξ‖ = ‖[q̃; q̃̇]‖ during operation.
-    qdd_ref_bound: Q_M, bound on ‖q̄̈‖ (rad/s²). Measured on JointTracking-v1's default
+    qdd_ref_bound: Q_M, bound on ‖q̄̈‖ (rad/s²). Measured on JointTracking-v2's default
         "random" reference: max_t ‖q̄̈(t)‖ is 3.1–5.7 rad/s² over seeds 0…19, median 4.3,
         95th percentile 5.7 and max 7.6 (seed 106) over seeds 0…199; 10 keeps a 30 % margin
         over the largest measured value.

@@ -20,7 +20,7 @@ integral settles instead of growing, and the loop leaves saturation without the 
 wound-up integral causes. (Conditional integration, the other textbook remedy, was tried and
 rejected: in the loops that chatter between both torque limits at small gear ratios it
 integrates only the unsaturated half-cycles and drifts, e.g. ∫e_v → −6 and a 0.15-rad error on
-JointTracking-v1 at N = 50, seed 2001, where back-calculation and no anti-windup stay at
+JointTracking-v2 at N = 50, seed 2001, where back-calculation and no anti-windup stay at
 0.014 rad.)
 
 Elastic joints (the task gives ``extras["stiffness"]``, the nominal K): the loops close on the

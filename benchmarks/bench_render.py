@@ -1,7 +1,7 @@
 """Cost of a rendered frame with the task drawn (issue 23) against the bare robot, per env.
 
     python benchmarks/bench_render.py [--size 320] [--frames 30] [--repeat 5] [--target 2]
-                                      [--env cir_gym/JointTracking-v1 ...]
+                                      [--env cir_gym/JointTracking-v2 ...]
 
 For each registered environment (or ``--env``), in ``rgb_array`` mode at ``--size`` px, two
 instances in the same state (a few zero-action steps into an episode):

@@ -72,8 +72,8 @@ KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
 #: surface: PegInHole's zero-action row is free fall and one impact; on seed 0 these
 #: controllers touch at step ~700 (PegInHole) and ~870 (AdmittanceContact))
 DRIVEN = {
-    "cir_gym/PegInHole-v1": ("hybrid_force_position", 1000),
-    "cir_gym/AdmittanceContact-v0": ("admittance", 1000),
+    "cir_gym/PegInHole-v2": ("hybrid_force_position", 1000),
+    "cir_gym/AdmittanceContact-v1": ("admittance", 1000),
 }
 REFERENCE = "Reacher-v5"
 
@@ -443,7 +443,7 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     vec = JointTrackingVectorEnv(num_envs, nthread=nthread, **kw)
     vec.reset(seed=0)
     sync = gym.make_vec(
-        "cir_gym/JointTracking-v1", num_envs=num_envs, vectorization_mode="sync", **kw
+        "cir_gym/JointTracking-v2", num_envs=num_envs, vectorization_mode="sync", **kw
     )
     sync.reset(seed=0)
     raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=nthread)
@@ -468,7 +468,7 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     vec.close()
     sync.close()
     return [
-        f"JointTracking-v1 × {num_envs}, zero torques, `max_following_error=None`, "
+        f"JointTracking-v2 × {num_envs}, zero torques, `max_following_error=None`, "
         f"MuJoCo threads: {nthread or 'all CPUs'}.",
         "",
         "| what | env-steps/s | vs SyncVectorEnv |",
@@ -482,7 +482,7 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
 
 #: issue 21's targets: the torque envs' step overhead at most Reacher-v5's; the joint-space
 #: laws' predict on one observation at most 2 mj_step
-TORQUE_ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+TORQUE_ENVS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
 TARGET_LAWS = ("pd_gravity", "computed_torque")
 
 

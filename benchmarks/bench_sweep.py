@@ -3,7 +3,7 @@
     python benchmarks/bench_sweep.py [--tasks 40] [--duration 2.0] [--repeat 2]
                                      [--out results/benchmarks.md]
 
-One grid (``--tasks`` evaluation tasks of one JointTracking-v1 episode of ``--duration`` s,
+One grid (``--tasks`` evaluation tasks of one JointTracking-v2 episode of ``--duration`` s,
 computed torque and PD + gravity alternately) runs in four configurations into fresh
 directories: local pool with 1 and 2 workers, a Ray instance started for the run
 (``ray="local"``) with 1 and 2 CPUs; ``--repeat`` rounds, every other one in reverse order,
@@ -42,7 +42,7 @@ def grid(tasks: int, duration: float) -> dict:
     """``tasks`` one-episode tasks: two controllers × tasks/2 seeds."""
     return {
         "evaluate": {
-            "envs": ["cir_gym/JointTracking-v1"],
+            "envs": ["cir_gym/JointTracking-v2"],
             "policies": ["computed_torque", "pd_gravity"],
             "seed": 0,
             "episodes": tasks // 2,
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         f"`python benchmarks/bench_sweep.py --tasks {args.tasks} --duration {args.duration} "
         f"--repeat {args.repeat}`: "
-        f"{args.tasks} tasks, each one JointTracking-v1 episode of {args.duration:g} s "
+        f"{args.tasks} tasks, each one JointTracking-v2 episode of {args.duration:g} s "
         f"({round(args.duration * 500)} steps; computed torque and PD + gravity), on this "
         f"2-core machine shared with other jobs (load average {load_before:.1f} before, "
         f"{load_after:.1f} after). *End to end* includes starting the workers (each imports "

@@ -7,15 +7,15 @@
 Four parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
 replaced; the other sections belong to other scripts):
 
-1. ``throughput``: env-steps/s of ``--num-envs`` copies of JointTracking-v1 and
-   ElasticJointTracking-v2 in ``cir_gym.envs.vector``'s batched env, of the same model's raw
+1. ``throughput``: env-steps/s of ``--num-envs`` copies of JointTracking-v2 and
+   ElasticJointTracking-v3 in ``cir_gym.envs.vector``'s batched env, of the same model's raw
    ``mujoco.batch.Batch.step`` and of Gymnasium's ``SyncVectorEnv`` of the single env; zero
    torques, ``max_following_error=None`` (resets are not what this times). The three loops are
    timed alternately, best of ``--repeat``, in process CPU time with one MuJoCo thread (other
    jobs' time slices on this shared machine are not counted), then the batched env with
    2 threads in wall-clock time (which the machine's load inflates).
-2. ``evaluator``: ``cir_gym.evaluation.evaluate`` on every JointTracking-v1 and
-   ElasticJointTracking-v2 leaderboard (variant, policy) pair, as ``scripts/leaderboard.py``
+2. ``evaluator``: ``cir_gym.evaluation.evaluate`` on every JointTracking-v2 and
+   ElasticJointTracking-v3 leaderboard (variant, policy) pair, as ``scripts/leaderboard.py``
    runs them (seed 1000 on): batched on ``--episodes`` seeds where it batches (controllers,
    ideal drive), sequential on ``--seq-episodes`` seeds, scaled linearly to ``--episodes``
    (each episode is one independent rollout of the same length: the scaling is the
@@ -27,7 +27,7 @@ replaced; the other sections belong to other scripts):
    2 workers (the leaderboard's process pool on 2 cores, perfectly balanced: a lower bound on
    its wall time). Not counted: the leaderboard's figures and its page's videos.
 4. ``ppo``: PPO training throughput (env-steps/s over ``--ppo-steps`` steps of ``learn``,
-   rollouts and updates) with agents/hyperparams/ppo.yml's JointTracking-v1 entry (n_steps
+   rollouts and updates) with agents/hyperparams/ppo.yml's JointTracking-v2 entry (n_steps
    512 per env for 16 envs, batch 1024, 10 epochs, γ 0.98, λ 1, [128, 128] tanh,
    log σ −2, VecNormalize on observations and rewards; one torch thread) on a DummyVecEnv
    of 16 single envs against ``sb3_vec_env`` of the batched env with 16 copies and with 64
@@ -239,7 +239,7 @@ def bench_other_envs(episodes: int, other_episodes: int) -> tuple[list[str], flo
 
 # ---------------------------------------------------------------------- 4. PPO
 def _ppo_hyperparams(n_envs: int) -> dict[str, Any]:
-    """ppo.yml's JointTracking-v1 entry, n_steps scaled to keep its 8192-step rollout."""
+    """ppo.yml's JointTracking-v2 entry, n_steps scaled to keep its 8192-step rollout."""
     import torch
 
     return {
@@ -270,7 +270,7 @@ def bench_ppo(steps: int) -> list[str]:
     from cir_gym.envs.vector import JointTrackingVectorEnv
 
     torch.set_num_threads(1)
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
 
     def dummy(n: int) -> Any:
         return DummyVecEnv([lambda: make_env(env_id) for _ in range(n)])

@@ -1,6 +1,6 @@
 """Soak test: millions of random steps of one environment, checking speed, memory and warnings.
 
-    python benchmarks/soak.py --steps 1000000 --env cir_gym/ElasticJointTracking-v2
+    python benchmarks/soak.py --steps 1000000 --env cir_gym/ElasticJointTracking-v3
 
 Without ``--env`` the slowest registered environment (measured on a few hundred steps) is used.
 Actions are uniform in [-1, 1]; the env is reset at every episode end and, to exercise resets
@@ -12,7 +12,7 @@ messages of its ``mju_user_warning`` hook, which also keeps them out of MUJOCO_L
 status 1 when a target is missed, 2 on bad arguments. From Python::
 
     from benchmarks.soak import main
-    main(["--steps", "5000", "--env", "cir_gym/JointTracking-v1"])  # -> exit status
+    main(["--steps", "5000", "--env", "cir_gym/JointTracking-v2"])  # -> exit status
 """
 
 from __future__ import annotations

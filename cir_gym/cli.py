@@ -278,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--env",
         required=True,
         metavar="ID",
-        help="environment id, e.g. cir_gym/JointTracking-v1 or JointTracking-v1 (cir-gym list)",
+        help="environment id, e.g. cir_gym/JointTracking-v2 or JointTracking-v2 (cir-gym list)",
     )
     e.add_argument(
         "--policy",

@@ -260,7 +260,7 @@ class LinkCapsules:
     def ends(self, centre: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End points a, b (..., c, 3) of the capsules with centres (..., c, 3) and rotations
         (..., c, 9) (MuJoCo's ``geom_xpos`` and ``geom_xmat`` of ``geom_ids``)."""
-        z = xmat[..., [2, 5, 8]]  # the geom's z axis: the third column of the row-major R
+        z = xmat[..., 2::3]  # the geom's z axis: the third column of the row-major R (9,)
         half = self.half_length[:, None] * z
         return centre - half, centre + half
 

@@ -36,7 +36,7 @@ root_doc = "index"
 exclude_patterns = ["_build", "_gen", "_*.md", "**/_*.md", "Thumbs.db", ".DS_Store"]
 
 # MyST: ``:::`` fences, definition lists, anchors on headings down to level 3 (the Gymnasium
-# sections of an environment page: ``envs/PegInHole-v1.html#rewards``).
+# sections of an environment page: ``envs/PegInHole-v2.html#rewards``).
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 

@@ -38,9 +38,9 @@ from cir_gym.evaluation import evaluate
 from cir_gym.scoring.policies import PolicyError, tuned_gains
 
 #: the bar for a from-scratch agent: this controller at its default gains
-TARGETS = {"cir_gym/JointTracking-v1": "pd_gravity"}
+TARGETS = {"cir_gym/JointTracking-v2": "pd_gravity"}
 #: environments whose failures all score the time limit: success rate drawn beside the metric
-SUCCESS_PANEL = {"cir_gym/PegInHole-v1"}
+SUCCESS_PANEL = {"cir_gym/PegInHole-v2"}
 
 
 def controller_scores(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int,
@@ -237,7 +237,7 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
     training = sorted((curves / "train").glob("*.csv"))
     fig, axes = plt.subplots(1, 3 if training else 2, figsize=(16 if training else 11, 4.2))
     runs = [("ppo, 500 Hz, 5 M (baseline)", curves / "baseline" / "ppo_500hz_5m.csv")]
@@ -265,7 +265,7 @@ def plot_levers(curves: Path, out: Path, primary: str = "rms_error") -> Path:
                  f"seed each, loaded machine)", fontsize=10)
     fig.tight_layout()
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "JointTracking-v1_levers.png"
+    path = out / "JointTracking-v2_levers.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path

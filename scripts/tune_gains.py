@@ -1,6 +1,6 @@
 """The controllers get a tuning budget too: an Optuna gain search per leaderboard variant.
 
-    python scripts/tune_gains.py [--env cir_gym/JointTracking-v1] [--controller pd_gravity ...]
+    python scripts/tune_gains.py [--env cir_gym/JointTracking-v2] [--controller pd_gravity ...]
                                  [--trials 24] [--train-episodes 3] [--out results/tuning]
 
 An RL agent is tuned (hyperparameters, millions of steps); a controller at the course's default
@@ -237,7 +237,7 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--env", default="cir_gym/JointTracking-v1")
+    p.add_argument("--env", default="cir_gym/JointTracking-v2")
     p.add_argument("--controller", action="append",
                    help="repeatable (default: every controller of the env with a searchable "
                         "gain)")

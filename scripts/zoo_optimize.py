@@ -2,7 +2,7 @@
 
     python scripts/zoo_optimize.py trials results/tuning/zoo_optuna/jointtracking_100hz_ppo.db \
         [--study jointtracking_100hz_ppo] [--csv FILE]
-    python scripts/zoo_optimize.py evaluate LOG_FOLDER/ppo/cir_gym-JointTracking-v1_1 [...] \
+    python scripts/zoo_optimize.py evaluate LOG_FOLDER/ppo/cir_gym-JointTracking-v2_1 [...] \
         [--episodes 10] [--seed 1000] [--controller pd_gravity]
 
 ``trials`` prints every trial of the study (state, value = rl-zoo3's objective: the mean return
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-ENV_ID = "cir_gym/JointTracking-v1"
+ENV_ID = "cir_gym/JointTracking-v2"
 #: the hyperparameters rl-zoo3's PPO sampler sets, in the order of the table
 SAMPLED = ("n_steps", "batch_size", "gamma", "gae_lambda", "learning_rate", "ent_coef",
            "clip_range", "n_epochs", "max_grad_norm", "net_arch", "activation_fn")

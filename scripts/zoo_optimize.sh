@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # rl-zoo3's own hyperparameter search (Optuna: rl-zoo3's PPO sampler, multivariate TPE seeded
-# by --seed, median pruner) on JointTracking-v1 with the agent at 100 Hz; the study is saved in
+# by --seed, median pruner) on JointTracking-v2 with the agent at 100 Hz; the study is saved in
 # results/tuning/zoo_optuna/<study>.db (results/tuning/zoo_optuna/README.md has the results).
 #
 #   scripts/zoo_optimize.sh [STUDY_NAME] [WALL_SECONDS]
@@ -23,7 +23,7 @@ LOG="${ZOO_LOG_FOLDER:-/tmp/zoo_optimize}"
 export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
 mkdir -p results/tuning/zoo_optuna "$LOG"
 exec timeout -s INT "$WALL" nice -n 5 python -m rl_zoo3.train \
-    --algo ppo --env cir_gym/JointTracking-v1 --gym-packages cir_gym \
+    --algo ppo --env cir_gym/JointTracking-v2 --gym-packages cir_gym \
     --conf-file agents/hyperparams/zoo/ppo_100hz.yml \
     --env-kwargs control_freq:100.0 \
     --vec-env dummy --num-threads 1 --seed 0 \

@@ -13,7 +13,7 @@ from cir_gym import baselines
 from cir_gym.envs.admittance_contact import RANDOM_RANGES, AdmittanceContactEnv
 from cir_gym.validation import InvalidArgument
 
-ENV_ID = "cir_gym/AdmittanceContact-v0"
+ENV_ID = "cir_gym/AdmittanceContact-v1"
 
 
 def _run(name: str, env_kwargs: dict, seed: int = 1, **gains) -> tuple[list[dict], dict, object]:

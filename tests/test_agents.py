@@ -29,7 +29,7 @@ import cir_gym
 from cir_gym import agents, baselines
 from cir_gym.evaluation import evaluate
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 SHORT = {"episode_duration": 0.1}  # 50 steps at 500 Hz
 
 
@@ -99,12 +99,12 @@ default: &default
   n_timesteps: 1.0e+5
   n_steps: 64
   policy_kwargs: "dict(net_arch=[16], activation_fn=nn.ReLU, log_std_init=-1.0)"
-cir_gym/JointTracking-v1:
+cir_gym/JointTracking-v2:
   <<: *default
   n_steps: 128
 training:
   default: {eval_freq: 100}
-  cir_gym/JointTracking-v1: {n_eval_episodes: 2}
+  cir_gym/JointTracking-v2: {n_eval_episodes: 2}
 residual:
   default: {scale: 0.25, policy_kwargs: {log_std_init: -2.0}}
 """)
@@ -181,8 +181,8 @@ def test_rl_zoo3_trains_from_the_shipped_file(tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
                           env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
     assert done.returncode == 0, done.stderr[-2000:]
-    run = tmp_path / "ppo" / "cir_gym-JointTracking-v1_1"
-    assert (run / "cir_gym-JointTracking-v1.zip").is_file()
+    run = tmp_path / "ppo" / "cir_gym-JointTracking-v2_1"
+    assert (run / "cir_gym-JointTracking-v2.zip").is_file()
 
     class Loader(yaml.SafeLoader):  # rl-zoo3 saves an OrderedDict tag: read it as pairs
         pass
@@ -190,9 +190,9 @@ def test_rl_zoo3_trains_from_the_shipped_file(tmp_path):
     Loader.add_constructor(
         "tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
         lambda loader, node: dict(map(tuple, loader.construct_sequence(node.value[0], True))))
-    saved = yaml.load((run / "cir_gym-JointTracking-v1" / "config.yml").read_text(),
+    saved = yaml.load((run / "cir_gym-JointTracking-v2" / "config.yml").read_text(),
                       Loader=Loader)
-    assert saved["gae_lambda"] == 1.0  # the JointTracking-v1 entry, not default
+    assert saved["gae_lambda"] == 1.0  # the JointTracking-v2 entry, not default
 
 
 def test_gravity_feature_is_the_nominal_gravity_in_action_units():
@@ -296,7 +296,7 @@ def test_log_error_bonus_pays_each_halving_of_the_error_alike(tmp_path):
 
 @pytest.mark.parametrize("env_id, features, kwargs", [
     (ENV, ["gravity"], {}),
-    ("cir_gym/ElasticJointTracking-v2", [], {}),
+    ("cir_gym/ElasticJointTracking-v3", [], {}),
     (ENV, [], {"control_freq": 100.0, "episode_duration": 0.2}),
 ])
 def test_batched_training_env_matches_the_single_env_stack(tmp_path, env_id, features, kwargs):
@@ -543,7 +543,7 @@ def test_train_writes_model_statistics_config_curve_and_meta(tiny_runs):
     for f in ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
               "learning_curve.csv", "meta.json"):
         assert (run / f).is_file(), f
-    assert run == tiny_runs["out"] / "JointTracking-v1" / "ppo"
+    assert run == tiny_runs["out"] / "JointTracking-v2" / "ppo"
     config = yaml.safe_load((run / "config.yml").read_text())
     assert config["env_id"] == ENV and config["env_kwargs"] == SHORT and config["seed"] == 0
     assert set(config["versions"]) >= {"torch", "stable_baselines3", "cir_gym"}
@@ -656,7 +656,7 @@ def test_cli_trains_a_residual_on_the_tuned_base(tiny_runs, tmp_path):
     common = ["train", "--env", ENV, "--residual", "tuned:computed_torque", "--timesteps", "0",
               "--hyperparams", str(tiny_runs["hp"]), "--out", str(tmp_path)]
     assert main([*common, "--set", "payload_mass=3.0", "--name", "t"]) == 0
-    config = yaml.safe_load((tmp_path / "JointTracking-v1" / "t" / "config.yml").read_text())
+    config = yaml.safe_load((tmp_path / "JointTracking-v2" / "t" / "config.yml").read_text())
     assert config["residual"]["controller"] == "computed_torque"
     assert config["residual"]["controller_kwargs"] == tuned_gains(
         ENV, "computed_torque", {"payload_mass": 3.0})
@@ -684,7 +684,7 @@ def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
     from cir_gym.agents.train import train
 
     out = tmp_path / "out"
-    shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
+    shutil.copytree(tiny_runs["out"] / "JointTracking-v2", out / "JointTracking-v2")
     with pytest.raises(ValueError, match="already holds a run"):
         train(ENV, "ppo", out=out, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
               progress_bar=False, verbose=0)
@@ -701,8 +701,8 @@ def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path
     from stable_baselines3 import PPO
 
     out = tmp_path / "out"
-    shutil.copytree(tiny_runs["out"] / "JointTracking-v1", out / "JointTracking-v1")
-    run = out / "JointTracking-v1" / "ppo"
+    shutil.copytree(tiny_runs["out"] / "JointTracking-v2", out / "JointTracking-v2")
+    run = out / "JointTracking-v2" / "ppo"
     config = yaml.safe_load((run / "config.yml").read_text())
     assert config["hyperparams"].get("learning_rate", 3e-4) != "lin_1.0e-5"
     config["hyperparams"]["learning_rate"] = "lin_1.0e-5"
@@ -727,7 +727,7 @@ def test_ctrl_c_saves_a_checkpoint(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         train_module.train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, progress_bar=False,
                            hyperparams_path=tiny_hyperparams(tmp_path), verbose=0)
-    run = tmp_path / "JointTracking-v1" / "ppo"
+    run = tmp_path / "JointTracking-v2" / "ppo"
     assert list((run / "checkpoints").glob("model_*_steps.zip"))
     assert list((run / "checkpoints").glob("model_vecnormalize_*_steps.pkl"))
     assert json.loads((run / "meta.json").read_text())["interrupted"]
@@ -750,8 +750,8 @@ def test_corrupted_model_file_gives_a_clear_error(tiny_runs, tmp_path):
 
 
 def test_loading_checks_the_environment_id_and_version(tiny_runs):
-    with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v1"):
-        agents.load("cir_gym/ElasticJointTracking-v2", "x", path=tiny_runs["scratch"])
+    with pytest.raises(ValueError, match="trained on cir_gym/JointTracking-v2"):
+        agents.load("cir_gym/ElasticJointTracking-v3", "x", path=tiny_runs["scratch"])
     with pytest.raises(ValueError, match="no shipped agent"):
         agents.load(ENV, "no_such_agent")
 
@@ -765,7 +765,7 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
     code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
                  "--out", str(tmp_path), "--set", "episode_duration=0.2"])
     assert code == 0
-    run = tmp_path / "JointTracking-v1" / "ppo"
+    run = tmp_path / "JointTracking-v2" / "ppo"
     policy = agents.load(ENV, "ppo", path=run)
     result = evaluate(policy, ENV, n_episodes=1, seed=0, episode_duration=0.2)
     episode = result.episodes[0]  # 100 steps, or stopped by v1's following-error monitor
@@ -863,7 +863,7 @@ def test_success_rate_is_a_mean_not_an_iqm():
 def test_multi_seed_agent_layout_load_and_seed_table(tiny_runs, tmp_path, monkeypatch):
     from cir_gym.agents.report import curve_band, read_curve, seed_table
 
-    env_dir = tmp_path / "JointTracking-v1"
+    env_dir = tmp_path / "JointTracking-v2"
     shutil.copytree(tiny_runs["scratch"], env_dir / "old_single")  # the older layout
     for k in (0, 3):
         shutil.copytree(tiny_runs["scratch"], env_dir / "multi" / f"seed_{k}")
@@ -944,7 +944,7 @@ def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
 
     run = train(ENV, "ppo", out=tmp_path, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
                 name="ppo/seed_2", seed=2, progress_bar=False, verbose=0)
-    assert run == tmp_path / "JointTracking-v1" / "ppo" / "seed_2"
+    assert run == tmp_path / "JointTracking-v2" / "ppo" / "seed_2"
     target = ship(run, dest=tmp_path / "t" / "ppo" / "seed_2")
     assert (target / "model.zip").is_file()
     assert yaml.safe_load((target / "config.yml").read_text())["seed"] == 2
@@ -956,7 +956,7 @@ def test_tune_gains_smoke(tmp_path):
     assert main(["--controller", "pd_gravity", "--trials", "2", "--train-episodes", "1",
                  "--episodes", "1", "--variant", "exact model", "--set", "episode_duration=0.1",
                  "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "JointTracking-v1.json").read_text())
+    data = json.loads((tmp_path / "JointTracking-v2.json").read_text())
     assert data[0]["default"] == {"omega": 10.0, "zeta": 1.0}
     assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
     assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
@@ -968,7 +968,7 @@ def test_tune_gains_searches_the_servo_gain_within_the_camera_rate_bound():
     joint-space laws' ω within ω Δt ≤ 0.3 at 500 Hz (150 rad/s)."""
     from scripts.tune_gains import bounds, tunable_gains
 
-    vs = "cir_gym/VisualServo-v0"
+    vs = "cir_gym/VisualServo-v1"
     assert tunable_gains("ibvs", vs) == {"gain": 0.5} == tunable_gains("pbvs", vs)
     assert bounds("gain", 0.5, 0.04)[1] * 0.04 == pytest.approx(0.3)
     assert tunable_gains("computed_torque", ENV) == {"omega_n": 20.0, "zeta": 1.0}
@@ -994,18 +994,18 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
                                                                     "k0_joint_limits": 10.0}
     assert tunable_gains("clik", rik, "obstacle") == {"K": 50.0}
     assert tunable_gains("pseudo_inverse", rik, "obstacle") == {}
-    ac = "cir_gym/AdmittanceContact-v0"
+    ac = "cir_gym/AdmittanceContact-v1"
     assert tunable_gains("admittance", ac) == {"crossover": 20.0, "motion_omega": 40.0}
     assert tunable_gains("explicit_force", ac) == {"crossover_ratio": 0.5, "zeta": 1.0}
     assert bounds("crossover_ratio", 0.5, 0.002) == pytest.approx((0.05, 5.0))
     assert tunable_gains("p_pi_cascade", ENV) == {}  # the rule's value needs the env's arguments
     assert tunable_gains("p_pi_cascade", ENV, None, {}) == {"omega_cv": 80.0, "omega_cp": 16.0}
-    assert tunable_gains("p_pi_cascade", "cir_gym/ElasticJointTracking-v2", None, {}) == {}
+    assert tunable_gains("p_pi_cascade", "cir_gym/ElasticJointTracking-v3", None, {}) == {}
     assert bounds("omega_cv", 80.0, 0.002) == pytest.approx((1.0, 150.0))
     assert set(tunable_gains("adaptive", ENV)) == {"lam", "kd", "gamma"}
     assert bounds("gamma", 100.0, 0.002) == pytest.approx((10.0, 1000.0))
     assert bounds("lam", 10.0, 0.002) == pytest.approx((1.0, 150.0))
-    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v1")) == {
+    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v2")) == {
         "omega_n", "zeta", "d_f", "speed"}
 
 
@@ -1126,7 +1126,7 @@ def test_eval_failures_reports_how_each_episode_ends(capsys):
     and a count of failures that ended by termination."""
     from scripts.research.eval_failures import main
 
-    main(["--env", "cir_gym/JointTracking-v1", "--agent", "ppo_100hz", "--seeds", "0",
+    main(["--env", "cir_gym/JointTracking-v2", "--agent", "ppo_100hz", "--seeds", "0",
           "--episodes", "1", "--metric", "rms_error"])
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("| 1000 |"))
@@ -1167,7 +1167,7 @@ def test_two_runs_started_at_once_into_one_directory_do_not_share_it(tiny_runs, 
     import agents.train as train_module
 
     out = tmp_path / "race"
-    run_dir = out / "JointTracking-v1" / "ppo"
+    run_dir = out / "JointTracking-v2" / "ppo"
     real = train_module.load_hyperparams
 
     def other_run_starts(*args, **kwargs):
@@ -1180,3 +1180,21 @@ def test_two_runs_started_at_once_into_one_directory_do_not_share_it(tiny_runs, 
         train_module.train(ENV, "ppo", out=out, env_kwargs=SHORT,
                            hyperparams_path=tiny_runs["hp"], progress_bar=False, verbose=0)
     assert (run_dir / "config.yml").read_text() == "the other run\n"
+
+
+def test_agents_of_an_earlier_version_run_on_the_newer_one_under_their_own_name():
+    """agents.EARLIER_VERSIONS: each listed version's agents load on the newer id (same spaces),
+    named <name>@<Env-vK>; an unlisted version is refused by name."""
+    import cir_gym.agents as ag
+
+    for new, olds in ag.EARLIER_VERSIONS.items():
+        env_id = f"cir_gym/{new}"
+        assert env_id in cir_gym.ENVIRONMENTS, new
+        names = ag.available(env_id)
+        for old in olds:
+            carried = [n for n in names if n.endswith(f"@{old}")]
+            assert carried, (new, old)
+            policy = ag.load(env_id, carried[0])
+            assert policy.env_id == env_id
+    with pytest.raises(ValueError, match="not an earlier version"):
+        ag.agent_dir("cir_gym/JointTracking-v2", "ppo_100hz@CartesianTracking-v0")

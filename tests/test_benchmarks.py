@@ -56,7 +56,7 @@ def test_bench_step_writes_only_its_section_with_the_targets_it_measured(tmp_pat
             sys.executable,
             str(BENCH_STEP),
             "--env",
-            "cir_gym/JointTracking-v1",
+            "cir_gym/JointTracking-v2",
             "--steps",
             "3",
             "--repeat",
@@ -78,13 +78,13 @@ def test_bench_step_writes_only_its_section_with_the_targets_it_measured(tmp_pat
     assert "old" not in text and "## Other\n\nkept" in text
     assert text.count("## env.step and predict") == 1
     for line in (
-        "- cir_gym/JointTracking-v1: overhead",
+        "- cir_gym/JointTracking-v2: overhead",
         "- pd_gravity: predict(1 obs)",
         "- computed_torque: predict(1 obs)",
     ):
         got = [row for row in text.splitlines() if row.startswith(line)]
         assert len(got) == 1 and got[0].split(": ")[-1].split(";")[0] in ("met", "missed"), got
-    assert "| computed_torque | cir_gym/JointTracking-v1 |" in text
+    assert "| computed_torque | cir_gym/JointTracking-v2 |" in text
 
 
 def _load_bench_step():
@@ -104,7 +104,7 @@ def test_bench_step_replays_the_physics_of_the_states_the_env_visited():
     import numpy as np
 
     bench = _load_bench_step()
-    env = gym.make("cir_gym/PegInHole-v1")
+    env = gym.make("cir_gym/PegInHole-v2")
     u = env.unwrapped
     mj_step = mujoco.mj_step
     mine, tape = bench.recorded_step_loop(env, 5, 2)
@@ -138,7 +138,7 @@ def test_bench_step_driven_row_times_the_contact_phase_it_recorded():
     from cir_gym import baselines
 
     bench = _load_bench_step()
-    env_id = "cir_gym/PegInHole-v1"
+    env_id = "cir_gym/PegInHole-v2"
     name, warmup = bench.DRIVEN[env_id]
     env = gym.make(env_id)
     u = env.unwrapped
@@ -182,7 +182,7 @@ def test_bench_step_driven_loop_resets_between_trials_off_the_tape():
     from cir_gym import baselines
 
     bench = _load_bench_step()
-    env_id = "cir_gym/AdmittanceContact-v0"
+    env_id = "cir_gym/AdmittanceContact-v1"
     env = gym.make(env_id, episode_duration=0.2, max_episode_steps=100)  # 500 Hz
     u = env.unwrapped
     policy = baselines.make("admittance", env_id, env_kwargs={"episode_duration": 0.2})
@@ -221,7 +221,7 @@ def test_leaderboard_bound_counts_every_physics_step_of_a_job():
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     mj_step = mujoco.mj_step
-    job = ("cir_gym/JointTracking-v1", "exact model", {"episode_duration": 0.05}, "pd_gravity")
+    job = ("cir_gym/JointTracking-v2", "exact model", {"episode_duration": 0.05}, "pd_gravity")
     r = bench.run_job(job, episodes=2, seed=1000, repeat=1)
     assert mujoco.mj_step is mj_step
     assert r["env_steps"] == 2 * 25 and r["physics_steps"] == 2 * r["env_steps"]
@@ -238,7 +238,7 @@ def test_tape_of_every_model_keeps_one_segment_per_episode_with_its_model():
     sys.path.insert(0, str(BENCH_STEP.parent))
     from _tape import PhysicsTape, replay_seconds
 
-    env = gym.make("cir_gym/JointTracking-v1")
+    env = gym.make("cir_gym/JointTracking-v2")
     u = env.unwrapped
     zero = np.zeros(env.action_space.shape, dtype=np.float32)
     mj_step = mujoco.mj_step

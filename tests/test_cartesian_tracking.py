@@ -1,4 +1,4 @@
-"""CartesianTracking-v0 and the operational-space controllers: closed forms and theory."""
+"""CartesianTracking-v1 and the operational-space controllers: closed forms and theory."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from cir_gym.envs.cartesian_tracking import (
 from cir_gym.envs.joint_tracking import RANDOM_RANGES
 from cir_gym.validation import InvalidArgument
 
-ENV_ID = "cir_gym/CartesianTracking-v0"
+ENV_ID = "cir_gym/CartesianTracking-v1"
 
 
 def _run(env: CartesianTrackingEnv, policy: Any, seed: int) -> tuple[list[dict], dict]:
@@ -385,7 +385,7 @@ def test_a_copied_env_resets_and_steps_like_the_original(clone: str) -> None:
     import copy
     import pickle
 
-    env = gym.make("cir_gym/CartesianTracking-v0").unwrapped
+    env = gym.make("cir_gym/CartesianTracking-v1").unwrapped
     env.reset(seed=1)
     rng = np.random.default_rng(0)
     for _ in range(3):

@@ -19,7 +19,7 @@ from cir_gym import baselines
 from cir_gym.cli import main
 from cir_gym.scoring.leaderboard import run_leaderboard
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 SHORT = ["--episodes", "1", "--set", "episode_duration=0.1"]
 
 
@@ -105,7 +105,7 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
     ]
     assert main([*argv, "--env", "cir_gym/Nope-v1"]) == 2
     calls.clear()
-    assert main(["leaderboard", "--env", "JointTracking-v1", "--no-videos"]) == 0
+    assert main(["leaderboard", "--env", "JointTracking-v2", "--no-videos"]) == 0
     assert calls == [
         (cir_gym.cli.Path("runs/leaderboard"),
          {"episodes": cir_gym.cli.LEADERBOARD_EPISODES, "seed": 1000, "envs": [ENV],
@@ -114,7 +114,7 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
 
 
 def test_leaderboard_ranks_every_controller_and_draws_every_variant(tmp_path):
-    env_id = "cir_gym/ElasticJointTracking-v2"
+    env_id = "cir_gym/ElasticJointTracking-v3"
     md = run_leaderboard(
         tmp_path, episodes=1, envs=[env_id], workers=2, env_overrides={"episode_duration": 0.1}
     ).read_text()
@@ -149,7 +149,7 @@ def test_sweep_command_passes_its_options_on(tmp_path, monkeypatch, capsys):
     [
         ("evaluate: {envs: [cir_gym/Nope-v1]}", "unknown environment 'cir_gym/Nope-v1'"),
         ("evaluate: [1, 2]", "'evaluate' must be a mapping"),
-        ("evaluate: {envs: [cir_gym/JointTracking-v1", "not valid YAML"),
+        ("evaluate: {envs: [cir_gym/JointTracking-v2", "not valid YAML"),
     ],
 )
 def test_a_bad_grid_exits_2_with_a_message(grid, needle, tmp_path, capsys):
@@ -214,7 +214,7 @@ def test_parallel_runs_keep_every_row_of_agents_json(tmp_path):
 
 
 def test_a_stored_peg_row_is_reused_only_on_its_own_env_version():
-    """eval_peg_in_hole --resume: a row stored before PegInHole-v1 (no env_id: measured on v0,
+    """eval_peg_in_hole --resume: a row stored before PegInHole-v2 (no env_id: measured on v0,
     whose failed episodes end with another reward) is not taken for a v1 run; a v1 row is;
     tables name the version their rows ran on."""
     import json
@@ -230,7 +230,7 @@ def test_a_stored_peg_row_is_reused_only_on_its_own_env_version():
     assert _key(old) != _key({**asked, "env_id": ENV_ID})
     assert _key({**old, "env_id": ENV_ID}) == _key({**asked, "env_id": ENV_ID})
     assert _env_names([old]) == "PegInHole-v0"
-    assert _env_names([old, {**old, "env_id": ENV_ID}]) == "PegInHole-v0, PegInHole-v1"
+    assert _env_names([old, {**old, "env_id": ENV_ID}]) == "PegInHole-v0, PegInHole-v2"
 
 
 def test_a_stage_replaces_only_its_part_of_results_json(tmp_path):
@@ -274,7 +274,7 @@ def test_a_tuned_controller_runs_at_the_gains_tuned_for_exactly_these_arguments(
         {"variant": "unknown 3 kg payload", "env_kwargs": {"payload_mass": 3.0},
          "controller": "pd_gravity", "tuned": {"omega": 120.0, "zeta": 1.5}},
     ]
-    (tmp_path / "JointTracking-v1.json").write_text(json.dumps(rows))
+    (tmp_path / "JointTracking-v2.json").write_text(json.dumps(rows))
     monkeypatch.setattr(cir_gym.scoring.policies, "TUNED_GAINS_DIR", tmp_path)
     assert "tuned:pd_gravity" in policy_names(ENV)
     assert "tuned:computed_torque" not in policy_names(ENV)
@@ -294,7 +294,7 @@ def test_tuned_gains_hold_whatever_the_reward_arguments():
     the controller's business) and not when a task argument differs."""
     from cir_gym.scoring.policies import PolicyError, tuned_gains
 
-    jt = "cir_gym/JointTracking-v1"
+    jt = "cir_gym/JointTracking-v2"
     plain = tuned_gains(jt, "computed_torque", {})
     assert tuned_gains(jt, "computed_torque", {"torque_weight": 0.5}) == plain
     payload = tuned_gains(jt, "computed_torque", {"payload_mass": 3.0})
@@ -303,7 +303,7 @@ def test_tuned_gains_hold_whatever_the_reward_arguments():
                                                "error_scales": (0.5,)}) == payload
     with pytest.raises(PolicyError, match="was not tuned"):
         tuned_gains(jt, "computed_torque", {"payload_mass": 1.0, "torque_weight": 0.5})
-    peg = "cir_gym/PegInHole-v1"
+    peg = "cir_gym/PegInHole-v2"
     spiral = tuned_gains(peg, "hybrid_spiral", {})
     assert tuned_gains(peg, "hybrid_spiral", {"charge_unplayed_steps": False}) == spiral
 
@@ -330,9 +330,9 @@ def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():
     "argv, needle",
     [
         (["--env", "cir_gym/JointTraking-v1", "--policy", "pd_gravity"],
-         "did you mean 'cir_gym/JointTracking-v1'"),
+         "did you mean 'cir_gym/JointTracking-v2'"),
         (["--env", "JointTracking", "--policy", "pd_gravity"],
-         "did you mean 'cir_gym/JointTracking-v1'"),
+         "did you mean 'cir_gym/JointTracking-v2'"),
         (["--env", ENV, "--policy", "pd_gravty"], "did you mean 'pd_gravity'"),
         (["--env", ENV, "--policy", "computed_torqe"], "did you mean 'computed_torque'"),
         (["--env", ENV, "--policy", "ppo_100hz"], "did you mean 'agent:ppo_100hz'"),
@@ -347,7 +347,7 @@ def test_a_misspelled_id_policy_or_setting_gets_a_did_you_mean(argv, needle, cap
 
 
 def test_the_cir_gym_prefix_is_optional(capsys):
-    assert main(["evaluate", "--env", "JointTracking-v1", "--policy", "pd_gravity", *SHORT]) == 0
+    assert main(["evaluate", "--env", "JointTracking-v2", "--policy", "pd_gravity", *SHORT]) == 0
     assert "pd_gravity" in capsys.readouterr().out
 
 
@@ -427,7 +427,7 @@ def make(env_id, env_kwargs):
     return HoldStill(n)
 
 
-make.env_ids = ["cir_gym/JointTracking-v1"]
+make.env_ids = ["cir_gym/JointTracking-v2"]
 
 
 def broken(env_id, env_kwargs):
@@ -461,7 +461,7 @@ def test_an_installed_plugin_policy_is_listed_evaluated_and_ranked(plugin, tmp_p
     from cir_gym.scoring.policies import policy_names
 
     assert "plugin:hold_still" in policy_names(ENV)
-    assert "plugin:hold_still" not in policy_names("cir_gym/PegInHole-v1")  # its env_ids
+    assert "plugin:hold_still" not in policy_names("cir_gym/PegInHole-v2")  # its env_ids
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     assert "plugin:hold_still (my_policies:make)" in out

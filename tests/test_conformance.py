@@ -853,8 +853,8 @@ def _as_floats(value: Any) -> np.ndarray | None:
 #: Values the constructor accepts but that break the env, found by the property test below and
 #: reported to the env files' owners; the test does not draw them. (env ids, argument, test on
 #: the value as a finite float array, what happens).
-_JOINT_ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
-_ELASTIC = ("cir_gym/ElasticJointTracking-v2",)
+_JOINT_ENVS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
+_ELASTIC = ("cir_gym/ElasticJointTracking-v3",)
 KWARG_GAPS: list[tuple[tuple[str, ...], str, Callable[[np.ndarray], Any], str]] = [
     # not a bug, only slow: a JointTracking reset precomputes the whole reference
     (tuple(ENV_IDS), "episode_duration", lambda t: np.any(t > 60.0),
@@ -1127,12 +1127,12 @@ def _plant(run: Path, where: str, marker: Path) -> None:
 
 PLANTED = ["vecnormalize.pkl", "model.zip:data", "model.zip:data-raw", "model.zip:policy.pth",
            "model.zip:every-member", "normalization.npz"]
-AGENT_ENV = "cir_gym/JointTracking-v1"
+AGENT_ENV = "cir_gym/JointTracking-v2"
 
 
 @pytest.fixture(scope="module")
 def agent_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real (untrained: 0 steps, tiny network) PPO run directory of JointTracking-v1."""
+    """A real (untrained: 0 steps, tiny network) PPO run directory of JointTracking-v2."""
     from cir_gym.agents.train import train
     from test_agents import tiny_hyperparams
 

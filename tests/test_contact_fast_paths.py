@@ -18,8 +18,8 @@ import pytest
 import cir_gym  # noqa: F401
 from cir_gym import motion_interface as mi
 
-PEG = "cir_gym/PegInHole-v1"
-ADMITTANCE = "cir_gym/AdmittanceContact-v0"
+PEG = "cir_gym/PegInHole-v2"
+ADMITTANCE = "cir_gym/AdmittanceContact-v1"
 
 
 def _rollout(

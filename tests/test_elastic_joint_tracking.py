@@ -1,4 +1,4 @@
-"""ElasticJointTracking-v2: the elastic transmission of chapter 4 behaves as modelled."""
+"""ElasticJointTracking-v3: the elastic transmission of chapter 4 behaves as modelled."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import cir_gym  # noqa: F401  (registers the ids)
 from cir_gym import baselines
 from cir_gym.motor import average_inertia
 
-ENV = "cir_gym/ElasticJointTracking-v2"
+ENV = "cir_gym/ElasticJointTracking-v3"
 
 
 def motor_dofs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +110,7 @@ def test_cascade_speed_bandwidth_is_0_7_omega_z(env, name):
     assert np.sum(free) >= 4  # most joints use the notes' 0.7 ω_z, not the cap
     np.testing.assert_allclose(policy.omega_cv[free] / omega_z[free], 0.7, rtol=1e-12)
     # the rigid env has no ω_z: the default 80 rad/s
-    rigid = baselines.make(name, "cir_gym/JointTracking-v1")
+    rigid = baselines.make(name, "cir_gym/JointTracking-v2")
     assert rigid.omega_z is None
     np.testing.assert_allclose(rigid.omega_cv, 80.0)
 

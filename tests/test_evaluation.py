@@ -15,7 +15,7 @@ from cir_gym.evaluation import EpisodeResult, EvaluationResult, evaluate, rank
 from cir_gym.metrics import MetricSpec, aggregate, cvar
 from cir_gym.scoring.leaderboard import run_leaderboard
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 SHORT = {"episode_duration": 0.2}
 
 
@@ -112,7 +112,7 @@ def test_leaderboard_is_deterministic(tmp_path):
 @pytest.mark.parametrize(
     "argv, needle",
     [
-        (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v1"),
+        (["evaluate", "--env", "cir_gym/Nope-v0", "--policy", "pid"], "JointTracking-v2"),
         (["evaluate", "--env", ENV, "--policy", "lqr"], "computed_torque"),
         (["evaluate", "--env", ENV, "--policy", "pid", "--set", "foo=1"], "payload_mass"),
         (["evaluate", "--env", ENV, "--policy", "pid", "--set", "omega=-1"], "omega"),
@@ -166,7 +166,7 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
             return np.zeros(6), state
 
     short = {"episode_duration": 0.05}
-    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, **short)
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, **short)
     assert result.episodes[0].length == 5  # 0.05 s at 100 Hz, not 25 steps at 500 Hz
     with pytest.raises(
         ValueError,
@@ -175,17 +175,17 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
     ):
         evaluate(
             PositionAgent(),
-            "cir_gym/AdmittanceContact-v0",
+            "cir_gym/AdmittanceContact-v1",
             1,
             0,
-            env=gym.make("cir_gym/AdmittanceContact-v0", **short),
+            env=gym.make("cir_gym/AdmittanceContact-v1", **short),
         )
     with pytest.raises(ValueError, match=r"control='torque'.*control='position'"):
-        evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, control="torque", **short)
+        evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, control="torque", **short)
     ready = gym.make(
-        "cir_gym/AdmittanceContact-v0", control="position", control_freq=100.0, **short
+        "cir_gym/AdmittanceContact-v1", control="position", control_freq=100.0, **short
     )
-    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v0", 1, 0, env=ready)
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, env=ready)
     assert result.episodes[0].length == 5
 
 
@@ -202,7 +202,7 @@ def test_a_given_env_off_the_policys_action_interface_is_an_error_even_when_shap
 
     with pytest.raises(
         ValueError,
-        match=r"JointTracking-v1 env is not on the policy's action interface \(control_freq: "
+        match=r"JointTracking-v2 env is not on the policy's action interface \(control_freq: "
         r"the env has control_freq=500.0, the policy needs control_freq=100.0\)",
     ):
         evaluate(Agent(control_freq=100.0), ENV, 1, 0, env=gym.make(ENV, **SHORT))
@@ -296,7 +296,7 @@ def _pegs(name: str, successes: list[bool], times: list[float]) -> EvaluationRes
         for i, (s, t) in enumerate(zip(successes, times, strict=True))
     ]
     return EvaluationResult(
-        "cir_gym/PegInHole-v1", name, episodes, PegInHoleEnv.metric_specs, "insertion_time"
+        "cir_gym/PegInHole-v2", name, episodes, PegInHoleEnv.metric_specs, "insertion_time"
     )
 
 
@@ -342,7 +342,7 @@ def test_an_episode_longer_than_the_registered_spec_is_played_in_full():
 
     from cir_gym import baselines
 
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
     registered = gym.spec(env_id).max_episode_steps
     policy = baselines.make("pd_gravity", env_id)
     with warnings.catch_warnings():
@@ -365,7 +365,7 @@ def _episode_fields(result: EvaluationResult) -> list[tuple]:
     [
         (ENV, {"episode_duration": 0.1}),
         (ENV, {"episode_duration": 0.1, "payload_mass": 3.0}),
-        ("cir_gym/ElasticJointTracking-v2", {"episode_duration": 0.1}),
+        ("cir_gym/ElasticJointTracking-v3", {"episode_duration": 0.1}),
     ],
 )
 def test_batched_evaluation_gives_the_sequential_episodes(env_id, env_kwargs, monkeypatch):
@@ -453,9 +453,9 @@ class _DivergesAt:
 #: (env, controller, primary metric, the unplayed steps' least charge: the failure value per
 #: step in the metric's own mean square, from the env at reset)
 DIVERGING = [
-    ("cir_gym/JointTracking-v1", "pd_gravity", "rms_error",
+    ("cir_gym/JointTracking-v2", "pd_gravity", "rms_error",
      lambda u: u._following_error_limit**2 / u.n),  # ‖q̃‖ = L over n joints
-    ("cir_gym/CartesianTracking-v0", "os_pd_gravity", "position_rms",
+    ("cir_gym/CartesianTracking-v1", "os_pd_gravity", "position_rms",
      lambda u: u._limits[0] ** 2),
 ]
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 #: the packages of the extras a core install lacks (train: torch, SB3, PyYAML; plots)
 BLOCKED = ("torch", "stable_baselines3", "yaml", "matplotlib", "imageio")
 
@@ -136,7 +136,7 @@ def test_plot_and_video_without_the_plots_extra_fail_before_the_episodes(core, t
 def test_the_leaderboard_on_a_core_install_runs_without_a_traceback(core, tmp_path):
     """Controllers and tuned controllers only, no figures (a line says why), the page."""
     out_dir = tmp_path / "lb"
-    rc, _, err = core("leaderboard", "--env", "VisualServoEyeToHand-v0", "--episodes", "1",
+    rc, _, err = core("leaderboard", "--env", "VisualServoEyeToHand-v1", "--episodes", "1",
                         "--out", str(out_dir), timeout=600)
     assert rc == 0 and "Traceback" not in err, err
     assert "pip install 'cir-gym[plots]'" in err

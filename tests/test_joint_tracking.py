@@ -1,4 +1,4 @@
-"""JointTracking-v1 and the joint-space controllers of chapters 4 and 5: properties from theory."""
+"""JointTracking-v2 and the joint-space controllers of chapters 4 and 5: properties from theory."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from cir_gym.envs.joint_tracking import RANDOM_RANGES
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import ModelError, Robot
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 
 
 def rollout(policy, env, seed, steps=None):
@@ -491,11 +491,11 @@ def test_control_freq_is_a_physics_rate_divisor_or_rejected_by_name():
         gym.make(ENV, control_freq=300.0)
     env = gym.make(ENV, control_freq=250.0)
     assert env.unwrapped.dt == pytest.approx(1 / 250.0, rel=1e-12)
-    elastic = gym.make("cir_gym/ElasticJointTracking-v2", control_freq=400.0)  # 0.5-ms step
+    elastic = gym.make("cir_gym/ElasticJointTracking-v3", control_freq=400.0)  # 0.5-ms step
     assert elastic.unwrapped.frame_skip == 5
 
 
-@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v2"])
+@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v3"])
 def test_registered_max_episode_steps_is_the_default_episode_and_timelimit_agrees(env_id):
     spec = gym.spec(env_id)
     env = gym.make(env_id)
@@ -767,7 +767,7 @@ def _observations(env_id, n, seed=0, **kwargs):
     return env, out
 
 
-@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v2"])
+@pytest.mark.parametrize("env_id", [ENV, "cir_gym/ElasticJointTracking-v3"])
 def test_batched_predict_is_row_by_row_predict_bit_for_bit(env_id):
     """For every vectorised law: a batch of N different observations and states (N = 1, 4)
     gives, row for row, the action and state of predict on that row alone, which is the
@@ -865,7 +865,7 @@ def _episode_return(env_id: str, policy, seed: int, **kwargs) -> tuple[float, in
 
 @pytest.mark.parametrize(
     ("env_id", "law"),
-    [(ENV, "pd_gravity"), ("cir_gym/ElasticJointTracking-v2", "p_pi_cascade")],
+    [(ENV, "pd_gravity"), ("cir_gym/ElasticJointTracking-v3", "p_pi_cascade")],
 )
 def test_failing_early_never_raises_the_return(env_id: str, law: str) -> None:
     """A constant +1 torque trips the following-error monitor within ~15 steps; charged the
@@ -892,7 +892,7 @@ def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
     from scripts.research.eval_intersample import physics_rate_errors
 
     kwargs = {"control_freq": 100.0, "episode_duration": 1.0}
-    pd = baselines.make("pd_gravity", "cir_gym/JointTracking-v1", env_kwargs=kwargs)
+    pd = baselines.make("pd_gravity", "cir_gym/JointTracking-v2", env_kwargs=kwargs)
     sampled, every_step, n = physics_rate_errors(pd, kwargs, 1000)
     assert n == 1000  # 1 s of 1-ms physics steps
     assert every_step == pytest.approx(sampled, rel=0.01)
@@ -905,7 +905,7 @@ def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
     assert every_step != pytest.approx(sampled, rel=1e-3)
 
 
-@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2"])
+@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3"])
 @pytest.mark.parametrize("setting", [{"torque_noise": 0.5}, {"encoder_resolution": 1e-3}])
 def test_a_sensor_or_noise_setting_changed_between_episodes_holds_from_the_next_reset(
     env_id: str, setting: dict

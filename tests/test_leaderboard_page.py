@@ -67,7 +67,7 @@ def test_the_summary_footnote_of_a_left_out_factor_is_a_paragraph_under_its_tabl
     def result(name: str, success: bool, seconds: float) -> EvaluationResult:
         episodes = [EpisodeResult(0, 0.0, 1, success, False, {"insertion_time": seconds})]
         specs = PegInHoleEnv.metric_specs
-        return EvaluationResult("cir_gym/PegInHole-v1", name, episodes, specs, "insertion_time")
+        return EvaluationResult("cir_gym/PegInHole-v2", name, episodes, specs, "insertion_time")
 
     rows = [result("hybrid_spiral", True, 7.8), result("agent:ppo_position", False, 12.0)]
     out = markdown_to_html(rl_summary({"sharp edge": rows}), "summary")
@@ -137,7 +137,7 @@ def test_the_ranked_table_has_units_on_every_metric_and_family_rows() -> None:
     def result(name: str, success: bool, seconds: float) -> EvaluationResult:
         metrics = {s.name: 1.0 for s in specs} | {"insertion_time": seconds}
         episodes = [EpisodeResult(0, -1.0, 1, success, False, metrics)]
-        return EvaluationResult("cir_gym/PegInHole-v1", name, episodes, specs, "insertion_time")
+        return EvaluationResult("cir_gym/PegInHole-v2", name, episodes, specs, "insertion_time")
 
     rows = [result("agent:ppo", False, 3.0), result("tuned:hybrid_spiral", True, 5.0),
             result("hybrid_spiral", True, 4.0)]
@@ -236,7 +236,7 @@ def test_page_of_two_controllers_loads_in_chromium(tmp_path: Path) -> None:
     from cir_gym.scoring.plotting import plot_comparison
     from cir_gym.scoring.tables import slug
 
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
     overrides = {"episode_duration": 0.2}
     jobs = [j for j in jobs_for(env_id, overrides) if j[3] in ("pd_gravity", "computed_torque")]
     results = {key: result for key, result, _ in (run_job(j, 1, 1000) for j in jobs)}
@@ -245,7 +245,7 @@ def test_page_of_two_controllers_loads_in_chromium(tmp_path: Path) -> None:
     variants = cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants
     for variant in variants:
         rows = [r for (_, v, _), r in sorted(results.items()) if v == variant]
-        plot_comparison(rows, out / f"JointTracking-v1_{slug(variant)}.png", title=variant)
+        plot_comparison(rows, out / f"JointTracking-v2_{slug(variant)}.png", title=variant)
     index = write_page(out, results, [env_id], 1, 1000, overrides, workers=1)
     gifs = sorted((out / "videos").glob("*.gif"))
     assert len(gifs) == len(variants)
@@ -259,7 +259,7 @@ def test_page_loads_in_chromium_with_every_image_and_the_tables(tmp_path: Path) 
     import cir_gym
     from cir_gym.scoring.leaderboard import run_leaderboard
 
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
     variants = len(cir_gym.ENVIRONMENTS[env_id][0].leaderboard_variants)
     out = tmp_path / "results"
     run_leaderboard(
@@ -293,7 +293,7 @@ def test_leaderboard_from_a_sweep_ranks_its_episodes_as_the_evaluator_scores_the
     from cir_gym.scoring.policies import make_policy
     from cir_gym.scoring.sweep import expand, read_table, run_task, write_table
 
-    env_id = "cir_gym/JointTracking-v1"
+    env_id = "cir_gym/JointTracking-v2"
     short = {"episode_duration": 0.1}
     grid = {
         "evaluate": {
@@ -344,9 +344,9 @@ def test_leaderboard_from_a_sweep_ranks_its_episodes_as_the_evaluator_scores_the
     assert "## Failed tasks" in md and "RuntimeError: boom" in md
     figures = sorted(p.name for p in (tmp_path / "page").glob("*.png"))
     assert figures == [
-        "JointTracking-v1_payload_mass_0_0.png",
-        "JointTracking-v1_payload_mass_3_0.png",
-        "JointTracking-v1_vs_payload_mass.png",
+        "JointTracking-v2_payload_mass_0_0.png",
+        "JointTracking-v2_payload_mass_3_0.png",
+        "JointTracking-v2_vs_payload_mass.png",
     ]
     page = (tmp_path / "page" / "index.html").read_text()
     assert all(f'src="{f}"' in page for f in figures) and page.count("<table") == 3

@@ -3,7 +3,7 @@ found it: by default it writes into ``runs/leaderboard/`` (untracked, gitignored
 the committed ``results/`` (regenerated on purpose with ``--out results/``).
 
 Run through :func:`cir_gym.cli.main` in the repository, at a tiny budget: one environment
-(VisualServoEyeToHand-v0: 2 policies × 2 variants), 1 episode, its videos and figures.
+(VisualServoEyeToHand-v1: 2 policies × 2 variants), 1 episode, its videos and figures.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def in_repository(monkeypatch, tmp_path):
 def test_the_main_job_leaves_the_checkout_clean_and_writes_its_folder(in_repository, capsys):
     out = in_repository
     before = git_status()
-    assert main(["leaderboard", "--env", "VisualServoEyeToHand-v0", "--episodes", "1"]) == 0
+    assert main(["leaderboard", "--env", "VisualServoEyeToHand-v1", "--episodes", "1"]) == 0
     after = git_status()
     if not before:  # a clean checkout (CI): exactly as clean after
         assert after == ""

@@ -114,8 +114,8 @@ def test_results_of_another_env_or_metric_are_refused() -> None:
 @pytest.mark.parametrize(
     ("env_id", "kwargs", "kind"),
     [("cir_gym/PegInHoleImpedance-v0", {}, "impedance_setpoint_increment"),
-     ("cir_gym/PegInHole-v1", {"control": "position"}, "cartesian_increment"),
-     ("cir_gym/PegInHole-v1", {}, "joint_torque")],
+     ("cir_gym/PegInHole-v2", {"control": "position"}, "cartesian_increment"),
+     ("cir_gym/PegInHole-v2", {}, "joint_torque")],
 )
 def test_hold_still_keeps_the_arm_where_it_starts(env_id: str, kwargs: dict, kind: str) -> None:
     """Each interface's hold-still policy: 100 steps of the arm within 0.1 mm of its start,
@@ -138,7 +138,7 @@ def test_hold_still_keeps_the_arm_where_it_starts(env_id: str, kwargs: dict, kin
 
 
 def test_hold_still_batches_row_by_row() -> None:
-    env = gym.make("cir_gym/PegInHole-v1")
+    env = gym.make("cir_gym/PegInHole-v2")
     policy = hold_still_policy(env)
     obs, _ = env.reset(seed=0)
     one, q0 = policy.predict(obs, None, np.ones(1, bool))
@@ -150,9 +150,9 @@ def test_hold_still_batches_row_by_row() -> None:
 
 @pytest.mark.parametrize(
     ("env_id", "kind"),
-    [("cir_gym/ElasticJointTracking-v2", "motor_torque"),
-     ("cir_gym/CartesianTracking-v0", "joint_torque"),
-     ("cir_gym/VisualServo-v0", "twist")],
+    [("cir_gym/ElasticJointTracking-v3", "motor_torque"),
+     ("cir_gym/CartesianTracking-v1", "joint_torque"),
+     ("cir_gym/VisualServo-v1", "twist")],
 )
 def test_hold_still_on_the_other_interfaces(env_id: str, kind: str) -> None:
     """The motor-torque hold (PD on the motor positions + ĝ of the links) and the others keep

@@ -181,12 +181,12 @@ def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
     from cir_gym.evaluation import evaluate
 
     hybrid = baselines.make(
-        "hybrid_force_position", "cir_gym/PegInHole-v1", env_kwargs={"chamfer": 0.003}
+        "hybrid_force_position", "cir_gym/PegInHole-v2", env_kwargs={"chamfer": 0.003}
     )
-    ep = evaluate(hybrid, "cir_gym/PegInHole-v1", 1, seed=1000, chamfer=0.003).episodes[0]
+    ep = evaluate(hybrid, "cir_gym/PegInHole-v2", 1, seed=1000, chamfer=0.003).episodes[0]
     assert ep.success and ep.metrics["peak_force"] < 50.0
-    stiff = baselines.make("position_only", "cir_gym/PegInHole-v1")
-    ep = evaluate(stiff, "cir_gym/PegInHole-v1", 1, seed=1000, chamfer=0.003).episodes[0]
+    stiff = baselines.make("position_only", "cir_gym/PegInHole-v2")
+    ep = evaluate(stiff, "cir_gym/PegInHole-v2", 1, seed=1000, chamfer=0.003).episodes[0]
     assert not ep.success and ep.metrics["peak_force"] > 100.0
 
 
@@ -297,7 +297,7 @@ def test_the_admittance_adapter_sees_the_peg_tip_and_presses_the_reference_force
 
     # its landing on the face at the guard speed is a ~200 N impact at the physics step (a
     # rigid 11-kg arm on a 1-ms contact): the limit raised to see the regulation after it
-    env = gym.make("cir_gym/PegInHole-v1", episode_duration=2.0, force_limit=1000.0)
+    env = gym.make("cir_gym/PegInHole-v2", episode_duration=2.0, force_limit=1000.0)
     policy = PegAdmittance(env.unwrapped.controller_context(), insertion_force=10.0)
     obs, _ = env.reset(seed=1000)
     t = policy.translate(obs)
@@ -346,13 +346,13 @@ def test_charge_unplayed_steps_charges_a_failure_the_worst_step_it_did_not_play(
 
 
 def test_v1_charges_unplayed_steps_by_default() -> None:
-    """PegInHole-v1's one change from v0: the charge is on unless asked off, through the
+    """PegInHole-v2's one change from v0: the charge is on unless asked off, through the
     registered id too (the default, not a registration kwarg)."""
     assert PegInHoleEnv().charge_unplayed_steps is True
-    env = gym.make("cir_gym/PegInHole-v1")
+    env = gym.make("cir_gym/PegInHole-v2")
     assert env.unwrapped.charge_unplayed_steps is True
     assert "charge_unplayed_steps" not in env.spec.kwargs
-    off = gym.make("cir_gym/PegInHole-v1", charge_unplayed_steps=False)
+    off = gym.make("cir_gym/PegInHole-v2", charge_unplayed_steps=False)
     assert off.unwrapped.charge_unplayed_steps is False
     assert "cir_gym/PegInHole-v0" not in gym.registry
 
@@ -399,8 +399,8 @@ def test_peak_force_is_the_largest_single_contact_at_every_physics_step(
             seen.append(_reference_contact_forces(m, d))
 
     monkeypatch.setattr(mujoco, "mj_step", step)
-    policy = baselines.make("hybrid_spiral", "cir_gym/PegInHole-v1")
-    ep = evaluate(policy, "cir_gym/PegInHole-v1", 1, seed=1017, batched=False).episodes[0]
+    policy = baselines.make("hybrid_spiral", "cir_gym/PegInHole-v2")
+    ep = evaluate(policy, "cir_gym/PegInHole-v2", 1, seed=1017, batched=False).episodes[0]
     largest, net = np.array(seen).T
     assert ep.metrics["peak_force"] == pytest.approx(largest.max(), rel=1e-9)
     assert ep.metrics["peak_net_force"] == pytest.approx(net.max(), rel=1e-9)
@@ -497,7 +497,7 @@ def test_the_arm_and_the_holder_collide_with_the_block_and_nothing_else() -> Non
 
 
 def test_one_loop_keeps_the_episodes_of_the_former_fast_path() -> None:
-    """The actions of PegInHole-v1 episodes recorded on the former code (a fast pass with an
+    """The actions of PegInHole-v2 episodes recorded on the former code (a fast pass with an
     exact twin, tests/data/peg_in_hole_v1_episodes.npz: hybrid_spiral's first 1500 steps on seed
     1000, torque, into contact on the face; random position increments pressing down on seed
     1000 until that code's force limit) replayed on the one physics loop give the same
@@ -507,7 +507,7 @@ def test_one_loop_keeps_the_episodes_of_the_former_fast_path() -> None:
     on these paths."""
     data = np.load(Path(__file__).parent / "data" / "peg_in_hole_v1_episodes.npz")
     for control, every in (("torque", 50), ("position", 50)):
-        env = gym.make("cir_gym/PegInHole-v1", control=control)
+        env = gym.make("cir_gym/PegInHole-v2", control=control)
         env.reset(seed=1000)
         observed = []
         for action in data[f"{control}_actions"]:
@@ -530,9 +530,9 @@ def _actions_with_the_static_weight(name: str, steps: int, seed: int = 1000) -> 
     from cir_gym import baselines
     from cir_gym.ft_sensor import tool_gravity_wrench
 
-    env = gym.make("cir_gym/PegInHole-v1")
+    env = gym.make("cir_gym/PegInHole-v2")
     u = env.unwrapped
-    policy = baselines.make(name, "cir_gym/PegInHole-v1")
+    policy = baselines.make(name, "cir_gym/PegInHole-v2")
     obs, _ = env.reset(seed=seed)
     state, start, diffs, touched = None, np.array([True]), [], False
     for _ in range(steps):
@@ -573,7 +573,7 @@ def test_the_force_gains_are_designed_against_the_contact_stiffness() -> None:
 
     from cir_gym import baselines
 
-    policy = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v1")
+    policy = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v2")
     g = policy.gains
     Lambda = np.diag([4.0, 5.0, 6.0, 0.01, 0.02, 0.03])
     k = np.r_[np.full(3, g.stiffness), np.full(3, g.stiffness * geo.PEG_RADIUS**2)]
@@ -595,7 +595,7 @@ def test_the_force_gains_are_designed_against_the_contact_stiffness() -> None:
     for _ in range(10_000):
         h = policy.force_loop(f, fields, sigma, np.zeros(6))
     assert abs(h[0]) == g.integral_limit and abs(h[3]) == g.integral_limit_moment
-    off = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v1", crossover_ratio=0.0)
+    off = baselines.make("hybrid_force_position", "cir_gym/PegInHole-v2", crossover_ratio=0.0)
     state = np.zeros(off.state_size)
     assert not np.any(off.force_loop(f, _fields(state, HYBRID_STATE), sigma, np.zeros(6)))
 

@@ -153,7 +153,7 @@ def _result(name: str, success: float, mean: float, worst: float) -> EvaluationR
     values[0] = 4 * mean - sum(values[1:])  # the mean is `mean`, the worst `worst`
     episodes = [EpisodeResult(i, 0.0, 1, i < ok, False, {"rms_error": v})
                 for i, v in enumerate(values)]
-    return EvaluationResult("cir_gym/JointTracking-v1", name, episodes, (spec,), "rms_error")
+    return EvaluationResult("cir_gym/JointTracking-v2", name, episodes, (spec,), "rms_error")
 
 
 def test_bars_follow_the_leaderboard_rank_and_colour_the_families(tmp_path: Path) -> None:
@@ -185,7 +185,7 @@ def test_thirteen_sweep_lines_are_told_apart(tmp_path: Path) -> None:
         for i, p in enumerate(labels)
         for m in (0.0, 1.5, 3.0)
     ]
-    path = plot_sweep_axis(rows, "cir_gym/JointTracking-v1", "env.payload_mass",
+    path = plot_sweep_axis(rows, "cir_gym/JointTracking-v2", "env.payload_mass",
                            tmp_path / "sweep.png")
     assert path.is_file()
 

@@ -304,7 +304,7 @@ def test_rendering_does_not_change_the_episode() -> None:
     """Markers are decoration: the same actions give the same observations with render()."""
     runs = []
     for mode in (None, "rgb_array"):
-        env = gym.make("cir_gym/JointTracking-v1", render_mode=mode, width=64, height=64)
+        env = gym.make("cir_gym/JointTracking-v2", render_mode=mode, width=64, height=64)
         obs, _ = env.reset(seed=4)
         rng = np.random.default_rng(0)
         trace = []
@@ -359,7 +359,7 @@ def test_sharp_floor_samples_the_floor_texture_nearest_and_changes_only_the_floo
 
 def test_captions_report_the_primary_error_of_the_step() -> None:
     """JointTracking: ‖q̄ − q‖ of the last observation; RedundantIK: the step's task error."""
-    env = gym.make("cir_gym/JointTracking-v1")
+    env = gym.make("cir_gym/JointTracking-v2")
     env.reset(seed=2)
     for _ in range(10):
         obs, *_ = env.step(np.full(env.action_space.shape, 0.05))
@@ -378,7 +378,7 @@ def test_captions_report_the_primary_error_of_the_step() -> None:
 
 
 @needs_gl
-@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v1", "cir_gym/RedundantIK-v3"])
+@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v2", "cir_gym/RedundantIK-v3"])
 def test_overlay_projection_matches_the_rendered_scene(env_id: str) -> None:
     """project_points (the 2-D overlays' camera) puts a point where GL draws a sphere there,
     for the free camera (JointTracking) and a model camera (RedundantIK's "top")."""
@@ -491,8 +491,8 @@ def test_rgb_array_list_draws_the_states_at_a_fixed_rate_of_simulated_time() -> 
     control rate), each the rgb_array frame of the same state; render() hands each frame out
     once. rgb_array's render_fps is the control rate (one frame per step is real time)."""
     kwargs = {"width": 64, "height": 48, "episode_duration": 0.2}
-    listed = gym.make("cir_gym/JointTracking-v1", render_mode="rgb_array_list", **kwargs)
-    single = gym.make("cir_gym/JointTracking-v1", render_mode="rgb_array", **kwargs)
+    listed = gym.make("cir_gym/JointTracking-v2", render_mode="rgb_array_list", **kwargs)
+    single = gym.make("cir_gym/JointTracking-v2", render_mode="rgb_array", **kwargs)
     u = listed.unwrapped
     assert (u.render_stride, listed.metadata["render_fps"]) == (10, 50)
     assert single.metadata["render_fps"] == round(1 / single.unwrapped.dt) == 500
@@ -557,7 +557,7 @@ def test_human_mode_shows_frames_at_render_fps_in_real_time(monkeypatch) -> None
     monkeypatch.setitem(sys.modules, "mujoco.viewer", fake)
     monkeypatch.setattr(mujoco, "viewer", fake, raising=False)
     monkeypatch.setattr(base, "_has_display", lambda: True)
-    env = gym.make("cir_gym/JointTracking-v1", render_mode="human", episode_duration=0.3,
+    env = gym.make("cir_gym/JointTracking-v2", render_mode="human", episode_duration=0.3,
                    reference="regulation")  # at rest on a setpoint: no early stop
     fps = env.metadata["render_fps"]
     assert fps <= 60

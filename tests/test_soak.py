@@ -66,9 +66,9 @@ def test_soak_counts_python_and_mujoco_warnings(monkeypatch: pytest.MonkeyPatch,
     """Planted faults show up in both counts and make main() return 1."""
     soak = _soak_module()
     monkeypatch.setattr(soak, "gym", SimpleNamespace(make=lambda e: _Faulty(gym.make(e))))
-    result = soak.soak("cir_gym/JointTracking-v1", 200, 1000, 0)
+    result = soak.soak("cir_gym/JointTracking-v2", 200, 1000, 0)
     assert result["warnings"] == 4 and result["diverged"] == 4, result
     assert result["mujoco_messages"] == 4, result
     assert all("Nan" in m for m in result["first_mujoco_messages"]), result
-    assert soak.main(["--steps", "200", "--env", "cir_gym/JointTracking-v1"]) == 1
+    assert soak.main(["--steps", "200", "--env", "cir_gym/JointTracking-v2"]) == 1
     assert "MuJoCo warning: " in capsys.readouterr().out

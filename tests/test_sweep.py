@@ -31,7 +31,7 @@ from cir_gym.scoring.sweep import (
     write_table,
 )
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 SHORT = {"episode_duration": 0.1}
 FLAKY = f"{Path(__file__).resolve().parent / 'sweep_faults.py'}:flaky"
 #: columns that differ between runs of the same task (wall time, which process ran it)
@@ -390,12 +390,12 @@ def test_training_tasks_write_seed_runs_and_evaluate_them(training_sweep):
     assert (summary.ran, summary.failed) == (2, 0)
     rows = read_table(out)
     assert sorted({(r["train_seed"], r["run_dir"]) for r in rows}) == [
-        (k, f"runs/JointTracking-v1/ppo_lr3/seed_{k}") for k in (0, 1)
+        (k, f"runs/JointTracking-v2/ppo_lr3/seed_{k}") for k in (0, 1)
     ]
     assert len(rows) == 4 and all(r["policy"] == "train:ppo_lr3" for r in rows)
     for k in (0, 1):
         config = yaml.safe_load(
-            (out / f"runs/JointTracking-v1/ppo_lr3/seed_{k}/config.yml").read_text()
+            (out / f"runs/JointTracking-v2/ppo_lr3/seed_{k}/config.yml").read_text()
         )
         assert config["seed"] == k and config["hyperparams"]["learning_rate"] == 0.001
         assert config["n_timesteps"] == 256
@@ -415,8 +415,8 @@ def test_leaderboard_reports_training_seeds_with_iqm(training_sweep, tmp_path, m
     md = leaderboard_from(out, tmp_path / "page").read_text()
     assert "Training runs over seeds" in md and "| train:ppo_lr3 | 2 |" in md
     assert "train:ppo_lr3 seed 0" in md and "train:ppo_lr3 seed 1" in md
-    trained = tmp_path / "trained" / "JointTracking-v1"
-    shutil.copytree(out / "runs" / "JointTracking-v1" / "ppo_lr3", trained / "ppo_lr3")
+    trained = tmp_path / "trained" / "JointTracking-v2"
+    shutil.copytree(out / "runs" / "JointTracking-v2" / "ppo_lr3", trained / "ppo_lr3")
     monkeypatch.setattr(agents, "TRAINED_DIR", tmp_path / "trained")
     table = multi_seed_table(ENV, SHORT, episodes=2, seed=1000)
     row = next(r for r in table.splitlines() if r.startswith("| ppo_lr3 "))
@@ -527,7 +527,7 @@ def test_a_training_task_killed_mid_run_resumes_from_its_checkpoint(training_swe
     src, _ = training_sweep
     out = tmp_path / "out"
     shutil.copytree(src, out)
-    run = out / "runs/JointTracking-v1/ppo_lr3/seed_0"
+    run = out / "runs/JointTracking-v2/ppo_lr3/seed_0"
     for f in ("model.zip", "meta.json", "checkpoints/model_256_steps.zip"):
         (run / f).unlink()
     task = next(

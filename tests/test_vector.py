@@ -206,11 +206,11 @@ def test_gymnasium_make_vec_builds_the_batched_env_equal_to_the_single_envs(env_
 
 def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
     drive = {**KW, "drive": "industrial"}  # not batched: a SyncVectorEnv of the single env
-    envs = cir_gym.make_vec("cir_gym/JointTracking-v1", 2, **drive)
+    envs = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **drive)
     assert isinstance(envs, gym.vector.SyncVectorEnv)
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
-    assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v1", 5, **drive) == 2
-    native = cir_gym.make_vec("cir_gym/JointTracking-v1", 2, **KW)
+    assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v2", 5, **drive) == 2
+    native = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **KW)
     assert type(native) is JointTrackingVectorEnv
     other = cir_gym.make_vec("cir_gym/RedundantIK-v3", 2)  # no batched env: sync
     assert isinstance(other, gym.vector.SyncVectorEnv)
@@ -221,13 +221,13 @@ def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
 def test_make_vec_names_what_it_cannot_batch():
     with pytest.raises(InvalidArgument, match=r"drive='industrial'.*sync"):
         gym.make_vec(
-            "cir_gym/JointTracking-v1",
+            "cir_gym/JointTracking-v2",
             2,
             vectorization_mode="vector_entry_point",
             drive="industrial",
         )
     with pytest.raises(InvalidArgument, match=r"max_episode_steps=10 would cut this 50-step"):
-        make_vec("cir_gym/JointTracking-v1", 2, max_episode_steps=10, **KW)
-    longer = make_vec("cir_gym/JointTracking-v1", 2, max_episode_steps=-1, episode_duration=8.0)
+        make_vec("cir_gym/JointTracking-v2", 2, max_episode_steps=10, **KW)
+    longer = make_vec("cir_gym/JointTracking-v2", 2, max_episode_steps=-1, episode_duration=8.0)
     assert longer.template.max_steps == 4000
     longer.close()

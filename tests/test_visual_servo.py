@@ -12,8 +12,8 @@ from cir_gym import baselines
 from cir_gym import trajectories as traj
 from cir_gym.vision import detect_markers, optical_pose
 
-EYE_IN_HAND = "cir_gym/VisualServo-v0"
-EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v0"
+EYE_IN_HAND = "cir_gym/VisualServo-v1"
+EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v1"
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from cir_gym import baselines
 from cir_gym.envs.visual_servo_base import rotation
 from cir_gym.fast_solve import solve
 
-EYE_IN_HAND, EYE_TO_HAND = ENVS = ("cir_gym/VisualServo-v0", "cir_gym/VisualServoEyeToHand-v0")
+EYE_IN_HAND, EYE_TO_HAND = ENVS = ("cir_gym/VisualServo-v1", "cir_gym/VisualServoEyeToHand-v1")
 LAWS = {ENVS[0]: "ibvs", ENVS[1]: "ibvs_eye_to_hand"}
 
 

@@ -16,7 +16,7 @@ optuna = pytest.importorskip("optuna")
 from scripts.zoo_optimize import load_zoo_run, trial_hyperparameters, trials_table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 
 
 def test_trial_hyperparameters_match_rl_zoo3s_conversion():
@@ -62,7 +62,7 @@ def test_a_zoo_run_loads_as_a_policy_on_raw_observations(tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT,
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert done.returncode == 0, done.stderr[-2000:]
-    agent, env_kwargs, wrapper = load_zoo_run(tmp_path / "ppo" / "cir_gym-JointTracking-v1_1")
+    agent, env_kwargs, wrapper = load_zoo_run(tmp_path / "ppo" / "cir_gym-JointTracking-v2_1")
     assert wrapper is TaskObservation
     assert env_kwargs == {"control_freq": 100.0, "episode_duration": 0.2}
     assert agent.interface_kwargs == {"control_freq": 100.0}

@@ -29,25 +29,25 @@ __all__ = [
 
 #: id → (class, one-line description)
 ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/JointTracking-v1": (
+    "cir_gym/JointTracking-v2": (
         JointTrackingEnv,
         "iiwa14 joint-space trajectory tracking with joint torques (ch. 4-5)",
     ),
-    "cir_gym/ElasticJointTracking-v2": (
+    "cir_gym/ElasticJointTracking-v3": (
         ElasticJointTrackingEnv,
         "iiwa14 joint tracking through elastic transmissions (motor + spring + link, ch. 4)",
     ),
     **REDUNDANT_IK_ENVIRONMENTS,
     **VISUAL_SERVO_ENVIRONMENTS,
-    "cir_gym/AdmittanceContact-v0": (
+    "cir_gym/AdmittanceContact-v1": (
         AdmittanceContactEnv,
         "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)",
     ),
-    "cir_gym/PegInHole-v1": (
+    "cir_gym/PegInHole-v2": (
         PegInHoleEnv,
         "iiwa14 inserting a peg into a hole known only approximately: hybrid force/position control (ch. 6)",
     ),
-    "cir_gym/CartesianTracking-v0": (
+    "cir_gym/CartesianTracking-v1": (
         CartesianTrackingEnv,
         "iiwa14 flange pose tracking with joint torques: operational-space control (ch. 5.2)",
     ),
@@ -64,7 +64,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
 
 #: ids with a native batched env on ``mujoco.batch`` (``cir_gym.envs.vector.VECTOR_ENVS``; named here
 #: so that registering them does not import ``mujoco.batch``)
-BATCHED_ENVIRONMENTS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+BATCHED_ENVIRONMENTS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
 
 
 class VectorEntryPoint:

@@ -206,16 +206,18 @@ class AdmittanceContactEnv(RobotEnv):
     ``success_threshold`` and ``contact_loss`` < 0.01.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/AdmittanceContact-v0")``: impedance, admittance,
+    ``baselines.available("cir_gym/AdmittanceContact-v1")``: impedance, admittance,
     explicit_force, implicit_force, parallel_force_position (:mod:`cir_gym.baselines.interaction`).
 
     ## Version History
     - v0: initial version. Changed before the issue closed (no v1): the physics step 1 ms →
       0.25 ms (``timestep``) and a stop's cost includes the rest of the horizon; the shipped
       agents were retrained on this version.
-    - Next version: the force, contact and contact loss are the tool's, at every physics step;
-      the force limit on any single contact; the plate's end stop; friction rows with their own
-      time constant (the tip stays on the plate while wiping); ``charge_unplayed_steps``.
+    - v1: the force, contact and contact loss are the tool's, at every 0.25-ms physics step;
+      the force limit and ``max_force`` on the largest single contact (tool or link) or the
+      plate's load; a 12-cm plate end stop (the tool no longer tunnels through the plate);
+      a tip–plate contact pair with an elliptic cone and a 100-ms friction time constant (the
+      tip stays on the plate while wiping); ``charge_unplayed_steps`` on by default.
     """
 
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (

@@ -355,14 +355,14 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     loop at 20 Hz.
 
     ## Description
-    The task of ``cir_gym/PegInHole-v1`` (:class:`~cir_gym.envs.peg_in_hole.PegInHoleEnv`,
+    The task of ``cir_gym/PegInHole-v2`` (:class:`~cir_gym.envs.peg_in_hole.PegInHoleEnv`,
     whose docstring describes the scene, the hole-pose uncertainty and the contact physics),
     played through its torque interface by an env-side Cartesian impedance loop at the peg
     tip. The policy acts at ``control_freq`` (default 20 Hz, 25 impedance-loop steps per
     action): what practitioners train on (robosuite's operational-space controller at 20 Hz,
     Isaac Lab Factory's and IndustReal's task-space impedance; Martín-Martín et al. 2019 found
     impedance-space actions the most sample-efficient). The same seeds give the same hole
-    poses as PegInHole-v1; metrics and success are PegInHole-v1's, unchanged.
+    poses as PegInHole-v2; metrics and success are PegInHole-v2's, unchanged.
 """
         + _COMMON_LOOP
         + """
@@ -377,7 +377,7 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     (PegInHole's ``hole_quat`` is the identity), so the world axes are the hole's.
 
     ## Observation Space
-    PegInHole-v1's ``Dict`` (q, qd, peg_pos, peg_quat, peg_twist, wrench — the wrist F/T
+    PegInHole-v2's ``Dict`` (q, qd, peg_pos, peg_quat, peg_twist, wrench — the wrist F/T
     reading —, hole_pos, hole_quat), plus:
 
     | key | shape | meaning | bounds | unit |
@@ -395,11 +395,11 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
         )
         + """
     ## Starting State
-    PegInHole-v1's: at rest, the tip ``start_height`` above the nominal hole, aligned with it;
+    PegInHole-v2's: at rest, the tip ``start_height`` above the nominal hole, aligned with it;
     the setpoint at that pose (an action of zeros holds it).
 
     ## Episode End
-    PegInHole-v1's, at the policy step in which the task's step ends: terminated on insertion
+    PegInHole-v2's, at the policy step in which the task's step ends: terminated on insertion
     (success), on the force limit or on a divergence (``info["diverged"]``); truncated after
     ``episode_duration`` (240 policy steps by default). ``info`` holds the task's last step's
     entries (``contact_force``, ``depth``, ``two_point_contact``, ``wedged``, ``jammed``, …),
@@ -437,19 +437,19 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    PegInHole-v1's (``insertion_time`` primary, ``peak_force``, ``peak_net_force``,
+    PegInHole-v2's (``insertion_time`` primary, ``peak_force``, ``peak_net_force``,
     ``mean_force``, ``force_impulse``, ``jammed_time``, ``final_depth``), read at the task's
     physics-step resolution from the task itself: an agent here and a controller on
-    PegInHole-v1 are scored on the same seeds by the same code.
+    PegInHole-v2 are scored on the same seeds by the same code.
 
     ## Reference controllers
     None act on this interface: the course's controllers (hybrid_force_position,
-    hybrid_spiral, position_only, admittance) run on PegInHole-v1's torque interface and meet
+    hybrid_spiral, position_only, admittance) run on PegInHole-v2's torque interface and meet
     the agents of this variant in one table. An action of zeros is the hold-still policy of
     the normalized score (:mod:`cir_gym.scoring.normalized`).
 
     ## Version History
-    - v0: initial version (on PegInHole-v1's task).
+    - v0: initial version (on PegInHole-v2's task).
     """
     )
 
@@ -546,13 +546,13 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     impedance loop at 20 Hz.
 
     ## Description
-    The task of ``cir_gym/AdmittanceContact-v0``
+    The task of ``cir_gym/AdmittanceContact-v1``
     (:class:`~cir_gym.envs.admittance_contact.AdmittanceContactEnv`: press the tool on a
     compliant plate with the reference force f̄ while wiping a path; its docstring describes
     the scene, the surface errors and the sensor), played through its torque interface by an
     env-side Cartesian impedance loop at the tool tip (``tcp``). The policy acts at
     ``control_freq`` (default 20 Hz, 25 impedance-loop steps per action). The same seeds give
-    the same surfaces, forces and paths as AdmittanceContact-v0; metrics and success are its
+    the same surfaces, forces and paths as AdmittanceContact-v1; metrics and success are its
     own, unchanged.
 """
         + _COMMON_LOOP
@@ -566,7 +566,7 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     peaks at 0.079 m/s).
 
     ## Observation Space
-    AdmittanceContact-v0's ``Dict`` (q, qd, tool_pos, tool_quat, tool_vel, tool_angvel,
+    AdmittanceContact-v1's ``Dict`` (q, qd, tool_pos, tool_quat, tool_vel, tool_angvel,
     wrench — the wrist F/T reading —, f_ref, tool_pos_ref, tool_vel_ref, setpoint_pos,
     setpoint_quat), where ``setpoint_pos`` and ``setpoint_quat`` hold the impedance loop's
     setpoint as of the task's last step (the torque interface reports the tool's pose there;
@@ -586,11 +586,11 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
         )
         + """
     ## Starting State
-    AdmittanceContact-v0's: at rest at ``START_Q``, the tip 3 cm above the nominal surface;
+    AdmittanceContact-v1's: at rest at ``START_Q``, the tip 3 cm above the nominal surface;
     the setpoint at that pose (an action of zeros holds it).
 
     ## Episode End
-    AdmittanceContact-v0's, at the policy step in which the task's step ends: terminated on
+    AdmittanceContact-v1's, at the policy step in which the task's step ends: terminated on
     the force limit or a divergence (``info["diverged"]``), truncated after
     ``episode_duration`` (100 policy steps by default). ``info`` holds the task's last step's
     entries (``contact_force``, ``in_contact``, ``plate_load``, …), ``task_steps`` and, at the
@@ -637,19 +637,19 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    AdmittanceContact-v0's (``force_rms_error`` primary, ``peak_overshoot``,
+    AdmittanceContact-v1's (``force_rms_error`` primary, ``peak_overshoot``,
     ``contact_loss``, ``path_error``, ``max_force``), read at the task's physics-step
     resolution from the task itself, and its success (no stop, force RMS error below
     ``success_threshold``, contact loss below 1 %).
 
     ## Reference controllers
     None act on this interface: the course's controllers (impedance, admittance,
-    explicit_force, implicit_force, parallel_force_position) run on AdmittanceContact-v0 and
+    explicit_force, implicit_force, parallel_force_position) run on AdmittanceContact-v1 and
     meet the agents of this variant in one table. An action of zeros is the hold-still policy
     of the normalized score (:mod:`cir_gym.scoring.normalized`).
 
     ## Version History
-    - v0: initial version (on AdmittanceContact-v0's task).
+    - v0: initial version (on AdmittanceContact-v1's task).
     """
     )
 

@@ -59,7 +59,7 @@ class CartesianTrackingEnv(RobotEnv):
     (``path="regulation"``); or ``path="near_singular"``, a motion that passes close to a
     singularity. The simulator holds the true robot; controllers get the nominal model through
     :meth:`controller_context` (site ``flange``), so the model-error arguments (payload, mass
-    scale, friction) are unknown to them — exactly as in ``JointTracking-v1``, whose
+    scale, friction) are unknown to them — exactly as in ``JointTracking-v2``, whose
     :class:`~cir_gym.robot.ModelError` and ``MODEL_ERROR_RANGES`` are reused unchanged.
 
     The shared operational-space science (orientation errors, the analytic Jacobian of the pose
@@ -188,10 +188,15 @@ class CartesianTrackingEnv(RobotEnv):
     start offset of ``regulation``).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/CartesianTracking-v0")``: os_pd_gravity (regulation),
+    ``baselines.available("cir_gym/CartesianTracking-v1")``: os_pd_gravity (regulation),
     os_inverse_dynamics, os_inverse_dynamics_dls, os_khatib.
 
     ## Version History
+    - v1: ``charge_unplayed_steps`` (default True): a stopped or diverged episode also loses the
+      worst reward of each unplayed step (v0 paid for being stopped early: −62 against −485
+      for a finished episode); a diverged episode is scored over the whole horizon, its last
+      finite errors held at least at the following-error limits (v0: the played steps only).
+      Dynamics, observations and success are v0's.
     - v0: initial version (with the kinematic feasibility check of the drawn paths).
     """
 

@@ -28,7 +28,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     """Track a joint trajectory with motor torques through elastic joints (iiwa 14).
 
     ## Description
-    JointTracking-v1 with each transmission modelled as in chapter 4 of the notes: a motor
+    JointTracking-v2 with each transmission modelled as in chapter 4 of the notes: a motor
     (rotor inertia reflected to the link side, N² J_m) and the link, coupled by a spring of
     stiffness k_el. In MuJoCo each joint is two hinges (``motor<i>`` on a massless rotor body
     and ``joint<i>`` on the link) and a fixed tendon θ − q with stiffness k_el and a small
@@ -43,28 +43,28 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
 
     ## Action Space
     ``Box(-1, 1, (7,), float32)``: motor torque reflected to the link side, τ = a ⊙ τ_max
-    (τ_max as in JointTracking-v1; the motor torque itself is τ / N). Clipping as there.
+    (τ_max as in JointTracking-v2; the motor torque itself is τ / N). Clipping as there.
 
     ## Observation Space
-    The keys of JointTracking-v1 (q, qd are the LINK positions and velocities) plus
+    The keys of JointTracking-v2 (q, qd are the LINK positions and velocities) plus
     ``q_motor`` and ``qd_motor`` (7,), the motor positions (rad, link units) and velocities
     (with a ``drive``: a second encoder on the motor side, same model, same units).
 
     ## Rewards
-    As in JointTracking-v1, on the link error: a stopped episode also loses the worst reward
+    As in JointTracking-v2, on the link error: a stopped episode also loses the worst reward
     of every step it did not play (``charge_unplayed_steps=True``), so giving up never raises
     the return (v1: a PPO agent stopped at 0.5 rad scored −227 against −622 for the best
     controller).
 
     ## Starting State
-    As in JointTracking-v1, with the springs pre-loaded so that the arm is at rest: θ(0) =
+    As in JointTracking-v2, with the springs pre-loaded so that the arm is at rest: θ(0) =
     q(0) + K_el⁻¹ g(q(0)).
 
     ## Episode End
-    As in JointTracking-v1.
+    As in JointTracking-v2.
 
     ## Arguments
-    The arguments of JointTracking-v1, plus:
+    The arguments of JointTracking-v2, plus:
 
     | argument | default | meaning |
     |---|---|---|
@@ -72,7 +72,7 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     | stiffness_scale | 1.0 | true stiffness / nominal (in [0.1, 10]), unknown to the controllers |
 
     ## Metrics
-    As in JointTracking-v1 (on the link side).
+    As in JointTracking-v2 (on the link side).
 
     ## Reference controllers
     pid, p_pi_cascade, p_pi_feedforward, decentralized_feedforward (on motor-side
@@ -80,6 +80,10 @@ class ElasticJointTrackingEnv(JointTrackingEnv):
     compensation), pd_gravity and computed_torque (rigid model, link measurements).
 
     ## Version History
+    - v3: a diverged episode is scored over the whole horizon, its last finite link error held
+      at least at the following-error limit (v2 scored the steps it played only, so a
+      diverging policy could rank first among failing ones); the reward shared with
+      JointTracking (``cir_gym.envs.tracking_reward``). Dynamics and observations are v2's.
     - v2: joint friction once, on the motor side (v1 applied it to the motor and the link
       hinges: twice the asked value); ``stiffness_scale`` (nominal vs true springs);
       ``charge_unplayed_steps`` on by default (v1's return favoured being stopped early).

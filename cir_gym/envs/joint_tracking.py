@@ -178,7 +178,7 @@ class JointTrackingEnv(RobotEnv):
     judged from its first step. ``max_error`` stays the whole episode's.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/JointTracking-v1")``: pid, p_pi_cascade,
+    ``baselines.available("cir_gym/JointTracking-v2")``: pid, p_pi_cascade,
     p_pi_feedforward, decentralized_feedforward, pd_gravity, computed_torque, robust, adaptive.
 
     ## Version History
@@ -187,6 +187,12 @@ class JointTrackingEnv(RobotEnv):
     ``drive``; a ``control_freq`` that is not 1 kHz / integer is rejected (it was rounded:
     300 Hz ran at 333 Hz).
 
+    - v2: ``charge_unplayed_steps`` on by default: a stopped or diverged episode also loses the
+      worst reward of each unplayed step (v1 paid for being stopped early: a constant torque
+      scored −57 against −554 for a finished PD + gravity episode); a diverged episode is
+      scored over the whole horizon, its last finite error held at least at the
+      following-error limit (v1 scored the played steps only: rms 0.00047 rad against 0.008
+      for a finished one). Dynamics, observations and success are v1's.
     - v1: the following-error monitor (``max_following_error``, ``following_error_penalty``).
       From scratch, the arm falls within 0.1–0.2 s; afterwards every reward kernel saturates
       (r ≈ −1, no gradient), so ~95 % of a v0 episode taught an agent nothing. On this env

@@ -193,14 +193,14 @@ class PegInHoleEnv(RobotEnv):
     Success: the peg inserted (see Episode End).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/PegInHole-v1")``: hybrid_force_position, hybrid_spiral,
+    ``baselines.available("cir_gym/PegInHole-v2")``: hybrid_force_position, hybrid_spiral,
     position_only (baselines/hybrid.py; position_only has no search and fails by
     construction whenever the hole is off by more than the clearance); AdmittanceContact's
     ``admittance`` law applies through the adapter ``baselines.hybrid.PegAdmittance`` (axial
     force regulation only).
 
     ## Version History
-    - v2 (proposed): the force limit, ``peak_force`` and ``info["contact_force"]`` read the
+    - v2: the force limit, ``peak_force`` and ``info["contact_force"]`` read the
       largest single robot–block contact at every physics step (were the 2-ms average of the
       net force on the peg); new metrics ``peak_net_force`` and ``jammed_time``; success needs
       the tip inside the bore (depth bounded by the bottom, entered through the top); the arm

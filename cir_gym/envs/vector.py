@@ -1,14 +1,14 @@
 """Native batched joint tracking on ``mujoco.batch.Batch``: one C thread pool, no env per process.
 
 >>> import cir_gym, gymnasium as gym
->>> envs = cir_gym.make_vec("cir_gym/JointTracking-v1", num_envs=64)    # doctest: +SKIP
->>> envs = gym.make_vec("cir_gym/JointTracking-v1", num_envs=64,
+>>> envs = cir_gym.make_vec("cir_gym/JointTracking-v2", num_envs=64)    # doctest: +SKIP
+>>> envs = gym.make_vec("cir_gym/JointTracking-v2", num_envs=64,
 ...                     vectorization_mode="vector_entry_point")        # doctest: +SKIP
 >>> obs, infos = envs.reset(seed=0)                # env i is JointTracking reset(seed=i)
 >>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
 
-Native batched envs (``VECTOR_ENVS``): ``cir_gym/JointTracking-v1``
-(:class:`JointTrackingVectorEnv`) and ``cir_gym/ElasticJointTracking-v2``
+Native batched envs (``VECTOR_ENVS``): ``cir_gym/JointTracking-v2``
+(:class:`JointTrackingVectorEnv`) and ``cir_gym/ElasticJointTracking-v3``
 (:class:`ElasticJointTrackingVectorEnv`: the same step on the elastic model, plus the motor
 keys of the observation). Both ids have a ``vector_entry_point`` (:func:`vector_entry_point`),
 so ``gymnasium.make_vec`` builds them by default. Every other id, and these two with an
@@ -82,7 +82,7 @@ _UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "
 
 
 class JointTrackingVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` copies of ``cir_gym/JointTracking-v1`` stepped by one ``mujoco.batch.Batch``.
+    """``num_envs`` copies of ``cir_gym/JointTracking-v2`` stepped by one ``mujoco.batch.Batch``.
 
     Args:
         num_envs: number of copies (≥ 1).
@@ -98,7 +98,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
     metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP}
     #: the single env whose step this class batches (its ``step`` is the specification)
     env_class: ClassVar[type[JointTrackingEnv]] = JointTrackingEnv
-    env_id: ClassVar[str] = "cir_gym/JointTracking-v1"
+    env_id: ClassVar[str] = "cir_gym/JointTracking-v2"
 
     @classmethod
     def unsupported(cls, kwargs: dict[str, Any]) -> str | None:
@@ -366,7 +366,7 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
 
 
 class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
-    """``num_envs`` copies of ``cir_gym/ElasticJointTracking-v2`` on one ``mujoco.batch.Batch``.
+    """``num_envs`` copies of ``cir_gym/ElasticJointTracking-v3`` on one ``mujoco.batch.Batch``.
 
     ElasticJointTracking inherits JointTracking's ``step`` (actuators on the motor hinges,
     0.5-ms physics: ``frame_skip`` 4, ``charge_unplayed_steps`` on by default); its observation
@@ -376,7 +376,7 @@ class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
     """
 
     env_class: ClassVar[type[JointTrackingEnv]] = ElasticJointTrackingEnv
-    env_id: ClassVar[str] = "cir_gym/ElasticJointTracking-v2"
+    env_id: ClassVar[str] = "cir_gym/ElasticJointTracking-v3"
 
     def _extra_obs(self, q: np.ndarray, qd: np.ndarray) -> dict[str, np.ndarray]:
         t = self.template

@@ -134,9 +134,13 @@ class VisualServoEnv(VisualServoBase):
     ``detection_failures`` (markers not found over the episode; 0 with projected features).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/VisualServo-v0")``: ibvs, pbvs.
+    ``baselines.available("cir_gym/VisualServo-v1")``: ibvs, pbvs.
 
     ## Version History
+    - v1: a marker the camera cannot see (a ray test from the camera centre) is lost and ends
+      the episode (``info["features_visible"]``); a start must see every marker; a failure is
+      charged the worst reward of each unplayed step, (T − k)(1 + ``action_weight``)
+      (``charge_unplayed_steps``, default True; v0 charged T − k, so failing early could pay).
     - v0: initial version.
     """
 
@@ -177,11 +181,11 @@ class VisualServoEnv(VisualServoBase):
 
 
 VISUAL_SERVO_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/VisualServo-v0": (
+    "cir_gym/VisualServo-v1": (
         VisualServoEnv,
         "iiwa14 eye-in-hand visual servoing on four image points with a camera twist (ch. 7)",
     ),
-    "cir_gym/VisualServoEyeToHand-v0": (
+    "cir_gym/VisualServoEyeToHand-v1": (
         VisualServoEyeToHandEnv,
         "iiwa14 eye-to-hand visual servoing: a fixed camera guides four markers (ch. 7)",
     ),

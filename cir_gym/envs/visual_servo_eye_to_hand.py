@@ -32,7 +32,7 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     the markers there. The plate starts at a random offset from its goal pose (translation
     ±0.1 m sideways, −0.2 … +0.05 m along its normal, rotation vector ±0.3 rad about x and
     y, ±1.0 rad about the normal), reachable and with every feature ≥ 40 px inside the image.
-    The arm is velocity-servoed as in ``VisualServo-v0``.
+    The arm is velocity-servoed as in ``VisualServo-v1``.
 
     ## Action Space
     ``action="twist"``: ``Box(-1, 1, (6,), float32)``, the plate's twist expressed in the
@@ -43,12 +43,12 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     Finite values outside [-1, 1] are clipped; NaN/inf or a wrong shape raise ``ValueError``.
 
     ## Observation Space
-    As ``VisualServo-v0`` (features of the four markers in the fixed camera, s*, q; the image
+    As ``VisualServo-v1`` (features of the four markers in the fixed camera, s*, q; the image
     with ``obs_image=True``). The nominal camera pose in the world is
     ``controller_context().extras["camera_pose"]`` (p (3,), R (3, 3) optical → world).
 
     ## Rewards
-    As ``VisualServo-v0``.
+    As ``VisualServo-v1``.
 
     ## Starting State
     At rest at the start offset (see Description); ``start_offset`` sets the plate's start
@@ -56,7 +56,7 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     of view).
 
     ## Episode End
-    As ``VisualServo-v0``: here the arm, or the marker plate itself when it turns away from
+    As ``VisualServo-v1``: here the arm, or the marker plate itself when it turns away from
     the camera, can hide a marker that is still inside the image (the ray test ends the
     episode then). ``camera_error``'s hand-eye terms here displace the fixed camera from its
     nominal pose (extrinsic calibration error).
@@ -80,13 +80,17 @@ class VisualServoEyeToHandEnv(VisualServoBase):
     | height | 360 | frame height (px) |
 
     ## Metrics
-    As ``VisualServo-v0``; ``path_length`` and ``retreat`` are the plate's (retreat: away from
+    As ``VisualServo-v1``; ``path_length`` and ``retreat`` are the plate's (retreat: away from
     the camera, behind both start and goal).
 
     ## Reference controllers
-    ``baselines.available("cir_gym/VisualServoEyeToHand-v0")``: ibvs_eye_to_hand.
+    ``baselines.available("cir_gym/VisualServoEyeToHand-v1")``: ibvs_eye_to_hand.
 
     ## Version History
+    - v1: a marker the camera cannot see (a ray test from the camera centre) is lost and ends
+      the episode (``info["features_visible"]``); a start must see every marker; a failure is
+      charged the worst reward of each unplayed step, (T − k)(1 + ``action_weight``)
+      (``charge_unplayed_steps``, default True; v0 charged T − k, so failing early could pay).
     - v0: initial version.
     """
 

@@ -1,7 +1,7 @@
 """``cir-gym identify``: least-squares identification on the true simulator, then control.
 
 1. An excitation trajectory (finite Fourier series inside the joint and speed limits) is
-   tracked on the TRUE simulator of JointTracking-v1 (with the unknown payload) by computed
+   tracked on the TRUE simulator of JointTracking-v2 (with the unknown payload) by computed
    torque on the nominal model, at 1 kHz. (The tracking loop uses the simulator's state; only
    the recorded measurements below enter the identification.)
 2. Measurements, as a drive records them: the joint encoders, q quantized to
@@ -17,7 +17,7 @@
 3. ``cir_gym.dynamics.identify`` estimates the base parameters (condition number reported);
    the full parameter vector closest to the nominal one is handed to computed torque.
 4. Computed torque on the identified model is scored against the nominal and the exact model
-   on the same seeds (on JointTracking-v1 with its default exact encoders).
+   on the same seeds (on JointTracking-v2 with its default exact encoders).
 
 One run is one excitation seed at one noise level, and the identified / exact ratio moves with
 both (earlier single runs: 1.96× at seed 0 and 0.2 N m over 60 s; 2.10× and 2.36× at other
@@ -46,7 +46,7 @@ from cir_gym import baselines, dynamics
 from cir_gym.evaluation import evaluate
 from cir_gym.robot import Robot
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 DIFFERENTIATION = ("savgol", "exact")
 
 

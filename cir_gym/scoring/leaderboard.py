@@ -88,15 +88,15 @@ def run_seed_table(
 #: were chosen on): the estimate before a first run; a run's own timings
 #: (``<out>/timings.json``, per policy) replace them for the next run into the same folder
 EPISODE_SECONDS: dict[str, float] = {
-    "JointTracking-v1": 0.45,
-    "ElasticJointTracking-v2": 0.5,
+    "JointTracking-v2": 0.45,
+    "ElasticJointTracking-v3": 0.5,
     "RedundantIK-v3": 0.45,
     "RedundantIK7-v4": 0.45,
-    "VisualServo-v0": 0.6,
-    "VisualServoEyeToHand-v0": 0.5,
-    "AdmittanceContact-v0": 2.5,
-    "PegInHole-v1": 5.0,
-    "CartesianTracking-v0": 0.9,
+    "VisualServo-v1": 0.6,
+    "VisualServoEyeToHand-v1": 0.5,
+    "AdmittanceContact-v1": 2.5,
+    "PegInHole-v2": 5.0,
+    "CartesianTracking-v1": 0.9,
 }
 #: CPU seconds to build a policy (an agent loads torch and its network) before its episodes
 JOB_SECONDS = {"agent": 1.5, "other": 0.2}

@@ -61,8 +61,8 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
 
 
 def check_env_id(env_id: str) -> str:
-    """The registered id of ``env_id``: ``cir_gym/JointTracking-v1``, ``JointTracking-v1``
-    (the ``cir_gym/`` namespace is optional) or ``cir_gym:cir_gym/JointTracking-v1`` (with
+    """The registered id of ``env_id``: ``cir_gym/JointTracking-v2``, ``JointTracking-v2``
+    (the ``cir_gym/`` namespace is optional) or ``cir_gym:cir_gym/JointTracking-v2`` (with
     Gymnasium's module prefix).
 
     Raises:

@@ -30,7 +30,7 @@ evaluate the final model.
 Grid file::
 
     evaluate:                       # a block, or a list of blocks
-      envs: [cir_gym/JointTracking-v1]
+      envs: [cir_gym/JointTracking-v2]
       policies: [computed_torque, pd_gravity, "agent:ppo_100hz"]  # or "all" (agents only on
                                     # their own task, tuned:<law> only where it was tuned);
                                     # "plugin:<name>" (cir-gym list); or "module:factory"
@@ -42,7 +42,7 @@ Grid file::
       env_overrides: {episode_duration: 2.0}   # added to every variant
       gains: {computed_torque: {omega_n: [20.0, 40.0]}}      # axes per controller
     train:
-      envs: [cir_gym/JointTracking-v1]
+      envs: [cir_gym/JointTracking-v2]
       algos: [ppo]
       residual: [null, computed_torque]
       seeds: [0, 1, 2]              # training seeds (or a count)

@@ -56,7 +56,7 @@ LAYERS = [
 
 
 def env_page_name(env_id: str) -> str:
-    """'cir_gym/PegInHole-v1' → 'PegInHole-v1' (the page, the GIF and the results' name)."""
+    """'cir_gym/PegInHole-v2' → 'PegInHole-v2' (the page, the GIF and the results' name)."""
     return env_id.split(":")[-1].split("/")[-1]
 
 

@@ -1,16 +1,16 @@
-"""CPU cost of off-policy training on JointTracking-v1: SB3 SAC/TQC vs SBX (JAX) SAC, beside PPO.
+"""CPU cost of off-policy training on JointTracking-v2: SB3 SAC/TQC vs SBX (JAX) SAC, beside PPO.
 
     python scripts/research/bench_offpolicy.py [--steps 2000] \
         [--out results/agents/offpolicy_bench.md]
 
 Issue 20 asks whether SBX (Stable-Baselines3's API on JAX) makes off-policy training fast
-enough on these CPUs. Each algorithm trains on the same single JointTracking-v1 env (gravity
+enough on these CPUs. Each algorithm trains on the same single JointTracking-v2 env (gravity
 feature, flat observation, ``agents.train.EnvFactory``) with one gradient step of batch 256 per
 environment step (replay ratio 1, the field's default for SAC), 256×256 networks, after a
 warm-up of 1000 steps (``learning_starts``) plus 200 timed-out steps for JIT compilation; the
 next ``--steps`` steps are timed in **CPU seconds of this process** (``time.process_time``,
 all its threads), so the figure is a per-core cost even on a loaded machine. PPO
-(``agents/hyperparams/ppo.yml``'s JointTracking-v1 settings, 16 envs) is timed the same way.
+(``agents/hyperparams/ppo.yml``'s JointTracking-v2 settings, 16 envs) is timed the same way.
 Torch and XLA are limited to one thread. Missing packages (sb3-contrib, sbx-rl) are reported
 as such, not guessed.
 """
@@ -27,7 +27,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
                       "intra_op_parallelism_threads=1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-ENV = "cir_gym/JointTracking-v1"
+ENV = "cir_gym/JointTracking-v2"
 
 
 def _env(n: int = 1):
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = [
-        "# Off-policy training cost on JointTracking-v1 (`scripts/research/bench_offpolicy.py`)",
+        "# Off-policy training cost on JointTracking-v2 (`scripts/research/bench_offpolicy.py`)",
         "",
         f"Environment steps per CPU-second of the training process (`time.process_time`), "
         f"{args.steps} timed steps after warm-up; off-policy: one gradient step of batch 256 "

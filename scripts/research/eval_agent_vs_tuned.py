@@ -1,10 +1,10 @@
 """A trained agent (every training seed) against the controllers at default and tuned gains,
 at the agent's control rate and at the controllers' own, on the same episodes.
 
-    python scripts/research/eval_agent_vs_tuned.py --env cir_gym/JointTracking-v1 \
+    python scripts/research/eval_agent_vs_tuned.py --env cir_gym/JointTracking-v2 \
         --agent ppo_100hz \
-        --tuning results/tuning/JointTracking-v1.json \
-        --tuning results/tuning/control_freq_100/JointTracking-v1.json \
+        --tuning results/tuning/JointTracking-v2.json \
+        --tuning results/tuning/control_freq_100/JointTracking-v2.json \
         [--episodes 100] [--seed 1000] [--variant "exact model" ...]
         [--controller pd_gravity ...] [--out FILE]
 
@@ -68,7 +68,7 @@ def _rate(kwargs: dict[str, Any], env_id: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--env", default="cir_gym/JointTracking-v1")
+    ap.add_argument("--env", default="cir_gym/JointTracking-v2")
     ap.add_argument("--agent", required=True, help="a shipped agent (agents.available)")
     ap.add_argument("--tuning", action="append", required=True,
                     help="a tune_gains.py JSON (repeatable: one per control rate)")

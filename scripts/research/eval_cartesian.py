@@ -1,4 +1,4 @@
-"""Measured claims of chapter 5.2 on CartesianTracking-v0 (figures and a markdown summary).
+"""Measured claims of chapter 5.2 on CartesianTracking-v1 (figures and a markdown summary).
 
     python scripts/research/eval_cartesian.py [--episodes 10] [--out results/cartesian_tracking]
 
@@ -13,7 +13,7 @@
    speed and the position error over time.
 3. Regulation: os_pd_gravity from random starts (final error, success after the settling
    window).
-4. The shipped agents (``agents/trained/CartesianTracking-v0/``) as in 1.
+4. The shipped agents (``agents/trained/CartesianTracking-v1/``) as in 1.
 
 Every line of the README is written here: regenerate it, do not edit it by hand.
 """
@@ -35,7 +35,7 @@ from cir_gym.evaluation import EvaluationResult, evaluate
 from cir_gym.robot import Robot
 from cir_gym.scoring.plotting import _plt
 
-ENV = "cir_gym/CartesianTracking-v0"
+ENV = "cir_gym/CartesianTracking-v1"
 CONTROLLERS = ("os_pd_gravity", "os_inverse_dynamics", "os_inverse_dynamics_dls", "os_khatib")
 VARIANTS = {"exact model": {}, "unknown 3 kg payload": {"payload_mass": 3.0}}
 NEAR_SINGULAR = ("os_inverse_dynamics", "os_khatib", "os_inverse_dynamics_dls")
@@ -102,7 +102,7 @@ def payload_table(episodes: int, out: Path, agent_names: list[str] | None = None
     ax0.set_xticks(x, names, rotation=20, ha="right")
     ax0.set_yscale("log")
     ax0.set_ylabel("position RMS (mm, log)")
-    ax0.set_title(f"CartesianTracking-v0, {episodes} episodes")
+    ax0.set_title(f"CartesianTracking-v1, {episodes} episodes")
     ax0.legend()
     for name in names:
         ep = results[name, "unknown 3 kg payload"].episodes[0]
@@ -223,7 +223,7 @@ def learning_curves(out: Path) -> list[str]:
                     f"{', '.join(f'{1e3 * v:.2f}' for v in rms)} |")
     ax.set_xlabel("training steps")
     ax.set_ylabel("position RMS (mm, log), 5 evaluation episodes")
-    ax.set_title("CartesianTracking-v0: learning curves")
+    ax.set_title("CartesianTracking-v1: learning curves")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "learning_curves.png", dpi=110)
@@ -240,11 +240,11 @@ def learning_curves(out: Path) -> list[str]:
         "",
         "![learning curves](learning_curves.png)",
         "",
-        "`python scripts/plot_learning_curves.py --env cir_gym/CartesianTracking-v0 --out "
+        "`python scripts/plot_learning_curves.py --env cir_gym/CartesianTracking-v1 --out "
         "results/cartesian_tracking` draws the same curves against the controllers run on the "
         "curves' own evaluation seeds (dashed: the best controller; dotted: the residual's base):",
         "",
-        "![learning curves against the controllers](CartesianTracking-v0.png)",
+        "![learning curves against the controllers](CartesianTracking-v1.png)",
         "",
     ]
 
@@ -278,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         (out / f"section{key}.md").write_text("\n".join(lines) + "\n")
     parts = [(out / f"section{k}.md").read_text() for k in SECTIONS
              if (out / f"section{k}.md").exists()]
-    header = ["# CartesianTracking-v0: operational-space control of the redundant iiwa14", "",
+    header = ["# CartesianTracking-v1: operational-space control of the redundant iiwa14", "",
               "Every number below comes from `scripts/research/eval_cartesian.py` (each section "
               "names its command); do not edit by hand.", ""]
     (out / "README.md").write_text("\n".join(header) + "\n" + "\n".join(parts))

@@ -39,7 +39,7 @@ import cir_gym  # noqa: F401  (registers the environments)
 from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
-ENV_ID = "cir_gym/AdmittanceContact-v0"
+ENV_ID = "cir_gym/AdmittanceContact-v1"
 SETTINGS: dict[str, dict[str, Any]] = {
     "k = 1e3 N/m": {"stiffness": 1.0e3, "force_ref": 20.0},
     "k = 1e4 N/m": {"stiffness": 1.0e4, "force_ref": 20.0},

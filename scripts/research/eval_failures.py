@@ -5,7 +5,7 @@ the reference it no longer follows), and chosen episode metrics.
     python scripts/research/eval_failures.py --env cir_gym/RedundantIK7-v4 \
         --agent ppo_obstacle --set objective=obstacle --seeds 0 --episodes 20 \
         --metric min_clearance
-    python scripts/research/eval_failures.py --env cir_gym/CartesianTracking-v0 --agent ppo_100hz
+    python scripts/research/eval_failures.py --env cir_gym/CartesianTracking-v1 --agent ppo_100hz
 
 Episodes run on seeds ``--seed`` … (default the leaderboard's 1000-) on the agent's own action
 interface (``cir_gym.evaluation.interface_env_kwargs``), played by

@@ -32,8 +32,8 @@ import cir_gym  # noqa: F401  (registers the environments)
 from cir_gym.envs.base import make_env
 from cir_gym.evaluation import evaluate, interface_env_kwargs
 
-ENV_ID = "cir_gym/JointTracking-v1"
-ENVS = ("cir_gym/JointTracking-v1", "cir_gym/ElasticJointTracking-v2")
+ENV_ID = "cir_gym/JointTracking-v2"
+ENVS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
 
 
 def _value(text: str) -> Any:

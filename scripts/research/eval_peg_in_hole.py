@@ -2,8 +2,8 @@
 
     python scripts/eval_peg_in_hole.py --stage main --episodes 100 --out results/peg_in_hole/
     python scripts/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
-    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v1/ppo_position \\
-        --agent agents/trained/PegInHole-v1/residual_ppo_hybrid_force_position \\
+    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v2/ppo_position \\
+        --agent agents/trained/PegInHole-v2/residual_ppo_hybrid_force_position \\
         --controller hybrid_force_position --episodes 100 --resume
 
 On the same seeds for every controller (seed i draws the same true hole pose for all) it reports
@@ -37,7 +37,7 @@ from cir_gym.baselines.hybrid import TASK_ADAPTERS
 from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
-ENV_ID = "cir_gym/PegInHole-v1"
+ENV_ID = "cir_gym/PegInHole-v2"
 #: the env of a stored row without ``env_id``: rows written before v1 were measured on v0 (the
 #: same episodes but for a failed one's last reward, so a row is reused only on its own env)
 STORED_BEFORE_V1 = "cir_gym/PegInHole-v0"
@@ -548,7 +548,7 @@ def _env_of(r: dict[str, Any]) -> str:
 
 
 def _env_names(rows: list[dict[str, Any]]) -> str:
-    """The environments the rows were measured on, for a title (e.g. "PegInHole-v1")."""
+    """The environments the rows were measured on, for a title (e.g. "PegInHole-v2")."""
     return ", ".join(sorted({_env_of(r).split("/")[-1] for r in rows})) or ENV_ID.split("/")[-1]
 
 

@@ -1,6 +1,6 @@
 """A residual agent against its own base controller and against the variant's controller.
 
-    python scripts/research/eval_residual_base.py --env cir_gym/AdmittanceContact-v0 \
+    python scripts/research/eval_residual_base.py --env cir_gym/AdmittanceContact-v1 \
         --agent residual_ppo_admittance [--seed-agent 1] [--episodes 3] [--seed 1000] [--out FILE]
 
 A residual agent carries its base controller as :func:`agents.load` builds it, from the context
@@ -37,7 +37,7 @@ class _ZeroResidual:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="cir_gym/AdmittanceContact-v0")
+    p.add_argument("--env", default="cir_gym/AdmittanceContact-v1")
     p.add_argument("--agent", default="residual_ppo_admittance")
     p.add_argument("--seed-agent", type=int, default=None, help="training seed (default: first)")
     p.add_argument("--episodes", type=int, default=3)

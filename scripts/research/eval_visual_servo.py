@@ -33,8 +33,8 @@ import cir_gym
 from cir_gym import baselines
 from cir_gym.evaluation import evaluate
 
-EYE_IN_HAND = "cir_gym/VisualServo-v0"
-EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v0"
+EYE_IN_HAND = "cir_gym/VisualServo-v1"
+EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v1"
 SEED = 0  # first seed of every multi-episode measurement
 AGENT_SEED = 2000  # the agent's episodes: seeds no training or leaderboard run used
 #: the classic cases: (title, start_offset: tx, ty, tz (m), rotation vector (rad))
@@ -324,7 +324,7 @@ def rotation(n: int, out: Path) -> list[str]:
     text = (
         "# Rotations about the optical axis with feature noise\n\n"
         "Written by `python scripts/research/eval_visual_servo.py --parts rotation "
-        f"--rotation-episodes {n}`: `cir_gym/VisualServo-v0` from start_offset "
+        f"--rotation-episodes {n}`: `cir_gym/VisualServo-v1` from start_offset "
         "(0, 0, 0, 0, 0, θ) (the camera turned by θ about its optical axis from the goal, the "
         "target square to it), the default 0.1 px feature noise, seeds "
         f"{ROTATION_SEED}–{ROTATION_SEED + n - 1} (the seed draws only the noise), run by "
