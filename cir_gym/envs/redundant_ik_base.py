@@ -339,9 +339,11 @@ class RedundantIKBase(RobotEnv):
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a, _ = self._check_action(action)
         q = self._q + self.dt * (a * self.velocity_limit)  # q̇ = a ⊙ q̇_max, held over Δt
-        violation = bool(np.any((q < self.lower) | (q > self.upper)))
+        margin = joint_limit_margin(q, self.lower, self.upper)
+        violation = margin < 0.0
         if violation:
             q = np.clip(q, self.lower, self.upper)  # the joint stops at its limit
+            margin = 0.0  # the stopped joint's
         self._q = q
         k = self._k
         self._k = k + 1
@@ -352,7 +354,6 @@ class RedundantIKBase(RobotEnv):
         if self.task_dim == 6:
             e_rot = float(np.linalg.norm(orientation_error(ref.R[k + 1], R)))
         w = manipulability(self.kin.jacobian(q))
-        margin = joint_limit_margin(q, self.lower, self.upper)
         clear = self.kin.capsules.clearance(self.data, self.obstacle_centre, self.obstacle_radius)
         collision = clear < 0.0
         self.trace[k] = (e_pos, e_rot, w, margin, clear)
