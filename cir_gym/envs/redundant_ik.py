@@ -147,7 +147,7 @@ class RedundantIKEnv(RedundantIKBase):
     ``rms_task_error`` (primary, m), ``max_task_error`` (m), ``min_manipulability`` (m², higher
     is better; over t ≥ 0.1 T: the start-up tenth of the lap, where the reference barely moves
     and a controller may reconfigure the arm, is excluded), ``min_joint_limit_margin`` (rad, higher is better), ``min_clearance`` (m,
-    higher is better; about 14 m to the far-away dummy obstacle of the other objectives),
+    higher is better; about 16.6 m to the far-away dummy obstacle of the other objectives),
     ``joint_drift`` (‖q(T) − q(0)‖ after the closed path, rad). A terminated episode is scored
     over the whole lap as if the arm stayed where it stopped: its error against the reference
     it no longer follows, its manipulability, margin and clearance unchanged. Success: no
