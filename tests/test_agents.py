@@ -227,10 +227,9 @@ def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
     assert env.layout.size == plain.size + 2 * n
     clik = baselines.make("clik", env_id, env=base)
     ff, fe = pseudo_inverse_features(env)
-    env.reset(seed=2)
+    raw, _ = base.reset(seed=2)  # the task's own observation dict; env.observation flattens it
     rng = np.random.default_rng(0)
     for _ in range(12):
-        raw = base._obs()
         q = raw["q"].astype(np.float64)
         J = clik.task_jacobian(q)
         qd_max = base.controller_context().action_scale
@@ -242,7 +241,7 @@ def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
         flat = env.observation(raw)
         np.testing.assert_allclose(flat[-2 * n:], np.concatenate((ff(raw), fe(raw))),
                                    rtol=1e-6, atol=1e-7)
-        env.step(np.clip(want + rng.normal(0.0, 0.05, n), -1.0, 1.0))
+        raw = base.step(np.clip(want + rng.normal(0.0, 0.05, n), -1.0, 1.0))[0]
     with pytest.raises(ValueError, match="joint-velocity"):
         TaskObservation(gym.make(ENV, **SHORT), features=["pinv_error"])
 
