@@ -36,13 +36,16 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 #: trained there runs unchanged. Such an agent is listed as ``<name>@<Env-vK>``: its name says
 #: where it was trained, and it is never presented as trained on the newer version (what
 #: changed between the versions, the reward or an episode's end, is in each environment's
-#: Version History). PegInHole-v2 and AdmittanceContact-v1 changed their contact physics and
+#: Version History; RedundantIK's ``ppo_obstacle`` agents trained on the wrong capsule axis
+#: that v4/v5 corrected). PegInHole-v2 and AdmittanceContact-v1 changed their contact physics and
 #: their residual agents' base laws, so their earlier agents are not carried.
 EARLIER_VERSIONS: dict[str, tuple[str, ...]] = {
     "JointTracking-v2": ("JointTracking-v1",),
     "ElasticJointTracking-v3": ("ElasticJointTracking-v2",),
     "CartesianTracking-v1": ("CartesianTracking-v0",),
     "VisualServo-v1": ("VisualServo-v0",),
+    "RedundantIK-v4": ("RedundantIK-v3",),
+    "RedundantIK7-v5": ("RedundantIK7-v4",),
 }
 
 

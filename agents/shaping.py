@@ -10,7 +10,7 @@ evaluation, the learning curve and the shipped agent's scores use the unmodified
 The error is read from ``info["joint_error"]``, ``info["task_error"]`` or
 ``info["position_error"]`` (CartesianTracking; rad or m); with
 ``orientation_scale`` s > 0 (both wrappers) the error norm is max(‖e‖, s · θ), θ =
-``info["orientation_error"]`` (rad; RedundantIK7-v4's pose tracking): s = 0.1 m/rad makes
+``info["orientation_error"]`` (rad; RedundantIK7-v5's pose tracking): s = 0.1 m/rad makes
 10 mrad count as 1 mm, the env's success ratio. s = 0 (the default) reads ‖e‖ alone.
 """
 
@@ -168,7 +168,7 @@ class LogErrorBonus(gym.Wrapper):
 class TaskReplay(gym.Wrapper):
     """Training only: play each drawn task ``repeats`` times before drawing the next.
 
-    RedundantIK7-v4's "obstacle" reset draws a lap and searches for an obstacle that a
+    RedundantIK7-v5's "obstacle" reset draws a lap and searches for an obstacle that a
     self-motion can clear: ~0.2 s of CPU, while a step costs ~0.1 ms. Under early termination
     an untrained policy loses its lap within a few steps, so training is almost all resets
     (43 env steps/s measured, docs/research/agents.md). This wrapper resets with

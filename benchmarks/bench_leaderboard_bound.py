@@ -46,7 +46,7 @@ from cir_gym.evaluation import evaluate
 
 SECTION = "## Leaderboard at 100 seeds: the physics floor"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
-KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
+KINEMATIC = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
 
 
 def kinematics_seconds(env_id: str, env_kwargs: dict[str, Any], steps: int, repeat: int) -> float:

@@ -1,4 +1,4 @@
-"""Env steps per second of RedundantIK-v3 and RedundantIK7-v4 for each secondary objective.
+"""Env steps per second of RedundantIK-v4 and RedundantIK7-v5 for each secondary objective.
 
     python benchmarks/bench_rik_objectives.py [--episodes 6] [--repeat 2] [--before REF]
                                               [--out results/benchmarks.md]
@@ -38,7 +38,7 @@ OUT = ROOT / "results" / "benchmarks.md"
 SECTION = "## RedundantIK objectives"
 CASES = [
     (env_id, objective)
-    for env_id in ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
+    for env_id in ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
     for objective in ("manipulability", "obstacle", "joint_limits")
 ]
 
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"| {now['reset_ms']:.0f} | {now['step_us']:.0f} |"
             )
     ratios = []
-    for env_id in ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"):
+    for env_id in ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5"):
         manip = results[(env_id, "manipulability")]["now"]["steps_per_s"]
         obstacle = results[(env_id, "obstacle")]["now"]["steps_per_s"]
         ratios.append(f"{env_id}: manipulability / obstacle steps/s = {manip / obstacle:.2f}")

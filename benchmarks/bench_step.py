@@ -66,7 +66,7 @@ from _tape import PhysicsTape, replay_seconds
 import cir_gym
 from cir_gym import baselines
 
-KINEMATIC = ("cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4")
+KINEMATIC = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
 #: contact envs timed a second time in contact: the controller whose actions drive the steps
 #: and the steps played untimed from the reset first (the zero action never touches the
 #: surface: PegInHole's zero-action row is free fall and one impact; on seed 0 these

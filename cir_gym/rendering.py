@@ -70,14 +70,12 @@ __all__ = [
     "draw_caption",
     "draw_joint_tracking",
     "draw_polyline_2d",
-    "draw_redundant_ik",
     "finish_frame",
     "joint_margins",
     "joint_tracking_caption",
     "limit_colour",
     "place_world_geoms",
     "project_points",
-    "redundant_ik_caption",
     "sharp_floor",
     "text_mask",
     "tint_bodies",
@@ -883,51 +881,3 @@ def _as_3d(points: np.ndarray, z: float = 0.0) -> np.ndarray:
         return pts
     return np.concatenate((pts, np.full((*pts.shape[:-1], 3 - pts.shape[-1]), z)), axis=-1)
 
-
-def draw_redundant_ik(env: Any, scene: mujoco.MjvScene) -> None:
-    """RedundantIK task: the closed reference path, the target (frame), joint-limit warnings.
-
-    The obstacle is a geom of the model already (moved per episode); it gets a translucent
-    halo when the arm comes within 5 cm. Reads ``env._x_ref``, ``env._R_ref``, ``env._k``,
-    ``env._q``, ``env.lower``/``upper``, ``env.site``, ``env.task_dim``.
-    """
-    k = min(env._k, len(env._x_ref) - 1)
-    path = _as_3d(env._x_ref)
-    add_polyline(scene, path, 0.004, REFERENCE, max_segments=TRACE_SAMPLES)
-    target = path[k]
-    if env.task_dim == 6:
-        add_frame(scene, target, env._R_ref[k], 0.12, 0.006)
-        add_sphere(scene, target, 0.015, TARGET)
-    else:
-        add_sphere(scene, target, 0.025, TARGET)
-    tint_joint_limits(scene, env.model, env.robot.joint_ids, env._q, env.lower, env.upper)
-    place_world_geoms(scene, env.model)  # the obstacle, moved per episode
-    radius = float(getattr(env, "_obstacle_radius", 0.0))
-    if radius > 0 and k > 0:
-        clear = float(env._trace[4, k - 1])
-        if clear < 0.05:  # a halo out to the arm: orange, more opaque as it closes in
-            centre = _as_3d(np.asarray(env._obstacle_centre))
-            add_sphere(
-                scene,
-                centre,
-                radius + max(clear, 0.0),
-                (1.0, 0.6, 0.1, 0.15 + 0.35 * (1.0 - max(clear, 0.0) / 0.05)),
-            )
-
-
-def redundant_ik_caption(env: Any) -> str:
-    """``t``, the task error (mm) and the objective's quantity (w, margin or clearance)."""
-    k = min(env._k, env.max_steps)
-    if k == 0:
-        return f"t {0.0:5.2f} s  {env.objective}"
-    e_pos, e_rot, w, margin, clear = env._trace[:5, k - 1]
-    text = f"t {k * env.dt:5.2f} s  e {1e3 * e_pos:5.2f} mm"
-    if env.task_dim == 6:
-        text += f" {np.degrees(e_rot):5.2f}°"
-    if env.objective == "manipulability":
-        text += f"  w {w:.3f}"
-    elif env.objective == "joint_limits":
-        text += f"  margin {margin:.3f} rad"
-    else:
-        text += f"  clear {100 * clear:4.1f} cm"
-    return text

@@ -211,7 +211,7 @@ def test_gravity_feature_is_the_nominal_gravity_in_action_units():
         ObservationLayout(keys=("q",), shapes=((7,),), features=("jacobian",))
 
 
-@pytest.mark.parametrize("env_id", ["cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"])
+@pytest.mark.parametrize("env_id", ["cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5"])
 def test_pseudo_inverse_features_make_clik_linear_in_the_observation(env_id):
     """f_ff + K f_err is CLIK's action (before its clip) along a noisy episode, and the
     feed-forward feature, scaled back to rad/s, moves the task at the reference velocity:
@@ -337,7 +337,7 @@ def test_batched_training_env_matches_the_single_env_stack(tmp_path, env_id, fea
                 np.testing.assert_allclose(obs[i], o, atol=1e-5)
     assert dones.all()
     with pytest.raises(ValueError, match="batched"):
-        make_batched_vec_env("cir_gym/RedundantIK-v3", {}, layout, 2, seed=0)
+        make_batched_vec_env("cir_gym/RedundantIK-v4", {}, layout, 2, seed=0)
     with pytest.raises(HyperparameterError, match="vec_env"):
         load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, vec_env="batch"))
 
@@ -410,7 +410,7 @@ def test_task_replay_plays_each_drawn_task_repeats_times():
     last task between; the drawn tasks are the unwrapped env's own sequence."""
     from cir_gym.agents.shaping import TaskReplay
 
-    rik = "cir_gym/RedundantIK-v3"
+    rik = "cir_gym/RedundantIK-v4"
     env = TaskReplay(gym.make(rik), repeats=3)
     plain = gym.make(rik)
     starts = [env.reset(seed=4)[0]["x_ref"].copy()] + [env.reset()[0]["x_ref"].copy()
@@ -431,7 +431,7 @@ def test_task_replay_key_is_checked_and_reaches_the_training_envs(tmp_path):
     from cir_gym.agents.shaping import TaskReplay
     from cir_gym.agents.train import EnvFactory
 
-    rik = "cir_gym/RedundantIK-v3"
+    rik = "cir_gym/RedundantIK-v4"
     assert load_hyperparams("ppo", rik, path=tiny_hyperparams(tmp_path, task_replay=4))[
         "task_replay"] == 4
     for bad in (0, 2.5, True):
@@ -446,7 +446,7 @@ def test_task_replay_key_is_checked_and_reaches_the_training_envs(tmp_path):
 
 
 class _PoseErrorEnv(gym.Env):
-    """Steps report a fixed position error (m) and orientation error (rad), as RedundantIK7-v4."""
+    """Steps report a fixed position error (m) and orientation error (rad), as RedundantIK7-v5."""
 
     observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
     action_space = gym.spaces.Box(-1.0, 1.0, (1,))
@@ -465,7 +465,7 @@ class _PoseErrorEnv(gym.Env):
 
 def test_shaping_reads_the_orientation_error_with_orientation_scale():
     """orientation_scale s > 0: the error norm is max(|e|, s * theta), so 0.5 mm of position and
-    0.3 rad of orientation (RedundantIK7-v4's position-only run) is a lost lap at 10 mm / s = 0.1
+    0.3 rad of orientation (RedundantIK7-v5's position-only run) is a lost lap at 10 mm / s = 0.1
     and earns a negative bonus; s = 0 (the default) reads the position alone, as before."""
     from cir_gym.agents.batched import BatchedTaskObservation
     from cir_gym.agents.shaping import (
@@ -505,7 +505,7 @@ def test_shaping_reads_the_orientation_error_with_orientation_scale():
         EarlyTermination(_PoseErrorEnv(5e-4, 0.3), 0.01, -50.0, float("nan"))
     # the hyperparameter files accept it in both terms; the batched env (no orientation) refuses
     path = Path(__file__).parents[1] / "agents/hyperparams/levers/rik7_et_log_orient.yml"
-    hp = load_hyperparams("ppo", "cir_gym/RedundantIK7-v4", path=path)
+    hp = load_hyperparams("ppo", "cir_gym/RedundantIK7-v5", path=path)
     assert hp["early_termination"]["orientation_scale"] == 0.1
     assert hp["log_error_bonus"]["orientation_scale"] == 0.1
     probe = gym.make(ENV, **SHORT)
@@ -984,7 +984,7 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
     joint (ω_cv = 0.7 ω_z on elastic joints)."""
     from scripts.tune_gains import bounds, tunable_gains, variant_setting
 
-    rik, rik7 = "cir_gym/RedundantIK-v3", "cir_gym/RedundantIK7-v4"
+    rik, rik7 = "cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5"
     assert variant_setting(rik, {"objective": "obstacle"}) == (pytest.approx(0.005), "obstacle")
     assert bounds("K", 50.0, variant_setting(rik7, {})[0]) == pytest.approx((1.0, 100.0))
     assert bounds("K", 50.0, 0.005) == pytest.approx((1.0, 200.0))
@@ -1036,11 +1036,11 @@ def test_tune_gains_ranks_on_the_variants_metric_and_keeps_the_success_rate(tmp_
 
     from scripts.tune_gains import main
 
-    assert main(["--env", "cir_gym/RedundantIK-v3", "--controller", "clik_nullspace",
+    assert main(["--env", "cir_gym/RedundantIK-v4", "--controller", "clik_nullspace",
                  "--controller", "jacobian_transpose", "--trials", "4", "--train-episodes",
                  "1", "--episodes", "1", "--variant", "manipulability",
                  "--out", str(tmp_path)]) == 0
-    rows = json.loads((tmp_path / "RedundantIK-v3.json").read_text())
+    rows = json.loads((tmp_path / "RedundantIK-v4.json").read_text())
     assert rows[0]["default"] == {"K": 50.0, "k0_manipulability": 20.0}
     assert rows[0]["bounds"]["K"] == pytest.approx([1.0, 200.0])
     assert rows[0]["leaderboard_tuned"]["metric"] == "min_manipulability"
@@ -1056,7 +1056,7 @@ def test_tune_gains_ranks_on_the_variants_metric_and_keeps_the_success_rate(tmp_
             feasible = train["success"] >= floor and train["divergence"] == 0
             on = "value" if row["searched_on"] == "min_manipulability" else "return"
             assert t.value == (-train[on] if feasible else math.inf)
-    md = (tmp_path / "RedundantIK-v3.md").read_text()
+    md = (tmp_path / "RedundantIK-v4.md").read_text()
     assert "| manipulability | clik_nullspace | min_manipulability |" in md
     assert "| manipulability | jacobian_transpose | min_manipulability (searched on return) |" in md
 
@@ -1068,7 +1068,7 @@ def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
     such as JointTracking's payload is not (an agent may meet it unseen)."""
     from cir_gym.scoring.leaderboard import jobs_for
 
-    rik = "cir_gym/RedundantIK-v3"
+    rik = "cir_gym/RedundantIK-v4"
     assert agents.trained_for(rik, "ppo", {"objective": "manipulability"})
     assert agents.trained_for(rik, "ppo", {})  # the default objective is manipulability
     assert not agents.trained_for(rik, "ppo", {"objective": "obstacle"})
@@ -1142,7 +1142,7 @@ def test_rik_lap_diagnosis_splits_the_error_along_and_across_the_reference_motio
     start); CLIK stays within its 1-mm bar."""
     from scripts.research.eval_rik_agents import _lap
 
-    env_id = "cir_gym/RedundantIK-v3"
+    env_id = "cir_gym/RedundantIK-v4"
     rows, metrics = _lap(baselines.make("clik", env_id), env_id, "manipulability", 1000)
     err, along, across, speed = rows.T
     np.testing.assert_allclose(err**2, along**2 + across**2, rtol=1e-9, atol=1e-18)

@@ -98,9 +98,9 @@ def test_leaderboard_command_passes_its_options_on(tmp_path, monkeypatch):
         lambda out, **kwargs: calls.append((out, kwargs)),
     )
     argv = ["leaderboard", "--episodes", "1", "--seed", "3", "--out", str(tmp_path)]
-    assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v3", "--env", ENV]) == 0
+    assert main([*argv, "--env", "cir_gym:cir_gym/RedundantIK-v4", "--env", ENV]) == 0
     assert calls == [
-        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v3", ENV],
+        (tmp_path, {"episodes": 1, "seed": 3, "envs": ["cir_gym/RedundantIK-v4", ENV],
                     "videos": True})
     ]
     assert main([*argv, "--env", "cir_gym/Nope-v1"]) == 2
@@ -172,7 +172,7 @@ def test_train_command_passes_its_hyperparameter_file_on(tmp_path, monkeypatch):
     pytest.importorskip("stable_baselines3")
     calls = []
     monkeypatch.setattr("cir_gym.agents.train.train", lambda env_id, algo, **kw: calls.append(kw))
-    argv = ["train", "--env", "cir_gym/RedundantIK-v3", "--out", str(tmp_path)]
+    argv = ["train", "--env", "cir_gym/RedundantIK-v4", "--out", str(tmp_path)]
     hp = "agents/hyperparams/levers/rik_base.yml"
     assert main([*argv, "--hyperparams", hp]) == 0
     assert main(argv) == 0

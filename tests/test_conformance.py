@@ -68,8 +68,8 @@ _KINEMATIC = ("kinematic env: q ← q + Δt q̇ with q̇ clipped to the velocity
               "physics step (the simulator state is rewritten from q every step), so "
               "info['diverged'] is False by construction")
 NEVER_DIVERGES: dict[str, str] = {
-    "cir_gym/RedundantIK-v3": _KINEMATIC,
-    "cir_gym/RedundantIK7-v4": _KINEMATIC,
+    "cir_gym/RedundantIK-v4": _KINEMATIC,
+    "cir_gym/RedundantIK7-v5": _KINEMATIC,
 }
 #: Env ids whose action cannot make the physics diverge (a NaN in the state still does).
 _IMPEDANCE = ("impedance interface: the action moves a setpoint clamped near the pose and the "

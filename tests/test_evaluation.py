@@ -43,7 +43,7 @@ def test_evaluate_and_sb3_evaluate_policy_give_the_same_returns():
 
 @pytest.mark.parametrize(
     "name, env_id, gain",
-    [("computed_torque", ENV, "omega_n"), ("clik", "cir_gym/RedundantIK-v3", "K")],
+    [("computed_torque", ENV, "omega_n"), ("clik", "cir_gym/RedundantIK-v4", "K")],
 )
 @pytest.mark.parametrize("value", [0, "abc", [1, 2], True, float("nan")])
 def test_a_gain_of_the_wrong_type_or_range_raises_invalid_gain_naming_it(name, env_id, gain, value):
@@ -228,7 +228,7 @@ def _result(
         EpisodeResult(i, 0.0, 1, s, False, {"rms_task_error": e, "min_manipulability": w})
         for i, (s, e, w) in enumerate(zip(successes, errors, manipulability, strict=True))
     ]
-    return EvaluationResult("cir_gym/RedundantIK-v3", name, episodes, specs, "rms_task_error")
+    return EvaluationResult("cir_gym/RedundantIK-v4", name, episodes, specs, "rms_task_error")
 
 
 def test_rank_puts_success_first_then_the_primary_metric_in_its_direction():
@@ -414,9 +414,9 @@ def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
         evaluate(policy, ENV, 2, batched=True, drive="industrial", **SHORT)
     with pytest.raises(ValueError, match="record=True"):
         evaluate(policy, ENV, 2, batched=True, record=True, **SHORT)
-    clik = baselines.make("clik", "cir_gym/RedundantIK-v3")
-    with pytest.raises(ValueError, match="no batched cir_gym/RedundantIK-v3"):
-        evaluate(clik, "cir_gym/RedundantIK-v3", 2, batched=True)
+    clik = baselines.make("clik", "cir_gym/RedundantIK-v4")
+    with pytest.raises(ValueError, match="no batched cir_gym/RedundantIK-v4"):
+        evaluate(clik, "cir_gym/RedundantIK-v4", 2, batched=True)
 
     class Opaque:  # a policy without the flag and not a Controller: sequential by default
         def predict(self, obs, state=None, episode_start=None, deterministic=True):

@@ -1,4 +1,4 @@
-"""RedundantIK-v3, RedundantIK7-v4 and the chapter-1 kinematic controllers: theory checks."""
+"""RedundantIK-v4, RedundantIK7-v5 and the chapter-1 kinematic controllers: theory checks."""
 
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ from cir_gym.envs.redundant_ik_config import MANIPULABILITY_WINDOW
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument
 
-ENV = "cir_gym/RedundantIK-v3"
-ENV7 = "cir_gym/RedundantIK7-v4"
+ENV = "cir_gym/RedundantIK-v4"
+ENV7 = "cir_gym/RedundantIK7-v5"
 CONTROLLERS = {cls.name: cls for cls in kinematic.KINEMATIC_CONTROLLERS}
 
 
@@ -239,7 +239,7 @@ def test_saturation_in_the_null_space_holds_the_joint_and_keeps_the_task():
 
 
 def test_nullspace_holds_the_joint_limit_clik_runs_into():
-    """RedundantIK-v3 "joint_limits", seed 1: clik ends the episode at the narrowed joint's
+    """RedundantIK-v4 "joint_limits", seed 1: clik ends the episode at the narrowed joint's
     limit; clik_nullspace finishes the lap inside the limits."""
     env = gym.make(ENV, objective="joint_limits")
     plain = rollout(controller("clik", env), env, 1)

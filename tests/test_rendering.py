@@ -276,7 +276,7 @@ def test_frame_is_not_blank_and_the_task_changes_it(env_id: str) -> None:
 @needs_gl
 def test_a_marker_appears_where_the_camera_projects_it() -> None:
     """A sphere added in draw_task changes the pixels around its pinhole projection."""
-    env = gym.make("cir_gym/RedundantIK-v3", render_mode="rgb_array", width=200, height=200)
+    env = gym.make("cir_gym/RedundantIK-v4", render_mode="rgb_array", width=200, height=200)
     env.reset(seed=0)
     u = env.unwrapped
     point = np.array([0.7, 0.6, 0.05])  # inside the top camera's view, away from the arm
@@ -367,7 +367,7 @@ def test_captions_report_the_primary_error_of_the_step() -> None:
     err = np.linalg.norm(obs["q_ref"] - env.unwrapped.data.qpos[env.unwrapped.robot.qpos_adr])
     assert f"{err:.4f} rad" in text and text.startswith(f"t {10 * env.unwrapped.dt:5.2f} s")
     env.close()
-    env = gym.make("cir_gym/RedundantIK-v3", objective="joint_limits")
+    env = gym.make("cir_gym/RedundantIK-v4", objective="joint_limits")
     env.reset(seed=2)
     for _ in range(10):
         _, _, _, _, info = env.step(np.full(env.action_space.shape, 0.3))
@@ -378,7 +378,7 @@ def test_captions_report_the_primary_error_of_the_step() -> None:
 
 
 @needs_gl
-@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v2", "cir_gym/RedundantIK-v3"])
+@pytest.mark.parametrize("env_id", ["cir_gym/JointTracking-v2", "cir_gym/RedundantIK-v4"])
 def test_overlay_projection_matches_the_rendered_scene(env_id: str) -> None:
     """project_points (the 2-D overlays' camera) puts a point where GL draws a sphere there,
     for the free camera (JointTracking) and a model camera (RedundantIK's "top")."""

@@ -83,7 +83,7 @@ def test_all_policies_pair_an_agent_with_its_own_objective_only():
     """policies: all on RedundantIK's leaderboard variants: every controller on every
     objective, a shipped agent only on the objective it was trained for (as the leaderboard);
     an agent named explicitly runs where it is asked to."""
-    rik = "cir_gym/RedundantIK-v3"
+    rik = "cir_gym/RedundantIK-v4"
     grid = {"evaluate": {"envs": [rik], "policies": "all", "episodes": 1,
                          "env_kwargs": "leaderboard"}}
     pairs = {(t["policy"], t["variant"]) for t in expand(grid)}

@@ -157,10 +157,14 @@ class RedundantIKEnv(RedundantIKBase):
     ``min_clearance`` ("obstacle"), ``min_joint_limit_margin`` ("joint limits").
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK-v3")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK-v4")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_projected_gradient, clik_augmented.
 
     ## Version History
+    - v4: the link capsules lie along each geom's z axis (the clearance, collisions, obstacle
+      placement, the obstacle reward term and ``min_clearance`` used a wrong axis, off by up
+      to 0.25 m; they now equal MuJoCo's ``mj_geomDistance``); ``charge_unplayed_steps`` on by
+      default: a terminated episode also loses the worst reward of each unplayed step.
     - v3: an "obstacle" is kept only if a motion along the self-motion clears it over the
       whole lap within the joint and velocity limits (:meth:`clearing_motion`); v2 checked one
       instant: 15 of the 21 planar and 13 of the 16 iiwa episodes (of 100) that
@@ -225,7 +229,7 @@ class RedundantIK7Env(RedundantIKBase):
     R̄(t) = Rot(r, α sin 2πσ(t)) R_home (world axis r random, α ∈ [0.1, 0.3] rad), closed as
     well; ω̄ = r α 2π cos(2πσ) σ̇. The orientation error is the rotation vector of R̄ Rᵀ
     (through its quaternion), never an Euler-angle difference. ``objective`` as in
-    ``RedundantIK-v3``; the obstacle is a sphere on the sweep of links 3–5 (around the
+    ``RedundantIK-v4``; the obstacle is a sphere on the sweep of links 3–5 (around the
     elbow), and the clearance is computed analytically (centre to capsule segments, minus the
     radii).
 
@@ -256,17 +260,17 @@ class RedundantIK7Env(RedundantIKBase):
     within 0.3 rad of it); w may be negative.
 
     ## Rewards
-    As ``RedundantIK-v3``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
+    As ``RedundantIK-v4``, with r_orientation = −(1 − (1/3) Σ_s exp(−θ² / s²)), θ the
     orientation error (rad) and s ∈ 10 × ``error_scales`` (rad), and the manipulability cost
     exp(−w / 0.05); the worst step that ``charge_unplayed_steps`` charges per unplayed step is
     2 + ``secondary_weight`` + ``velocity_weight`` (r_orientation = −1 as well).
 
     ## Starting State
-    As ``RedundantIK-v3``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
+    As ``RedundantIK-v4``, from the home keyframe (0, 0.6, 0, −1.4, 0, 0.9, 0) to the pose
     (x̄(0), R̄(0)); ``initial_error`` offsets the position only.
 
     ## Episode End
-    As ``RedundantIK-v3``.
+    As ``RedundantIK-v4``.
 
     ## Arguments
     | argument | default | meaning |
@@ -287,23 +291,27 @@ class RedundantIK7Env(RedundantIKBase):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    As ``RedundantIK-v3`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
+    As ``RedundantIK-v4`` plus ``rms_orientation_error`` and ``max_orientation_error`` (rad);
     manipulability of the 6×7 Jacobian (mixed units). Success: no termination,
     ``max_task_error`` < ``success_threshold`` and ``max_orientation_error`` <
     10 ``success_threshold``.
 
     ## Reference controllers
-    ``baselines.available("cir_gym/RedundantIK7-v4")``: jacobian_transpose, pseudo_inverse,
+    ``baselines.available("cir_gym/RedundantIK7-v5")``: jacobian_transpose, pseudo_inverse,
     clik, clik_dls, clik_weighted, clik_nullspace, clik_projected_gradient, clik_augmented.
 
     ## Version History
+    - v5: the link capsules lie along each geom's z axis (the clearance, collisions, obstacle
+      placement, the obstacle reward term and ``min_clearance`` used a wrong axis, off by up
+      to 0.10 m; they now equal MuJoCo's ``mj_geomDistance``); ``charge_unplayed_steps`` on by
+      default: a terminated episode also loses the worst reward of each unplayed step.
     - v4: ``quat`` and ``quat_ref`` on one continuous hemisphere, ⟨Q, Q_home⟩ ≥ 0. v3 forced
       w ≥ 0 on ``quat_ref``, which flipped sign mid-episode wherever w crossed 0 (3 of the
       first 40 "manipulability" episodes), while ``quat`` (MuJoCo's ``mju_mat2Quat``,
       documented w ≥ 0) kept the sign of its largest component and so did not follow it.
       Terminated episodes scored against the moving reference and no episode without an
       obstacle, as ``RedundantIK-v3``'s later note. Otherwise as v3.
-    - v0–v3: as ``RedundantIK-v3`` (v3: obstacles clearable over the whole lap; v2: the
+    - v0–v3: as ``RedundantIK-v4`` (v3: obstacles clearable over the whole lap; v2: the
       "manipulability" start; v1: obstacles, joint windows, termination penalty; v0: initial
       version).
     """
@@ -341,12 +349,12 @@ class RedundantIK7Env(RedundantIKBase):
 
 
 REDUNDANT_IK_ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
-    "cir_gym/RedundantIK-v3": (
+    "cir_gym/RedundantIK-v4": (
         RedundantIKEnv,
         "planar3r closed-path tracking with joint velocities; redundancy for a secondary "
         "objective (ch. 1)",
     ),
-    "cir_gym/RedundantIK7-v4": (
+    "cir_gym/RedundantIK7-v5": (
         RedundantIK7Env,
         "iiwa14 6-D pose tracking of a closed path with joint velocities; redundancy (ch. 1)",
     ),

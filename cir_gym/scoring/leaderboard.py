@@ -90,8 +90,8 @@ def run_seed_table(
 EPISODE_SECONDS: dict[str, float] = {
     "JointTracking-v2": 0.45,
     "ElasticJointTracking-v3": 0.5,
-    "RedundantIK-v3": 0.45,
-    "RedundantIK7-v4": 0.45,
+    "RedundantIK-v4": 0.45,
+    "RedundantIK7-v5": 0.45,
     "VisualServo-v1": 0.6,
     "VisualServoEyeToHand-v1": 0.5,
     "AdmittanceContact-v1": 2.5,

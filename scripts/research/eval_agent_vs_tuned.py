@@ -3,7 +3,7 @@ at the agent's control rate and at the controllers' own, on the same episodes.
 
     python scripts/research/eval_agent_vs_tuned.py --env cir_gym/JointTracking-v2 \
         --agent ppo_100hz \
-        --tuning results/tuning/JointTracking-v2.json \
+        --tuning cir_gym/scoring/tuned_gains/JointTracking-v2.json \
         --tuning results/tuning/control_freq_100/JointTracking-v2.json \
         [--episodes 100] [--seed 1000] [--variant "exact model" ...]
         [--controller pd_gravity ...] [--out FILE]

@@ -2,7 +2,7 @@
 the largest error it had *while it played* (the scored error of a terminated episode also counts
 the reference it no longer follows), and chosen episode metrics.
 
-    python scripts/research/eval_failures.py --env cir_gym/RedundantIK7-v4 \
+    python scripts/research/eval_failures.py --env cir_gym/RedundantIK7-v5 \
         --agent ppo_obstacle --set objective=obstacle --seeds 0 --episodes 20 \
         --metric min_clearance
     python scripts/research/eval_failures.py --env cir_gym/CartesianTracking-v1 --agent ppo_100hz

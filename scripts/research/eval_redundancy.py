@@ -1,5 +1,5 @@
-"""Measure what redundancy buys (chapter 1): the kinematic controllers on RedundantIK-v3 and
-RedundantIK7-v4.
+"""Measure what redundancy buys (chapter 1): the kinematic controllers on RedundantIK-v4 and
+RedundantIK7-v5.
 
     python scripts/research/eval_redundancy.py --episodes 100 --out results/redundancy/ --jobs 2
 
@@ -36,7 +36,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-ENVS = {"RedundantIK": "cir_gym/RedundantIK-v3", "RedundantIK7": "cir_gym/RedundantIK7-v4"}
+ENVS = {"RedundantIK": "cir_gym/RedundantIK-v4", "RedundantIK7": "cir_gym/RedundantIK7-v5"}
 ALL = ("jacobian_transpose", "pseudo_inverse", "clik", "clik_dls", "clik_weighted",
        "clik_projected_gradient", "clik_nullspace", "clik_augmented")
 TEXTBOOK = "clik_projected_gradient"  # the textbook law: q̇ = J†(x̄̇ + K e) + (I − J†J) k₀ ∇w

@@ -1,6 +1,6 @@
 """RedundantIK agents on many seeds, and where their laps are lost (the 90 % target).
 
-    python scripts/research/eval_rik_agents.py [--env cir_gym/RedundantIK-v3] [--episodes 100]
+    python scripts/research/eval_rik_agents.py [--env cir_gym/RedundantIK-v4] [--episodes 100]
         [--seed 1000] [--laps 60] [--out results/agents/RedundantIK-v3_agents.md]
         [--agent NAME[:OBJECTIVE] ...] [--path DIR[:OBJECTIVE] ...]
 
@@ -113,7 +113,7 @@ def laps_table(policy, env_id: str, objective: str, laps: int, seed: int) -> lis
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="cir_gym/RedundantIK-v3")
+    p.add_argument("--env", default="cir_gym/RedundantIK-v4")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--laps", type=int, default=60, help="episodes of the lap diagnosis (0: none)")
