@@ -898,7 +898,7 @@ def test_intersample_error_of_a_pd_law_equals_its_sampled_error():
     assert every_step == pytest.approx(sampled, rel=0.01)
 
     class Zero:
-        def predict(self, obs, deterministic=True):
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
             return np.zeros(7, dtype=np.float32), None
 
     sampled, every_step, _ = physics_rate_errors(Zero(), kwargs, 1000)
