@@ -46,14 +46,18 @@ SHOWN: dict[str, tuple[str, dict[str, Any], str]] = {
 }
 
 
-def shown(env_id: str) -> tuple[str, dict[str, Any], str]:
-    """(controller, env kwargs, description) for ``env_id`` (see :data:`SHOWN`)."""
+def shown(env_id: str) -> tuple[str, dict[str, Any], str] | None:
+    """(controller, env kwargs, description) for ``env_id`` (see :data:`SHOWN`); None for an
+    environment without a reference controller (the agent-ready variants)."""
     from cir_gym import baselines
 
     name = env_id.split("/")[-1].rsplit("-v", 1)[0]
     if name in SHOWN:
         return SHOWN[name]
-    return baselines.available(env_id)[0], {}, cir_gym.ENVIRONMENTS[env_id][1]
+    controllers = baselines.available(env_id)
+    if not controllers:
+        return None
+    return controllers[0], {}, cir_gym.ENVIRONMENTS[env_id][1]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +72,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     cells, status = [], 0
     for env_id in args.env or sorted(cir_gym.ENVIRONMENTS):
-        controller, kwargs, what = shown(env_id)
+        if (chosen := shown(env_id)) is None:
+            print(f"{env_id}: no reference controller to film, skipped", file=sys.stderr)
+            continue
+        controller, kwargs, what = chosen
         frames = episode_frames(env_id, controller, kwargs, args.seed, size=args.size,
                                 fps=args.fps, seconds=args.seconds)
         name = env_id.split("/")[-1]
