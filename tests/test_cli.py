@@ -303,9 +303,9 @@ def test_tuned_gains_hold_whatever_the_reward_arguments():
                                                "error_scales": (0.5,)}) == payload
     with pytest.raises(PolicyError, match="was not tuned"):
         tuned_gains(jt, "computed_torque", {"payload_mass": 1.0, "torque_weight": 0.5})
-    peg = "cir_gym/PegInHole-v2"
-    spiral = tuned_gains(peg, "hybrid_spiral", {})
-    assert tuned_gains(peg, "hybrid_spiral", {"charge_unplayed_steps": False}) == spiral
+    cart = "cir_gym/CartesianTracking-v1"
+    plain = tuned_gains(cart, "os_khatib", {})
+    assert tuned_gains(cart, "os_khatib", {"charge_unplayed_steps": False}) == plain
 
 
 def test_the_shipped_tuning_files_give_every_tuned_row_its_gains():

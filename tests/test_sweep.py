@@ -88,9 +88,10 @@ def test_all_policies_pair_an_agent_with_its_own_objective_only():
                          "env_kwargs": "leaderboard"}}
     pairs = {(t["policy"], t["variant"]) for t in expand(grid)}
     assert {("clik", v) for v in ("manipulability", "obstacle", "joint limits")} <= pairs
-    assert {v for p, v in pairs if p == "agent:ppo"} == {"manipulability"}
-    assert {v for p, v in pairs if p == "agent:ppo_obstacle"} == {"obstacle"}
-    grid["evaluate"]["policies"] = ["agent:ppo"]
+    ppo, obstacle = "agent:ppo@RedundantIK-v3", "agent:ppo_obstacle@RedundantIK-v3"
+    assert {v for p, v in pairs if p == ppo} == {"manipulability"}
+    assert {v for p, v in pairs if p == obstacle} == {"obstacle"}
+    grid["evaluate"]["policies"] = [ppo]
     assert len(expand(grid)) == 3
 
 

@@ -273,7 +273,9 @@ def run_leaderboard(
         )
         figures = figures and "matplotlib" not in missing
         videos = videos and "PIL" not in missing
-    env_ids = envs or list(cir_gym.ENVIRONMENTS)
+    # an environment with no policy to score (an agent-ready variant before an agent ships)
+    # has no table
+    env_ids = [e for e in envs or list(cir_gym.ENVIRONMENTS) if jobs_for(e, env_overrides)]
     jobs = [j for e in env_ids for j in jobs_for(e, env_overrides)]
     variants = [
         (e, v, {**kw, **(env_overrides or {})})
@@ -364,7 +366,7 @@ def run_leaderboard(
             lines += [f"### {variant} ({setting})", "", ranked_table(rows), ""]
             if seed_tables.get((env_id, variant)):
                 lines += [seed_tables[(env_id, variant)], ""]
-            if figures:
+            if figures and rows:
                 from cir_gym.scoring.plotting import plot_comparison
 
                 fig = out / f"{_name(env_id)}_{slug(variant)}.png"
