@@ -275,8 +275,9 @@ def run_leaderboard(
         videos = videos and "PIL" not in missing
     # an environment with no policy to score (an agent-ready variant before an agent ships)
     # has no table
-    env_ids = [e for e in envs or list(cir_gym.ENVIRONMENTS) if jobs_for(e, env_overrides)]
-    jobs = [j for e in env_ids for j in jobs_for(e, env_overrides)]
+    jobs_of = {e: jobs_for(e, env_overrides) for e in envs or list(cir_gym.ENVIRONMENTS)}
+    env_ids = [e for e, env_jobs in jobs_of.items() if env_jobs]
+    jobs = [j for e in env_ids for j in jobs_of[e]]
     variants = [
         (e, v, {**kw, **(env_overrides or {})})
         for e in env_ids
