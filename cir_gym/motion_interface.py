@@ -27,27 +27,23 @@ tests/test_ft_sensor.py::test_motion_interface_bandwidth): gain +0.3 dB at 5 Hz,
 ≈ 50 Hz, with 20° of phase lag at 20 Hz. Against a disturbance force the arm is a Cartesian
 spring of stiffness ≈ Λ(q) ω_n² (Λ the task-space inertia, a few kg at the tool: ~10⁵ N/m),
 as stiff as the stiffest surface of AdmittanceContact: "stiff" but not rigid, like a real arm.
+
+One interface drives one arm or a batch of N arms (a vector env's copies): its setpoint state
+has the shape of the configuration given to :meth:`CartesianMotionInterface.reset`, (n,) or
+(N, n), and :meth:`~CartesianMotionInterface.command` and
+:meth:`~CartesianMotionInterface.torque` then take (6,) / (n,) or (N, 6) / (N, n) arrays.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from cir_gym.fast_solve import solve
-from cir_gym.numeric import CLIP
 from cir_gym.operational_space import damped_least_squares
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument, check_number
-
-#: command's damped least squares inline (False: operational_space.damped_least_squares
-#: itself, the reference the inline form is tested against)
-_INLINE_DLS = True
-_F64 = np.dtype(np.float64)
-_isfinite = math.isfinite
 
 __all__ = ["MEASURED_BANDWIDTH_HZ", "CartesianMotionInterface"]
 
@@ -67,6 +63,9 @@ class CartesianMotionInterface:
         omega_n: natural frequency of the joint error dynamics (rad/s), in (0, 1000].
         zeta: damping ratio, in (0, 10].
         damping: damped least-squares factor k of the differential IK (m), in [0, 1].
+
+    Attributes:
+        q_c: joint setpoint at the end of the current period, (n,) or (N, n) (rad).
     """
 
     def __init__(
@@ -85,94 +84,128 @@ class CartesianMotionInterface:
         self.damping = check_number("damping", damping, 0.0, 1.0)
         self.kp = self.omega_n**2
         self.kd = 2.0 * self.zeta * self.omega_n
-        self.q_c = np.zeros(robot.n)  # joint setpoint at the end of the current period
-        self._q_start = np.zeros(robot.n)
-        self._dq = np.zeros(robot.n)
+        self.q_c = np.zeros(robot.n)
+        self._q_start = np.zeros(robot.n)  # joint setpoint at the start of the period
+        self._dq = np.zeros(robot.n)  # the period's setpoint step δq
         self._period = 1.0
-        self._dls_k: float | None = None  # the damping of _dls_diag (command)
-        self._dls_diag = np.zeros((6, 6))
-        # torque's model calls on an own MjData (Robot.inertia's and Robot.bias's MuJoCo
-        # calls, in their order, without their per-call validation); built lazily
-        self._fast: tuple[Any, ...] | None = None
+        self._data: mujoco.MjData | None = None  # B̂ and n̂'s own MjData, built on first use
 
-    def reset(self, q: np.ndarray) -> None:
-        """Hold the measured configuration ``q`` (n,)."""
-        self.q_c[:] = q
-        self._q_start[:] = q
-        self._dq[:] = 0.0
+    # ------------------------------------------------------------------ setpoint
+    def reset(self, q: np.ndarray, rows: Any = None) -> None:
+        """Hold the measured configuration ``q``: (n,) for one arm, (N, n) for N arms (the
+        setpoint state takes its shape); with ``rows`` (indices or a mask of an N-arm
+        interface) only those arms, ``q`` then (len(rows), n) or (n,) for all of them."""
+        q = np.asarray(q, dtype=float)
+        if rows is None:
+            if q.shape[-1:] != (self.robot.n,) or q.ndim > 2:
+                raise InvalidArgument(
+                    f"q must have shape ({self.robot.n},) or (N, {self.robot.n}), got {q.shape}"
+                )
+            self.q_c = q.copy()
+            self._q_start = q.copy()
+            self._dq = np.zeros_like(q)
+            return
+        self.q_c[rows] = q
+        self._q_start[rows] = q
+        self._dq[rows] = 0.0
 
     def command(self, increment: np.ndarray, period: float) -> None:
-        """Start a control period of ``period`` s moving the setpoint by ``increment`` (6,)."""
+        """Start a control period of ``period`` s moving the setpoint by ``increment``
+        [δp; δφ] ((6,), or (N, 6) for N arms; m, rad, world frame):
+        q_c ← clip(q_c + J*(q_c) δx) (see the module docstring)."""
         dx = np.asarray(increment, dtype=float)
-        # all(map(isfinite, ...)): np.all(np.isfinite(dx)) on six numbers, exactly
-        if dx.shape != (6,) or not all(map(_isfinite, dx.tolist())):
-            raise InvalidArgument(f"increment must be 6 finite numbers [δp; δφ], got {increment!r}")
-        J = self.robot.jacobian(self.site, self.q_c)
-        k = self.damping
-        if not _INLINE_DLS or J.shape[0] != 6 or not k * k > 0:
-            J_star = damped_least_squares(J, k)
-        else:  # damped_least_squares(J, k), operation for operation (k² > 0; a tiny k whose
-            # square rounds to 0 takes that plain path). J Jᵀ + k² I is positive definite in
-            # exact arithmetic, but rounding can still give LAPACK an exactly zero pivot (k² lost
-            # against J Jᵀ at a rank-deficient J, k ≲ 1e-8 here), and the solve can overflow:
-            # fast_solve.solve runs numpy's gufunc under np.linalg.solve's own error state
-            # (LinAlgError "Singular matrix", as there)
-            if k != self._dls_k:
-                self._dls_diag = (np.asarray(k, dtype=float) ** 2)[..., None, None] * np.eye(6)
-                self._dls_k = k
-            JJt = J @ np.swapaxes(J, -1, -2) + self._dls_diag
-            J_solved = solve(JJt, J)
-            J_star = np.swapaxes(J_solved, -1, -2)
-        # the clip ufunc (np.clip's values without its Python wrapper)
-        q_new = CLIP(self.q_c + J_star @ dx, self.robot.lower, self.robot.upper)
-        self._q_start[:] = self.q_c
+        if dx.shape != (*self.q_c.shape[:-1], 6) or not np.all(np.isfinite(dx)):
+            raise InvalidArgument(
+                f"increment must be finite, shape {(*self.q_c.shape[:-1], 6)} ([δp; δφ] per "
+                f"arm), got {increment!r}"
+            )
+        if self.q_c.ndim == 1:
+            J = self.robot.jacobian(self.site, self.q_c)  # (6, n)
+        else:
+            J = np.stack([self.robot.jacobian(self.site, q) for q in self.q_c])  # (N, 6, n)
+        J_star = damped_least_squares(J, self.damping)  # (..., n, 6)
+        q_new = np.clip(self.q_c + (J_star @ dx[..., None])[..., 0], self.robot.lower,
+                        self.robot.upper)
+        self._q_start = self.q_c
         self._dq = q_new - self.q_c
-        self.q_c[:] = q_new
+        self.q_c = q_new
         self._period = period
 
+    def reference(self, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+        """The interpolated joint reference q_r = q_c,prev + s δq and q̇_r = δq / T at
+        ``fraction`` s ∈ (0, 1] into the period (shapes of :attr:`q_c`)."""
+        return self._q_start + min(fraction, 1.0) * self._dq, self._dq / self._period
+
+    # ------------------------------------------------------------------ torque
     def torque(self, q: np.ndarray, qd: np.ndarray, fraction: float) -> np.ndarray:
-        """Joint torques (n,) at a physics step, ``fraction`` ∈ (0, 1] into the period."""
-        q_r = self._q_start + min(fraction, 1.0) * self._dq
-        qd_r = self._dq / self._period
+        """Joint torques τ = B̂(q) y + n̂(q, q̇), y = K_P (q_r − q) + K_D (q̇_r − q̇), at a
+        physics step ``fraction`` ∈ (0, 1] into the period; q, q̇ and τ shaped as
+        :attr:`q_c` ((n,) or (N, n); rad, rad/s, N m).
+
+        Raises:
+            ValueError: q or q̇ of another shape, or not finite.
+        """
+        q = np.asarray(q, dtype=float)
+        qd = np.asarray(qd, dtype=float)
+        if q.shape != self.q_c.shape or qd.shape != self.q_c.shape:
+            raise ValueError(
+                f"q and qd must have shape {self.q_c.shape}, got {q.shape} and {qd.shape}"
+            )
+        q_r, qd_r = self.reference(fraction)
         y = self.kp * (q_r - q) + self.kd * (qd_r - qd)
-        robot = self.robot
-        if (
-            q.__class__ is np.ndarray
-            and qd.__class__ is np.ndarray
-            and q.dtype is _F64
-            and qd.dtype is _F64
-            and q.shape == qd.shape == (robot.n,)
-            and robot._whole
-            and _isfinite(y.dot(y))  # q and q̇ finite (Robot's checks; else its errors)
-        ):
-            fast = self._fast
-            if fast is None:
-                fast = self._fast = self._model_calls()
-            m, d, qpos, qvel, M, vec = fast
-            # Robot.inertia(q): qpos, kinematics, com positions, CRB, the full matrix
-            qpos[:] = q
+        if not np.isfinite(y).all():  # the setpoint is finite: q or q̇ is not
+            raise ValueError("q or qd contains NaN or inf; expected finite values")
+        return self.inverse_dynamics(q, qd, y)
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """τ = B̂(q) y + n̂(q, q̇) of the nominal model, arm by arm ((n,) or (N, n) each):
+        Newton–Euler with q̈ = y (mj_rne), plus the rotor inertias (armature) that B̂ holds
+        and Newton–Euler does not."""
+        if self._data is None:
+            self._new_data()
+        m, d, (qpos, qvel, qacc), full = self.robot.model, self._data, self._views, self._full
+        qa, da = self._qpos_index, self._dof_index
+        if q.ndim == 1:
+            q, qd, y = q[None], qd[None], y[None]
+        tau = np.empty(y.shape)
+        for i in range(len(y)):
+            qpos[qa] = q[i]
+            qvel[da] = qd[i]
+            qacc[da] = y[i]
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
-            mujoco.mj_crb(m, d)
-            mujoco.mj_fullM(m, d, M)
-            # Robot.bias(q, q̇): qvel, com velocities, RNE without acceleration
-            qvel[:] = qd
             mujoco.mj_comVel(m, d)
-            mujoco.mj_rne(m, d, 0, vec)
-            return M @ y + vec
-        return robot.inertia(q) @ y + robot.bias(q, qd)
+            mujoco.mj_rne(m, d, 1, full)
+            tau[i] = full[da]
+        tau += self._armature * y
+        return tau.reshape(self.q_c.shape) if self.q_c.ndim == 1 else tau
 
-    def _model_calls(self) -> tuple[Any, ...]:
-        """(model, an own MjData, its qpos and qvel, the inertia and bias buffers)."""
-        m = self.robot.model
-        d = mujoco.MjData(m)
-        return m, d, d.qpos, d.qvel, np.zeros((m.nv, m.nv)), np.zeros(m.nv)
+    def _new_data(self) -> None:
+        """The nominal model's own MjData, views of its qpos, qvel and qacc (a pybind
+        property builds a new array on every access), the joints' indices (slices when
+        contiguous) and rotor inertias."""
+        robot, m = self.robot, self.robot.model
+        self._data = mujoco.MjData(m)
+        self._views = (self._data.qpos, self._data.qvel, self._data.qacc)
+        self._full = np.zeros(m.nv)
+        self._qpos_index = _as_slice(robot.qpos_adr)
+        self._dof_index = _as_slice(robot.dof_adr)
+        self._armature = m.dof_armature[robot.dof_adr].copy()
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_fast"] = None  # views of an MjData: rebuilt on first use
+        state["_data"] = None  # rebuilt on first use
+        state.pop("_views", None)
         return state
 
     def setpoint_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """The Cartesian setpoint x_c = k(q_c): position (3,) and rotation (3, 3)."""
+        """The Cartesian setpoint x_c = k(q_c) of a one-arm interface: position (3,) and
+        rotation (3, 3)."""
         return self.robot.site_pose(self.site, self.q_c)
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as a slice if its entries are consecutive (cheaper to index with)."""
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index

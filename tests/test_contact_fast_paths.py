@@ -1,15 +1,8 @@
-"""The contact envs' step fast paths give the numbers of their plain paths, bit for bit.
-
-The position interface computes
-B(q) and n(q, q̇) with Robot's MuJoCo calls on an own MjData and its damped least squares
-through numpy's solve gufunc. Each must equal its plain path: observations, rewards, flags and
-infos, including a divergence (restored state) and states set from outside between steps.
-"""
+"""The position interface's torque law (one arm and N arms) and pickled contact envs."""
 
 from __future__ import annotations
 
 import pickle
-import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -61,7 +54,9 @@ def _assert_same(a: object, b: object) -> None:
 
 
 @pytest.mark.parametrize("env_id", [PEG, ADMITTANCE])
-def test_motion_interface_fast_torque_equals_robot_calls(env_id: str) -> None:
+def test_motion_interface_torque_is_the_inverse_dynamics_of_the_nominal_model(env_id: str) -> None:
+    """τ = B̂(q) y + n̂(q, q̇) by Newton–Euler with q̈ = y plus the armature equals Robot's
+    inertia and bias to 1e-12 relative (the same model, summed in another order)."""
     env = gym.make(env_id, control="position")
     env.reset(seed=0)
     u = env.unwrapped
@@ -72,81 +67,45 @@ def test_motion_interface_fast_torque_equals_robot_calls(env_id: str) -> None:
     for _ in range(20):
         q = q0 + 0.05 * rng.standard_normal(q0.size)
         qd = rng.standard_normal(q0.size)
-        fast = interface.torque(q, qd, 0.5)
+        tau = interface.torque(q, qd, 0.5)
         robot = interface.robot
-        q_r = interface._q_start + 0.5 * interface._dq
-        y = interface.kp * (q_r - q) + interface.kd * (interface._dq / interface._period - qd)
-        np.testing.assert_array_equal(fast, robot.inertia(q) @ y + robot.bias(q, qd))
-        # a list takes Robot's path (its validation): the same numbers
-        np.testing.assert_array_equal(fast, interface.torque(q.tolist(), qd.tolist(), 0.5))
+        q_r, qd_r = interface.reference(0.5)
+        y = interface.kp * (q_r - q) + interface.kd * (qd_r - qd)
+        want = robot.inertia(q) @ y + robot.bias(q, qd)
+        np.testing.assert_allclose(tau, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))
+        np.testing.assert_array_equal(tau, interface.torque(q.tolist(), qd.tolist(), 0.5))
     with pytest.raises(ValueError, match="NaN or inf"):
         interface.torque(np.full(q0.size, np.nan), np.zeros(q0.size), 0.5)
+    with pytest.raises(ValueError, match="shape"):
+        interface.torque(np.zeros(q0.size + 1), np.zeros(q0.size + 1), 0.5)
 
 
-def test_motion_interface_command_equals_damped_least_squares(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    env = gym.make(ADMITTANCE, control="position")
+def test_motion_interface_on_n_arms_is_each_arm_alone() -> None:
+    """An interface reset with (N, n) configurations commands and drives each arm as a
+    one-arm interface does (the same calls, row by row: equal to the last bit)."""
+    env = gym.make(PEG, control="position")
     env.reset(seed=0)
-    interface = env.unwrapped.interface
-    rng = np.random.default_rng(1)
-    increments = 1e-3 * rng.standard_normal((10, 6))
-    q_start = interface.q_c.copy()
-    fast = []
+    one = env.unwrapped.motion
+    many = mi.CartesianMotionInterface(one.robot, "peg_tip")
+    rng = np.random.default_rng(3)
+    q0 = one.q_c.copy()
+    starts = q0 + 0.01 * rng.standard_normal((5, q0.size))
+    many.reset(starts)
+    increments = 1e-4 * rng.standard_normal((3, 5, 6))
+    q, qd = starts + 1e-3, rng.standard_normal(starts.shape)
+    taus = []
     for dx in increments:
-        interface.command(dx, 0.002)
-        fast.append(interface.q_c.copy())
-    interface.reset(q_start)
-    monkeypatch.setattr(mi, "_INLINE_DLS", False)  # operational_space.damped_least_squares
-    for dx, want in zip(increments, fast, strict=True):
-        interface.command(dx, 0.002)
-        np.testing.assert_array_equal(interface.q_c, want)
-
-
-def _command_outcome(interface: mi.CartesianMotionInterface, q: np.ndarray) -> tuple:
-    """(new setpoint or the exception's type and text, the warnings' texts) of one command
-    from ``q``."""
-    interface.reset(q)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            interface.command(np.array([1e-3, 0.0, 0.0, 0.0, 0.0, 1e-3]), 0.002)
-            result: object = interface.q_c.copy()
-        except Exception as exc:  # the outcome compared, whatever it is
-            result = (type(exc), str(exc))
-    return result, [str(w.message) for w in caught]
-
-
-@pytest.mark.parametrize(
-    ("damping", "singular"), [(1e-170, False), (1e-160, False), (1e-10, True), (1e-3, True)]
-)
-def test_motion_interface_tiny_damping_behaves_as_the_plain_solve(
-    damping: float, singular: bool, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A damping whose square rounds to 0 (1e-170) at q = 0 (a singular Jacobian), a
-    subnormal square (1e-160), and a k² lost in rounding against J Jᵀ at a Jacobian with two
-    equal rows (an exactly zero pivot): the fast path raises, warns and returns what
-    np.linalg.solve's path does."""
-    env = gym.make(ADMITTANCE, control="position")
-    env.reset(seed=0)
-    interface = env.unwrapped.interface
-    interface.damping = damping
-    if singular:
-        J = np.zeros((6, interface.robot.n))
-        J[0] = J[1] = np.linspace(0.1, 0.9, J.shape[1])
-        J[2:, 2:6] = 0.5 * np.eye(4)
-        monkeypatch.setattr(interface.robot, "jacobian", lambda site, q: J.copy())
-    q = np.zeros(interface.robot.n)
-    fast = _command_outcome(interface, q)
-    monkeypatch.setattr(mi, "_INLINE_DLS", False)  # operational_space.damped_least_squares
-    plain = _command_outcome(interface, q)
-    assert fast[1] == plain[1]
-    if isinstance(plain[0], tuple):
-        assert fast[0] == plain[0]
-    else:
-        np.testing.assert_array_equal(fast[0], plain[0])
-    if damping == 1e-170 or (singular and damping == 1e-10):  # the cases the fix is about
-        assert plain[0] == (np.linalg.LinAlgError, "Singular matrix")
+        many.command(dx, 0.002)
+        taus.append(many.torque(q, qd, 0.5))
+    many.reset(q0, rows=[1])
+    for i in range(5):
+        one.reset(starts[i])
+        for dx, tau in zip(increments, taus, strict=True):
+            one.command(dx[i], 0.002)
+            np.testing.assert_array_equal(one.torque(q[i], qd[i], 0.5), tau[i])
+    np.testing.assert_array_equal(many.q_c[1], q0)
+    with pytest.raises(mi.InvalidArgument, match="increment"):
+        many.command(np.zeros(6), 0.002)
 
 
 @pytest.mark.parametrize(
