@@ -62,9 +62,13 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
 }
 
 
-#: ids with a native batched env on ``mujoco.batch`` (``cir_gym.envs.vector.VECTOR_ENVS``; named here
-#: so that registering them does not import ``mujoco.batch``)
-BATCHED_ENVIRONMENTS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
+#: id → ``"module:Class"`` of its native batched env on ``mujoco.batch`` (a
+#: :class:`cir_gym.envs.vector_base.BatchedTaskEnv`): ``cir_gym.envs.vector.VECTOR_ENVS`` imports a
+#: class on first use, so registering the ids does not import ``mujoco.batch``
+BATCHED_ENVIRONMENTS: dict[str, str] = {
+    "cir_gym/JointTracking-v2": "cir_gym.envs.vector:JointTrackingVectorEnv",
+    "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector:ElasticJointTrackingVectorEnv",
+}
 
 
 class VectorEntryPoint:

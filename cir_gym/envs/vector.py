@@ -1,4 +1,5 @@
-"""Native batched joint tracking on ``mujoco.batch.Batch``: one C thread pool, no env per process.
+"""Native batched envs on ``mujoco.batch.Batch`` (one C thread pool, no env per process): the
+registry, :func:`make_vec`, the SB3 adapter, and joint tracking's batched envs.
 
 >>> import cir_gym, gymnasium as gym
 >>> envs = cir_gym.make_vec("cir_gym/JointTracking-v2", num_envs=64)    # doctest: +SKIP
@@ -7,16 +8,18 @@
 >>> obs, infos = envs.reset(seed=0)                # env i is JointTracking reset(seed=i)
 >>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
 
-Native batched envs (``VECTOR_ENVS``): ``cir_gym/JointTracking-v2``
-(:class:`JointTrackingVectorEnv`) and ``cir_gym/ElasticJointTracking-v3``
-(:class:`ElasticJointTrackingVectorEnv`: the same step on the elastic model, plus the motor
-keys of the observation). Both ids have a ``vector_entry_point`` (:func:`vector_entry_point`),
-so ``gymnasium.make_vec`` builds them by default. Every other id, and these two with an
-unsupported argument (below), get :func:`make_vec`'s fallback: Gymnasium's ``SyncVectorEnv``
-of the single env with the same autoreset mode (``SAME_STEP``) and seeding, so code written
-for one works on the other. The other torque envs (CartesianTracking, AdmittanceContact,
-PegInHole) have task steps of their own (operational-space errors, contact forces) that are
-not written in array form here: they use the fallback.
+Native batched envs (``VECTOR_ENVS``, id → class, filled from
+``cir_gym.envs.BATCHED_ENVIRONMENTS``'s ``"module:Class"`` table and imported on first
+lookup): here ``cir_gym/JointTracking-v2`` (:class:`JointTrackingVectorEnv`) and
+``cir_gym/ElasticJointTracking-v3`` (:class:`ElasticJointTrackingVectorEnv`: the same step on
+the elastic model, plus the motor keys of the observation); the other tasks' classes live in
+their own modules, each a :class:`~cir_gym.envs.vector_base.BatchedTaskEnv` (the shared
+plumbing: resets, seeding, autoreset, physics and divergence; its docstring is the contract a
+new class implements). Every id of the table has a ``vector_entry_point``
+(:func:`vector_entry_point`), so ``gymnasium.make_vec`` builds them by default. Every other id,
+and these with an unsupported argument (below), get :func:`make_vec`'s fallback: Gymnasium's
+``SyncVectorEnv`` of the single env with the same autoreset mode (``SAME_STEP``) and seeding,
+so code written for one works on the other.
 
 What is batched and what is not:
 
@@ -45,25 +48,23 @@ last observation and info are in ``infos["final_obs"]`` / ``infos["final_info"]`
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+from importlib import import_module
 from typing import Any, ClassVar
 
 import gymnasium as gym
-import mujoco
-import mujoco.batch
 import numpy as np
-from gymnasium.vector.utils import batch_space
 
-from cir_gym.envs.base import (
-    _UNSTABLE_WARNINGS as _UNSTABLE,  # MuJoCo's instability warnings, as RobotEnv counts them
-)
-from cir_gym.envs.base import MAX_JOINT_SPEED, check_kwargs
+from cir_gym.envs import BATCHED_ENVIRONMENTS
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv, held_error
 from cir_gym.envs.tracking_reward import TERMS, squared_norm
+from cir_gym.envs.vector_base import BatchedTaskEnv
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
     "VECTOR_ENVS",
+    "BatchedTaskEnv",
     "ElasticJointTrackingVectorEnv",
     "JointTrackingVectorEnv",
     "make_vec",
@@ -72,16 +73,8 @@ __all__ = [
     "vector_entry_point",
 ]
 
-_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
-_WARNINGS: slice | list[int] = (
-    slice(_UNSTABLE[0], _UNSTABLE[-1] + 1)
-    if _UNSTABLE[-1] - _UNSTABLE[0] + 1 == len(_UNSTABLE)
-    else list(_UNSTABLE)
-)
-_UNSUPPORTED = {"drive": None, "torque_noise": 0.0, "encoder_resolution": 0.0, "randomize": False}
 
-
-class JointTrackingVectorEnv(gym.vector.VectorEnv):
+class JointTrackingVectorEnv(BatchedTaskEnv):
     """``num_envs`` copies of ``cir_gym/JointTracking-v2`` stepped by one ``mujoco.batch.Batch``.
 
     Args:
@@ -95,187 +88,51 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
             rejects.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP}
-    #: the single env whose step this class batches (its ``step`` is the specification)
     env_class: ClassVar[type[JointTrackingEnv]] = JointTrackingEnv
     env_id: ClassVar[str] = "cir_gym/JointTracking-v2"
+    fixed_arguments: ClassVar[dict[str, Any]] = {
+        "drive": None,
+        "torque_noise": 0.0,
+        "encoder_resolution": 0.0,
+        "randomize": False,
+    }
+    template: JointTrackingEnv
 
-    @classmethod
-    def unsupported(cls, kwargs: dict[str, Any]) -> str | None:
-        """Why ``kwargs`` cannot be batched here (the first unsupported argument), or None."""
-        for name, default in _UNSUPPORTED.items():
-            if name in kwargs and kwargs[name] != default:
-                return f"{name}={kwargs[name]!r} (supported: {name}={default!r} only)"
-        if kwargs.get("render_mode") is not None:
-            return f"render_mode={kwargs['render_mode']!r} (the batched env does not render)"
-        return None
-
-    def __init__(self, num_envs: int = 64, nthread: int = 0, **kwargs: Any) -> None:
-        num_envs = int(check_number("num_envs", num_envs, 1, 1e6))
-        nthread = int(check_number("nthread", nthread, 0, 1024))
-        reason = self.unsupported(kwargs)
-        if reason is not None:
-            raise InvalidArgument(
-                f"{type(self).__name__} cannot batch {reason}; cir_gym.make_vec("
-                f"{self.env_id!r}, ...) falls back to a SyncVectorEnv of the single env"
-            )
-        check_kwargs(self.env_class, kwargs)  # an unknown argument: named, as gymnasium.make
-        self.template = self.env_class(**kwargs)  # validates every other argument
+    def _allocate(self) -> None:
         t = self.template
-        self.num_envs = num_envs
-        self.single_observation_space = t.observation_space
-        self.single_action_space = t.action_space
-        self.observation_space = batch_space(t.observation_space, num_envs)
-        self.action_space = batch_space(t.action_space, num_envs)
-        self.metadata = {**self.metadata, "render_fps": t.metadata["render_fps"]}
-        self.spec = None
-        self.render_mode = None
-
-        self.batch = mujoco.batch.Batch(t.model, nsim=num_envs, nthread=nthread)
-        self._qpos = self.batch.bind("qpos")
-        self._qvel = self.batch.bind("qvel")
-        self._ctrl = self.batch.bind("ctrl")
-        self._no_divergence = np.zeros(num_envs, dtype=bool)
-        self._state_row = np.zeros(mujoco.mj_stateSize(t.model, _INTEGRATION))
-
-        N, n, steps = num_envs, t.n, t.max_steps
-        # an own generator per copy (unseeded until reset(seed=...))
-        self._rngs = [gym.utils.seeding.np_random()[0] for _ in range(N)]
-        self._ref = np.zeros((N, 3, steps + 1, n))
+        N, n, steps = self.num_envs, t.n, t.max_steps
+        self._ref = np.zeros((N, 3, steps + 1, n))  # q̄, q̄̇, q̄̈ of each copy
         self._err = np.zeros((N, steps, n))
         self._tau = np.zeros((N, steps, n))
         self._sat = np.zeros((N, steps), dtype=bool)
-        self._k = np.zeros(N, dtype=np.int64)
         self._k_scored = np.zeros(N, dtype=np.int64)
         self._limit = np.zeros(N)
         self._judged_from = np.zeros(N, dtype=np.int64)
         self._a_prev = np.zeros((N, n))
-        self._safe_q = np.zeros((N, t.model.nq))
-        self._safe_qd = np.zeros((N, t.model.nv))
-        self._rows = np.arange(N)
+        self._q_err = np.zeros((N, n))  # q̃ = q̄ − q of the last step
         self._bounds = {k: t._obs_bounds[k] for k in t.observation_space.spaces}
 
-    # ------------------------------------------------------------------ resets
-    def _reset_copy(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Reset copy ``i`` with the template and its generator; write its state into row i."""
+    def _start_episode(self, i: int) -> None:
         t = self.template
-        t._np_random = self._rngs[i]
-        obs, info = t.reset()
-        self.batch.reset(ids=[i], stage=int(mujoco.mjtStage.mjSTAGE_NONE))
-        mujoco.mj_getState(t.model, t.data, self._state_row, _INTEGRATION)
-        self.batch.state[i] = self._state_row
-        self._safe_q[i] = t.data.qpos
-        self._safe_qd[i] = t.data.qvel
         self._ref[i] = t._ref
         self._limit[i] = t._following_error_limit
         self._judged_from[i] = t._judged_from
-        self._k[i] = 0
         self._k_scored[i] = 0
         self._a_prev[i] = 0.0
-        return obs, info
 
-    def reset(
-        self, *, seed: int | list[int | None] | None = None, options: dict | None = None
-    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        super().reset(seed=seed if isinstance(seed, int) else None)
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed must be an int or {self.num_envs} seeds, got {seed!r}")
-        for i, s in enumerate(seeds):
-            if s is not None:
-                self._rngs[i], _ = gym.utils.seeding.np_random(s)
-        obs_list, infos = [], {}
-        for i in range(self.num_envs):
-            obs, info = self._reset_copy(i)
-            obs_list.append(obs)
-            infos = self._add_info(infos, info, i)
-        return {k: np.stack([o[k] for o in obs_list]) for k in self._bounds}, infos
-
-    # ------------------------------------------------------------------ step
-    def _check_actions(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
-        """(actions clipped to [-1, 1] as float64 (N, m), max |action| of each row (N,))."""
-        shape = self.action_space.shape
-        try:
-            raw = np.asarray(actions)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"actions must be a numeric array of shape {shape}") from exc
-        if raw.dtype.kind not in "biuf" or raw.shape != shape:
-            raise ValueError(
-                f"actions must be a numeric array of shape {shape} with values in [-1, 1], "
-                f"got shape {raw.shape} dtype {raw.dtype}"
-            )
-        a = raw.astype(np.float64)
-        mag = np.max(np.abs(a), axis=1)  # NaN propagates, inf stays: one reduction checks both
-        if not np.all(np.isfinite(mag)):
-            bad = np.flatnonzero(~np.isfinite(mag))
-            raise ValueError(f"actions of envs {bad.tolist()} contain NaN or inf")
-        if np.any(mag > 1.0):
-            np.clip(a, -1.0, 1.0, out=a)
-        return a, mag
-
-    def _warning_counts(self) -> np.ndarray:
-        """MuJoCo's instability-warning counters of every copy (N, 4): a view of the batch's
-        while the four are neighbours in mjtWarning (as in MuJoCo 4), else a copy."""
-        return self.batch.warning[:, _WARNINGS, 1]
-
-    def _diverged(self, warnings_before: np.ndarray) -> np.ndarray:
-        """(N,) bool: a new MuJoCo instability warning, a non-finite q or q̇, or |q̇| above
-        MAX_JOINT_SPEED, per copy, as RobotEnv._simulate judges one env. Two whole-batch
-        reductions decide; the per-row checks run only when they flag something."""
-        q, qd = self._qpos, self._qvel
-        new_warning = self._warning_counts() != warnings_before  # the counters only grow
-        if (
-            not new_warning.any()
-            and np.max(np.abs(qd)) <= MAX_JOINT_SPEED
-            and np.isfinite(np.sum(q))
-        ):  # NaN fails the comparison and the finite sum
-            return self._no_divergence
-        with np.errstate(all="ignore"):
-            return (
-                np.any(new_warning, axis=1)
-                | ~np.all(np.isfinite(q), axis=1)
-                | ~np.all(np.isfinite(qd), axis=1)
-                | (np.max(np.abs(qd), axis=1) > MAX_JOINT_SPEED)
-            )
-
-    def step(
-        self, actions: Any
-    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def _task_step(
+        self, a: np.ndarray, peak: np.ndarray, k: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, Any]]:
         t = self.template
-        a, mag = self._check_actions(actions)
-        if np.any(self._k >= t.max_steps):
-            raise RuntimeError("step() on a finished copy; the vector env resets them itself")
-        q, qd = self._qpos, self._qvel
-        # the last finite state, restored on divergence (a finite sum: every row is finite)
-        if np.isfinite(np.sum(q)) and np.isfinite(np.sum(qd)):
-            self._safe_q[:] = q
-            self._safe_qd[:] = qd
-        else:
-            finite = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(qd), axis=1)
-            self._safe_q[finite] = q[finite]
-            self._safe_qd[finite] = qd[finite]
-        warnings_before = self._warning_counts().copy()
         tau = a * t.torque_limit
-        self._ctrl[:] = tau
-        self.batch.step(nstep=t.frame_skip)
-        diverged = self._diverged(warnings_before)
-        if np.any(diverged):  # the last finite state, as RobotEnv._simulate restores it
-            q[diverged] = self._safe_q[diverged]
-            qd[diverged] = self._safe_qd[diverged]
-        qa, da = t._qa, t._da
-        qj, qdj = q[:, qa], qd[:, da]
-        rows, k = self._rows, self._k.copy()
-        self._k += 1
-        k1 = self._k
+        diverged = self._simulate(tau)
+        q, qd = self._qpos, self._qvel
+        qj, qdj = q[:, t._qa], qd[:, t._da]
+        rows, k1 = self._rows, self._k
         q_err = self._ref[rows, 0, k1] - qj
         self._err[rows, k] = q_err
         self._tau[rows, k] = tau
-        self._sat[rows, k] = mag >= 1.0  # clipped or at the limit, as the single env
+        self._sat[rows, k] = peak >= 1.0  # clipped or at the limit, as the single env
 
         err_sq = squared_norm(q_err)
         joint_error = np.sqrt(err_sq)
@@ -287,8 +144,6 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         terms = t.reward_model(err_sq, a, self._a_prev, diverged, stopped, t.max_steps - k1)
         reward = sum(terms[name] for name in TERMS)  # the single env's order of the terms
         self._a_prev[:] = a
-        terminated = diverged | stopped
-        truncated = (k1 >= t.max_steps) & ~terminated
         kk = np.minimum(k1, t.max_steps)
         raw_obs = {
             "q": qj,
@@ -299,47 +154,31 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
             **self._extra_obs(q, qd),
         }
         obs = {key: np.clip(v, -self._bounds[key], self._bounds[key]) for key, v in raw_obs.items()}
-        terms["joint_error"] = joint_error
-        ones = np.ones(self.num_envs, dtype=bool)
-        infos: dict[str, Any] = {}
-        for key, value in (
-            *terms.items(),
-            ("following_error_exceeded", stopped),
-            ("diverged", diverged),
-        ):
-            infos[key] = value
-            infos["_" + key] = ones
-        for i in np.flatnonzero(terminated | truncated):
-            i = int(i)
-            infos = self._finish_copy(
-                i,
-                obs,
-                infos,
-                bool(diverged[i]),
-                bool(stopped[i]),
-                q_err[i],
-                {key: float(v[i]) for key, v in terms.items()},
-            )
-        return obs, reward, terminated, truncated, infos
+        infos = self._step_infos(
+            {
+                **terms,
+                "joint_error": joint_error,
+                "following_error_exceeded": stopped,
+                "diverged": diverged,
+            }
+        )
+        self._q_err[:] = q_err  # held over a stopped or diverged copy's unplayed steps
+        return obs, reward, diverged | stopped, infos
 
     def _extra_obs(self, q: np.ndarray, qd: np.ndarray) -> dict[str, np.ndarray]:
         """Observation keys beyond JointTracking's, from the batch's qpos (N, nq) and qvel
         (N, nv) (none here)."""
         return {}
 
-    def _finish_copy(
-        self,
-        i: int,
-        obs: dict[str, np.ndarray],
-        infos: dict[str, Any],
-        diverged: bool,
-        stopped: bool,
-        q_err: np.ndarray,
-        terms: dict[str, float],
+    def _episode_end(
+        self, i: int, infos: dict[str, Any], terminated: bool, truncated: bool
     ) -> dict[str, Any]:
-        """Episode end of copy ``i``: metrics and success as the single env, then its reset."""
+        """Metrics and success of copy ``i`` as the single env scores them."""
         t = self.template
+        info = self._row_info(infos, i)
+        diverged, stopped = info["diverged"], info["following_error_exceeded"]
         if stopped or diverged:  # scored over the whole horizon, as the single env
+            q_err = self._q_err[i]
             self._err[i, self._k[i] :] = held_error(q_err, self._limit[i]) if diverged else q_err
             self._k_scored[i] = t.max_steps
         t._err[:] = self._err[i]
@@ -347,22 +186,9 @@ class JointTrackingVectorEnv(gym.vector.VectorEnv):
         t._sat[:] = self._sat[i]
         t._k, t._k_scored = int(self._k[i]), int(self._k_scored[i])
         t._judged_from = int(self._judged_from[i])
-        final_info = {
-            **terms,
-            "following_error_exceeded": stopped,
-            "diverged": diverged,
-            "episode_metrics": t.episode_metrics(),
-            "is_success": not diverged and not stopped and t._settled(),
-        }
-        final_obs = {key: v[i].copy() for key, v in obs.items()}
-        new_obs, reset_info = self._reset_copy(i)
-        for key in obs:
-            obs[key][i] = new_obs[key]
-        infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
-        return self._add_info(infos, reset_info, i)
-
-    def close_extras(self, **kwargs: Any) -> None:
-        self.template.close()
+        info["episode_metrics"] = t.episode_metrics()
+        info["is_success"] = not terminated and t._settled()
+        return info
 
 
 class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
@@ -383,10 +209,31 @@ class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
         return {"q_motor": q[:, t._ma], "qd_motor": qd[:, t._md]}
 
 
-#: env id → its native batched class
-VECTOR_ENVS: dict[str, type[JointTrackingVectorEnv]] = {
-    cls.env_id: cls for cls in (JointTrackingVectorEnv, ElasticJointTrackingVectorEnv)
-}
+class _LazyClasses(Mapping[str, type[BatchedTaskEnv]]):
+    """Env id → batched class, from ``cir_gym.envs.BATCHED_ENVIRONMENTS``'s ``"module:Class"``
+    names: a class's module is imported when the class is first looked up, so listing the
+    ids (``sorted(VECTOR_ENVS)``, ``id in VECTOR_ENVS``) imports nothing."""
+
+    def __init__(self, table: Mapping[str, str]) -> None:
+        self._table = table
+        self._classes: dict[str, type[BatchedTaskEnv]] = {}
+
+    def __getitem__(self, env_id: str) -> type[BatchedTaskEnv]:
+        if env_id not in self._classes:
+            module, name = self._table[env_id].split(":")
+            self._classes[env_id] = getattr(import_module(module), name)
+        return self._classes[env_id]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._table)
+
+    def __len__(self) -> int:
+        return len(self._table)
+
+
+#: env id → its native batched class (imported on first lookup; the table is
+#: ``cir_gym.envs.BATCHED_ENVIRONMENTS``)
+VECTOR_ENVS: Mapping[str, type[BatchedTaskEnv]] = _LazyClasses(BATCHED_ENVIRONMENTS)
 
 
 def _env_key(env_id: str) -> str:
@@ -396,7 +243,7 @@ def _env_key(env_id: str) -> str:
 
 def native_vector_env(
     env_id: str, env_kwargs: dict[str, Any]
-) -> type[JointTrackingVectorEnv] | None:
+) -> type[BatchedTaskEnv] | None:
     """The native batched class for ``env_id`` with ``env_kwargs``, or None when there is none
     (another id, or an argument it does not batch: see ``unsupported``)."""
     cls = VECTOR_ENVS.get(_env_key(env_id))
@@ -426,8 +273,8 @@ def make_vec(
         **kwargs: the environment's arguments.
 
     Returns:
-        A :class:`JointTrackingVectorEnv` / :class:`ElasticJointTrackingVectorEnv` when
-        ``VECTOR_ENVS`` has ``env_id`` and it batches ``kwargs``; otherwise Gymnasium's
+        The id's native batched env (a :class:`BatchedTaskEnv` of ``VECTOR_ENVS``) when
+        there is one and it batches ``kwargs``; otherwise Gymnasium's
         ``SyncVectorEnv`` of ``gymnasium.make(env_id, ...)`` with ``SAME_STEP`` autoreset.
         Either way copy i of ``reset(seed=s)`` is the single env reset with seed s + i.
     """
@@ -452,7 +299,7 @@ def make_vec(
     return venv
 
 
-def vector_entry_point(env_id: str, num_envs: int = 1, **kwargs: Any) -> JointTrackingVectorEnv:
+def vector_entry_point(env_id: str, num_envs: int = 1, **kwargs: Any) -> BatchedTaskEnv:
     """What ``gymnasium.make_vec`` calls for an id of ``VECTOR_ENVS`` (registered by
     ``cir_gym.envs.register_envs`` as its ``vector_entry_point``): the native batched env.
 
@@ -470,11 +317,11 @@ def vector_entry_point(env_id: str, num_envs: int = 1, **kwargs: Any) -> JointTr
             f"vectorization_mode='sync') or cir_gym.make_vec (which falls back to it)"
         )
     venv = make_vec(env_id, num_envs, max_episode_steps=max_episode_steps, **kwargs)
-    assert isinstance(venv, JointTrackingVectorEnv)
+    assert isinstance(venv, BatchedTaskEnv)
     return venv
 
 
-def sb3_vec_env(venv: JointTrackingVectorEnv) -> Any:
+def sb3_vec_env(venv: BatchedTaskEnv) -> Any:
     """``venv`` as a Stable-Baselines3 ``VecEnv`` (imports SB3 only when called).
 
     Episode ends follow SB3's conventions: ``dones = terminated | truncated``, the last
@@ -488,10 +335,10 @@ def sb3_vec_env(venv: JointTrackingVectorEnv) -> Any:
 def _sb3_class() -> type:
     from stable_baselines3.common.vec_env import VecEnv
 
-    class JointTrackingSB3VecEnv(VecEnv):
-        """SB3 ``VecEnv`` over a :class:`JointTrackingVectorEnv` (see :func:`sb3_vec_env`)."""
+    class BatchedSB3VecEnv(VecEnv):
+        """SB3 ``VecEnv`` over a :class:`BatchedTaskEnv` (see :func:`sb3_vec_env`)."""
 
-        def __init__(self, venv: JointTrackingVectorEnv) -> None:
+        def __init__(self, venv: BatchedTaskEnv) -> None:
             self.venv = venv
             self.render_mode = None
             super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
@@ -531,14 +378,14 @@ def _sb3_class() -> type:
             return [getattr(self.venv.template, attr_name)] * len(self._get_indices(indices))
 
         def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-            raise NotImplementedError("the copies of a JointTrackingVectorEnv share one template")
+            raise NotImplementedError("the copies of a batched env share one template")
 
         def env_method(
             self, method_name: str, *args: Any, indices: Any = None, **kwargs: Any
         ) -> list[Any]:
-            raise NotImplementedError("the copies of a JointTrackingVectorEnv are array rows")
+            raise NotImplementedError("the copies of a batched env are array rows")
 
         def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
             return [False] * len(self._get_indices(indices))
 
-    return JointTrackingSB3VecEnv
+    return BatchedSB3VecEnv
