@@ -41,6 +41,7 @@ Presets (:data:`PRESETS`), from the sensors' documents as summarised in
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -160,17 +161,27 @@ def sensor_spec(sensor: str | SensorSpec, **changes: Any) -> SensorSpec:
 
 
 class WrenchSensor:
-    """A :class:`SensorSpec` running at the physics rate (see the module docstring).
+    """A :class:`SensorSpec` running at the physics rate (see the module docstring), for one
+    sensor or for ``num_envs`` independent copies (a vector env's rows).
 
-    Call :meth:`reset` at the start of an episode and :meth:`update` after every physics step
-    with the true wrench; :attr:`reading` is the last held sample (6,).
+    Call :meth:`reset` at the start of an episode and :meth:`advance` (or :meth:`update`)
+    after every physics step with the true wrench, or :meth:`advance_many` once with a
+    control period's wrenches; :attr:`reading` is the last held sample.
+
+    Shapes: one sensor (``num_envs=None``) reads and takes (6,) wrenches, a period's as
+    (K, 6); a batch takes (num_envs, 6) and (num_envs, K, 6) (time along axis −2, oldest
+    first) and :attr:`reading` is (num_envs, 6). Each copy has its own filter, delay line,
+    sample clock, bias and random generator, so copy i of a batch reads what a single sensor
+    reset with copy i's generator reads (to round-off: the filter is evaluated as a matrix
+    product over the period, :meth:`_run`).
 
     Args:
         spec: the sensor's parameters.
         timestep: physics step (s).
+        num_envs: copies (≥ 1), or None for one sensor.
     """
 
-    def __init__(self, spec: SensorSpec, timestep: float) -> None:
+    def __init__(self, spec: SensorSpec, timestep: float, num_envs: int | None = None) -> None:
         self.spec = spec
         self.timestep = check_number("timestep", timestep, 0.0, 1.0, low_open=True)
         if spec.sample_rate > 1.0 / timestep * (1.0 + 1e-9) and math.isfinite(spec.sample_rate):
@@ -178,28 +189,41 @@ class WrenchSensor:
                 f"sample_rate must be at most the physics rate {1.0 / timestep:g} Hz (or inf), "
                 f"got {spec.sample_rate!r}"
             )
+        self.num_envs = (
+            None if num_envs is None else int(check_number("num_envs", num_envs, 1, 1e7))
+        )
+        rows = 1 if self.num_envs is None else self.num_envs
         rate = spec.sample_rate
         self.sample_steps = 1 if not math.isfinite(rate) else max(1, round(1 / (rate * timestep)))
         self.delay_steps = round(spec.delay / timestep)
         # exact discretisation of ẏ = ω_c (u − y) with u held over one physics step
         wc = 2 * math.pi * spec.cutoff
         self.alpha = 1.0 if not math.isfinite(wc) else 1.0 - math.exp(-wc * timestep)
-        self.bias = np.array(spec.bias)
         self._std = np.repeat(spec.noise_std, 3)
         self._res = np.repeat(spec.resolution, 3)
-        # the filter state and the delay line as Python floats: the recursion runs one physics
-        # step at a time over six numbers, where a numpy call costs more than the arithmetic
-        self._f = [0.0] * 6  # the filtered wrench
-        self._nline = self.delay_steps + 1
-        self._line: list[tuple[float, ...]] = [(0.0,) * 6] * self._nline  # ring of filtered values
-        self._filter = self.alpha < 1.0
-        self._noisy = bool(np.any(self._std > 0))
         self._quantised = self._res > 0
-        self._any_quantised = bool(np.any(self._quantised))
-        self._head = 0
-        self._count = 0
-        self.reading = np.zeros(6)
-        self._rng = np.random.default_rng(0)
+        self._all_quantised = bool(self._quantised.all())
+        self._noisy = bool(np.any(self._std > 0))
+        self._filtering = self.alpha < 1.0
+        # the state of every copy, rows first (one row for a single sensor)
+        self._bias = np.tile(np.array(spec.bias), (rows, 1))  # (rows, 6)
+        self._f = np.zeros((rows, 6))  # the low-pass filter's output now
+        # the delay line (its last delay_steps values, oldest first), then a period's new ones
+        self._buffer = np.zeros((rows, self.delay_steps, 6))
+        self._count = np.zeros(rows, dtype=np.int64)  # physics steps since the last sample
+        self._reading = np.zeros((rows, 6))
+        self._rngs = [np.random.default_rng(0)] * rows
+        self._filters: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
+    def reading(self) -> np.ndarray:
+        """The last held sample [f; μ] (N, N m), sensor frame: (6,), or (num_envs, 6)."""
+        return self._reading[0] if self.num_envs is None else self._reading
+
+    @property
+    def bias(self) -> np.ndarray:
+        """This episode's bias (N, N m): (6,), or (num_envs, 6)."""
+        return self._bias[0] if self.num_envs is None else self._bias
 
     @property
     def sample_period(self) -> float:
@@ -208,103 +232,135 @@ class WrenchSensor:
 
     @property
     def _filtered(self) -> np.ndarray:
-        """The low-pass filter's output now (6,) (a copy)."""
-        return np.array(self._f)
+        """The low-pass filter's output now, (6,) or (num_envs, 6) (a copy)."""
+        return (self._f[0] if self.num_envs is None else self._f).copy()
 
     def reset(
         self,
-        rng: np.random.Generator,
+        rng: np.random.Generator | Sequence[np.random.Generator],
         wrench: np.ndarray,
         bias: np.ndarray | None = None,
+        rows: Any = None,
     ) -> np.ndarray:
         """Start an episode in a steady state at ``wrench`` (the sensor has been on); return
-        the first reading. ``bias`` replaces the spec's bias for this episode."""
-        self._rng = rng
-        if bias is not None:
-            self.bias = np.asarray(bias, dtype=float).reshape(6).copy()
-        w = np.broadcast_to(np.asarray(wrench, dtype=float), (6,))
-        self._f = w.tolist()
-        self._line = [tuple(self._f)] * self._nline
-        self._head = 0
-        self._count = 0
-        self._sample()
+        the first reading (a copy).
+
+        Args:
+            rng: the noise's generator; for a batch one per reset row.
+            wrench: (6,), or for a batch (len(rows), 6) (a (6,) is every row's).
+            bias: this episode's bias (6,) / (len(rows), 6) replacing the spec's; None: the
+                spec's.
+            rows: a batch's copies to reset (indices; None: all). Not for a single sensor.
+        """
+        if self.num_envs is None:
+            if rows is not None:
+                raise InvalidArgument("rows is for a batched sensor (num_envs given), got rows")
+            idx, rngs = np.array([0]), [rng]
+        else:
+            idx = np.arange(self.num_envs) if rows is None else np.atleast_1d(np.asarray(rows))
+            rngs = list(rng)  # type: ignore[arg-type]
+            if len(rngs) != len(idx):
+                raise InvalidArgument(
+                    f"rng must be one generator per reset row ({len(idx)}), got {len(rngs)}"
+                )
+        for i, g in zip(idx.tolist(), rngs, strict=True):
+            self._rngs[i] = g
+        w = np.broadcast_to(np.asarray(wrench, dtype=float), (len(idx), 6))
+        self._bias[idx] = np.array(self.spec.bias) if bias is None else np.broadcast_to(
+            np.asarray(bias, dtype=float), (len(idx), 6)
+        )
+        self._f[idx] = w
+        self._buffer[idx, : self.delay_steps] = w[:, None, :]
+        self._count[idx] = 0
+        self._sample(idx, w, np.ones(len(idx), dtype=np.int64))
         return self.reading.copy()
 
     def update(self, wrench: np.ndarray) -> np.ndarray:
-        """Advance one physics step with the true wrench (6,); return the (held) reading."""
-        self._run((np.broadcast_to(np.asarray(wrench, dtype=float), (6,)).tolist(),))
+        """Advance one physics step with the true wrench (6,) / (num_envs, 6); return the
+        (held) reading (a copy)."""
+        self.advance(wrench)
         return self.reading.copy()
 
     def advance(self, wrench: np.ndarray) -> None:
-        """:meth:`update` without the copy of the reading it returns (an env's physics loop
-        reads :attr:`reading` when it needs it). ``wrench``: a float64 (6,) array, read
-        before this returns (a view of MuJoCo's sensordata will do)."""
-        self._run((wrench.tolist(),))
+        """:meth:`update` without the copy of the reading (an env's physics loop reads
+        :attr:`reading` when it needs it). ``wrench`` is read before this returns (a view of
+        MuJoCo's sensordata will do)."""
+        w = np.asarray(wrench, dtype=float)
+        self._run(w.reshape(1, 1, 6) if self.num_envs is None else w.reshape(-1, 1, 6))
 
     def update_many(self, wrenches: np.ndarray) -> np.ndarray:
-        """Advance ``len(wrenches)`` physics steps, one true wrench (6,) each, in time order
-        ((N, 6), oldest first): the same as N calls of :meth:`update`; return the
-        reading after the last."""
-        self._run(np.asarray(wrenches, dtype=float).reshape(-1, 6).tolist())
+        """Advance K physics steps, one true wrench each, oldest first ((K, 6), or
+        (num_envs, K, 6)): the same as K calls of :meth:`update`; return the reading after
+        the last (a copy)."""
+        self.advance_many(wrenches)
         return self.reading.copy()
 
     def advance_many(self, wrenches: Any) -> None:
-        """:meth:`update_many` of the rows of ``wrenches`` (a sequence of six floats each,
-        e.g. ``array.tolist()``), without the copy of the reading."""
-        self._run(wrenches)
+        """:meth:`update_many` without the copy of the reading. ``wrenches``: (K, 6) (any
+        sequence of six-number rows, none for K = 0), or (num_envs, K, 6) for a batch."""
+        w = np.asarray(wrenches, dtype=float)
+        if w.size == 0:
+            return
+        self._run(w.reshape(1, -1, 6) if self.num_envs is None else w.reshape(len(self._f), -1, 6))
 
-    def _run(self, rows: Any) -> None:
-        """Advance one physics step per row (six floats), oldest first: filter, delay line,
-        sampling (see the module docstring).
+    def _filter_matrices(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """(L (K, K), b (K, 1)) with which the filter's outputs over K steps are
+        F = L W + b f₀: f_k = β f_{k−1} + α w_k, β = 1 − α, so f_k = β^(k+1) f₀ +
+        Σ_{j≤k} α β^(k−j) w_j (0-based k, j)."""
+        if steps not in self._filters:
+            beta = 1.0 - self.alpha
+            k = np.arange(steps)
+            lag = k[:, None] - k[None, :]
+            L = np.where(lag >= 0, self.alpha * beta ** np.maximum(lag, 0), 0.0)
+            self._filters[steps] = (L, (beta ** (k + 1.0))[:, None])
+        return self._filters[steps]
 
-        Only the last sample of the rows is computed: the earlier ones would be replaced
-        before anyone reads :attr:`reading`. Their noise is still drawn, all at once (the
-        generator's stream is the same as sample by sample: nothing else draws in between).
-        """
-        f0, f1, f2, f3, f4, f5 = self._f
-        alpha, line, nline = self.alpha, self._line, self._nline
-        head, count, steps = self._head, self._count, self.sample_steps
-        filtering = self._filter
-        samples, held = 0, None
-        for w0, w1, w2, w3, w4, w5 in rows:
-            if filtering:  # filtered += (w − filtered) α, entry by entry
-                f0 += (w0 - f0) * alpha
-                f1 += (w1 - f1) * alpha
-                f2 += (w2 - f2) * alpha
-                f3 += (w3 - f3) * alpha
-                f4 += (w4 - f4) * alpha
-                f5 += (w5 - f5) * alpha
-            else:  # no filter: exactly the input
-                f0, f1, f2, f3, f4, f5 = w0, w1, w2, w3, w4, w5
-            head += 1
-            if head == nline:
-                head = 0
-            line[head] = (f0, f1, f2, f3, f4, f5)
-            count += 1
-            if count >= steps:
-                count = 0
-                samples += 1
-                oldest = head + 1  # the value delay_steps ago
-                held = line[0 if oldest == nline else oldest]
-        self._f = [f0, f1, f2, f3, f4, f5]
-        self._head, self._count = head, count
-        if held is not None:
-            self._sample(held, samples)
+    def _run(self, w: np.ndarray) -> None:
+        """Advance every copy K physics steps with its wrenches ``w`` (rows, K, 6): filter,
+        delay line, sampling (see the module docstring).
 
-    def _sample(self, held: tuple[float, ...] | None = None, draws: int = 1) -> None:
-        """Set :attr:`reading` from the delayed filtered value ``held`` (default: the one
-        ``delay_steps`` ago now), the last of ``draws`` samples (the noise of the others is
-        drawn and discarded, as their readings were overwritten)."""
-        if held is None:
-            oldest = self._head + 1
-            held = self._line[0 if oldest == self._nline else oldest]
-        value = np.array(held) + self.bias
+        The filtered values go into a buffer after the delay line's last ``delay_steps``
+        values (oldest first). Only the last sample of each copy in the K steps is computed:
+        the earlier ones would be replaced before anyone reads :attr:`reading`. Their noise
+        is still drawn, all at once (the generator's stream is the same as sample by
+        sample)."""
+        K, D = w.shape[1], self.delay_steps
+        if self._buffer.shape[1] < D + K:
+            grown = np.zeros((len(self._f), D + K, 6))
+            grown[:, :D] = self._buffer[:, :D]
+            self._buffer = grown
+        history = self._buffer[:, : D + K]  # (rows, D + K, 6): the delay line, then the new
+        new = history[:, D:]
+        if self._filtering:
+            L, b = self._filter_matrices(K)
+            np.matmul(L, w, out=new)
+            new += b * self._f[:, None, :]
+        else:  # no filter: exactly the input
+            new[...] = w
+        self._f[:] = new[:, -1]
+        samples, self._count = np.divmod(self._count + K, self.sample_steps)
+        # the last sample at step j = K − count (1-based) holds the value D steps earlier:
+        # history index (D + j − 1) − D = j − 1
+        sampled = np.flatnonzero(samples)
+        if sampled.size:
+            self._sample(sampled, history[sampled, K - 1 - self._count[sampled]],
+                         samples[sampled])
+        history[:, :D] = history[:, K:]  # the delay line for the next call
+
+    def _sample(self, rows: np.ndarray, held: np.ndarray, draws: np.ndarray) -> None:
+        """Set the readings of ``rows`` from their delayed filtered values ``held``
+        (len(rows), 6), the last of ``draws`` samples each (the noise of the others is drawn
+        and discarded, as their readings were overwritten)."""
+        value = held + self._bias[rows]
         if self._noisy:
-            value += self._std * self._rng.standard_normal(6 * draws)[-6:]
-        if self._any_quantised:  # rounded to the resolution where it is set
+            for r, (i, n) in enumerate(zip(rows.tolist(), draws.tolist(), strict=True)):
+                value[r] += self._std * self._rngs[i].standard_normal(6 * n)[-6:]
+        if self._all_quantised:  # rounded to the resolution
+            value = np.round(value / self._res) * self._res
+        elif self._quantised.any():  # where it is set
             q, res = self._quantised, self._res
-            value[q] = np.round(value[q] / res[q]) * res[q]
-        self.reading = value
+            value[:, q] = np.round(value[:, q] / res[q]) * res[q]
+        self._reading[rows] = value
 
 
 def tool_gravity_wrench(
