@@ -67,11 +67,19 @@ class PoseReference(NamedTuple):
 
 
 def quat_of(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) (4,) of a rotation matrix (3, 3) or flat (9,) (either sign:
-    MuJoCo's ``mju_mat2Quat``)."""
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R, dtype=float).ravel())
-    return quat
+    """Unit quaternions (w, x, y, z) (..., 4) of rotation matrices (..., 3, 3) or flat (..., 9)
+    (either sign: MuJoCo's ``mju_mat2Quat``, matrix by matrix)."""
+    R = np.ascontiguousarray(R, dtype=float)
+    if R.size == 9:  # one rotation (the single env's hot path)
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, R.ravel())
+        return quat
+    lead = R.shape[:-1] if R.shape[-1] == 9 else R.shape[:-2]
+    flat = R.reshape(-1, 9)
+    quat = np.empty((flat.shape[0], 4))
+    for mat, out in zip(flat, quat, strict=True):
+        mujoco.mju_mat2Quat(out, mat)
+    return quat.reshape(*lead, 4)
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:

@@ -37,13 +37,85 @@ from cir_gym.validation import (
     check_number,
 )
 
-__all__ = ["NEAR_SINGULAR_Q2", "NEAR_SINGULAR_Q6", "PATHS", "SHAPES", "CartesianTrackingEnv"]
+__all__ = [
+    "NEAR_SINGULAR_Q2",
+    "NEAR_SINGULAR_Q6",
+    "PATHS",
+    "SHAPES",
+    "CartesianTrackingEnv",
+    "flange_pose_errors",
+    "following_error_exceeded",
+    "held_errors",
+    "observe",
+    "pose_error_sq",
+]
 
 SITE = "flange"
 #: near_singular: q2 (rad) held on the joint path whose q6 crosses 0 (the iiwa's 6 × 7
 #: Jacobian loses rank where q2 = q6 = 0)
 NEAR_SINGULAR_Q2 = IIWA14_WORKSPACE.near_singular_q2
 NEAR_SINGULAR_Q6 = IIWA14_WORKSPACE.near_singular_q6  # rad: q6 from +0.3 to −0.3
+
+
+# The task's arithmetic, on one env's arrays or on (N, ...) arrays of N copies (the batched
+# env, cir_gym/envs/cartesian_vector.py, calls the same functions).
+def flange_pose_errors(
+    x_ref: np.ndarray, quat_ref: np.ndarray, x: np.ndarray, quat: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """‖p̄ − p‖ (m) and the error angle θ̃ (rad) of Q̄ ⊗ Q⁻¹, each (...), of positions p̄, p
+    (..., 3) and quaternions Q̄, Q (..., 4) (either sign)."""
+    d = x_ref - x
+    return np.sqrt(np.sum(d * d, axis=-1)), osp.orientation_angle(quat_ref, quat)
+
+
+def pose_error_sq(e_pos: np.ndarray, e_ang: np.ndarray, orientation_scale: float) -> np.ndarray:
+    """The pose error e² = ‖p̄ − p‖² + (``orientation_scale`` θ̃)² (m², (...)) of r_tracking."""
+    return e_pos**2 + (orientation_scale * e_ang) ** 2
+
+
+def following_error_exceeded(
+    e_pos: np.ndarray, e_ang: np.ndarray, limits: np.ndarray, diverged: np.ndarray
+) -> np.ndarray:
+    """The following-error monitor (...) bool: not diverged, and the position error (m) or
+    the angle error (rad) above its limit, ``limits`` (..., 2) = (position, angle)."""
+    over = np.logical_or(e_pos > limits[..., 0], e_ang > limits[..., 1])
+    return np.logical_and(np.logical_not(diverged), over)
+
+
+def held_errors(
+    e_pos: np.ndarray, e_ang: np.ndarray, limits: np.ndarray, diverged: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The position (m) and angle (rad) errors held over a stopped or diverged episode's
+    unplayed steps (...): the last errors; after a divergence at least the (finite) limits
+    ``limits`` (..., 2), so a divergence never scores better than being stopped."""
+    held = []
+    for e, limit in ((e_pos, limits[..., 0]), (e_ang, limits[..., 1])):
+        raise_to_limit = np.logical_and(diverged, np.isfinite(limit))
+        held.append(np.where(raise_to_limit, np.maximum(e, limit), e))
+    return held[0], held[1]
+
+
+def observe(
+    state: tuple[np.ndarray, ...],
+    J: np.ndarray,
+    reference: tuple[np.ndarray, ...],
+    low: np.ndarray,
+    high: np.ndarray,
+) -> np.ndarray:
+    """The observation as one flat vector (..., 40), clipped to [low, high].
+
+    Args:
+        state: measured q, q̇ (..., n), flange position p (..., 3) and quaternion (..., 4) (of
+            either sign; put on Q̄'s hemisphere here).
+        J: the flange's geometric Jacobian (..., 6, n) at q: the twist is [v; ω] = J q̇.
+        reference: p̄ (..., 3), Q̄ (..., 4), [ṗ̄; ω̄] (..., 6), [p̈̄; ω̄̇] (..., 6) now.
+        low, high: the bounds (40,).
+    """
+    q, qd, x, quat = state
+    twist = np.matmul(J, qd[..., None])[..., 0]  # [v; ω] = J(q) q̇
+    quat = osp.align_quat(quat, reference[1])  # on Q̄'s hemisphere
+    flat = np.concatenate((q, qd, x, quat, twist, *reference), axis=-1)
+    return CLIP(flat, low, high, out=flat)
 
 
 class CartesianTrackingEnv(RobotEnv):
@@ -354,7 +426,7 @@ class CartesianTrackingEnv(RobotEnv):
         self._a_prev = np.zeros(n)
         self._q_meas_prev = np.zeros(n)
         self._q_start = np.zeros(n)
-        self._limits = (0.0, 0.0)  # position (m) and angle (rad) errors that stop the episode
+        self._limits = np.zeros(2)  # position (m) and angle (rad) errors that stop the episode
         self.episode_model_error = self.model_error
 
     def _set_reference(self, reference: PoseReference) -> None:
@@ -399,9 +471,11 @@ class CartesianTrackingEnv(RobotEnv):
         self._q_meas_prev = self._quantize(q0)
         e_pos, e_ang = self.pose_errors(0)
         follow = self.max_following_error
-        self._limits = (
-            np.inf if follow is None else e_pos + follow,
-            np.inf if follow is None else e_ang + self.max_orientation_following_error,
+        self._limits = np.array(
+            [
+                np.inf if follow is None else e_pos + follow,
+                np.inf if follow is None else e_ang + self.max_orientation_following_error,
+            ]
         )
         return self._obs(), {"model_error": self.episode_model_error}
 
@@ -422,9 +496,8 @@ class CartesianTrackingEnv(RobotEnv):
         self._ang_err[k] = e_ang
         self._qd_true[k] = self.data.qvel[self._da]
         self._sat[k] = peak >= 1.0  # clipped (peak 1), or an entry at ±1
-        limit_pos, limit_ang = self._limits
-        stopped = not diverged and (e_pos > limit_pos or e_ang > limit_ang)
-        error_sq = e_pos**2 + (self.orientation_scale * e_ang) ** 2  # e² of r_tracking
+        stopped = bool(following_error_exceeded(e_pos, e_ang, self._limits, diverged))
+        error_sq = pose_error_sq(e_pos, e_ang, self.orientation_scale)
         terms = self.reward_model(
             error_sq, a, self._a_prev, diverged, stopped, self.max_steps - self._k
         )
@@ -439,12 +512,10 @@ class CartesianTrackingEnv(RobotEnv):
             following_error_exceeded=stopped,
             diverged=diverged,
         )
-        if stopped or diverged:  # scored over the whole horizon: the last errors held, a
-            # divergence at least at the following-error limits (section Episode End)
-            held_pos, held_ang = (max(e_pos, limit_pos), max(e_ang, limit_ang)) if diverged else (
-                e_pos, e_ang)
-            self._pos_err[self._k :] = e_pos if np.isinf(held_pos) else held_pos
-            self._ang_err[self._k :] = e_ang if np.isinf(held_ang) else held_ang
+        if stopped or diverged:  # scored over the whole horizon (section Episode End)
+            held_pos, held_ang = held_errors(e_pos, e_ang, self._limits, diverged)
+            self._pos_err[self._k :] = held_pos
+            self._ang_err[self._k :] = held_ang
             self._k_scored = self.max_steps
         if terminated or truncated:
             info["episode_metrics"] = self.episode_metrics()
@@ -458,8 +529,8 @@ class CartesianTrackingEnv(RobotEnv):
     def pose_errors(self, k: int) -> tuple[float, float]:
         """‖p̄_k − p‖ (m) and the error angle θ̃ of Q̄_k ⊗ Q⁻¹ (rad) of the true flange now."""
         p, R = self.flange_pose()
-        e_pos = float(np.linalg.norm(self._x_ref[k] - p))
-        return e_pos, float(osp.orientation_angle(self._quat_ref[k], quat_of(R)))
+        e_pos, e_ang = flange_pose_errors(self._x_ref[k], self._quat_ref[k], p, quat_of(R))
+        return float(e_pos), float(e_ang)
 
     def _settled(self) -> bool:
         """Both errors below their thresholds at every step with t ≥ settling_time."""
@@ -509,22 +580,9 @@ class CartesianTrackingEnv(RobotEnv):
         else:
             qd = (q - self._q_meas_prev) / self.dt if self._k > 0 else np.zeros(self.n)
         x, R = self.robot.site_pose(self._site, q)
-        twist = self.robot.jacobian(self._site, q) @ qd  # [v; ω] = J(q) q̇
-        quat = osp.align_quat(quat_of(R), self._quat_ref[k])  # on Q̄'s hemisphere
-        flat = np.concatenate(
-            (
-                q,
-                qd,
-                x,
-                quat,
-                twist,
-                self._x_ref[k],
-                self._quat_ref[k],
-                self._twist_ref[k],
-                self._acc_ref[k],
-            )
-        )
-        CLIP(flat, self._obs_low, self._obs_high, out=flat)
+        J = self.robot.jacobian(self._site, q)
+        reference = (self._x_ref[k], self._quat_ref[k], self._twist_ref[k], self._acc_ref[k])
+        flat = observe((q, qd, x, quat_of(R)), J, reference, self._obs_low, self._obs_high)
         return {key: flat[at] for key, at in self._obs_slices.items()}
 
     def controller_context(self) -> TaskContext:
