@@ -1,0 +1,125 @@
+#!/usr/bin/env bash
+# Start or resume every training run of the visual-servoing RL plan (docs/research/visual_servo_rl.md),
+# idempotently: re-running it later (another session, after a reboot) carries on where the runs
+# stopped. Each run is an ordinary `cir-gym train` run under $VS_RUNS (default
+# /work/main/runs/rl, gitignored) in <Env-vN>/<algo>/seed_<k>/, checkpointed every 100k steps
+# (agents/hyperparams/vs/*.yml); its config.yml records the command that retrains it.
+#
+#   scripts/research/train_vs.sh            # start the queues that are not running
+#   scripts/research/train_vs.sh status     # progress of every run, the queues' PIDs
+#   scripts/research/train_vs.sh stop       # SIGTERM the queues' trainings (they checkpoint)
+#
+# Two queues (one per environment), each a background shell in its own process group
+# (setsid nohup, nice 19, one torch/OMP thread) that trains its runs one after the other: a finished run (meta.json "finished":
+# true) is skipped, a started one resumes from its last checkpoint (`--resume`), a run
+# directory without a checkpoint (stopped in its first 100k steps) starts over. A queue whose
+# PID file names a live process is left alone. Order: PPO seed 0 (the first results), the
+# off-policy learner's seed 0, then PPO seeds 1-4 and the off-policy seeds 1-4.
+# CPU time: each training session appends "wall user sys" seconds to <run>.time in
+# $VS_RUNS/logs/ (GNU time), so the budget is stated in CPU hours as well as env steps.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+ROOT="${VS_RUNS:-/work/main/runs/rl}"
+LOGS="$ROOT/logs"
+PPO_STEPS=3000000
+SAC_STEPS=500000
+SEEDS_REST="1 2 3 4"
+mkdir -p "$LOGS"
+
+# one queue's runs: "env_id algo seed timesteps hyperparameter_file"
+queue_runs() {
+    local env_id="$1"
+    echo "$env_id ppo 0 $PPO_STEPS agents/hyperparams/vs/ppo.yml"
+    echo "$env_id sac 0 $SAC_STEPS agents/hyperparams/vs/sac.yml"
+    for k in $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS agents/hyperparams/vs/ppo.yml"; done
+    for k in $SEEDS_REST; do echo "$env_id sac $k $SAC_STEPS agents/hyperparams/vs/sac.yml"; done
+}
+
+run_dir() {  # env_id algo seed
+    echo "$ROOT/${1#cir_gym/}/$2/seed_$3"
+}
+
+finished() {  # run_dir
+    [[ -f "$1/meta.json" ]] && grep -q '"finished": true' "$1/meta.json"
+}
+
+train_one() {  # env_id algo seed timesteps hyperparameter_file
+    local env_id="$1" algo="$2" seed="$3" steps="$4" hp="$5"
+    local dir tag resume=()
+    dir="$(run_dir "$env_id" "$algo" "$seed")"
+    tag="${env_id#cir_gym/}_${algo}_seed${seed}"
+    if finished "$dir"; then
+        return 0
+    fi
+    if [[ -f "$dir/config.yml" ]]; then
+        if compgen -G "$dir/checkpoints/model_*_steps.zip" > /dev/null; then
+            resume=(--resume)
+        else  # stopped before its first checkpoint: nothing to keep
+            rm -rf "$dir"
+        fi
+    fi
+    echo "$(date -u +%FT%TZ) start $tag ${resume[*]:-}" >> "$LOGS/queue.log"
+    /usr/bin/time -a -o "$LOGS/$tag.time" -f "%e %U %S" \
+        cir-gym train --env "$env_id" --algo "$algo" --seed "$seed" --timesteps "$steps" \
+        --name "$algo/seed_$seed" --out "$ROOT" --hyperparams "$hp" "${resume[@]}" \
+        >> "$LOGS/$tag.log" 2>&1 || echo "$(date -u +%FT%TZ) $tag exited $?" >> "$LOGS/queue.log"
+}
+
+run_queue() {  # env_id
+    local line
+    while read -r line; do
+        # shellcheck disable=SC2086
+        train_one $line
+    done < <(queue_runs "$1")
+    echo "$(date -u +%FT%TZ) queue ${1#cir_gym/} done" >> "$LOGS/queue.log"
+}
+
+alive() {  # pid file
+    [[ -f "$1" ]] && kill -0 "$(cat "$1")" 2> /dev/null
+}
+
+status() {
+    local env_id line dir
+    for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
+        pid="$LOGS/queue_${env_id#cir_gym/}.pid"
+        if alive "$pid"; then echo "queue ${env_id#cir_gym/}: running, PID $(cat "$pid")"
+        else echo "queue ${env_id#cir_gym/}: not running"; fi
+        while read -r line; do
+            # shellcheck disable=SC2086
+            set -- $line
+            dir="$(run_dir "$1" "$2" "$3")"
+            if finished "$dir"; then state="finished"
+            elif [[ -d "$dir" ]]; then
+                state="started, last checkpoint: $(ls "$dir/checkpoints" 2> /dev/null \
+                    | sed -n 's/^model_\([0-9]*\)_steps.zip$/\1/p' | sort -n | tail -1)"
+            else state="not started"; fi
+            echo "  $2 seed $3 ($4 steps): $state"
+        done < <(queue_runs "$env_id")
+    done
+}
+
+case "${1:-start}" in
+    status) status ;;
+    stop)
+        for pid in "$LOGS"/queue_*.pid; do
+            # the queue is a process group of its own (setsid): the shell, GNU time and the
+            # training all get SIGTERM; the training checkpoints before it exits
+            if alive "$pid"; then kill -TERM -- "-$(cat "$pid")" || true; fi
+        done ;;
+    start)
+        . .venv/bin/activate
+        export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
+        for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
+            pid="$LOGS/queue_${env_id#cir_gym/}.pid"
+            if alive "$pid"; then
+                echo "queue ${env_id#cir_gym/} already running (PID $(cat "$pid"))"
+                continue
+            fi
+            setsid nohup nice -n 19 bash -c "$(declare -f queue_runs run_dir finished train_one run_queue); \
+                ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS=$PPO_STEPS SAC_STEPS=$SAC_STEPS \
+                SEEDS_REST='$SEEDS_REST'; run_queue $env_id" > /dev/null 2>&1 &
+            echo $! > "$pid"
+            echo "queue ${env_id#cir_gym/} started (PID $!)"
+        done ;;
+    *) echo "usage: $0 [start|status|stop]" >&2; exit 2 ;;
+esac
