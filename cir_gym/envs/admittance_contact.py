@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -25,6 +24,13 @@ from cir_gym.envs.admittance_scene import (
     TOOL_QUAT,
     build_model,
     tool_robot,
+)
+from cir_gym.envs.admittance_task import (
+    CONTACT_THRESHOLD,
+    REWARD_TERMS,
+    AdmittanceReward,
+    episode_metrics,
+    period_forces,
 )
 from cir_gym.envs.base import MIN_CONTROL_FREQ, RobotEnv
 from cir_gym.envs.base import frame_skip as physics_steps
@@ -49,7 +55,6 @@ __all__ = [
     "tool_robot",
 ]
 
-CONTACT_THRESHOLD = 0.5  # N: the tool's normal contact force above which it touches the plate
 #: position interface: action 1 = this speed (m/s for δp, rad/s for δφ) over one period
 MAX_SPEED = np.array([0.25, 0.25, 0.25, 1.0, 1.0, 1.0])
 CONTROLS = ("torque", "position")
@@ -359,6 +364,11 @@ class AdmittanceContactEnv(RobotEnv):
         )
         self.increment_scale = MAX_SPEED * self.dt
         dim = self.n if control == "torque" else 6
+        self.reward_model = AdmittanceReward(
+            self.force_scale, self.path_scale, self.path_weight, self.action_rate_weight,
+            self.force_limit_penalty, self.divergence_penalty, self.charge_unplayed_steps,
+            self.max_steps, dim,
+        )
         self.action_space = spaces.Box(-1.0, 1.0, (dim,), dtype=np.float32)
         self.observation_space = spaces.Dict({
             key: spaces.Box(0.0 if key == "f_ref" else -bound, bound, (size,), dtype=np.float64)
@@ -366,6 +376,7 @@ class AdmittanceContactEnv(RobotEnv):
         })
         steps = self.max_steps
         # the last control period, one entry per physics step
+        self.period_record = np.zeros((self.substeps, model.nsensordata))  # sensordata per step
         self.tool_force_steps = np.zeros(self.substeps)  # tool's normal contact force (N)
         self.peak_force_steps = np.zeros(self.substeps)  # largest single contact force (N)
         # per control step of the episode
@@ -427,14 +438,15 @@ class AdmittanceContactEnv(RobotEnv):
         """One control period, one physics step at a time; return True if the physics diverged.
 
         The torque interface holds τ = a ⊙ τ_max; the position interface's motion controller
-        computes τ at every physics step (clipped to τ_max). After each step the wrist's true
-        wrench goes to the sensor model, and the tool's normal contact force and the largest
-        single contact force on the plate go to ``tool_force_steps``/``peak_force_steps``
-        (0 for the steps a divergence leaves unplayed)."""
-        d, n = self.data, self.substeps
-        self.tool_force_steps[:] = 0.0
-        self.peak_force_steps[:] = 0.0
+        computes τ at every physics step (clipped to τ_max). Each step's sensordata goes to
+        ``period_record`` (rows of the steps a divergence leaves unplayed stay 0); then the
+        wrist's true wrenches go to the sensor model, and the tool's normal contact force and
+        the largest single contact force on the plate to ``tool_force_steps`` /
+        ``peak_force_steps`` (:func:`period_forces`)."""
+        d, n, record = self.data, self.substeps, self.period_record
+        record[:] = 0.0
         tau = a * self.torque_limit if self.interface is None else None
+        played, diverged = n, False
         self.frame_skip = 1  # RobotEnv._simulate: one physics step per call
         try:
             for i in range(n):
@@ -442,15 +454,16 @@ class AdmittanceContactEnv(RobotEnv):
                     tau = self.interface.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / n)
                     tau = np.clip(tau, -self.torque_limit, self.torque_limit)
                 if self._simulate(tau):
-                    return True
-                values = d.sensordata
-                self.sensor.advance(values[self._wrench_at])
-                # the sensor reads the plate's force on the tip: n̂ · it is the tool's push
-                self.tool_force_steps[i] = self._normal @ values[self._tool_at]
-                self.peak_force_steps[i] = values[self._peak_at]
+                    played, diverged = i, True
+                    break
+                record[i] = d.sensordata
         finally:
             self.frame_skip = n
-        return False
+        self.sensor.advance_many(record[:played, self._wrench_at])
+        self.tool_force_steps, self.peak_force_steps = period_forces(
+            record, self._normal, self._tool_at, self._peak_at
+        )
+        return diverged
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._ended:
@@ -479,17 +492,12 @@ class AdmittanceContactEnv(RobotEnv):
         if self._first_contact is None and touch > 0.0:
             self._first_contact = k
         over = not diverged and max(peak, load) > self.force_limit
-
         err = force - self._f_ref
-        s = self.force_scale
-        r_force = -(1.0 - 0.5 * (math.exp(-((err / s) ** 2)) + math.exp(-((5 * err / s) ** 2))))
-        r_path = -self.path_weight * (1.0 - math.exp(-float(e_t @ e_t) / self.path_scale**2))
-        r_rate = -self.action_rate_weight * float(np.sum((a - self._a_prev) ** 2)) / a.size
+        terms = self.reward_model.terms(
+            err, float(e_t @ e_t), float(np.sum((a - self._a_prev) ** 2)), over, diverged, self._k
+        )
+        r_force, r_path, r_rate, r_limit, r_div = (float(terms[t]) for t in REWARD_TERMS)
         self._a_prev[:] = a
-        unplayed = (self.max_steps - self._k) * self.worst_step_reward()
-        charge = unplayed if self.charge_unplayed_steps else 0.0
-        r_limit = -(self.force_limit_penalty + charge) if over else 0.0
-        r_div = -(self.divergence_penalty + charge) if diverged else 0.0
         reward = r_force + r_path + r_rate + r_limit + r_div
         terminated = diverged or over
         truncated = self._k >= self.max_steps and not terminated
@@ -523,9 +531,9 @@ class AdmittanceContactEnv(RobotEnv):
         return self._obs(), reward, terminated, truncated, info
 
     def worst_step_reward(self) -> float:
-        """The magnitude of the worst reward of one step (r_force = −1, e_t large, ‖Δa‖² =
-        4 dim(a)): what ``charge_unplayed_steps`` charges per unplayed step."""
-        return 1.0 + self.path_weight + 4.0 * self.action_rate_weight
+        """The magnitude of the worst reward of one step: what ``charge_unplayed_steps``
+        charges per unplayed step (:meth:`AdmittanceReward.worst_step`)."""
+        return self.reward_model.worst_step()
 
     # ------------------------------------------------------------------ measurements
     def normal_force(self) -> float:
@@ -549,30 +557,11 @@ class AdmittanceContactEnv(RobotEnv):
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs`` and the Metrics section)."""
-        played = self._k
-        end = self.max_steps if self._stopped_at is not None else max(played, 1)
-        force = np.zeros(end)  # steps not played: no contact (f = 0)
-        touch = np.zeros(end)
-        force[:played] = self._force[:played]
-        touch[:played] = self._touch[:played]
-        path = np.full(end, self._path[played - 1] if played else 0.0)
-        path[:played] = self._path[:played]
-        f_ref = self._f_ref
-        if self._first_contact is None:
-            rms, loss, path_rms, overshoot = f_ref, 1.0, math.sqrt(np.mean(path**2)), 0.0
-        else:
-            start = min(self._first_contact + round(self.settle_time / self.dt), end - 1)
-            rms = math.sqrt(np.mean((force[start:] - f_ref) ** 2))
-            loss = 1.0 - float(np.mean(touch[start:]))
-            path_rms = math.sqrt(np.mean(path[start:] ** 2))
-            overshoot = max(float(np.max(self._force[self._first_contact : played])) - f_ref, 0.0)
-        return {
-            "force_rms_error": float(rms),
-            "peak_overshoot": overshoot,
-            "contact_loss": loss,
-            "path_error": float(path_rms),
-            "max_force": float(np.max(self._peak[:played])) if played else 0.0,
-        }
+        return episode_metrics(
+            self._force, self._touch, self._peak, self._path, self._k,
+            self._stopped_at is not None, self._first_contact, self._f_ref,
+            round(self.settle_time / self.dt), self.max_steps,
+        )
 
     def _obs(self) -> dict[str, np.ndarray]:
         m, d = self.model, self.data
