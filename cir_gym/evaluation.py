@@ -7,16 +7,19 @@ and model errors. Metrics come from the environment's ``metric_specs`` and its
 ``info["episode_metrics"]`` at the last step; nothing else is computed here.
 
 Batched evaluation: where ``cir_gym.envs.vector`` has a native batched env for the id and its
-arguments (JointTracking-v2 and ElasticJointTracking-v3 with the ideal drive, see
-``cir_gym.envs.vector.native_vector_env``) and the policy gives the same actions for a batch of
-observations as for each one alone (:func:`batches_exactly`: the course controllers, whose
-``predict`` runs ``control`` row by row), :func:`evaluate` runs up to ``MAX_BATCH`` episodes
-at once on one ``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each
-copy is the single env step for step (``tests/test_vector.py``), so every ``EpisodeResult``
-is the sequential path's (``tests/test_evaluation.py`` compares them). Everything else —
-other ids, the industrial drive, ``record=True``, a given ``env``, trained agents (a torch
-network rounds a batch differently from one row, in the last float32 bit) — runs one episode
-after the other, as before.
+arguments (``VECTOR_ENVS``: JointTracking-v2 and ElasticJointTracking-v3 with the ideal drive,
+CartesianTracking-v1 with exact sensing, ...; see ``cir_gym.envs.vector.native_vector_env``)
+and the policy gives the same actions for a batch of observations as for each one alone
+(:func:`batches_exactly`: the course controllers, whose ``predict`` runs ``control`` row by
+row), :func:`evaluate` runs up to ``MAX_BATCH`` episodes at once on one
+``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each copy is the single
+env step for step, to the tolerance its tests state (``tests/test_vector.py``,
+``tests/test_vector_cartesian.py``: observations equal, rewards and metrics to 1e-12
+relative), so every ``EpisodeResult`` is the sequential path's to that tolerance
+(``tests/test_evaluation.py`` and those files compare them). Everything else — other ids,
+unsupported arguments (the industrial drive, sensor noise, randomization), ``record=True``, a
+given ``env``, trained agents (a torch network rounds a batch differently from one row, in the
+last float32 bit) — runs one episode after the other.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ import pytest
 
 import cir_gym
 from cir_gym.envs import BATCHED_ENVIRONMENTS
+from cir_gym.envs.cartesian_vector import CartesianTrackingVectorEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv
 from cir_gym.envs.vector import (
     VECTOR_ENVS,
@@ -135,13 +136,14 @@ def test_sb3_adapter_follows_sb3_conventions_and_trains():
     PPO("MultiInputPolicy", vec, n_steps=8, batch_size=16, n_epochs=1, device="cpu").learn(16)
 
 
-def test_a_nan_in_one_copy_diverges_that_copy_as_the_single_env():
+@pytest.mark.parametrize("vec_cls", [JointTrackingVectorEnv, CartesianTrackingVectorEnv])
+def test_a_nan_in_one_copy_diverges_that_copy_as_the_single_env(vec_cls):
     """NaN injected into copy 1's velocities: that copy (only) ends diverged with the single
-    env's final observation and reward; the others go on."""
+    env's final observation, reward and metrics; the others go on."""
     actions = np.random.default_rng(2).uniform(-0.3, 0.3, (4, 2, 7))
-    single = JointTrackingEnv(**KW)
+    single = vec_cls.env_class(**KW)
     single.reset(seed=8)  # copy 1 of seed 7
-    envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **KW)
+    envs = vec_cls(num_envs=2, nthread=1, **KW)
     envs.reset(seed=7)
     for a in actions[:3]:
         single.step(a[1])
@@ -156,6 +158,9 @@ def test_a_nan_in_one_copy_diverges_that_copy_as_the_single_env():
     for key in w_obs:
         np.testing.assert_array_equal(infos["final_obs"][1][key], w_obs[key])
         assert np.all(np.isfinite(obs[key]))
+    metrics = infos["final_info"]["episode_metrics"]
+    for name, value in w_info["episode_metrics"].items():
+        assert metrics[name][1] == pytest.approx(value, rel=REWARD_TOL)
 
 
 def _compare_with_gym_make(envs: gym.vector.VectorEnv, env_id: str, seed: int, **kw) -> int:
@@ -169,7 +174,8 @@ def _compare_with_gym_make(envs: gym.vector.VectorEnv, env_id: str, seed: int, *
         w_obs, _ = single.reset(seed=seed + i)
         for key in w_obs:
             np.testing.assert_array_equal(obs[key][i], w_obs[key])
-    actions = np.random.default_rng(3).uniform(-0.2, 0.2, (55, n, 7)).astype(np.float32)
+    shape = (55, *envs.action_space.shape)
+    actions = np.random.default_rng(3).uniform(-0.2, 0.2, shape).astype(np.float32)
     ended = 0
     for a in actions:
         obs, rew, term, trunc, infos = envs.step(a)

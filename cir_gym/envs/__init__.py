@@ -68,6 +68,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
 BATCHED_ENVIRONMENTS: dict[str, str] = {
     "cir_gym/JointTracking-v2": "cir_gym.envs.vector:JointTrackingVectorEnv",
     "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector:ElasticJointTrackingVectorEnv",
+    "cir_gym/CartesianTracking-v1": "cir_gym.envs.cartesian_vector:CartesianTrackingVectorEnv",
 }
 
 

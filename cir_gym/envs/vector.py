@@ -59,7 +59,7 @@ from cir_gym.envs import BATCHED_ENVIRONMENTS
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv, held_error
 from cir_gym.envs.tracking_reward import TERMS, squared_norm
-from cir_gym.envs.vector_base import BatchedTaskEnv
+from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
@@ -97,32 +97,25 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
         "randomize": False,
     }
     template: JointTrackingEnv
+    episode_state: ClassVar[tuple[str, ...]] = (
+        "_ref",  # q̄, q̄̇, q̄̈ (3, T + 1, n) at every control instant
+        "_following_error_limit",  # ‖q̃‖ that stops the episode (rad)
+        "_judged_from",  # first step judged for success
+        "_a_prev",  # the previous action (n,)
+        "_k_scored",  # steps the metrics cover
+    )
+    episode_history: ClassVar[tuple[str, ...]] = (
+        "_err",  # q̃ (T, n) rad
+        "_tau",  # commanded torque (T, n) N m
+        "_sat",  # (T,) bool: a clipped or saturated joint
+    )
 
     def _allocate(self) -> None:
         t = self.template
-        N, n, steps = self.num_envs, t.n, t.max_steps
-        self._ref = np.zeros((N, 3, steps + 1, n))  # q̄, q̄̇, q̄̈ of each copy
-        self._err = np.zeros((N, steps, n))
-        self._tau = np.zeros((N, steps, n))
-        self._sat = np.zeros((N, steps), dtype=bool)
-        self._k_scored = np.zeros(N, dtype=np.int64)
-        self._limit = np.zeros(N)
-        self._judged_from = np.zeros(N, dtype=np.int64)
-        self._a_prev = np.zeros((N, n))
-        self._q_err = np.zeros((N, n))  # q̃ = q̄ − q of the last step
+        self._q_err = np.zeros((self.num_envs, t.n))  # q̃ = q̄ − q of the last step
         self._bounds = {k: t._obs_bounds[k] for k in t.observation_space.spaces}
 
-    def _start_episode(self, i: int) -> None:
-        t = self.template
-        self._ref[i] = t._ref
-        self._limit[i] = t._following_error_limit
-        self._judged_from[i] = t._judged_from
-        self._k_scored[i] = 0
-        self._a_prev[i] = 0.0
-
-    def _task_step(
-        self, a: np.ndarray, peak: np.ndarray, k: np.ndarray
-    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, Any]]:
+    def _task_step(self, a: np.ndarray, peak: np.ndarray, k: np.ndarray) -> TaskStep:
         t = self.template
         tau = a * t.torque_limit
         diverged = self._simulate(tau)
@@ -137,7 +130,7 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
         err_sq = squared_norm(q_err)
         joint_error = np.sqrt(err_sq)
         stopped = (
-            ~diverged & (joint_error > self._limit)
+            ~diverged & (joint_error > self._following_error_limit)
             if t.max_following_error is not None
             else np.zeros_like(diverged)
         )
@@ -178,14 +171,10 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
         info = self._row_info(infos, i)
         diverged, stopped = info["diverged"], info["following_error_exceeded"]
         if stopped or diverged:  # scored over the whole horizon, as the single env
-            q_err = self._q_err[i]
-            self._err[i, self._k[i] :] = held_error(q_err, self._limit[i]) if diverged else q_err
+            q_err, limit = self._q_err[i], self._following_error_limit[i]
+            self._err[i, self._k[i] :] = held_error(q_err, limit) if diverged else q_err
             self._k_scored[i] = t.max_steps
-        t._err[:] = self._err[i]
-        t._tau[:] = self._tau[i]
-        t._sat[:] = self._sat[i]
-        t._k, t._k_scored = int(self._k[i]), int(self._k_scored[i])
-        t._judged_from = int(self._judged_from[i])
+        self._load_template(i)
         info["episode_metrics"] = t.episode_metrics()
         info["is_success"] = not terminated and t._settled()
         return info

@@ -52,15 +52,25 @@ Class attributes:
 * ``fixed_arguments``: ``{argument: the only value batched}`` (e.g. ``{"randomize": False,
   "torque_noise": 0.0}``): any other value is unsupported. Override :meth:`unsupported`
   (calling ``super().unsupported(kwargs)`` first) for rules that are not "one fixed value".
+* ``episode_state``: names of template attributes that a reset draws or sets (the reference,
+  limits, ``_a_prev``, ``_k_scored``...; arrays or numbers). Each gets a per-copy array of
+  the same name on the batched env, ``(N, *shape)`` of its dtype, filled from the template at
+  every reset of the copy (``self._x_ref[i] = template._x_ref``).
+* ``episode_history``: names of template arrays the single env's step writes (error, torque,
+  saturation histories...): each gets a per-copy array of the same name, ``(N, *shape)``,
+  which ``_task_step`` writes row by row. :meth:`_load_template` (i) hands copy i's
+  ``episode_state``, ``episode_history`` and step counter ``_k`` to the template, whose own
+  ``episode_metrics()`` (and success rule) then scores the copy's episode.
 
 Methods (N = ``num_envs``; arrays are float64 unless said):
 
-* ``_allocate(self) -> None``: allocate the per-copy arrays of the task (references, error
-  histories, limits, previous actions...), once, at the end of ``__init__``.
-* ``_start_episode(self, i: int) -> None``: copy i has just been reset: the template holds the
-  new episode (its reference, limits, initial state; the batch's row i holds its state).
-  Copy what the task step needs from the template into row i of the subclass's arrays.
-* ``_task_step(self, a, peak, k) -> (obs, reward, terminated, infos)``: one control step of
+* ``_allocate(self) -> None`` (optional): allocate any other per-copy arrays, once, at the
+  end of ``__init__``.
+* ``_start_episode(self, i: int) -> None`` (optional): copy i has just been reset and its
+  ``episode_state`` copied: the template holds the new episode (the batch's row i its
+  state). Copy anything else the task step needs.
+* ``_task_step(self, a, peak, k) -> TaskStep``, i.e. ``(obs, reward, terminated, infos)``:
+  one control step of
   every copy. ``a`` (N, m): the actions clipped to [-1, 1]; ``peak`` (N,): max |a| of each
   row before clipping (≥ 1: clipped or at the limit, the single env's saturation flag);
   ``k`` (N,) int: steps played before this one (the row of this step in the histories);
@@ -99,7 +109,10 @@ from cir_gym.envs.base import (
 from cir_gym.envs.base import MAX_JOINT_SPEED, RobotEnv, check_kwargs
 from cir_gym.validation import InvalidArgument, check_number
 
-__all__ = ["BatchedTaskEnv"]
+__all__ = ["BatchedTaskEnv", "TaskStep"]
+
+#: what ``_task_step`` returns: (obs key → (N, ...), reward (N,), terminated (N,), infos)
+TaskStep = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, Any]]
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _WARNINGS: slice | list[int] = (
@@ -129,6 +142,10 @@ class BatchedTaskEnv(gym.vector.VectorEnv):
     env_id: ClassVar[str]
     #: argument → the only value the batched step supports
     fixed_arguments: ClassVar[dict[str, Any]] = {}
+    #: template attributes drawn or set by a reset: per-copy arrays, copied at each reset
+    episode_state: ClassVar[tuple[str, ...]] = ()
+    #: template arrays written by the step: per-copy arrays (see _load_template)
+    episode_history: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def unsupported(cls, kwargs: dict[str, Any]) -> str | None:
@@ -175,6 +192,9 @@ class BatchedTaskEnv(gym.vector.VectorEnv):
         self._rngs = [gym.utils.seeding.np_random()[0] for _ in range(num_envs)]
         self._k = np.zeros(num_envs, dtype=np.int64)  # steps played in each copy's episode
         self._rows = np.arange(num_envs)
+        for name in (*self.episode_state, *self.episode_history):
+            value = np.asarray(getattr(t, name))
+            setattr(self, name, np.zeros((num_envs, *value.shape), dtype=value.dtype))
         self._allocate()
 
     # ------------------------------------------------------------------ subclass hooks
@@ -182,12 +202,10 @@ class BatchedTaskEnv(gym.vector.VectorEnv):
         """Allocate the task's per-copy arrays (called once, at the end of ``__init__``)."""
 
     def _start_episode(self, i: int) -> None:
-        """Copy the new episode of copy ``i`` from the template into the task's arrays."""
-        raise NotImplementedError
+        """Copy the new episode of copy ``i`` from the template into the task's arrays (beyond
+        ``episode_state``, which the base copies)."""
 
-    def _task_step(
-        self, a: np.ndarray, peak: np.ndarray, k: np.ndarray
-    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, Any]]:
+    def _task_step(self, a: np.ndarray, peak: np.ndarray, k: np.ndarray) -> TaskStep:
         """Physics and task of one control step of every copy: (obs, reward, terminated, infos)."""
         raise NotImplementedError
 
@@ -214,8 +232,22 @@ class BatchedTaskEnv(gym.vector.VectorEnv):
         self._safe_qd[i] = t.data.qvel
         self._safe_act[i] = t.data.act
         self._k[i] = 0
+        for name in self.episode_state:
+            getattr(self, name)[i] = getattr(t, name)
         self._start_episode(i)
         return obs, info
+
+    def _load_template(self, i: int) -> None:
+        """Hand copy ``i``'s episode (``episode_state``, ``episode_history`` and ``_k``, the
+        steps played) to the template, so that its own methods score it."""
+        t = self.template
+        for name in ("_k", *self.episode_state, *self.episode_history):
+            row = getattr(self, name)[i]
+            held = getattr(t, name)
+            if isinstance(held, np.ndarray):
+                held[...] = row
+            else:  # a number
+                setattr(t, name, row.item())
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict | None = None
