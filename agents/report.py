@@ -22,9 +22,16 @@ method of the ``rliable`` library):
 Learning curves are aggregated the same way per evaluation point (:func:`curve_band`): the IQM
 over seeds of each seed's mean evaluation metric, with the bootstrap band over seeds.
 
-For the leaderboard, :func:`seed_table` evaluates every seed of every shipped agent of an
-environment on one variant and returns a markdown table; ``python -m agents.report --env ID``
-writes those tables for every leaderboard variant of the env to ``results/agents/<Env>_seeds.md``.
+Normalized score (:mod:`cir_gym.score_scale`): given a variant's anchors (the hold-still
+policy's mean at 0 and the best controller's at 1, measured by the leaderboard on the same
+episodes), every (seed, episode) value is scored and the table adds the score's IQM and CI.
+
+For the leaderboard, :func:`seed_reports` evaluates every seed of every shipped agent of an
+environment on one variant and :func:`seed_markdown` writes its table once the anchors are
+known; ``python -m agents.report --env ID`` writes those tables for every leaderboard variant of
+the env to ``results/agents/<Env>_seeds.md``, scored with the anchors of a leaderboard's
+``normalized.json`` measured on the same seeds (``--anchors``, default
+``results/normalized.json``).
 """
 
 from __future__ import annotations
@@ -38,14 +45,19 @@ from typing import Any
 
 import numpy as np
 
+from cir_gym.score_scale import Anchors
+
 __all__ = [
     "SeedReport",
     "curve_band",
     "interval",
     "iqm",
     "mean",
+    "read_anchors",
     "read_curve",
+    "seed_markdown",
     "seed_report",
+    "seed_reports",
     "seed_table",
     "stratified_bootstrap_ci",
 ]
@@ -161,13 +173,15 @@ class SeedReport:
 
 
 def seed_report(env_id: str, name: str, env_kwargs: dict[str, Any] | None = None, *,
-                episodes: int = 10, seed: int = 1000) -> SeedReport:
-    """Evaluate every training seed of shipped agent ``name`` on ``episodes`` episodes."""
+                episodes: int = 10, seed: int = 1000, metric: str | None = None) -> SeedReport:
+    """Evaluate every training seed of shipped agent ``name`` on ``episodes`` episodes, scored
+    on ``metric`` (default: the environment's primary metric; a leaderboard variant passes its
+    own, :func:`cir_gym.evaluation.variant_primary_metric`)."""
     import cir_gym
     from cir_gym import agents
     from cir_gym.evaluation import evaluate
 
-    primary = cir_gym.ENVIRONMENTS[env_id.split(":")[-1]][0].primary_metric
+    primary = metric or cir_gym.ENVIRONMENTS[env_id.split(":")[-1]][0].primary_metric
     train_seeds = agents.seeds(env_id, name)
     scores, success = [], []
     for k in train_seeds:
@@ -185,38 +199,86 @@ def _fmt(x: float) -> str:
     return "—" if not np.isfinite(x) else f"{x:.3g}"
 
 
-def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
-               seed: int = 1000, names: list[str] | None = None) -> str:
-    """Markdown table: every shipped agent of ``env_id`` trained for the variant's task (or
-    ``names``) over its training seeds on one variant (``env_kwargs``): seeds, IQM of the
-    primary metric [95 % CI], mean success rate [CI], each seed's mean. The leaderboard's one call
-    per variant."""
+def seed_reports(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
+                 seed: int = 1000, names: list[str] | None = None,
+                 metric: str | None = None) -> list[SeedReport]:
+    """:func:`seed_report` of every shipped agent of ``env_id`` trained for the variant's task
+    (``env_kwargs``, :func:`agents.trained_for`), or of ``names``."""
     from cir_gym import agents
 
     if names is None:  # every agent trained for this variant's task (agents.trained_for)
         names = [n for n in agents.available(env_id)
                  if agents.trained_for(env_id, n, env_kwargs or {})]
-    if not names:
+    return [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed, metric=metric)
+            for n in names]
+
+
+def seed_markdown(reports: list[SeedReport], anchors: Anchors | None = None) -> str:
+    """Markdown table of :func:`seed_reports`: seeds, IQM of the metric [95 % CI], mean success
+    rate [CI], each seed's mean and, given the variant's ``anchors`` (the leaderboard's
+    hold-still policy and best controller on the same episodes, :mod:`cir_gym.score_scale`),
+    the IQM of the normalized score over (seeds × episodes) [CI]. "" without reports."""
+    if not reports:
         return ""
-    reports = [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed) for n in names]
-    primary = reports[0].primary
+    primary, episodes = reports[0].primary, reports[0].scores.shape[1]
+    if anchors is not None and anchors.metric != primary:
+        raise ValueError(f"the anchors are on {anchors.metric!r}, the reports on {primary!r}")
+    score_head = " | IQM score | score CI" if anchors is not None else ""
     lines = [
         f"Agents over training seeds: IQM of `{primary}` over (seeds × {episodes} episodes), "
         f"95 % stratified-bootstrap CI over seeds ({REPS} replicates; agents/report.py); "
         "success: the mean rate over (seeds × episodes), same CI (an IQM of a 0/1 outcome "
-        "trims any rate below 25 % to 0).",
+        "trims any rate below 25 % to 0)"
+        + (f"; normalized {anchors.describe()}, each episode scored, IQM and CI as above"
+           if anchors is not None else "") + ".",
         "",
-        f"| agent | seeds | IQM {primary} | 95 % CI | success (mean) | success CI | per seed |",
-        "|---|---|---|---|---|---|---|",
+        f"| agent | seeds | IQM {primary} | 95 % CI | success (mean) | success CI | per seed"
+        f"{score_head} |",
+        "|---|---|---|---|---|---|---|" + ("---|---|" if anchors is not None else ""),
     ]
     for r in reports:
         s_point, s_lo, s_hi = interval(r.success, statistic="mean")
         per_seed = ", ".join(f"{m:.3g}" for m in r.seed_means)
-        ci = "one seed: none" if len(r.seeds) < 2 else f"[{_fmt(r.ci_low)}, {_fmt(r.ci_high)}]"
-        s_ci = "—" if len(r.seeds) < 2 else f"[{_fmt(s_lo)}, {_fmt(s_hi)}]"
+        one = len(r.seeds) < 2
+        ci = "one seed: none" if one else f"[{_fmt(r.ci_low)}, {_fmt(r.ci_high)}]"
+        s_ci = "—" if one else f"[{_fmt(s_lo)}, {_fmt(s_hi)}]"
+        score = ""
+        if anchors is not None:
+            n_point, n_lo, n_hi = interval(anchors.scores(r.scores))
+            score = f" | {_fmt(n_point)} | " + ("—" if one else f"[{_fmt(n_lo)}, {_fmt(n_hi)}]")
         lines.append(f"| {r.name} | {len(r.seeds)} | {_fmt(r.iqm)} | {ci} | {_fmt(s_point)} | "
-                     f"{s_ci} | {per_seed} |")
+                     f"{s_ci} | {per_seed}{score} |")
     return "\n".join(lines)
+
+
+def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
+               seed: int = 1000, names: list[str] | None = None, metric: str | None = None,
+               anchors: Anchors | None = None) -> str:
+    """Markdown table: every shipped agent of ``env_id`` trained for the variant's task (or
+    ``names``) over its training seeds on one variant (``env_kwargs``):
+    :func:`seed_markdown` of :func:`seed_reports` (with the normalized score given the
+    variant's ``anchors``; ``metric`` defaults to theirs)."""
+    metric = metric or (anchors.metric if anchors is not None else None)
+    return seed_markdown(seed_reports(env_id, env_kwargs, episodes=episodes, seed=seed,
+                                      names=names, metric=metric), anchors)
+
+
+def read_anchors(path: Path, env_id: str, variant: str, episodes: int,
+                 seed: int) -> Anchors | None:
+    """The anchors of one variant from a leaderboard's ``normalized.json``
+    (:func:`cir_gym.scoring.leaderboard.run_leaderboard` writes it), or None when the file is
+    missing, lacks the variant or was measured on other episodes than ``episodes`` from
+    ``seed`` (a score needs its anchors on the same seeds)."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    if (data.get("episodes"), data.get("seed")) != (episodes, seed):
+        return None
+    entry = data.get("variants", {}).get(f"{env_id} {variant}")
+    return Anchors.from_dict(entry) if entry else None
 
 
 def read_curve(path: Path, primary: str) -> tuple[np.ndarray, np.ndarray]:
@@ -278,22 +340,35 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=1000, help="first evaluation seed (leaderboard)")
     p.add_argument("--out", help="markdown file (default results/agents/<Env>_seeds.md)")
+    p.add_argument("--anchors", default="results/normalized.json",
+                   help="a leaderboard's normalized.json: the hold-still and best-controller "
+                   "means of each variant, for the normalized score (used when measured on the "
+                   "same --episodes and --seed; default: %(default)s)")
     args = p.parse_args(argv)
     key = args.env.split(":")[-1]
     if key not in cir_gym.ENVIRONMENTS:
         p.error(f"unknown environment {args.env!r}; valid: {sorted(cir_gym.ENVIRONMENTS)}")
     from cir_gym.agents import env_dir_name
 
+    from cir_gym.evaluation import variant_primary_metric
+
+    cls = cir_gym.ENVIRONMENTS[key][0]
     out = Path(args.out or f"results/agents/{env_dir_name(key)}_seeds.md")
     parts = [f"# {key}: shipped agents over training seeds (`python -m agents.report`)", "",
              f"Evaluation seeds {args.seed}–{args.seed + args.episodes - 1} (the leaderboard's), "
              f"deterministic actions; every training seed's agent on the same episodes.", ""]
-    variants = getattr(cir_gym.ENVIRONMENTS[key][0], "leaderboard_variants", None) or {"": {}}
+    variants = getattr(cls, "leaderboard_variants", None) or {"default": {}}
     for variant, kwargs in variants.items():
-        print(f"{key} {variant or 'defaults'}", file=sys.stderr)
-        parts += [f"## {variant or 'defaults'} `{kwargs}`", "",
+        print(f"{key} {variant}", file=sys.stderr)
+        anchors = read_anchors(Path(args.anchors), key, variant, args.episodes, args.seed)
+        parts += [f"## {variant} `{kwargs}`", "",
                   seed_table(key, kwargs, episodes=args.episodes, seed=args.seed,
-                             names=args.agent), ""]
+                             names=args.agent, metric=variant_primary_metric(cls, variant),
+                             anchors=anchors),
+                  "" if anchors is not None else
+                  f"\n(no normalized score: {args.anchors} has no anchors of this variant "
+                  f"measured on these {args.episodes} episodes from seed {args.seed}; "
+                  "`cir-gym leaderboard` writes them)\n"]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(parts))
     print(out, file=sys.stderr)

@@ -910,13 +910,27 @@ def test_report_main_writes_one_seed_table_per_leaderboard_variant(tmp_path, mon
     monkeypatch.setattr(report, "seed_table", lambda key, kwargs, **kw: calls.append(
         (key, kwargs, kw)) or f"TABLE {kwargs}")
     out = tmp_path / "r.md"
-    assert report.main(["--env", ENV, "--agent", "ppo", "--episodes", "3", "--out",
-                        str(out)]) == 0
+    anchors_file = tmp_path / "normalized.json"
+    argv = ["--env", ENV, "--agent", "ppo", "--episodes", "3", "--out", str(out),
+            "--anchors", str(anchors_file)]
+    assert report.main(argv) == 0
     variants = cir_gym.ENVIRONMENTS[ENV][0].leaderboard_variants
     assert [c[1] for c in calls] == list(variants.values())
-    assert all(c[2] == {"episodes": 3, "seed": 1000, "names": ["ppo"]} for c in calls)
+    assert all(c[2] == {"episodes": 3, "seed": 1000, "names": ["ppo"], "metric": "rms_error",
+                        "anchors": None} for c in calls)
     text = out.read_text()
     assert all(f"## {v}" in text for v in variants) and "TABLE {'payload_mass': 3.0}" in text
+    assert "(no normalized score:" in text
+    # a leaderboard's anchors measured on the same episodes score the tables
+    from cir_gym.score_scale import Anchors
+
+    first = next(iter(variants))
+    a = Anchors.of("rms_error", 0.02, 2e-5, "tuned:computed_torque", "rad")
+    anchors_file.write_text(json.dumps({"episodes": 3, "seed": 1000,
+                                        "variants": {f"{ENV} {first}": a.to_dict()}}))
+    calls.clear()
+    assert report.main(argv) == 0
+    assert calls[0][2]["anchors"] == a and calls[1][2]["anchors"] is None
 
 
 def test_a_batched_run_trains_ships_and_loads_like_any_other(tmp_path):

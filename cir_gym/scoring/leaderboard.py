@@ -7,8 +7,12 @@ class's ``primary_metric`` otherwise). Every (variant, policy) pair runs on the 
 pool of worker processes (one per core); the tables in ``<out>/leaderboard.md`` rank by success
 rate, then by the variant's primary metric (:func:`cir_gym.evaluation.rank`), a PNG per
 variant is written beside them and ``<out>/index.html`` (:mod:`cir_gym.scoring.page`) shows
-it all with a video per variant. The tables are deterministic for a given seed (no timings in
-them); the time per episode of each policy goes to ``<out>/timings.json``, the next run's
+it all with a video per variant. Every variant also runs the hold-still policy
+(:func:`cir_gym.scoring.normalized.hold_still_policy`) on the same seeds: with the best
+controller it anchors each policy's normalized score on the variant's primary metric (0 = hold
+still, 1 = the best controller; :mod:`cir_gym.score_scale`), a column of every table, and the
+anchors go to ``<out>/normalized.json``. The tables are deterministic for a given seed (no
+timings in them); the time per episode of each policy goes to ``<out>/timings.json``, the next run's
 estimate. ``cir-gym leaderboard`` writes into ``runs/leaderboard/`` (untracked) unless
 ``--out`` names another folder (``--out results/`` regenerates the repository's results).
 """
@@ -26,12 +30,20 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 import cir_gym
 from cir_gym.evaluation import EvaluationResult, evaluate, variant_primary_metric
+from cir_gym.score_scale import Anchors
+from cir_gym.scoring.normalized import HoldStill, hold_still_policy, variant_anchors
 from cir_gym.scoring.page import write_page
-from cir_gym.scoring.tables import ranked_table, rl_summary, slug
+from cir_gym.scoring.tables import SCORE_MEANING, ranked_table, rl_summary, score_cell, slug
+
+#: the policy name of a variant's hold-still run (the normalized score's 0)
+HOLD_STILL = HoldStill.name
+#: the anchors of every variant's normalized score, in the output folder
+ANCHORS_FILE = "normalized.json"
 
 
 def jobs_for(
@@ -56,17 +68,29 @@ def jobs_for(
     ]
 
 
+def anchor_job(env_id: str, variant: str,
+               env_kwargs: dict[str, Any]) -> tuple[str, str, dict[str, Any], str]:
+    """The hold-still run of one variant (:data:`HOLD_STILL`), a :func:`run_job` job."""
+    return (env_id, variant, env_kwargs, HOLD_STILL)
+
+
 def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
 ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
     """One (environment, variant, policy) of the leaderboard: its episodes, ranked on the
     variant's primary metric, and the CPU time (s) it took (its process's: the time it takes
-    one free core, whatever else the machine runs)."""
+    one free core, whatever else the machine runs). The policy :data:`HOLD_STILL` is the
+    variant's hold-still policy (:func:`anchor_job`)."""
     from cir_gym.scoring.policies import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
     t0 = time.process_time()
-    policy = make_policy(env_id, policy_name, env_kwargs, {})
+    if policy_name == HOLD_STILL:
+        env = gym.make(env_id, **env_kwargs)
+        policy = hold_still_policy(env)
+        env.close()
+    else:
+        policy = make_policy(env_id, policy_name, env_kwargs, {})
     result = evaluate(policy, env_id, episodes, seed, policy_name=policy_name, **env_kwargs)
     result = result.ranked_on(variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant))
     return (env_id, variant, policy_name), result, time.process_time() - t0
@@ -74,12 +98,19 @@ def run_job(
 
 def run_seed_table(
     env_id: str, variant: str, env_kwargs: dict[str, Any], episodes: int, seed: int
-) -> tuple[tuple[str, str], str, float]:
-    """One variant's :func:`multi_seed_table` and the CPU time (s) it took."""
+) -> tuple[tuple[str, str], list[Any], float]:
+    """One variant's multi-seed agents evaluated over all their seeds
+    (:func:`agents.report.seed_reports` on the variant's primary metric; their table is
+    written once the variant's anchors are known, :func:`agents.report.seed_markdown`) and the
+    CPU time (s) it took."""
+    from cir_gym.agents.report import seed_reports
+
     t0 = time.process_time()
-    return (env_id, variant), multi_seed_table(env_id, env_kwargs, episodes, seed), (
-        time.process_time() - t0
-    )
+    names = _multi_seed_agents(env_id, env_kwargs)
+    metric = variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant)
+    reports = seed_reports(env_id, env_kwargs, episodes=episodes, seed=seed, names=names,
+                           metric=metric) if names else []
+    return (env_id, variant), reports, time.process_time() - t0
 
 
 # ---------------------------------------------------------------------- progress and estimates
@@ -277,13 +308,14 @@ def run_leaderboard(
     # has no table
     jobs_of = {e: jobs_for(e, env_overrides) for e in envs or list(cir_gym.ENVIRONMENTS)}
     env_ids = [e for e, env_jobs in jobs_of.items() if env_jobs]
-    jobs = [j for e in env_ids for j in jobs_of[e]]
     variants = [
         (e, v, {**kw, **(env_overrides or {})})
         for e in env_ids
         for v, kw in getattr(cir_gym.ENVIRONMENTS[e][0], "leaderboard_variants",
                              {"default": {}}).items()
     ]
+    # each variant's hold-still run (the normalized score's 0) on the same seeds
+    jobs = [j for e in env_ids for j in jobs_of[e]] + [anchor_job(*v) for v in variants]
     seed_jobs = [(e, v, kw) for e, v, kw in variants if _multi_seed_agents(e, kw)]
     workers = max(1, workers or min(len(jobs), os.cpu_count() or 1))
     timings = _load_timings(out)
@@ -297,7 +329,8 @@ def run_leaderboard(
     }
     print(
         f"cir-gym leaderboard: {len(env_ids)} environment(s), {len(variants)} variants, "
-        f"{len(jobs)} runs × {episodes} episode(s) (seeds {seed}…{seed + episodes - 1})"
+        f"{len(jobs)} runs × {episodes} episode(s) (seeds {seed}…{seed + episodes - 1}; "
+        f"{len(variants)} of them hold still, the scores' 0)"
         + (f" and the agents' seed tables of {len(seed_jobs)} variant(s)" if seed_jobs else "")
         + f" on {workers} worker(s) → {out}/\n  estimate with {workers} free core(s): "
         + f"~{_clock(sum(plan.values()))} ("
@@ -308,7 +341,7 @@ def run_leaderboard(
     t_start = time.perf_counter()
     results: dict[tuple[str, str, str], EvaluationResult] = {}
     seconds: dict[tuple[str, str, str], float] = {}
-    seed_tables: dict[tuple[str, str], str] = {}
+    seed_tables: dict[tuple[str, str], list[Any]] = {}
     seed_seconds: dict[tuple[str, str], float] = {}
     failed: dict[str, str] = {}
     bar = Progress("episodes", len(jobs) + len(seed_jobs),
@@ -330,8 +363,8 @@ def run_leaderboard(
                      else f"{_name(jobs[what][0])} {jobs[what][1]} {jobs[what][3]}")
             try:
                 if kind == "seeds":
-                    key2, md_table, sec = fut.result()
-                    seed_tables[key2], seed_seconds[key2] = md_table, sec
+                    key2, reports, sec = fut.result()
+                    seed_tables[key2], seed_seconds[key2] = reports, sec
                 else:
                     key, result, sec = fut.result()
                     results[key], seconds[key] = result, sec
@@ -341,6 +374,9 @@ def run_leaderboard(
     bar.close()
     out.mkdir(parents=True, exist_ok=True)
     _save_timings(out, timings, jobs, seconds, seed_seconds, episodes)
+    holds = {(e, v): results.pop((e, v, p)) for (e, v, p) in list(results) if p == HOLD_STILL}
+    anchors, no_score = score_anchors(results, holds, env_ids)
+    write_anchors(out / ANCHORS_FILE, anchors, episodes, seed)
 
     lines = [
         "# cir_gym leaderboard",
@@ -349,9 +385,13 @@ def run_leaderboard(
         "policy). Ranked by success rate, then by each variant's primary metric (mean over "
         "episodes; the environment's, or the variant's own, e.g. the manipulability of "
         "RedundantIK's manipulability variant); *worst* is the worst episode, CVaR20% the mean "
-        "of the worst 20 %. Generated by `cir-gym leaderboard`.",
+        "of the worst 20 %. *score*: the " + SCORE_MEANING + " (every variant's hold-still "
+        "policy runs on the same seeds; a log scale where the two are a decade or more apart: "
+        f"cir_gym/score_scale.py; the anchors are in {ANCHORS_FILE}). Generated by "
+        "`cir-gym leaderboard`.",
         "",
     ]
+    seed_md: dict[tuple[str, str], str] = {}
     figure_bar = (
         Progress("figures", len(variants), FIGURE_SECONDS * len(variants), 1, "figures")
         if figures else None
@@ -360,13 +400,20 @@ def run_leaderboard(
         cls, description = cir_gym.ENVIRONMENTS[env_id]
         lines += [f"## {env_id}", "", description, ""]
         by_variant = _by_variant(results, env_id)
-        lines += [rl_summary(by_variant), ""]
+        env_anchors = {v: anchors.get((env_id, v)) for v in by_variant}
+        lines += [rl_summary(by_variant, env_anchors), ""]
         for variant, kwargs in getattr(cls, "leaderboard_variants", {"default": {}}).items():
             rows = by_variant[variant]
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
-            lines += [f"### {variant} ({setting})", "", ranked_table(rows), ""]
+            a = anchors.get((env_id, variant))
+            lines += [f"### {variant} ({setting})", "", ranked_table(rows, a), ""]
+            if rows:
+                lines += [anchor_line(a, no_score.get((env_id, variant), "")), ""]
             if seed_tables.get((env_id, variant)):
-                lines += [seed_tables[(env_id, variant)], ""]
+                from cir_gym.agents.report import seed_markdown
+
+                seed_md[(env_id, variant)] = seed_markdown(seed_tables[(env_id, variant)], a)
+                lines += [seed_md[(env_id, variant)], ""]
             if figures and rows:
                 from cir_gym.scoring.plotting import plot_comparison
 
@@ -395,12 +442,13 @@ def run_leaderboard(
         env_overrides,
         workers,
         videos=videos,
-        extra={k: v for k, v in seed_tables.items() if v},
+        extra={k: v for k, v in seed_md.items() if v},
+        anchors=anchors,
     )
     if watch is not None:
         watch.stop()
     total = time.perf_counter() - t_start
-    print(summary(results, env_ids), file=sys.stderr)
+    print(summary(results, env_ids, anchors), file=sys.stderr)
     if episodes < HEADLINE_EPISODES:
         print(
             f"({episodes} episodes per policy: a first look; numbers to quote need "
@@ -417,6 +465,54 @@ def run_leaderboard(
         file=sys.stderr,
     )
     return md
+
+
+def score_anchors(
+    results: dict[tuple[str, str, str], EvaluationResult],
+    holds: dict[tuple[str, str], EvaluationResult],
+    env_ids: list[str],
+) -> tuple[dict[tuple[str, str], Anchors], dict[tuple[str, str], str]]:
+    """Each variant's anchors (:func:`cir_gym.scoring.normalized.variant_anchors`: its
+    hold-still run at 0, its best controller at 1, on the variant's primary metric), and for a
+    variant without them the reason (no hold-still run, no controller with a finite mean,
+    anchors equal: no scale)."""
+    anchors: dict[tuple[str, str], Anchors] = {}
+    why: dict[tuple[str, str], str] = {}
+    for env_id in env_ids:
+        for variant, rows in _by_variant(results, env_id).items():
+            key = (env_id, variant)
+            if not rows:
+                continue
+            if key not in holds:
+                why[key] = "its hold-still run failed"
+                continue
+            try:
+                anchors[key] = variant_anchors(rows, holds[key])
+            except ValueError as exc:
+                why[key] = str(exc)
+    return anchors, why
+
+
+def write_anchors(path: Path, anchors: dict[tuple[str, str], Anchors], episodes: int,
+                  seed: int) -> Path:
+    """``normalized.json``: the episodes and first seed the anchors were measured on and, per
+    ``"<env id> <variant>"``, the anchors (:meth:`Anchors.to_dict`), for whoever scores the
+    same episodes later (``python -m agents.report --anchors``)."""
+    data = {
+        "episodes": episodes,
+        "seed": seed,
+        "variants": {f"{e} {v}": a.to_dict() for (e, v), a in sorted(anchors.items())},
+    }
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    return path
+
+
+def anchor_line(anchors: Anchors | None, why: str = "") -> str:
+    """The line under a ranked table: what its score column's 0 and 1 are, or why it has
+    none."""
+    if anchors is None:
+        return f"No normalized score on this variant ({why or 'no anchors'})."
+    return f"Normalized {anchors.describe()}."
 
 
 def _multi_seed_agents(env_id: str, env_kwargs: dict[str, Any]) -> list[str]:
@@ -501,46 +597,54 @@ class _VideoWatch:
         self.bar.close()
 
 
-def summary(results: dict[tuple[str, str, str], EvaluationResult], env_ids: list[str]) -> str:
+def summary(results: dict[tuple[str, str, str], EvaluationResult], env_ids: list[str],
+            anchors: dict[tuple[str, str], Anchors] | None = None) -> str:
     """A few lines: per environment, on its first leaderboard variant, the best controller
     (a course law, at course or tuned gains, or a plugin policy) and the best shipped agent
-    (:func:`cir_gym.scoring.tables.best`: success rate first, then the primary metric)."""
-    from cir_gym.scoring.tables import best
+    (:func:`cir_gym.scoring.tables.best`: success rate first, then the primary metric), with
+    their normalized scores where ``anchors`` has the variant's."""
+    from cir_gym.scoring.tables import best, score_of
 
-    def cell(r: EvaluationResult | None) -> str:
+    def cell(r: EvaluationResult | None, a: Anchors | None) -> str:
         if r is None:
             return "—"
         spec = r.spec(r.primary_metric)
         unit = f" {spec.unit}" if spec.unit else ""
+        score = f", score {score_cell(score_of(r, a))}" if a is not None else ""
         return (f"{r.policy_name} {r.summary[r.primary_metric]['mean']:.3g}{unit} "
-                f"({100 * r.success_rate:.0f} % success)")
+                f"({100 * r.success_rate:.0f} % success{score})")
 
-    lines = ["best per environment (its first variant; success first, then the metric):"]
+    lines = ["best per environment (its first variant; success first, then the metric; "
+             "score: 0 = hold still, 1 = the best controller):"]
     width = max((len(_name(e)) for e in env_ids), default=0)
     for env_id in env_ids:
         variant, rows = next(iter(_by_variant(results, env_id).items()))
         if not rows:
             continue
+        a = (anchors or {}).get((env_id, variant))
         ctrl = best([r for r in rows if not r.policy_name.startswith("agent:")])
         agent = best([r for r in rows if r.policy_name.startswith("agent:")])
         lines.append(
             f"  {_name(env_id):<{width}}  {variant} [{rows[0].primary_metric}]: controller "
-            f"{cell(ctrl)}; agent {cell(agent)}"
+            f"{cell(ctrl, a)}; agent {cell(agent, a)}"
         )
     return "\n".join(lines)
 
 
-def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int) -> str:
+def multi_seed_table(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int,
+                     anchors: Anchors | None = None) -> str:
     """The shipped agents of ``env_id`` trained over >= 2 seeds (``<name>/seed_<k>/``) on one
     variant, over all their seeds: :func:`agents.report.seed_table` (IQM of the primary metric
-    with its stratified-bootstrap CI over seeds). "" when there is none (or no train extra).
-    The ranked table above it shows such an agent's first seed only."""
+    with its stratified-bootstrap CI over seeds; and of the normalized score given the
+    variant's ``anchors``). "" when there is none (or no train extra). The ranked table above
+    it shows such an agent's first seed only."""
     names = _multi_seed_agents(env_id, env_kwargs)
     if not names:
         return ""
     from cir_gym.agents.report import seed_table
 
-    return seed_table(env_id, env_kwargs, episodes=episodes, seed=seed, names=names)
+    return seed_table(env_id, env_kwargs, episodes=episodes, seed=seed, names=names,
+                      anchors=anchors)
 
 
 # ---------------------------------------------------------------------- a sweep's table

@@ -3,19 +3,10 @@ tuned controller.
 
 For a policy whose primary metric has mean m over the variant's episodes, with m_hold the mean
 of the hold-still policy (:func:`hold_still_policy`, the same seeds) and m_best the mean of the
-best tuned controller (:func:`best_controller`):
-
-* linear: score = (m_hold − m) / (m_hold − m_best);
-* log, where the metric spans decades: score = log(m_hold / m) / log(m_hold / m_best).
-
-Both formulas hold whichever way the metric is better (lower or higher): the score grows as m
-moves from m_hold towards m_best and beyond. It is not clipped: < 0 is worse than holding
-still, > 1 better than the best controller. The log scale is used when m_hold and m_best are
-both > 0 and at least ``LOG_DECADES`` (one) decade apart: a tracking error going from 1e-1 to
-1e-4 rad counts each decade alike, instead of scoring 0.9 for 1e-2 rad. On the log scale a value
-m ≤ 0 or below m_best / 1000 is floored at m_best / 1000 when lower is better, so that a perfect
-episode scores finitely, 1 + 3 / log10(m_hold / m_best); when higher is better m is clamped to
-[m_hold / 1000, 1000 m_best].
+best tuned controller (:func:`best_controller`), the score is :func:`normalized_score` of m
+between them (:mod:`cir_gym.score_scale`: linear, or a log scale where the anchors are a decade
+or more apart; 0 at m_hold, 1 at m_best, not clipped). The leaderboard measures both anchors on
+its own seeds (:func:`variant_anchors`) and writes them to ``<out>/normalized.json``.
 
 "Hold still" is the policy that commands no motion on the variant's interface
 (:data:`HOLD_STILL`, keyed by ``TaskContext.action_kind``): a zero action where the action is a
@@ -38,11 +29,13 @@ import numpy as np
 from cir_gym.context import TaskContext
 from cir_gym.evaluation import EvaluationResult
 from cir_gym.impedance import tool_robot
+from cir_gym.score_scale import LOG_DECADES, LOG_FLOOR, Anchors, normalized_score, uses_log_scale
 
 __all__ = [
     "HOLD_STILL",
     "LOG_DECADES",
     "LOG_FLOOR",
+    "Anchors",
     "HoldStill",
     "NormalizedScore",
     "best_controller",
@@ -52,12 +45,8 @@ __all__ = [
     "normalized_score",
     "normalized_scores",
     "uses_log_scale",
+    "variant_anchors",
 ]
-
-#: decades between m_hold and m_best from which the score is on a log scale
-LOG_DECADES = 1.0
-#: on the log scale, values are floored at m_best × LOG_FLOOR (lower is better; module docstring)
-LOG_FLOOR = 1e-3
 
 #: action kind → what the hold-still policy commands on it
 HOLD_STILL: dict[str, str] = {
@@ -160,48 +149,6 @@ def hold_still_policy(env: Any) -> HoldStill:
     return HoldStill(base.controller_context(), base.action_space.shape)
 
 
-def uses_log_scale(hold: float, best: float) -> bool:
-    """True when m_hold and m_best are both > 0 and at least ``LOG_DECADES`` decades apart."""
-    if not (hold > 0 and best > 0 and math.isfinite(hold) and math.isfinite(best)):
-        return False
-    return abs(math.log10(hold / best)) >= LOG_DECADES
-
-
-def normalized_score(value: float, hold: float, best: float, *, log: bool | None = None) -> float:
-    """The score of a metric value between the anchors (module docstring).
-
-    Args:
-        value: the policy's metric value m.
-        hold: m_hold, the hold-still policy's value (score 0).
-        best: m_best, the best tuned controller's value (score 1).
-        log: the scale; None: :func:`uses_log_scale`.
-
-    Returns:
-        The score (NaN if ``value`` is NaN).
-
-    Raises:
-        ValueError: the anchors are equal or not finite (no scale), or ``log`` is True with an
-            anchor ≤ 0.
-    """
-    if not (math.isfinite(hold) and math.isfinite(best)) or hold == best:
-        raise ValueError(
-            f"the anchors must be finite and differ: hold-still {hold!r}, best {best!r}"
-        )
-    if log is None:
-        log = uses_log_scale(hold, best)
-    if math.isnan(value):
-        return float("nan")
-    if not log:
-        return (hold - value) / (hold - best)
-    if hold <= 0 or best <= 0:
-        raise ValueError(f"a log scale needs anchors > 0: hold-still {hold!r}, best {best!r}")
-    if best < hold:  # lower is better
-        value = max(value, best * LOG_FLOOR)
-    else:
-        value = min(max(value, hold * LOG_FLOOR), best / LOG_FLOOR)
-    return math.log(hold / value) / math.log(hold / best)
-
-
 @dataclass(frozen=True)
 class NormalizedScore:
     """One policy's normalized score on a metric, with its anchors.
@@ -262,6 +209,39 @@ def best_controller(
     return min(finite, key=lambda r: sign * _mean(r, name))
 
 
+def variant_anchors(
+    results: Iterable[EvaluationResult],
+    hold: EvaluationResult,
+    best: EvaluationResult | None = None,
+    metric: str | None = None,
+    *,
+    log: bool | None = None,
+) -> Anchors:
+    """The anchors of one leaderboard variant: the hold-still policy's mean (0) and the best
+    controller's (1) on ``metric`` (default: ``hold``'s primary metric, the variant's own when
+    the results are ``EvaluationResult.ranked_on`` it).
+
+    Args:
+        results: the variant's results (controllers and agents, same env and seeds).
+        hold: the hold-still policy's result on the same seeds (score 0).
+        best: the result scoring 1; None: :func:`best_controller` of ``results``.
+        metric: the metric scored; None: ``hold``'s primary metric.
+        log: the scale; None: :func:`uses_log_scale` of the anchors.
+
+    Raises:
+        ValueError: an unknown metric, no controller with a finite mean, or anchors that are
+            equal or not finite (no scale; the message gives both).
+    """
+    rows = list(results)
+    name = metric or hold.primary_metric
+    anchor = best if best is not None else best_controller(rows, name)
+    m_hold, m_best = _mean(hold, name), _mean(anchor, name)
+    unit = hold.spec(name).unit
+    if log is None:
+        return Anchors.of(name, m_hold, m_best, anchor.policy_name, unit)
+    return Anchors(name, m_hold, m_best, anchor.policy_name, log, unit)
+
+
 def normalized_scores(
     results: Iterable[EvaluationResult],
     hold: EvaluationResult,
@@ -270,38 +250,28 @@ def normalized_scores(
     *,
     log: bool | None = None,
 ) -> dict[str, NormalizedScore]:
-    """The normalized score of every result on one leaderboard variant.
-
-    Args:
-        results: the variant's results (controllers and agents, same env and seeds).
-        hold: the hold-still policy's result on the same seeds (score 0).
-        best: the result scoring 1; None: :func:`best_controller` of ``results``.
-        metric: the metric scored; None: ``hold``'s primary metric (a variant's own
-            primary metric: pass ``EvaluationResult.ranked_on`` results, or name it).
-        log: the scale; None: :func:`uses_log_scale` of the anchors.
+    """The normalized score of every result on one leaderboard variant (the arguments of
+    :func:`variant_anchors`).
 
     Returns:
         policy name → :class:`NormalizedScore`.
     """
     rows = list(results)
-    name = metric or hold.primary_metric
-    anchor = best if best is not None else best_controller(rows, name)
-    m_hold, m_best = _mean(hold, name), _mean(anchor, name)
-    scale = uses_log_scale(m_hold, m_best) if log is None else log
+    anchors = variant_anchors(rows, hold, best, metric, log=log)
     out = {}
     for r in rows:
         if r.env_id != hold.env_id:
             raise ValueError(f"{r.policy_name!r} is on {r.env_id}, the anchors on {hold.env_id}")
-        value = _mean(r, name)
+        value = _mean(r, anchors.metric)
         out[r.policy_name] = NormalizedScore(
             r.policy_name,
-            name,
-            normalized_score(value, m_hold, m_best, log=scale),
+            anchors.metric,
+            anchors.score(value),
             value,
-            m_hold,
-            m_best,
-            anchor.policy_name,
-            scale,
+            anchors.hold,
+            anchors.best,
+            anchors.best_policy,
+            anchors.log,
         )
     return out
 
@@ -317,10 +287,5 @@ def episode_scores(
     """Per-episode normalized scores (n_episodes,) of ``result``, for an IQM with a bootstrap
     interval: each episode's metric scored between the anchors' means (the scale of
     :func:`normalized_scores`). NaN metrics give NaN."""
-    name = metric or hold.primary_metric
-    m_hold, m_best = _mean(hold, name), _mean(best, name)
-    scale = uses_log_scale(m_hold, m_best) if log is None else log
-    return np.array([
-        normalized_score(float(ep.metrics.get(name, np.nan)), m_hold, m_best, log=scale)
-        for ep in result.episodes
-    ])
+    anchors = variant_anchors([best], hold, best, metric, log=log)
+    return anchors.scores([ep.metrics.get(anchors.metric, np.nan) for ep in result.episodes])

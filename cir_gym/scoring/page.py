@@ -87,6 +87,14 @@ GLOSSARY: tuple[tuple[str, str], ...] = (
         "in the column header), e.g. the RMS joint error in rad or the insertion time in s.",
     ),
     (
+        "score",
+        "the normalized score on the primary metric: 0 = a policy that holds the arm still "
+        "(run on the same seeds), 1 = the best controller of the variant; < 0 is worse than "
+        "holding still, > 1 better than the best controller. Where the two anchors are a "
+        "decade or more apart the scale is logarithmic (each decade counts alike). The anchors "
+        "are under each ranked table.",
+    ),
+    (
         "worst",
         "the worst episode's value of the primary metric (the largest error, the "
         "longest time; the smallest where higher is better).",
@@ -431,13 +439,15 @@ FAMILY_KEY = (
 )
 
 
-def ranked_html(rows: list[Any]) -> str:
+def ranked_html(rows: list[Any], anchors: Any = None) -> str:
     """The ranked table of one variant as HTML: rows in :func:`cir_gym.evaluation.rank` order
-    (success rate, then the primary metric's mean), the success rate, the primary metric's
-    mean ± std, worst episode and CVaR 20 %, every other metric's mean, the return and the
-    share of diverged episodes; every metric header carries its unit, each row its family's
+    (success rate, then the primary metric's mean), the success rate, the normalized score
+    given the variant's ``anchors`` (:class:`cir_gym.score_scale.Anchors`), the primary
+    metric's mean ± std, worst episode and CVaR 20 %, every other metric's mean, the return and
+    the share of diverged episodes; every metric header carries its unit, each row its family's
     colour (:data:`FAMILY_KEY`)."""
     from cir_gym.evaluation import rank
+    from cir_gym.scoring.tables import SCORE_HEADER, SCORE_MEANING, score_cell, score_of
 
     if not rows:
         return "<p>(no results)</p>"
@@ -449,6 +459,7 @@ def ranked_html(rows: list[Any]) -> str:
         "#",
         "policy",
         "success",
+        *([f'<abbr title="{SCORE_MEANING}">{SCORE_HEADER}</abbr>'] if anchors else []),
         f"<strong>{_breakable(primary)}</strong>{_unit(spec.unit)} mean ± std",
         f"worst{_unit(spec.unit)}",
         f"CVaR&nbsp;20&nbsp;%{_unit(spec.unit)}",
@@ -462,6 +473,7 @@ def ranked_html(rows: list[Any]) -> str:
         cells = [
             str(i),
             f"{100 * r.success_rate:.0f} %",
+            *([score_cell(score_of(r, anchors))] if anchors else []),
             f"{p['mean']:.3g} ± {p['std']:.2g}",
             f"{p['worst']:.3g}",
             f"{p['cvar']:.3g}",
@@ -563,6 +575,7 @@ def write_page(
     workers: int | None = None,
     videos: bool = True,
     extra: dict[tuple[str, str], str] | None = None,
+    anchors: dict[tuple[str, str], Any] | None = None,
 ) -> Path:
     """Write ``out/index.html`` (and ``out/videos/*.gif``) from the leaderboard's results.
 
@@ -574,6 +587,9 @@ def write_page(
         videos: False writes the page without GIFs.
         extra: (env_id, variant) → markdown shown under that variant's ranked table (the
             multi-seed agents' table).
+        anchors: (env_id, variant) → the variant's normalized-score anchors
+            (:class:`cir_gym.score_scale.Anchors`; the leaderboard's hold-still run and best
+            controller): a score column in its tables and the anchors under its ranked table.
     """
     from cir_gym.scoring.tables import best, rl_summary, slug
 
@@ -602,7 +618,10 @@ def write_page(
             entries.append(
                 (variant, setting, str(gif) if videos and shown else "", rows, str(fig), shown)
             )
-        sections.append((env_id, description + "\n\n" + rl_summary(rows_of), entries))
+        env_anchors = {v: (anchors or {}).get((env_id, v)) for v in variants}
+        sections.append(
+            (env_id, description + "\n\n" + rl_summary(rows_of, env_anchors), entries)
+        )
 
     errors: dict[str, str] = {}
     if jobs:
@@ -669,7 +688,10 @@ def write_page(
                     f'alt="{html.escape(env_id)} {html.escape(variant)}"></figure>'
                 )
             body.append('<div class="row">' + "".join(row) + "</div>")
-            body.append(ranked_html(rows))
+            a = (anchors or {}).get((env_id, variant))
+            body.append(ranked_html(rows, a))
+            if a is not None:
+                body.append(f"<p class=\"anchors\">Normalized {_inline(a.describe())}.</p>")
             if (extra or {}).get((env_id, variant)):
                 body.append(markdown_to_html(with_units(extra[(env_id, variant)], specs)))
     index = out / "index.html"

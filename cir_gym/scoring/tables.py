@@ -1,14 +1,35 @@
-"""Tables of evaluation results: a ranked table per variant, the controllers-vs-RL summary."""
+"""Tables of evaluation results: a ranked table per variant, the controllers-vs-RL summary,
+each with the normalized score (0 = hold still, 1 = the best controller) where the variant's
+anchors are given (:mod:`cir_gym.score_scale`, :mod:`cir_gym.scoring.normalized`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from cir_gym.evaluation import EvaluationResult, rank
+from cir_gym.score_scale import Anchors
+
+#: the normalized score's column header and what it means
+SCORE_HEADER = "score"
+SCORE_MEANING = "normalized score: 0 = hold still, 1 = the best controller"
 
 
-def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
-    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, return."""
+def score_of(r: EvaluationResult, anchors: Anchors | None) -> float | None:
+    """The normalized score of ``r``'s mean on the anchors' metric, None without anchors."""
+    if anchors is None:
+        return None
+    return anchors.score(r.summary[anchors.metric]["mean"])
+
+
+def score_cell(score: float | None) -> str:
+    """A score as a table shows it: two decimals, "–" for none or NaN."""
+    return "–" if score is None or not np.isfinite(score) else f"{score:.2f}"
+
+
+def format_table(results: list[EvaluationResult], markdown: bool = True,
+                 anchors: Anchors | None = None) -> str:
+    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, the normalized
+    score on the variant's ``anchors`` (a column only when given), the other metrics, return."""
     if not results:
         return "(no results)"
     primary = results[0].primary_metric
@@ -20,6 +41,7 @@ def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
     head = (
         ["rank", "policy", f"{primary}{unit} mean ± std", f"worst{unit}", f"CVaR 20 %{unit}",
          "success"]
+        + ([SCORE_HEADER] if anchors is not None else [])
         + [f"{s.name} ({s.unit})" if s.unit else s.name for s in other]
         + ["return", "diverged"]
     )
@@ -35,6 +57,7 @@ def format_table(results: list[EvaluationResult], markdown: bool = True) -> str:
                 f"{s['cvar']:.3g}",
                 f"{100 * r.success_rate:.0f}%",
             ]
+            + ([score_cell(score_of(r, anchors))] if anchors is not None else [])
             + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
             + [f"{r.summary['return']['mean']:.1f}", f"{100 * r.divergence_rate:.0f}%"]
         )
@@ -53,12 +76,13 @@ def _nan_last(value: float, reverse: bool) -> float:
     return -value if reverse else value
 
 
-def ranked_table(rows: list[EvaluationResult]) -> str:
-    """:func:`format_table`'s markdown table, rows in :func:`rank`'s order
-    (success rate, then the primary metric) instead of the primary metric alone."""
+def ranked_table(rows: list[EvaluationResult], anchors: Anchors | None = None) -> str:
+    """:func:`format_table`'s markdown table (with the score column given the variant's
+    ``anchors``), rows in :func:`rank`'s order (success rate, then the primary metric) instead
+    of the primary metric alone."""
     if not rows:
         return format_table(rows)
-    tables = [format_table([r]).split("\n") for r in rank(rows)]
+    tables = [format_table([r], anchors=anchors).split("\n") for r in rank(rows)]
     return "\n".join(
         [
             *tables[0][:2],
@@ -97,16 +121,19 @@ def _metric_cell(r: EvaluationResult) -> str:
     return f"`{r.primary_metric}`" + (f" ({unit})" if unit else "")
 
 
-def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None) -> str:
-    """'name: mean (worst, success)' and, given a reference, the factor to it (> 1: worse);
-    :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`)."""
+def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None,
+                  anchors: Anchors | None = None) -> str:
+    """'name: mean (worst, success[, score])' and, given a reference, the factor to it (> 1:
+    worse); :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`);
+    the normalized score given the variant's ``anchors``."""
     if r is None:
         return "–"
     primary = r.primary_metric
     s = r.summary[primary]
+    score = f", score {score_cell(score_of(r, anchors))}" if anchors is not None else ""
     text = (
         f"{r.policy_name}: {s['mean']:.3g} (worst {s['worst']:.3g}, "
-        f"{100 * r.success_rate:.0f} % success)"
+        f"{100 * r.success_rate:.0f} % success{score})"
     )
     if reference is not None:
         c = reference.summary[primary]["mean"]
@@ -119,10 +146,12 @@ def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None
     return text
 
 
-def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
+def rl_summary(by_variant: dict[str, list[EvaluationResult]],
+               anchors: dict[str, Anchors | None] | None = None) -> str:
     """Per variant: the best controller, the best from-scratch agent and the best residual
-    agent on the primary metric (mean), with success, worst episode and the factor to the
-    best controller (> 1: worse than it, in the metric's own direction); a footnote under the
+    agent on the primary metric (mean), with success, worst episode, the normalized score
+    where ``anchors`` (variant → its anchors) has the variant's, and the factor to the best
+    controller (> 1: worse than it, in the metric's own direction); a footnote under the
     table when a factor is left out (:func:`censored_ratio`)."""
     lines = [
         "| variant | ranked on | best controller, course gains | best controller, tuned gains "
@@ -142,10 +171,11 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
         for r in (scratch, residual):
             if r is not None and ctrl is not None and censored_ratio(r, ctrl):
                 censored.add(r.primary_metric)
+        a = (anchors or {}).get(variant)
         lines.append(
-            f"| {variant} | {_metric_cell(rows[0])} | {_summary_cell(course, None)} | "
-            f"{_summary_cell(tuned, None)} | "
-            f"{_summary_cell(scratch, ctrl)} | {_summary_cell(residual, ctrl)} |"
+            f"| {variant} | {_metric_cell(rows[0])} | {_summary_cell(course, None, a)} | "
+            f"{_summary_cell(tuned, None, a)} | "
+            f"{_summary_cell(scratch, ctrl, a)} | {_summary_cell(residual, ctrl, a)} |"
         )
     notes = []
     if any(r.policy_name.startswith("agent:residual") for rows in by_variant.values()
@@ -174,7 +204,9 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]]) -> str:
             "seeds; best = highest success rate, then the best mean). A controller runs at the "
             "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
             "found for the variant (Optuna on training seeds; results/tuning/); an agent's "
-            "factor is to the better of the two best controllers:",
+            "factor is to the better of the two best controllers"
+            + (f"; *score* is the {SCORE_MEANING} on the variant's metric (its anchors under "
+               "each ranked table)" if any((anchors or {}).values()) else "") + ":",
             "",
             *lines,
             *notes,
