@@ -1,19 +1,20 @@
 """Batched envs, the batched evaluator, a 100-seed leaderboard estimate and PPO throughput.
 
-    python benchmarks/bench_vector.py [--num-envs 64] [--episodes 100] [--seq-episodes 10]
-                                      [--other-episodes 1] [--ppo-steps 16384] [--skip ...]
-                                      [--out results/benchmarks.md]
+    python benchmarks/bench_vector.py [--num-envs 16 64] [--envs ID ...] [--episodes 100]
+                                      [--seq-episodes 10] [--other-episodes 1]
+                                      [--ppo-steps 16384] [--skip ...] [--out results/benchmarks.md]
 
 Four parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
 replaced; the other sections belong to other scripts):
 
-1. ``throughput``: env-steps/s of ``--num-envs`` copies of JointTracking-v2 and
-   ElasticJointTracking-v3 in ``cir_gym.envs.vector``'s batched env, of the same model's raw
-   ``mujoco.batch.Batch.step`` and of Gymnasium's ``SyncVectorEnv`` of the single env; zero
-   torques, ``max_following_error=None`` (resets are not what this times). The three loops are
-   timed alternately, best of ``--repeat``, in process CPU time with one MuJoCo thread (other
-   jobs' time slices on this shared machine are not counted), then the batched env with
-   2 threads in wall-clock time (which the machine's load inflates).
+1. ``throughput``: env-steps/s of each ``--num-envs`` count of copies of every id of
+   ``cir_gym.envs.vector.VECTOR_ENVS`` (or ``--envs``) in its native batched env, of the same
+   model's raw ``mujoco.batch.Batch.step`` and of Gymnasium's ``SyncVectorEnv`` of the single
+   env; zero actions, ``max_following_error=None`` where the env has it (resets are not what
+   this times). The loops are timed alternately, best of ``--repeat``: in process CPU time
+   with one MuJoCo thread (other jobs' time slices on this shared machine are not counted),
+   and in wall-clock time the batched env with 2 threads against the SyncVectorEnv (both
+   inflated by the machine's load).
 2. ``evaluator``: ``cir_gym.evaluation.evaluate`` on every JointTracking-v2 and
    ElasticJointTracking-v3 leaderboard (variant, policy) pair, as ``scripts/leaderboard.py``
    runs them (seed 1000 on): batched on ``--episodes`` seeds where it batches (controllers,
@@ -52,7 +53,7 @@ import numpy as np
 from _sections import write_section  # sibling module: the scripts run as files
 
 import cir_gym
-from cir_gym.envs.base import make_env
+from cir_gym.envs.base import constructor_arguments, make_env
 from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
 from cir_gym.evaluation import evaluate
 
@@ -81,51 +82,68 @@ def _per_env_step(
     return run
 
 
-def bench_throughput(num_envs: int, steps: int, repeat: int) -> list[str]:
-    """Rows of env-steps/s: batched env vs raw batch physics vs SyncVectorEnv, both envs."""
+def bench_throughput(
+    counts: list[int], steps: int, repeat: int, env_ids: list[str] | None = None
+) -> list[str]:
+    """Rows of env-steps/s per (env, copies): the batched env (1 thread CPU, 2 threads wall)
+    vs its raw batch physics and vs SyncVectorEnv (CPU and wall)."""
     rows = [
-        f"{num_envs} copies, zero torques, `max_following_error=None`; process CPU time with "
-        "1 MuJoCo thread (best of the trials, the loops timed alternately), and the batched "
-        "env's wall-clock rate with 2 threads (the machine's load inflates wall time).",
+        "Zero actions, `max_following_error=None` where the env has it; best of the trials, "
+        "the loops timed alternately. CPU: process time, 1 MuJoCo thread. Wall: the batched "
+        "env with 2 threads against the SyncVectorEnv, in the same run (the machine's load "
+        "inflates both).",
         "",
-        "| env | SyncVectorEnv | batched env, 1 thread (CPU) | raw Batch.step, 1 thread "
-        "(CPU) | batched / Sync | batched / raw | batched env, 2 threads (wall) |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| env | copies | SyncVectorEnv (CPU) | batched, 1 thread (CPU) | batched / Sync "
+        "| raw Batch.step (CPU) | batched / raw | SyncVectorEnv (wall) | batched, 2 threads "
+        "(wall) | batched 2 threads / Sync (wall) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    kw = {"max_following_error": None}
-    for env_id, cls in VECTOR_ENVS.items():
-        vec = cls(num_envs, nthread=1, **kw)
-        vec.reset(seed=0)
-        vec2 = cls(num_envs, nthread=2, **kw)
-        vec2.reset(seed=0)
-        sync = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync", **kw)
-        sync.reset(seed=0)
-        raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=1)
-        raw.state[:] = vec.batch.state
-        skip = vec.template.frame_skip
-        zeros = np.zeros(vec.action_space.shape, dtype=np.float32)
-
-        loops = {
-            "vec": _per_env_step(lambda v=vec, z=zeros: v.step(z), steps, num_envs),
-            "raw": _per_env_step(lambda r=raw, s=skip: r.step(nstep=s), steps, num_envs),
-            "sync": _per_env_step(lambda v=sync, z=zeros: v.step(z), max(1, steps // 8), num_envs),
-            "wall2": _per_env_step(
-                lambda v=vec2, z=zeros: v.step(z), steps, num_envs, time.perf_counter
-            ),
-        }
-        best = {k: float("inf") for k in loops}
-        for _ in range(repeat):
-            for key, run in loops.items():
-                best[key] = min(best[key], run())
-        rate = {k: 1.0 / v for k, v in best.items()}
-        print(f"  {env_id}: " + ", ".join(f"{k} {v:,.0f}/s" for k, v in rate.items()), flush=True)
-        rows.append(
-            f"| {env_id} | {rate['sync']:,.0f} | {rate['vec']:,.0f} | {rate['raw']:,.0f} | "
-            f"{rate['vec'] / rate['sync']:.1f} | {rate['vec'] / rate['raw']:.2f} | "
-            f"{rate['wall2']:,.0f} |"
+    for env_id in env_ids or list(VECTOR_ENVS):
+        cls = VECTOR_ENVS[env_id]
+        kw = (
+            {"max_following_error": None}
+            if "max_following_error" in constructor_arguments(cls.env_class)
+            else {}
         )
-        for env in (vec, vec2, sync):
-            env.close()
+        for num_envs in counts:
+            vec = cls(num_envs, nthread=1, **kw)
+            vec2 = cls(num_envs, nthread=2, **kw)
+            sync = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync", **kw)
+            for env in (vec, vec2, sync):
+                env.reset(seed=0)
+            raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=1)
+            raw.state[:] = vec.batch.state
+            skip = vec.template.frame_skip
+            zeros = np.zeros(vec.action_space.shape, dtype=np.float32)
+            n_sync = max(1, steps // 8)
+            loops = {
+                "vec": _per_env_step(lambda v=vec, z=zeros: v.step(z), steps, num_envs),
+                "raw": _per_env_step(lambda r=raw, s=skip: r.step(nstep=s), steps, num_envs),
+                "sync": _per_env_step(lambda v=sync, z=zeros: v.step(z), n_sync, num_envs),
+                "wall2": _per_env_step(
+                    lambda v=vec2, z=zeros: v.step(z), steps, num_envs, time.perf_counter
+                ),
+                "sync_wall": _per_env_step(
+                    lambda v=sync, z=zeros: v.step(z), n_sync, num_envs, time.perf_counter
+                ),
+            }
+            best = {k: float("inf") for k in loops}
+            for _ in range(repeat):
+                for key, run in loops.items():
+                    best[key] = min(best[key], run())
+            rate = {k: 1.0 / v for k, v in best.items()}
+            print(
+                f"  {env_id} x{num_envs}: " + ", ".join(f"{k} {v:,.0f}/s" for k, v in rate.items()),
+                flush=True,
+            )
+            rows.append(
+                f"| {env_id} | {num_envs} | {rate['sync']:,.0f} | {rate['vec']:,.0f} | "
+                f"{rate['vec'] / rate['sync']:.1f} | {rate['raw']:,.0f} | "
+                f"{rate['vec'] / rate['raw']:.2f} | {rate['sync_wall']:,.0f} | "
+                f"{rate['wall2']:,.0f} | {rate['wall2'] / rate['sync_wall']:.1f} |"
+            )
+            for env in (vec, vec2, sync):
+                env.close()
     return rows
 
 
@@ -317,7 +335,12 @@ def bench_ppo(steps: int) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--num-envs", type=int, default=64, help="copies for the throughput part")
+    p.add_argument(
+        "--num-envs", type=int, nargs="+", default=[16, 64], help="copies (throughput part)"
+    )
+    p.add_argument(
+        "--envs", nargs="*", default=None, help="ids of the throughput part (default: all)"
+    )
     p.add_argument("--steps", type=int, default=200, help="vector steps per timed trial")
     p.add_argument("--repeat", type=int, default=5, help="trials; the best is kept")
     p.add_argument("--episodes", type=int, default=100, help="seeds per leaderboard variant")
@@ -345,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
         body += [
             "### Batched env throughput",
             "",
-            *bench_throughput(args.num_envs, args.steps, args.repeat),
+            *bench_throughput(args.num_envs, args.steps, args.repeat, args.envs),
             "",
         ]
     if "evaluator" not in args.skip:
@@ -373,8 +396,8 @@ def main(argv: list[str] | None = None) -> int:
             before = t_seq_envs + t_other
             body += [
                 f"All {len(cir_gym.ENVIRONMENTS)} envs at {args.episodes} seeds per variant: "
-                f"{now / 60:.0f} CPU min with the batched evaluator (JointTracking and "
-                f"ElasticJointTracking {t_batched_envs / 60:.0f}, the others "
+                f"{now / 60:.0f} CPU min with the batched evaluator (the envs of "
+                f"VECTOR_ENVS {t_batched_envs / 60:.0f}, the others "
                 f"{t_other / 60:.0f}), {before / 60:.0f} CPU min all sequential; on the "
                 f"leaderboard's 2 workers at best {now / 120:.0f} min of wall time "
                 f"(perfect balance, an unloaded machine; figures and videos not counted). "
