@@ -3,7 +3,7 @@
     python scripts/research/optimize_vs.py run [--trials 12] [--timesteps 100000] [--wall 2400]
         [--worker 0]
     python scripts/research/optimize_vs.py trials      # markdown table of every trial
-    python scripts/research/optimize_vs.py best        # the best trial as a hyperparameter entry
+    python scripts/research/optimize_vs.py best [--write agents/hyperparams/vs/ppo_study.yml]
 
 Why not rl-zoo3's ``-optimize`` (``scripts/zoo_optimize.sh``): it scores a trial by the mean
 evaluation return, and its PPO sampler draws batches of 4–1024 at up to 20 epochs (the
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +36,7 @@ import yaml
 ENV_ID = "cir_gym/VisualServo-v1"
 BASE = Path("agents/hyperparams/vs/ppo.yml")
 STORAGE = Path("results/visual_servo/agents_study/ppo_vs.db")
+ADOPTED = Path("agents/hyperparams/vs/ppo_study.yml")  # the best trial, for the full runs
 STUDY = "ppo_visualservo_v1"
 RUNS = Path("/work/main/runs/rl/study")
 VALIDATION_SEED = 60_000
@@ -146,6 +146,26 @@ def load_study(create: bool = False, worker: int = 0) -> Any:
     return optuna.load_study(study_name=STUDY, storage=storage, sampler=sampler)
 
 
+def adopted_file(study: Any, timesteps: int) -> str:
+    """The hyperparameter file of the study's best complete trial for a full run of
+    ``timesteps`` steps (the hand recipe's ``training`` section: evaluations and checkpoints
+    every 100k steps), with a header naming the trial."""
+    best = study.best_trial
+    data = trial_entry(best.params, timesteps)
+    data["training"] = base_entry()["training"]
+    done = [t for t in study.trials if t.state.name == "COMPLETE"]
+    attrs = {k: best.user_attrs[k] for k in ("success", "median_final_error", "terminated")
+             if k in best.user_attrs}
+    header = (
+        f"# Written by `python scripts/research/optimize_vs.py best --write {ADOPTED}`: the best\n"
+        f"# of {len(done)} complete trials of the Optuna study {STUDY!r} ({STORAGE}), trial "
+        f"{best.number}:\n# objective {best.value:.4g} (mean log10 final feature error, px, on "
+        f"{VALIDATION_EPISODES} validation episodes\n# after the trial's steps; {attrs}).\n"
+        "# Used for both visual-servoing envs by scripts/research/train_vs.sh (the study ran on "
+        "VisualServo-v1).\n")
+    return header + yaml.safe_dump(data, sort_keys=False)
+
+
 def _fmt(x: Any) -> str:
     if isinstance(x, float):
         return f"{x:.4g}"
@@ -175,25 +195,33 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--timesteps", type=int, default=100_000)
     r.add_argument("--wall", type=float, default=2400.0, help="s: no new trial after this")
     r.add_argument("--worker", type=int, default=0, help="seeds this worker's sampler")
+    r.add_argument("--total", type=int, help="stop when the study has this many complete "
+                   "trials (all workers together)")
     sub.add_parser("trials", help="every trial as a markdown table")
-    b = sub.add_parser("best", help="the best trial as a hyperparameter entry (YAML)")
+    b = sub.add_parser("best", help="the best trial as a hyperparameter file (YAML)")
     b.add_argument("--timesteps", type=int, default=3_000_000)
+    b.add_argument("--write", type=Path, help=f"write it here (e.g. {ADOPTED})")
     args = ap.parse_args(argv)
     if args.cmd == "run":
+        import optuna
+
         study = load_study(create=True, worker=args.worker)
+        study = load_study(worker=args.worker + 100 * len(study.trials))  # a resumed study's
+        # random start-up trials must not repeat the first session's draws
+        stop = [] if args.total is None else [optuna.study.MaxTrialsCallback(
+            args.total, states=(optuna.trial.TrialState.COMPLETE,))]
         study.optimize(objective_factory(args.timesteps), n_trials=args.trials,
-                       timeout=args.wall, catch=(ValueError, RuntimeError))
+                       timeout=args.wall, catch=(ValueError, RuntimeError), callbacks=stop)
         return 0
     study = load_study()
     if args.cmd == "trials":
         print(f"study {STUDY!r} ({STORAGE}): {len(study.trials)} trials")
         print(trials_table(study))
         return 0
-    best = study.best_trial
-    entry = trial_entry(best.params, args.timesteps)["default"]
-    print(f"# the best trial of {STUDY}: {best.number}, objective {best.value:.4g}, "
-          f"{best.user_attrs}", file=sys.stderr)
-    print(yaml.safe_dump({ENV_ID: entry}, sort_keys=False))
+    text = adopted_file(study, args.timesteps)
+    if args.write:
+        args.write.write_text(text)
+    print(text)
     return 0
 
 

@@ -9,7 +9,9 @@
 #   scripts/research/train_vs.sh status     # progress of every run, the queues' PIDs
 #   scripts/research/train_vs.sh stop       # SIGTERM the queues' trainings (they checkpoint)
 #
-# Two queues (one per environment), each a background shell in its own process group
+# Stage 0: the Optuna study (scripts/research/optimize_vs.py) until STUDY_TRIALS trials are
+# complete; its best trial is written to agents/hyperparams/vs/ppo_study.yml, which every PPO
+# run uses (commit that file). Then two queues (one per environment), each a background shell in its own process group
 # (setsid nohup, nice 19, one torch/OMP thread) that trains its runs one after the other: a finished run (meta.json "finished":
 # true) is skipped, a started one resumes from its last checkpoint (`--resume`), a run
 # directory without a checkpoint (stopped in its first 100k steps) starts over. A queue whose
@@ -24,14 +26,32 @@ LOGS="$ROOT/logs"
 PPO_STEPS=3000000
 SAC_STEPS=500000
 SEEDS_REST="1 2 3 4"
+PPO_HP=agents/hyperparams/vs/ppo_study.yml  # the study's best trial (optimize_vs.py best)
+STUDY_WORKERS=3     # one process each, sharing the sqlite study
+STUDY_TRIALS=4      # complete trials before the best is adopted (the hand recipe among them)
+STUDY_STEPS=120000  # env steps per trial
 mkdir -p "$LOGS"
+
+# Stage 0 (background): the Optuna study until STUDY_TRIALS trials are complete, then its best
+# trial is written to $PPO_HP and this script starts the training queues.
+study_stage() {
+    local w
+    for w in $(seq 0 $((STUDY_WORKERS - 1))); do
+        python scripts/research/optimize_vs.py run --total "$STUDY_TRIALS" --trials 100 \
+            --wall 1e9 --timesteps "$STUDY_STEPS" --worker "$w" \
+            >> "$ROOT/study/logs/worker_$w.log" 2>&1 &
+    done
+    wait
+    python scripts/research/optimize_vs.py best --write "$PPO_HP" >> "$LOGS/queue.log" 2>&1
+    exec scripts/research/train_vs.sh start
+}
 
 # one queue's runs: "env_id algo seed timesteps hyperparameter_file"
 queue_runs() {
     local env_id="$1"
-    echo "$env_id ppo 0 $PPO_STEPS agents/hyperparams/vs/ppo.yml"
+    echo "$env_id ppo 0 $PPO_STEPS $PPO_HP"
     echo "$env_id sac 0 $SAC_STEPS agents/hyperparams/vs/sac.yml"
-    for k in $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS agents/hyperparams/vs/ppo.yml"; done
+    for k in $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS $PPO_HP"; done
     for k in $SEEDS_REST; do echo "$env_id sac $k $SAC_STEPS agents/hyperparams/vs/sac.yml"; done
 }
 
@@ -80,6 +100,8 @@ alive() {  # pid file
 
 status() {
     local env_id line dir
+    if alive "$LOGS/study.pid"; then echo "study: running, PID $(cat "$LOGS/study.pid")"; fi
+    [[ -f "$PPO_HP" ]] && echo "study adopted: $PPO_HP"
     for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
         pid="$LOGS/queue_${env_id#cir_gym/}.pid"
         if alive "$pid"; then echo "queue ${env_id#cir_gym/}: running, PID $(cat "$pid")"
@@ -101,7 +123,7 @@ status() {
 case "${1:-start}" in
     status) status ;;
     stop)
-        for pid in "$LOGS"/queue_*.pid; do
+        for pid in "$LOGS"/queue_*.pid "$LOGS"/study.pid; do
             # the queue is a process group of its own (setsid): the shell, GNU time and the
             # training all get SIGTERM; the training checkpoints before it exits
             if alive "$pid"; then kill -TERM -- "-$(cat "$pid")" || true; fi
@@ -109,6 +131,18 @@ case "${1:-start}" in
     start)
         . .venv/bin/activate
         export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
+        if [[ ! -f "$PPO_HP" ]]; then  # the study first; it starts the queues when done
+            pid="$LOGS/study.pid"
+            if alive "$pid"; then echo "study running (PID $(cat "$pid"))"; exit 0; fi
+            mkdir -p "$ROOT/study/logs"
+            setsid nohup nice -n 19 bash -c "$(declare -f study_stage); \
+                ROOT='$ROOT' LOGS='$LOGS' PPO_HP='$PPO_HP' STUDY_WORKERS=$STUDY_WORKERS \
+                STUDY_TRIALS=$STUDY_TRIALS STUDY_STEPS=$STUDY_STEPS; study_stage" \
+                > /dev/null 2>&1 &
+            echo $! > "$pid"
+            echo "study started (PID $!); the queues start when it is done"
+            exit 0
+        fi
         for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
             pid="$LOGS/queue_${env_id#cir_gym/}.pid"
             if alive "$pid"; then
