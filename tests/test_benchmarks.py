@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 BENCH_ROBOT = Path(__file__).parents[1] / "benchmarks" / "bench_robot.py"
 QUICK = ["--calls", "3", "--repeat", "2"]
 
@@ -253,3 +255,25 @@ def test_tape_of_every_model_keeps_one_segment_per_episode_with_its_model():
     assert all(s.model is not u.model for s in tape.segments)  # copies
     assert replay_seconds(tape.segments[0]) >= 0.0
     env.close()
+
+
+BENCH_VECTOR = Path(__file__).parents[1] / "benchmarks" / "bench_vector.py"
+
+
+def test_bench_vector_times_a_batched_env_against_sync_side_by_side(monkeypatch):
+    """One row per (env, copies) with positive rates and the ratios of those rates."""
+    monkeypatch.syspath_prepend(str(BENCH_VECTOR.parent))  # its sibling _sections module
+    spec = importlib.util.spec_from_file_location("bench_vector", BENCH_VECTOR)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rows = module.bench_throughput([2], steps=8, repeat=1, env_ids=["cir_gym/CartesianTracking-v1"])
+    table = [row for row in rows if row.startswith("| cir_gym/")]
+    assert len(table) == 1
+    cells = [c.strip().replace(",", "") for c in table[0].strip("|").split("|")]
+    env_id, copies, sync, vec, ratio, raw, vs_raw, sync_wall, wall2, ratio_wall = cells
+    assert (env_id, copies) == ("cir_gym/CartesianTracking-v1", "2")
+    rates = [float(v) for v in (sync, vec, raw, sync_wall, wall2)]
+    assert all(r > 0 for r in rates)
+    assert float(ratio) == pytest.approx(float(vec) / float(sync), rel=0.05, abs=0.051)
+    assert float(ratio_wall) == pytest.approx(float(wall2) / float(sync_wall), rel=0.05, abs=0.051)
+    assert float(vs_raw) == pytest.approx(float(vec) / float(raw), rel=0.05, abs=0.0051)
