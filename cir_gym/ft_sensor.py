@@ -275,6 +275,23 @@ class WrenchSensor:
         self._sample(idx, w, np.ones(len(idx), dtype=np.int64))
         return self.reading.copy()
 
+    def load_row(self, row: int, sensor: WrenchSensor) -> None:
+        """Continue the episode of a single ``sensor`` (same spec and timestep) in row ``row``
+        of this batch: its filter, delay line, sample clock, bias, reading and generator (the
+        same generator object: the row draws on from where the single sensor stopped).
+        A vector env resets a copy with a single env and moves the sensor here."""
+        if self.num_envs is None or sensor.num_envs is not None:
+            raise InvalidArgument("load_row moves a single sensor into a row of a batched one")
+        if sensor.spec != self.spec or sensor.timestep != self.timestep:
+            raise InvalidArgument("sensor must have this batch's spec and timestep")
+        D = self.delay_steps
+        self._bias[row] = sensor._bias[0]
+        self._f[row] = sensor._f[0]
+        self._buffer[row, :D] = sensor._buffer[0, :D]
+        self._count[row] = sensor._count[0]
+        self._reading[row] = sensor._reading[0]
+        self._rngs[row] = sensor._rngs[0]
+
     def update(self, wrench: np.ndarray) -> np.ndarray:
         """Advance one physics step with the true wrench (6,) / (num_envs, 6); return the
         (held) reading (a copy)."""

@@ -1,0 +1,261 @@
+"""Native batched AdmittanceContact on ``mujoco.batch.Batch``: ``num_envs`` copies of
+``cir_gym/AdmittanceContact-v1`` in one vector env.
+
+>>> import cir_gym
+>>> envs = cir_gym.make_vec("cir_gym/AdmittanceContact-v1", num_envs=32)   # doctest: +SKIP
+>>> obs, infos = envs.reset(seed=0)          # copy i is AdmittanceContact reset(seed=i)
+>>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
+
+What is batched and how (the single env's ``step`` is the specification; each copy equals it
+to the tolerance tests/test_vector_admittance.py states):
+
+* **Physics.** A control period is ``substeps`` physics steps of every copy, one
+  ``Batch.step`` each (:meth:`BatchedTaskEnv._simulate`: per-copy divergence and restore).
+  The contact forces are MuJoCo contact sensors (the scene's ``tool_contact``: the
+  tool-plate net force; ``peak_contact``: the largest single contact on the plate), so each
+  step's ``sensordata`` row (N, nsensordata) is the whole per-step measurement; the period's
+  record (N, substeps, nsensordata) feeds the batched wrist-sensor model
+  (:class:`~cir_gym.ft_sensor.WrenchSensor` with ``num_envs``) and
+  :func:`~cir_gym.envs.admittance_task.period_forces`, as the single env feeds its own. The
+  torque interface holds τ = a ⊙ τ_max over the period; the position interface's torque law
+  (:class:`~cir_gym.motion_interface.CartesianMotionInterface` on (N, 7) arrays) runs at
+  every physics step. After the period ``Batch.forward`` (to the velocity stage) makes the
+  poses and velocities of the reached state current, as the single env's kinematics calls.
+* **Per-episode surfaces.** Every reset draws a surface height, tilt (and with
+  ``randomize=True`` the stiffness, damping and sensor bias): the plate's ``jnt_stiffness``,
+  ``dof_damping`` and its mount's ``body_pos``, ``body_quat`` are per-copy model fields
+  (``Batch.expand``), written from the template after each copy's reset.
+* **Task.** The reward (:class:`~cir_gym.envs.admittance_task.AdmittanceReward`), the contact
+  flags, the force limit and the episode metrics
+  (:func:`~cir_gym.envs.admittance_task.episode_metrics`) are the single env's own functions
+  on (N, ...) arrays; resets are the template single env's (``BatchedTaskEnv``).
+
+Driving the task by torques: :meth:`AdmittanceContactVectorEnv._task_step` is one 2-ms task
+step of every copy with (N, 7) normalised torques (``control="torque"``), without autoreset: a
+wrapper (the agent-ready impedance loop) can call it for each of its inner steps.
+
+Supported: every argument of the single env except ``render_mode``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+
+from cir_gym.envs import admittance_scene as scene
+from cir_gym.envs.admittance_contact import START_Q, AdmittanceContactEnv
+from cir_gym.envs.admittance_task import (
+    CONTACT_THRESHOLD,
+    REWARD_TERMS,
+    episode_metrics,
+    period_forces,
+)
+from cir_gym.envs.vector_base import BatchedTaskEnv
+from cir_gym.ft_sensor import WrenchSensor
+from cir_gym.motion_interface import CartesianMotionInterface
+
+__all__ = ["AdmittanceContactVectorEnv"]
+
+_VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
+#: the per-copy model fields an episode's surface sets (AdmittanceContactEnv.reset)
+_SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
+
+
+class AdmittanceContactVectorEnv(BatchedTaskEnv):
+    """``num_envs`` copies of ``cir_gym/AdmittanceContact-v1`` on one ``mujoco.batch.Batch``
+    (see the module docstring).
+
+    Args:
+        num_envs: number of copies (≥ 1).
+        nthread: MuJoCo threads (0: all CPUs).
+        **kwargs: the single env's arguments, except ``render_mode``.
+    """
+
+    env_class: ClassVar[type[AdmittanceContactEnv]] = AdmittanceContactEnv
+    env_id: ClassVar[str] = "cir_gym/AdmittanceContact-v1"
+    template: AdmittanceContactEnv
+
+    # ------------------------------------------------------------------ allocation, resets
+    def _allocate(self) -> None:
+        t, N = self.template, self.num_envs
+        m, steps = t.model, t.max_steps
+        self._model_rows = {name: self.batch.expand(name) for name in _SURFACE_FIELDS}
+        self._sensordata = self.batch.bind("sensordata")
+        self._site_xpos = self.batch.bind("site_xpos")
+        self._site_xmat = self.batch.bind("site_xmat")
+        self._cvel = self.batch.bind("cvel")
+        self._subtree_com = self.batch.bind("subtree_com")
+        self._site_body = int(m.site_bodyid[t._site])
+        self._site_root = int(m.body_rootid[self._site_body])
+        self.sensor = WrenchSensor(t.sensor_spec, m.opt.timestep, num_envs=N)
+        self.interface = (
+            CartesianMotionInterface(scene.tool_robot(), scene.SITE)
+            if t.control == "position" else None
+        )
+        if self.interface is not None:
+            self.interface.reset(np.tile(START_Q, (N, 1)))
+        self._record = np.zeros((N, t.substeps, m.nsensordata))  # sensordata per physics step
+        self._normal = np.zeros((N, 3))  # the true surface normal
+        self._f_ref = np.zeros(N)
+        self._pos_ref = np.zeros((N, steps + 1, 3))
+        self._vel_ref = np.zeros((N, steps + 1, 3))
+        self._force = np.zeros((N, steps))  # per control step, as the single env's histories
+        self._touch = np.zeros((N, steps))
+        self._peak = np.zeros((N, steps))
+        self._path = np.zeros((N, steps))
+        self._first_contact = np.full(N, -1)  # -1: no contact yet
+        self._a_prev = np.zeros((N, t.action_space.shape[0]))
+        self._frozen_q = np.zeros((N, m.nq))  # a copy's state where it diverged mid-period
+        self._frozen_qd = np.zeros((N, m.nv))
+        self._bounds = {
+            key: (space.low, space.high) for key, space in t.observation_space.spaces.items()
+        }
+
+    def _start_episode(self, i: int) -> None:
+        t = self.template
+        for name, rows in self._model_rows.items():
+            rows[i] = getattr(t.model, name)
+        self.sensor.load_row(i, t.sensor)
+        if self.interface is not None:
+            self.interface.reset(START_Q, rows=[i])
+        self._normal[i] = t._normal
+        self._f_ref[i] = t._f_ref
+        self._pos_ref[i] = t._pos_ref
+        self._vel_ref[i] = t._vel_ref
+        self._first_contact[i] = -1
+        self._a_prev[i] = 0.0
+
+    # ------------------------------------------------------------------ step
+    def _advance(self, a: np.ndarray) -> np.ndarray:
+        """One control period of every copy (AdmittanceContactEnv._advance on the rows):
+        fill ``_record`` with each physics step's sensordata (0 for the steps a divergence
+        leaves unplayed) and feed it to the wrist sensors; return the (N,) copies that
+        diverged (left at their last finite state, as the single env stops there)."""
+        t, n, record = self.template, self.template.substeps, self._record
+        q, qd = self._qpos, self._qvel
+        played = np.full(self.num_envs, n)
+        tau = a * t.torque_limit if self.interface is None else None
+        for i in range(n):
+            if self.interface is not None:
+                tau = self.interface.torque(q[:, t._qa], qd[:, t._da], (i + 1) / n)
+                np.clip(tau, -t.torque_limit, t.torque_limit, out=tau)
+            diverged = self._simulate(tau, nstep=1)
+            record[:, i] = self._sensordata
+            if diverged.any():
+                new = diverged & (played == n)
+                played[new] = i
+                self._frozen_q[new] = q[new]
+                self._frozen_qd[new] = qd[new]
+        stopped = played < n
+        if stopped.any():  # back to where each stopped, its unplayed steps' records zeroed
+            record[np.arange(n)[None, :] >= played[:, None]] = 0.0
+            q[stopped] = self._frozen_q[stopped]
+            qd[stopped] = self._frozen_qd[stopped]
+        self.sensor.advance_many(record[:, :, t._wrench_at])
+        self.batch.forward(stage=_VELOCITY_STAGE)  # poses and velocities of the reached state
+        return stopped
+
+    def _task_step(
+        self, a: np.ndarray, peak: np.ndarray, k: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, Any]]:
+        t, rows = self.template, self._rows
+        if self.interface is not None:
+            self.interface.command(a * t.increment_scale, t.dt)
+        diverged = self._advance(a)
+        tool, peak_steps = period_forces(self._record, self._normal, t._tool_at, t._peak_at)
+        force = tool.mean(axis=1)
+        touch = (tool > CONTACT_THRESHOLD).mean(axis=1)
+        largest = peak_steps.max(axis=1)
+        load = self._plate_load()
+        k1 = self._k
+        e = self._pos_ref[rows, np.minimum(k1, t.max_steps)] - self._site_xpos[:, t._site]
+        e_t = e - (e @ scene.SURFACE_NORMAL)[:, None] * scene.SURFACE_NORMAL
+        e_t_sq = np.sum(e_t * e_t, axis=1)
+        self._force[rows, k], self._touch[rows, k], self._peak[rows, k] = force, touch, largest
+        self._path[rows, k] = np.sqrt(e_t_sq)
+        first = (self._first_contact < 0) & (touch > 0.0)
+        self._first_contact[first] = k[first]
+        over = ~diverged & (np.maximum(largest, load) > t.force_limit)
+        err = force - self._f_ref
+        terms = t.reward_model.terms(
+            err, e_t_sq, np.sum((a - self._a_prev) ** 2, axis=1), over, diverged, k1
+        )
+        reward = sum(terms[name] for name in REWARD_TERMS)  # the single env's order
+        self._a_prev[:] = a
+        terminated = diverged | over
+        infos = self._step_infos({
+            **terms,
+            "contact_force": force,
+            "in_contact": touch == 1.0,
+            "contact_steps": touch,
+            "peak_contact_force": largest,
+            "plate_load": load,
+            "force_error": err,
+            "path_error": self._path[rows, k],
+            "force_limit_exceeded": over,
+            "diverged": diverged,
+        })
+        return self._observation(), reward, terminated, infos
+
+    def _plate_load(self) -> np.ndarray:
+        """k x + c ẋ of every copy's plate (N,) (AdmittanceContactEnv.normal_force)."""
+        t, fields = self.template, self._model_rows
+        x = -self._qpos[:, t._slide_qpos]
+        return (
+            fields["jnt_stiffness"][:, t._slide_jnt] * x
+            - fields["dof_damping"][:, t._slide_dof] * self._qvel[:, t._slide_dof]
+        )
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        """The single env's observation of every copy (AdmittanceContactEnv._obs), clipped."""
+        t, rows = self.template, self._rows
+        kk = np.minimum(self._k, t.max_steps)
+        tool_pos = self._site_xpos[:, t._site]
+        tool_quat = np.array([scene.quat_of(R.reshape(3, 3)) for R in self._site_xmat[:, t._site]])
+        # the tcp's velocity (mj_objectVelocity, world frame): the body's spatial velocity
+        # [ω; v] about its subtree's centre of mass, moved to the site: v + ω × (p − c)
+        cvel = self._cvel[:, self._site_body]
+        omega = cvel[:, :3]
+        lever = tool_pos - self._subtree_com[:, self._site_root]
+        velocity = cvel[:, 3:] + np.cross(omega, lever)
+        if self.interface is not None:
+            robot, site = self.interface.robot, self.interface.site
+            poses = [robot.site_pose(site, q_c) for q_c in self.interface.q_c]
+            setpoint_pos = np.array([p for p, _ in poses])
+            setpoint_quat = np.array([scene.quat_of(R) for _, R in poses])
+        else:
+            setpoint_pos, setpoint_quat = tool_pos, tool_quat
+        obs = {
+            "q": self._qpos[:, t._qa],
+            "qd": self._qvel[:, t._da],
+            "tool_pos": tool_pos,
+            "tool_quat": tool_quat,
+            "tool_vel": velocity,
+            "tool_angvel": omega,
+            "wrench": self.sensor.reading,
+            "f_ref": self._f_ref[:, None],
+            "tool_pos_ref": self._pos_ref[rows, kk],
+            "tool_vel_ref": self._vel_ref[rows, kk],
+            "setpoint_pos": setpoint_pos,
+            "setpoint_quat": setpoint_quat,
+        }
+        return {key: np.clip(v, *self._bounds[key]) for key, v in obs.items()}
+
+    def _episode_end(
+        self, i: int, infos: dict[str, Any], terminated: bool, truncated: bool
+    ) -> dict[str, Any]:
+        t = self.template
+        first = int(self._first_contact[i])
+        metrics = episode_metrics(
+            self._force[i], self._touch[i], self._peak[i], self._path[i], int(self._k[i]),
+            terminated, None if first < 0 else first, float(self._f_ref[i]),
+            round(t.settle_time / t.dt), t.max_steps,
+        )
+        success = (
+            not terminated
+            and metrics["force_rms_error"] < t.success_threshold
+            and metrics["contact_loss"] < 0.01
+        )
+        return {**self._row_info(infos, i), "episode_metrics": metrics, "is_success": success}
