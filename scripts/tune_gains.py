@@ -12,8 +12,15 @@ within :data:`BOUNDS` to minimise the mean primary metric over *training* episod
 episodes diverge scores +inf. The best gains and the defaults are then scored on the
 leaderboard's episodes (10, seeds 1000–1009): the report goes to ``<out>/<Env-vN>.md`` (the
 Optuna study beside it as SQLite), the gains to ``<gains-out>/<Env-vN>.json`` (default ``<out>``;
-``--gains-out cir_gym/scoring/tuned_gains`` replaces the package's, which
+``--gains-out cir_gym/scoring/tuned_gains`` updates the package's, which
 ``tuned:<controller>`` reads).
+
+A run resumes: a study already in ``<out>/studies.db`` continues with the trials it still
+lacks (completed trials count, one left running by a stopped process does not), a study that
+has them all is not searched again, and a row whose tuned gains are already scored in the gains
+file is not scored again. Each study's row is merged into ``<gains-out>/<Env-vN>.json`` (and
+the report rewritten) as soon as it ends, replacing the row of the same (variant, controller)
+and keeping the others: a run of some variants or controllers updates just those.
 
 Which gains are searched: a controller's rate gains and damping ratio (below) by default;
 :data:`SEARCHED` names the gains of the controllers whose law has more (the interaction and
@@ -66,7 +73,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -107,8 +113,8 @@ SEARCHED: dict[str, tuple[str, ...]] = {
     "explicit_force": ("crossover_ratio", "zeta"),
     "implicit_force": ("crossover", "integral_ratio"),
     "parallel_force_position": ("crossover", "proportional"),
-    "hybrid_force_position": ("omega_n", "zeta", "d_f", "speed"),
-    "hybrid_spiral": ("omega_n", "zeta", "d_f", "speed"),
+    "hybrid_force_position": ("omega_n", "zeta", "crossover_ratio", "d_f", "speed"),
+    "hybrid_spiral": ("omega_n", "zeta", "crossover_ratio", "d_f", "speed"),
     "position_only": ("k_p", "k_d", "speed"),
     "adaptive": ("lam", "kd", "gamma"),
 }
@@ -195,14 +201,21 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
     name = f"{env_id.split('/')[-1]}-{variant.replace(' ', '_')}-{controller}"
     storage = f"sqlite:///{out / 'studies.db'}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # a study of this name in the storage is continued: the trials it completed count, so a
+    # run stopped half-way (or a whole environment's run) resumes where it stood
     study = optuna.create_study(study_name=name, storage=storage, direction="minimize",
                                 sampler=optuna.samplers.TPESampler(seed=sampler_seed),
-                                load_if_exists=False)
+                                load_if_exists=True)
     # the course's gains are trial 0 (clamped into the bounds if they lie outside)
-    study.enqueue_trial({g: min(max(v, space[g][0]), space[g][1]) for g, v in defaults.items()})
-    # set by trial 0 (the default gains): the success rate no trial may fall below, and the
+    start = {g: min(max(v, space[g][0]), space[g][1]) for g, v in defaults.items()}
+    if default_trial(study, start) is None:
+        study.enqueue_trial(start)
+    # set by the default gains' trial: the success rate no trial may fall below, and the
     # metric searched on (the variant's, or the return when the defaults never succeed)
     floor: dict[str, Any] = {}
+    first = default_trial(study, start)
+    if first is not None:
+        set_floor(floor, first.user_attrs["train"])
 
     def objective(trial: Any) -> float:
         gains: dict[str, float] = {}
@@ -217,8 +230,7 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
         except baselines.InvalidGain:
             return math.inf
         if not floor:
-            floor.update(success=s["success"],
-                         on=s["metric"] if s["success"] > 0 else "return")
+            set_floor(floor, s)
         trial.set_user_attr("train", s)
         value, better = ((s["value"], s["better"]) if floor["on"] == s["metric"]
                          else (s["return"], "higher"))
@@ -226,13 +238,47 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
             return math.inf
         return value if better == "lower" else -value
 
-    t0 = time.perf_counter()
-    study.optimize(objective, n_trials=trials)
-    return {"study": name, "trials": trials, "train_episodes": train_episodes,
+    study.optimize(objective, n_trials=max(trials - len(completed(study)), 0))
+    done = completed(study)
+    first = default_trial(study, start)
+    return {"study": name, "trials": len(done), "train_episodes": train_episodes,
             "train_seed": TRAIN_SEED, "best_train": study.best_value,
-            "default_train": study.trials[0].value, "tuned": study.best_params,
-            "default": defaults, "bounds": space, "searched_on": floor.get("on"),
-            "seconds": round(time.perf_counter() - t0, 1)}
+            "default_train": first.value if first is not None else math.nan,
+            "tuned": study.best_params, "default": defaults, "bounds": space,
+            "searched_on": floor.get("on"),
+            "seconds": round(sum(t.duration.total_seconds() for t in done), 1)}
+
+
+def completed(study: Any) -> list[Any]:
+    """The study's completed trials (a trial left running by a stopped process is not)."""
+    import optuna
+
+    return study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+
+
+def default_trial(study: Any, start: dict[str, float]) -> Any:
+    """The completed trial of the default gains ``start`` (the study's first), or None."""
+    for t in completed(study):
+        if t.params == start and "train" in t.user_attrs:
+            return t
+    return None
+
+
+def set_floor(floor: dict[str, Any], train: dict[str, Any]) -> None:
+    """What the default gains' training score sets for every trial (see :func:`tune`)."""
+    floor.update(success=train["success"],
+                 on=train["metric"] if train["success"] > 0 else "return")
+
+
+def merge_rows(path: Path, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The tuned-gain rows of ``path`` (if it exists) with ``rows`` in place of those of the
+    same (variant, controller); new ones appended. Written back to ``path`` and returned, so
+    a run of some variants or controllers keeps the file's other rows."""
+    new = {(r["variant"], r["controller"]): r for r in rows}
+    old = json.loads(path.read_text()) if path.exists() else []
+    merged = [new.pop((r["variant"], r["controller"]), r) for r in old] + list(new.values())
+    path.write_text(json.dumps(merged, indent=2) + "\n")
+    return merged
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -272,27 +318,37 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / env_id.split("/")[-1]
-    results: list[dict[str, Any]] = []
+    gains_out = Path(args.gains_out or args.out)
+    gains_out.mkdir(parents=True, exist_ok=True)
+    gains_file = gains_out / f"{stem.name}.json"
+    earlier = {(r["variant"], r["controller"]): r
+               for r in (json.loads(gains_file.read_text()) if gains_file.exists() else [])}
+    rows: list[dict[str, Any]] = []
     for variant, kwargs in variants.items():
         objective = variant_setting(env_id, kwargs)[1]
         for c in args.controller or [c for c in baselines.available(env_id)
                                      if tunable_gains(c, env_id, objective, kwargs)]:
             r = tune(c, env_id, variant, kwargs, trials=args.trials,
                      train_episodes=args.train_episodes, out=out)
-            r["leaderboard_default"] = score(c, env_id, variant, kwargs, r["default"],
-                                             args.episodes, LEADERBOARD_SEED)
-            r["leaderboard_tuned"] = score(c, env_id, variant, kwargs, r["tuned"],
-                                           args.episodes, LEADERBOARD_SEED)
             r.update(variant=variant, env_kwargs=kwargs, controller=c)
-            results.append(r)
+            known = earlier.get((variant, c), {})
+            if (known.get("tuned") == r["tuned"] and known.get("default") == r["default"]
+                    and "leaderboard_tuned" in known):  # a resumed run: scored already
+                r["leaderboard_default"] = known["leaderboard_default"]
+                r["leaderboard_tuned"] = known["leaderboard_tuned"]
+            else:
+                r["leaderboard_default"] = score(c, env_id, variant, kwargs, r["default"],
+                                                 args.episodes, LEADERBOARD_SEED)
+                r["leaderboard_tuned"] = score(c, env_id, variant, kwargs, r["tuned"],
+                                               args.episodes, LEADERBOARD_SEED)
+            rows.append(r)
+            # written after every study, so that a stopped run keeps what it finished
+            merged = merge_rows(gains_file, [r])
+            stem.with_suffix(".md").write_text(report(env_id, merged, args, extra))
             d, t = r["leaderboard_default"], r["leaderboard_tuned"]
             print(f"{variant:24s} {c:24s} {d['metric']} default {d['value']:.3g} "
                   f"({d['success']:.0%}) tuned {t['value']:.3g} ({t['success']:.0%}) "
                   f"{r['tuned']} [{r['seconds']:.0f} s]", file=sys.stderr, flush=True)
-    gains_out = Path(args.gains_out or args.out)
-    gains_out.mkdir(parents=True, exist_ok=True)
-    (gains_out / f"{stem.name}.json").write_text(json.dumps(results, indent=2) + "\n")
-    stem.with_suffix(".md").write_text(report(env_id, results, args, extra))
     print(stem.with_suffix(".md").read_text())
     return 0
 

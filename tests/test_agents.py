@@ -1020,7 +1020,7 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
     assert bounds("gamma", 100.0, 0.002) == pytest.approx((10.0, 1000.0))
     assert bounds("lam", 10.0, 0.002) == pytest.approx((1.0, 150.0))
     assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v2")) == {
-        "omega_n", "zeta", "d_f", "speed"}
+        "omega_n", "zeta", "crossover_ratio", "d_f", "speed"}
 
 
 def test_tune_gains_keeps_the_cascades_position_loop_below_its_speed_loop(tmp_path):
