@@ -70,8 +70,7 @@ Methods (N = ``num_envs``; arrays are float64 unless said):
   ``episode_state`` copied: the template holds the new episode (the batch's row i its
   state). Copy anything else the task step needs.
 * ``_task_step(self, a, peak, k) -> TaskStep``, i.e. ``(obs, reward, terminated, infos)``:
-  one control step of
-  every copy. ``a`` (N, m): the actions clipped to [-1, 1]; ``peak`` (N,): max |a| of each
+  one control step of every copy. ``a`` (N, m): the actions clipped to [-1, 1]; ``peak`` (N,): max |a| of each
   row before clipping (≥ 1: clipped or at the limit, the single env's saturation flag);
   ``k`` (N,) int: steps played before this one (the row of this step in the histories);
   ``self._k`` already holds ``k + 1``. Run the physics (usually
