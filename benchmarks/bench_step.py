@@ -41,7 +41,9 @@ zero-action steps, as above); then ``predict`` on ``--batch`` stacked observatio
 
 Vector env: env-steps/s of ``--num-envs`` JointTracking copies in
 ``cir_gym.envs.vector.JointTrackingVectorEnv``, of the same model's raw ``mujoco.batch.Batch.step``
-and of Gymnasium's ``SyncVectorEnv`` of the single env (``gymnasium.make_vec``).
+and of Gymnasium's ``SyncVectorEnv`` of the single env (``gymnasium.make_vec``); when ``--env``
+includes PegInHole-v2, its batched env against SyncVectorEnv at ``--peg-copies`` copies, both
+control interfaces (:func:`bench_peg_vector`).
 
 Prints markdown and writes it to ``--out`` under the heading ``## env.step and predict``,
 replacing only that section (other sections of the file, e.g. vector-env scaling, are kept).
@@ -54,6 +56,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -480,6 +483,65 @@ def bench_vector(num_envs: int, steps: int, repeat: int, nthread: int) -> list[s
     ]
 
 
+PEG = "cir_gym/PegInHole-v2"
+#: PegInHole's batched rows: the interface and arguments, and what the zero action does there
+PEG_CASES = (
+    ("torque", {"force_limit": 1e4}, "zero torque: the arm falls on the block and rests on it "
+     "(in contact on ~87 % of the steps; force limit raised so that the episodes go on)"),
+    ("position", {"control": "position"}, "zero increment: the motion controller holds the "
+     "start pose (free space, 10 mm above the hole)"),
+)
+
+
+def _vector_step_time(
+    env: Any, actions: np.ndarray, steps: int, clock: Callable[[], float] = time.process_time
+) -> float:
+    """Seconds per env-step of ``steps`` calls of a vector env's ``step(actions)``."""
+    t0 = clock()
+    for _ in range(steps):
+        env.step(actions)
+    return (clock() - t0) / (steps * len(actions))
+
+
+def bench_peg_vector(copies: list[int], steps: int, repeat: int, nthread: int) -> list[str]:
+    """env-steps/s of ``cir_gym.envs.peg_in_hole_vector.PegInHoleVectorEnv`` against Gymnasium's
+    SyncVectorEnv of the single env at each number of copies, both control interfaces (the
+    zero action, autoreset on both sides; process CPU time with ``nthread`` MuJoCo threads,
+    alternately, best of ``repeat``), then the batched env with 2 threads in wall time."""
+    from cir_gym.envs.peg_in_hole_vector import PegInHoleVectorEnv
+
+    rows = [
+        "| interface | copies | SyncVectorEnv env-steps/s | batched env-steps/s | batched / "
+        "Sync | batched, 2 threads, wall env-steps/s |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for control, kwargs, _ in PEG_CASES:
+        for n in copies:
+            vec = PegInHoleVectorEnv(n, nthread=nthread, **kwargs)
+            sync = gym.make_vec(PEG, num_envs=n, vectorization_mode="sync", **kwargs)
+            wide = PegInHoleVectorEnv(n, nthread=2, **kwargs)
+            zeros = np.zeros(vec.action_space.shape, dtype=np.float32)
+            for env in (vec, sync, wide):
+                env.reset(seed=0)
+                for _ in range(20):  # into the contact phase (torque: the arm has fallen)
+                    env.step(zeros)
+            per = max(2, steps // 8)
+            batched, synced = (partial(_vector_step_time, e, zeros, per) for e in (vec, sync))
+            t_vec, t_sync = best_pair(batched, synced, repeat)
+            wall = partial(_vector_step_time, wide, zeros, per, time.perf_counter)
+            t_wide = min(wall() for _ in range(repeat))
+            rows.append(
+                f"| {control} | {n} | {1 / t_sync:,.0f} | {1 / t_vec:,.0f} | "
+                f"{t_sync / t_vec:.2f} | {1 / t_wide:,.0f} |"
+            )
+            print(f"  PegInHole {control} x{n}: sync {t_sync * 1e6:.0f} us, batched "
+                  f"{t_vec * 1e6:.0f} us, 2 threads wall {t_wide * 1e6:.0f} us", flush=True)
+            for env in (vec, sync, wide):
+                env.close()
+    notes = [f"- {control}: {what}." for control, _, what in PEG_CASES]
+    return [*rows, "", *notes]
+
+
 #: issue 21's targets: the torque envs' step overhead at most Reacher-v5's; the joint-space
 #: laws' predict on one observation at most 2 mj_step
 TORQUE_ENVS = ("cir_gym/JointTracking-v2", "cir_gym/ElasticJointTracking-v3")
@@ -514,6 +576,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=16, help="rows of the batched predict")
     parser.add_argument("--num-envs", type=int, default=64, help="copies of the vector env")
     parser.add_argument("--nthread", type=int, default=1, help="MuJoCo threads (0: all CPUs)")
+    parser.add_argument(
+        "--peg-copies", type=int, nargs="*", default=[16, 64],
+        help="copies of the batched PegInHole (run when --env includes it)",
+    )
     parser.add_argument("--env", nargs="*", default=None, help="env ids (default: all)")
     parser.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = parser.parse_args(argv)
@@ -528,6 +594,11 @@ def main(argv: list[str] | None = None) -> int:
     ctrl_rows = bench_controllers(ids, args.steps, args.repeat, args.batch, ctrl_ratios)
     print("vector env:", flush=True)
     vec_rows = bench_vector(args.num_envs, args.steps, args.repeat, args.nthread)
+    peg_rows = (
+        bench_peg_vector(args.peg_copies, args.steps, args.repeat, args.nthread)
+        if PEG in ids
+        else []
+    )
     body = "\n".join(
         [
             f"`python benchmarks/bench_step.py --steps {args.steps} --repeat {args.repeat} "
@@ -571,6 +642,17 @@ def main(argv: list[str] | None = None) -> int:
             "Batched JointTracking (`cir_gym/vector.py`):",
             "",
             *vec_rows,
+            *(
+                [
+                    "",
+                    "Batched PegInHole (`cir_gym/envs/peg_in_hole_vector.py`), MuJoCo threads: "
+                    f"{args.nthread or 'all CPUs'} (the last column: 2):",
+                    "",
+                    *peg_rows,
+                ]
+                if peg_rows
+                else []
+            ),
         ]
     )
     print()

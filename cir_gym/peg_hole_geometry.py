@@ -88,6 +88,26 @@ MARGIN = 0.0
 NATIVE_CCD = False
 FRICTION = 0.3
 
+# --------------------------------------------------------------------- contact sensors
+#: names of the scene's contact sensors (see _add_contact_sensors)
+LARGEST_CONTACT = "largest_contact"
+NET_CONTACT = "net_contact"
+PEG_CONTACTS = "peg_contacts"
+#: slots of PEG_CONTACTS: the peg's strongest contacts reported (the rest are dropped)
+PEG_CONTACT_SLOTS = 16
+ROBOT_ROOT = "base"  # the robot file's root body
+# MuJoCo's contact-sensor parameters (sensor_intprm: data bits, reduction, slots); the
+# reductions as the XML's reduce="maxforce" / "netforce" compile (MuJoCo has no enum for them)
+CONTACT_FOUND, CONTACT_FORCE, CONTACT_NORMAL = (
+    1 << int(f)
+    for f in (
+        mujoco.mjtConDataField.mjCONDATA_FOUND,
+        mujoco.mjtConDataField.mjCONDATA_FORCE,
+        mujoco.mjtConDataField.mjCONDATA_NORMAL,
+    )
+)
+REDUCE_MAXFORCE, REDUCE_NETFORCE = 2, 3
+
 PEG_CONTYPE = 2
 ARM_CONTYPE = 1  # the robot file's default for its links
 BLOCK_CONAFFINITY = PEG_CONTYPE | ARM_CONTYPE
@@ -164,6 +184,38 @@ def _chamfer_ring(body: mujoco.MjsBody, r_in: float, chamfer: float, rgba: list[
             quat=_quat_mul(_quat_z(phi), tilt),
             rgba=rgba,
         )
+
+
+def _contact_sensor(
+    spec: mujoco.MjSpec, name: str, robot: tuple[mujoco.mjtObj, str], data: int, reduce: int,
+    num: int,
+) -> None:
+    """A MuJoCo contact sensor on the contacts between ``robot`` (a geom or a body's subtree)
+    and the block; its normals point from the robot into the block."""
+    spec.add_sensor(
+        name=name,
+        type=mujoco.mjtSensor.mjSENS_CONTACT,
+        objtype=robot[0],
+        objname=robot[1],
+        reftype=mujoco.mjtObj.mjOBJ_BODY,
+        refname="block",
+        intprm=[data, reduce, num],
+    )
+
+
+def _add_contact_sensors(spec: mujoco.MjSpec) -> None:
+    """The robot–block contacts as MuJoCo contact sensors (evaluated in C with the step's
+    constraint forces, so a physics step's contacts are read from ``sensordata``):
+    :data:`LARGEST_CONTACT` (the contact of largest force, its force in the contact frame),
+    :data:`NET_CONTACT` (the net force, world frame) and :data:`PEG_CONTACTS` (the peg's
+    :data:`PEG_CONTACT_SLOTS` strongest contacts: count, force in the contact frame, normal)."""
+    robot = (mujoco.mjtObj.mjOBJ_XBODY, ROBOT_ROOT)  # the arm's subtree: links, holder, peg
+    _contact_sensor(spec, LARGEST_CONTACT, robot, CONTACT_FORCE, REDUCE_MAXFORCE, 1)
+    _contact_sensor(spec, NET_CONTACT, robot, CONTACT_FORCE, REDUCE_NETFORCE, 1)
+    _contact_sensor(
+        spec, PEG_CONTACTS, (mujoco.mjtObj.mjOBJ_GEOM, "peg_geom"),
+        CONTACT_FOUND | CONTACT_FORCE | CONTACT_NORMAL, REDUCE_MAXFORCE, PEG_CONTACT_SLOTS,
+    )
 
 
 def build_peg_in_hole(
@@ -261,6 +313,7 @@ def build_peg_in_hole(
         g.solref = list(SOLREF)
         g.solimp = list(SOLIMP)
         g.margin = MARGIN
+    _add_contact_sensors(spec)
     try:
         model = spec.compile()
     except ValueError as exc:

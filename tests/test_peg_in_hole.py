@@ -283,9 +283,9 @@ def test_jam_and_wedge_flags_follow_their_conditions(
     contact is neither."""
     env = _exact_env()
     _two_point_pose(env, depth, shift, v_axis)
-    env._contacts = env._measure_contacts()
     assert env._depth() == pytest.approx(depth, abs=1e-9)
-    flags = env._contact_flags(env._depth())
+    axial_speed = float(env.true_hole_R[:, 2] @ env._tip_twist()[:3])
+    flags = env._contact_flags(env._depth(), axial_speed)  # the sensors after mj_forward
     assert (flags.two_point, flags.wedged, flags.jammed) == (two_point, wedged, jammed)
 
 
@@ -492,8 +492,15 @@ def test_the_arm_and_the_holder_collide_with_the_block_and_nothing_else() -> Non
         q = q + np.linalg.pinv(robot_model.jacobian("peg_tip", q)) @ e
     env.data.qpos[robot_model.qpos_adr] = q
     mujoco.mj_forward(m, env.data)
-    touching = {m.geom(int(g)).name for g in env._measure_contacts().robot_geom}
+    d = env.data
+    touching = {m.geom(int(g)).name for g in d.contact.geom[: d.ncon].ravel()}
     assert {"payload_geom", "link7_geom"} <= touching, touching
+    # the env's contact sensors measure them: the largest single contact is one of them
+    forces = np.zeros((d.ncon, 6))
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(m, d, i, forces[i])
+    largest = np.max(np.linalg.norm(forces[:, :3], axis=1))
+    assert env.sensors.largest(d.sensordata) == pytest.approx(largest, rel=1e-12)
 
 
 def test_one_loop_keeps_the_episodes_of_the_former_fast_path() -> None:
@@ -624,3 +631,57 @@ def test_a_peg_slid_flat_across_the_face_into_the_hole_is_inserted() -> None:
         if terminated or truncated:
             break
     assert info["is_success"], info
+
+
+def _all_contacts(env: PegInHoleEnv) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """From every contact of ``mjData.contact`` and ``mj_contactForce``: the largest single
+    contact force (N), the net force on the robot (3,) (N, world), and every peg contact's
+    normal pushing the peg away from the block (k, 3) and normal force (k,)."""
+    m, d = env.model, env.data
+    block = m.body("block").id
+    peg = m.geom("peg_geom").id
+    largest, net, normals, pressing = 0.0, np.zeros(3), [], []
+    f = np.zeros(6)
+    for i in range(d.ncon):
+        g1, g2 = d.contact.geom[i]
+        mujoco.mj_contactForce(m, d, i, f)
+        frame = d.contact.frame[i].reshape(3, 3)
+        sign = 1.0 if m.geom_bodyid[g1] == block else -1.0  # on the robot
+        largest = max(largest, float(np.linalg.norm(f[:3])))
+        net += sign * frame.T @ f[:3]
+        if peg in (g1, g2):
+            normals.append(sign * frame[0])
+            pressing.append(f[0])
+    return largest, net, np.array(normals).reshape(-1, 3), np.array(pressing)
+
+
+def test_the_contact_sensors_read_every_contact_as_mj_contact_force() -> None:
+    """hybrid_spiral on seed 0 (the peg hopping on the face, up to 62 peg contacts, 9 of them
+    pressing): at every step the contact sensors' largest single contact and net force equal
+    those of mj_contactForce on every contact (1e-9 relative: MuJoCo's own computation, summed
+    in another order), and the flags from the peg sensor's strongest PEG_CONTACT_SLOTS
+    contacts equal the flags from all of the peg's contacts."""
+    from cir_gym import baselines
+    from cir_gym.envs.peg_in_hole_contacts import contact_flags
+
+    env = PegInHoleEnv()
+    policy = baselines.make("hybrid_spiral", "cir_gym/PegInHole-v2")
+    obs, _ = env.reset(seed=0)
+    state, touching, most = None, 0, 0
+    axis = env.true_hole_R[:, 2]
+    for k in range(1400):
+        action, state = policy.predict(obs, state, np.array([k == 0]))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+        largest, net, normals, pressing = _all_contacts(env)
+        sensed = env.data.sensordata
+        assert env.sensors.largest(sensed) == pytest.approx(largest, rel=1e-9, abs=1e-9)
+        np.testing.assert_allclose(env.sensors.net(sensed), net, rtol=1e-9, atol=1e-9)
+        speed = float(axis @ env._tip_twist()[:3])
+        want = contact_flags(normals, pressing, axis, info["depth"], speed, env._mu_diameter)
+        got = (info["two_point_contact"], info["wedged"], info["jammed"])
+        assert got == (want.two_point, want.wedged, want.jammed), k
+        touching += largest > 0
+        most = max(most, len(pressing))
+    assert touching > 50 and most > geo.PEG_CONTACT_SLOTS, (touching, most)

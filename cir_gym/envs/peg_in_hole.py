@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from typing import Any, ClassVar
 
@@ -15,7 +14,7 @@ from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
 from cir_gym.envs.base import RobotEnv
-from cir_gym.envs.peg_in_hole_contacts import BlockContacts, ContactFlags, contact_flags
+from cir_gym.envs.peg_in_hole_contacts import ContactFlags, ContactSensors, contact_flags
 from cir_gym.envs.peg_in_hole_scene import ALIGNED, draw_task, start_posture
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
@@ -40,6 +39,23 @@ BOTTOM_TOLERANCE = 5e-4
 #: plane (contact penetration of a peg resting on the face is µm; a square peg's tip can go
 #: this deep only through the opening)
 ENTRY_DEPTH = 5e-4
+
+
+_NEXT, _PREV = [1, 2, 0], [2, 0, 1]  # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
+
+
+def tip_twist(
+    cdof: np.ndarray, qvel: np.ndarray, tip: np.ndarray, origin: np.ndarray
+) -> np.ndarray:
+    """The tip's velocity [v; ω] (..., 6), world frame (m/s, rad/s), from MuJoCo's motion
+    axes ``cdof`` (..., nv, 6) (ω part first, linear part at ``origin``, the arm's subtree
+    centre of mass (..., 3)), the joint speeds ``qvel`` (..., nv) and the tip's position
+    ``tip`` (..., 3): J q̇ as ``mj_jacSite`` builds J (every dof moves the tip: a serial arm),
+    ω = Σ_j c_ω,j q̇_j, v = Σ_j c_v,j q̇_j + ω × (p_tip − origin)."""
+    c = (qvel[..., None, :] @ cdof)[..., 0, :]  # Σ_j c_j q̇_j: [ω; v at the origin]
+    w, r = c[..., :3], tip - origin
+    w_x_r = w[..., _NEXT] * r[..., _PREV] - w[..., _PREV] * r[..., _NEXT]  # ω × r
+    return np.concatenate((c[..., 3:] + w_x_r, w), axis=-1)
 
 
 class PegInHoleEnv(RobotEnv):
@@ -74,9 +90,9 @@ class PegInHoleEnv(RobotEnv):
     sensor frame ``ft_site`` (z along the peg, pointing into the hole when aligned), filtered,
     delayed, sampled, noisy and quantised as the preset says.
 
-    The true contact forces are never observed. Every physics step, each contact between the
-    robot (peg, holder, links) and the block is measured (``mj_contactForce``,
-    :mod:`cir_gym.envs.peg_in_hole_contacts`): ``info["contact_force"]`` is the largest single
+    The true contact forces are never observed. Every physics step, the contacts between the
+    robot (peg, holder, links) and the block are measured by MuJoCo's contact sensors
+    (:mod:`cir_gym.envs.peg_in_hole_contacts`): ``info["contact_force"]`` is the largest single
     contact force of the control period (what damages a part: opposing wall contacts do not
     cancel in it) and ``info["net_contact_force"]`` the largest net force (their vector sum,
     what the wrist feels).
@@ -316,10 +332,11 @@ class PegInHoleEnv(RobotEnv):
         self._tip = model.site("peg_tip").id
         self._ft = model.site("ft_site").id
         self._block = model.body("block").id
-        self._peg_geom = model.geom("peg_geom").id
-        self._block_geoms = model.geom_bodyid == self._block  # (ngeom,) mask
-        self._force_adr = model.sensor_adr[model.sensor("ft_force").id]
-        self._torque_adr = model.sensor_adr[model.sensor("ft_torque").id]
+        self._arm_root = int(model.body_rootid[model.site_bodyid[self._tip]])
+        self.sensors = ContactSensors(model)
+        # sensordata of each physics step of a control period (frame_skip, nsensordata)
+        self._period = np.zeros((self.frame_skip, model.nsensordata))
+        self._mu_diameter = geo.FRICTION * 2 * self.geometry.hole_radius
         self.hole_pos = np.asarray(geo.HOLE_POSITION, dtype=float)  # nominal, world
         self.hole_quat = np.array([1.0, 0.0, 0.0, 0.0])
         self._R_hole = traj.matrix_from_quat(self.hole_quat)
@@ -351,7 +368,7 @@ class PegInHoleEnv(RobotEnv):
         self._k = 0
         self._inserted_at: int | None = None
         self._entered = False  # the tip went into the bore through the top opening
-        self._contacts = self._measure_contacts()
+        self._final_depth = 0.0  # tip depth in the true hole now (m)
         self.true_hole_pos = self.hole_pos.copy()
         self.true_hole_R = np.eye(3)
         self._goal = self.true_hole_pos - self.goal_depth * self.true_hole_R[:, 2]
@@ -376,10 +393,10 @@ class PegInHoleEnv(RobotEnv):
         self.motion.reset(self._q0)
         R_ws = self.data.site_xmat[self._ft].reshape(3, 3)
         self.ft_sensor.reset(rng, tool_gravity_wrench(geo.PEG_MASS, TOOL_COM, R_ws))
-        self._contacts = self._measure_contacts()
         self._k = 0
         self._inserted_at = None
         self._entered = False
+        self._final_depth = self._depth()
         self._jammed_steps = 0
         self._force[:] = 0.0
         self._net_peak[:] = 0.0
@@ -401,8 +418,9 @@ class PegInHoleEnv(RobotEnv):
         self._k += 1
         self._force[k], self._net_peak[k], self._net_sum[k] = force, net_peak, net_sum
         tip = self._tip_in_hole()
-        depth = float(-tip[2])
-        flags = self._contact_flags(depth)
+        depth = self._final_depth = float(-tip[2])
+        twist = self._tip_twist()
+        flags = self._contact_flags(depth, float(self.true_hole_R[:, 2] @ twist[:3]))
         self._jammed_steps += flags.jammed
         radial = float(np.hypot(tip[0], tip[1]))
         if tip[2] > -ENTRY_DEPTH:  # at or above the top face: not in the bore
@@ -420,26 +438,51 @@ class PegInHoleEnv(RobotEnv):
         over = bool(not diverged and force > self.force_limit)
 
         dist = float(np.linalg.norm(self.data.site_xpos[self._tip] - self._goal))
-        r_dist = -min(dist / GOAL_SCALE, 1.0)
-        r_force = -self.force_weight * min(force / self.force_limit, 10.0) ** 2
-        r_success = self.success_bonus if inserted else 0.0
-        unplayed = (
-            (self.max_steps - self._k) * self._worst_step
-            if self.charge_unplayed_steps and (over or diverged)
-            else 0.0
-        )
-        r_limit = -(self.failure_penalty + unplayed) if over else 0.0
-        r_div = -(self.divergence_penalty + unplayed) if diverged else 0.0
-        reward = r_dist + r_force + r_success + r_limit + r_div
-
+        terms = {
+            name: float(v)
+            for name, v in self._reward_terms(
+                dist, force, inserted, over, diverged, self._k
+            ).items()
+        }
+        reward = sum(terms.values())
         terminated = diverged or inserted or over
         truncated = self._k >= self.max_steps and not terminated
-        info: dict[str, Any] = {
-            "reward_distance": r_dist,
-            "reward_force": r_force,
-            "reward_success": r_success,
-            "reward_force_limit": r_limit,
-            "reward_diverged": r_div,
+        info: dict[str, Any] = self._step_info(terms, force, net_peak, depth, flags, over, diverged)
+        if terminated or truncated:
+            info["episode_metrics"] = self.episode_metrics()
+            info["is_success"] = inserted
+        return self._obs(twist), reward, terminated, truncated, info
+
+    def _reward_terms(
+        self, dist: Any, force: Any, inserted: Any, over: Any, diverged: Any, played: Any
+    ) -> dict[str, np.ndarray]:
+        """The reward's terms (see Rewards), in the order they are summed, of this env (numbers)
+        or of a batch of its copies ((N,) arrays, e.g. the vector env's): the tip's distance
+        to the goal ``dist`` (m), the period's largest single contact force ``force`` (N), and
+        whether the step inserted, went over the force limit or diverged, and the steps
+        ``played`` in the episode (this one included)."""
+        unplayed = np.where(
+            self.charge_unplayed_steps & (over | diverged),
+            (self.max_steps - played) * self._worst_step,
+            0.0,
+        )
+        return {
+            "reward_distance": -np.minimum(dist / GOAL_SCALE, 1.0),
+            "reward_force": -self.force_weight * np.minimum(force / self.force_limit, 10.0) ** 2,
+            "reward_success": np.where(inserted, self.success_bonus, 0.0),
+            "reward_force_limit": np.where(over, -(self.failure_penalty + unplayed), 0.0),
+            "reward_diverged": np.where(diverged, -(self.divergence_penalty + unplayed), 0.0),
+        }
+
+    @staticmethod
+    def _step_info(
+        terms: dict[str, Any], force: Any, net_peak: Any, depth: Any, flags: ContactFlags,
+        over: Any, diverged: Any,
+    ) -> dict[str, Any]:
+        """A step's ``info`` (before the episode's end adds its entries), of one env or of a
+        batch's copies."""
+        return {
+            **terms,
             "contact_force": force,
             "net_contact_force": net_peak,
             "depth": depth,
@@ -449,10 +492,6 @@ class PegInHoleEnv(RobotEnv):
             "force_limit_exceeded": over,
             "diverged": diverged,
         }
-        if terminated or truncated:
-            info["episode_metrics"] = self.episode_metrics()
-            info["is_success"] = inserted
-        return self._obs(), reward, terminated, truncated, info
 
     def episode_metrics(self) -> dict[str, float]:
         """Metrics of the episode so far (see ``metric_specs``)."""
@@ -466,18 +505,20 @@ class PegInHoleEnv(RobotEnv):
             "mean_force": float(np.sum(self._net_sum[:k]) * h / (k * self.dt)),
             "force_impulse": float(np.sum(self._net_sum[:k]) * h),
             "jammed_time": self._jammed_steps * self.dt,
-            "final_depth": float(-self._tip_in_hole()[2]),
+            "final_depth": self._final_depth,
         }
 
     # ------------------------------------------------------------------ physics
     def _advance(self, a: np.ndarray) -> tuple[bool, float, float, float]:
-        """One control period, physics step by physics step (the position interface, the
-        contact forces and the sensor run at the physics rate).
+        """One control period, physics step by physics step: the position interface's torque
+        and the contact sensors' readings at the physics rate.
 
         Returns:
             (diverged, the largest single contact force (N), the largest net contact force
             (N), the sum of the net force's magnitude over the physics steps (N)). The period
-            stops at the physics step where a single contact exceeds ``force_limit``.
+            stops at the physics step where a single contact exceeds ``force_limit`` (or
+            diverges); the F/T sensor is fed the wrist's wrench of every physics step played
+            and, for the rest of a stopped period, that of the stopped state (the arm held).
         """
         if self.control == "position":
             R_h = self._R_hole  # the action is in the nominal hole frame
@@ -485,10 +526,8 @@ class PegInHoleEnv(RobotEnv):
             self.motion.command(np.concatenate((R_h @ dx[:3], R_h @ dx[3:])), self.dt)
         else:
             tau = a * self.torque_limit
-        d = self.data
-        steps = self.frame_skip
-        largest, net_peak, net_sum, diverged = 0.0, 0.0, 0.0, False
-        wrenches: list[list[float]] = []
+        d, steps, period = self.data, self.frame_skip, self._period
+        played, diverged = 0, False
         self.frame_skip = 1  # _simulate: one physics step per call
         try:
             for i in range(steps):
@@ -499,28 +538,21 @@ class PegInHoleEnv(RobotEnv):
                 diverged = self._simulate(tau)
                 if diverged:
                     break
-                wrenches.append(self._true_wrench().tolist())
-                self._contacts = self._measure_contacts()
-                net = math.sqrt(self._contacts.net @ self._contacts.net)
-                largest = max(largest, self._contacts.largest)
-                net_peak = max(net_peak, net)
-                net_sum += net
-                if largest > self.force_limit:
+                period[i] = d.sensordata
+                played += 1
+                if self.sensors.largest(period[i]) > self.force_limit:
+                    # the stopped state's kinematics and contacts (mj_step leaves those of
+                    # the state before its last substep): what the flags and observation read
+                    mujoco.mj_forward(self.model, d)
                     break
         finally:
             self.frame_skip = steps
-            self.ft_sensor.advance_many(wrenches)
-        return diverged, largest, net_peak, net_sum
-
-    def _measure_contacts(self) -> BlockContacts:
-        return BlockContacts.measure(self.model, self.data, self._block_geoms)
-
-    def _true_wrench(self) -> np.ndarray:
-        """The wrist's true wrench (6,): force, torque in the sensor frame (N, N m)."""
-        f, t = self._force_adr, self._torque_adr
-        if t == f + 3:  # neighbours in sensordata (the robot file's order)
-            return self.data.sensordata[f : f + 6]
-        return np.concatenate((self.data.sensordata[f : f + 3], self.data.sensordata[t : t + 3]))
+        period[played:] = d.sensordata  # stopped early: the sensor feels the stopped state
+        self.ft_sensor.advance_many(self.sensors.wrist(period))
+        done = period[:played]
+        net = np.linalg.norm(self.sensors.net(done), axis=-1)
+        largest = np.max(self.sensors.largest(done), initial=0.0)
+        return diverged, float(largest), float(np.max(net, initial=0.0)), float(np.sum(net))
 
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:
@@ -531,17 +563,20 @@ class PegInHoleEnv(RobotEnv):
         """Tip depth in the true hole (m): −z of :meth:`_tip_in_hole`."""
         return float(-self._tip_in_hole()[2])
 
-    def _contact_flags(self, depth: float) -> ContactFlags:
-        """Two-point contact, wedging and jamming of the peg now (see Episode End)."""
-        if len(self._contacts.force) < 2:  # two-point contact needs two contacts
-            return ContactFlags()
-        peg = self._contacts.of_geom(self._peg_geom)
+    def _tip_twist(self) -> np.ndarray:
+        """The tip's velocity [v; ω] (6,), world frame (m/s, rad/s) (:func:`tip_twist`)."""
+        d = self.data
+        return tip_twist(d.cdof, d.qvel, d.site_xpos[self._tip], d.subtree_com[self._arm_root])
+
+    def _contact_flags(self, depth: float, axial_speed: float) -> ContactFlags:
+        """Two-point contact, wedging and jamming of the peg now (see Episode End), from the
+        peg's contacts at the last physics step; ``axial_speed``: the tip's speed along the
+        true axis (m/s)."""
+        normal, pressing = self.sensors.peg(self.data.sensordata)
+        if not pressing[1] > 0:  # fewer than two pressing contacts (the slots are sorted by
+            return ContactFlags()  # force, and a contact without normal force has none)
         axis = self.true_hole_R[:, 2]
-        jacp = np.zeros((3, self.model.nv))
-        mujoco.mj_jacSite(self.model, self.data, jacp, None, self._tip)
-        axial_speed = float(axis @ (jacp @ self.data.qvel))
-        mu_diameter = geo.FRICTION * 2 * self.geometry.hole_radius
-        return contact_flags(peg, axis, depth, axial_speed, mu_diameter)
+        return contact_flags(normal, pressing, axis, depth, axial_speed, self._mu_diameter)
 
     # ------------------------------------------------------------------ pictures
     def draw_task(self, scene: mujoco.MjvScene) -> None:
@@ -555,7 +590,7 @@ class PegInHoleEnv(RobotEnv):
             self.true_hole_R,
             self.geometry.depth,
             self.data.site_xpos[self._tip].copy(),
-            self._contacts.net,
+            self.sensors.net(self.data.sensordata),
         )
 
     def caption(self) -> str:
@@ -569,17 +604,17 @@ class PegInHoleEnv(RobotEnv):
         """Sensed wrench (6,): the sensor model's reading, sensor frame (N, N m)."""
         return self.ft_sensor.reading.copy()
 
-    def _obs(self) -> dict[str, np.ndarray]:
+    def _obs(self, twist: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The observation; ``twist``: the tip's [v; ω] now if already computed."""
         d, R_h = self.data, self._R_hole
-        jac = np.zeros((6, self.model.nv))
-        mujoco.mj_jacSite(self.model, d, jac[:3], jac[3:], self._tip)
-        v, w = jac[:3] @ d.qvel, jac[3:] @ d.qvel
+        twist = self._tip_twist() if twist is None else twist
+        v, w = twist[:3], twist[3:]
         R_tip = d.site_xmat[self._tip].reshape(3, 3)
         obs = {
             "q": d.qpos[self.robot.qpos_adr].copy(),
             "qd": d.qvel[self.robot.dof_adr].copy(),
             "peg_pos": R_h.T @ (d.site_xpos[self._tip] - self.hole_pos),
-            "peg_quat": self._quat(R_h.T @ R_tip @ ALIGNED.T),
+            "peg_quat": traj.quat_from_matrix(R_h.T @ R_tip @ ALIGNED.T),
             "peg_twist": np.concatenate((R_h.T @ v, R_h.T @ w)),
             "wrench": self.ft_sensor.reading.copy(),
             "hole_pos": self.hole_pos.copy(),
@@ -587,13 +622,6 @@ class PegInHoleEnv(RobotEnv):
         }
         bounds = self._obs_bounds
         return {key: CLIP(x, -bounds[key], bounds[key]) for key, x in obs.items()}
-
-    @staticmethod
-    def _quat(R: np.ndarray) -> np.ndarray:
-        """Unit quaternion (4,) (w first, w ≥ 0) of a rotation matrix (3, 3)."""
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
-        return quat if quat[0] >= 0 else -quat
 
     def controller_context(self) -> TaskContext:
         return TaskContext(

@@ -1,4 +1,5 @@
-"""The position interface's torque law (one arm and N arms) and pickled contact envs."""
+"""The contact envs: the position interface's torque law (one arm and N arms), and a pickled env
+continues the same episode."""
 
 from __future__ import annotations
 

@@ -1,0 +1,174 @@
+"""The batched PegInHole (cir_gym/envs/peg_in_hole_vector.py): each copy is the single env.
+
+Tolerance: 1e-9 (absolute, SI units; relative 1e-9 for rewards and metrics). A copy runs the
+same MuJoCo calls on the same state as the single env (one ``Batch.step(nstep=1)`` per
+physics step, the contact sensors in C) and the task's arithmetic on (N, ...) arrays; numpy
+may reduce an array in another order than a vector, so the last bits are allowed to differ
+(they do not on these runs), never more than rounding.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import cir_gym  # noqa: F401
+from cir_gym import baselines
+from cir_gym.envs.peg_in_hole import PegInHoleEnv
+from cir_gym.envs.peg_in_hole_vector import PegInHoleVectorEnv
+from cir_gym.validation import InvalidArgument
+
+ENV_ID = "cir_gym/PegInHole-v2"
+TOL = 1e-9
+
+
+def _close(got: Any, want: Any, what: str) -> None:
+    np.testing.assert_allclose(
+        np.asarray(got, dtype=float), np.asarray(want, dtype=float), rtol=TOL, atol=TOL,
+        err_msg=what,
+    )
+
+
+def _compare(
+    vec: PegInHoleVectorEnv, singles: list[PegInHoleEnv], actions: Any, seed: int, steps: int
+) -> dict[str, int]:
+    """Step the batch and each single env (reset with seed + i, then reset() after each end)
+    with the same actions (``actions(k, observations of the singles)`` → (N, m)); compare
+    every observation, reward, end, info, final observation and final metrics. Returns
+    counts of episode ends, force-limit stops and steps in contact."""
+    obs_v, _ = vec.reset(seed=seed)
+    obs_s = [env.reset(seed=seed + i)[0] for i, env in enumerate(singles)]
+    for key in obs_v:
+        _close(obs_v[key], np.stack([o[key] for o in obs_s]), f"reset {key}")
+    counts = {"ends": 0, "stops": 0, "contact": 0}
+    for k in range(steps):
+        a = actions(k, obs_s)
+        obs_v, rew_v, term_v, trunc_v, infos = vec.step(a)
+        for i, env in enumerate(singles):
+            obs, rew, term, trunc, info = env.step(a[i])
+            where = f"step {k}, copy {i}"
+            assert (bool(term_v[i]), bool(trunc_v[i])) == (term, trunc), where
+            _close(rew_v[i], rew, f"{where}: reward")
+            counts["contact"] += info["contact_force"] > 0
+            if term or trunc:
+                counts["ends"] += 1
+                counts["stops"] += info["force_limit_exceeded"]
+                final = infos["final_info"]
+                assert bool(final["is_success"][i]) == info["is_success"], where
+                for name, value in info["episode_metrics"].items():
+                    _close(final["episode_metrics"][name][i], value, f"{where}: {name}")
+                for key, value in info.items():
+                    if key not in ("episode_metrics", "is_success"):
+                        _close(final[key][i], value, f"{where}: final info {key}")
+                for key in obs:
+                    _close(infos["final_obs"][i][key], obs[key], f"{where}: final {key}")
+                obs, _ = env.reset()
+            else:
+                for key, value in info.items():
+                    _close(infos[key][i], value, f"{where}: info {key}")
+            for key in obs:
+                _close(obs_v[key][i], obs[key], f"{where}: {key}")
+            obs_s[i] = obs
+    return counts
+
+
+@pytest.mark.parametrize("control", ["torque", "position"])
+def test_each_copy_is_the_single_env_under_random_actions_with_autoreset(control: str) -> None:
+    """Random actions pushing into the block (down the bore's axis in the position interface,
+    toward the block in torque) from 2 mm above it, 0.3-s episodes and a 60-N force limit:
+    copies end by the force limit (their period stopped at a physics step) and by time, and
+    are reset in the same step; each copy is the single env reset with seed + i, then
+    reset()."""
+    kwargs = {"control": control, "episode_duration": 0.3, "force_limit": 60.0,
+              "start_height": 0.002}
+    N = 3
+    vec = PegInHoleVectorEnv(N, nthread=1, **kwargs)
+    singles = [PegInHoleEnv(**kwargs) for _ in range(N)]
+    rng = np.random.default_rng(0)
+    push = np.zeros(vec.single_action_space.shape)
+    push[2 if control == "position" else 1] = -0.6 if control == "position" else 0.3
+
+    def actions(k: int, obs: list) -> np.ndarray:
+        return (push + rng.uniform(-0.3, 0.3, vec.action_space.shape)).astype(np.float32)
+
+    counts = _compare(vec, singles, actions, seed=10, steps=300)
+    assert counts["ends"] >= N and counts["stops"] >= 1 and counts["contact"] > 0, counts
+    vec.close()
+
+
+def _drive(name: str, kwargs: dict[str, Any], steps: int) -> dict[str, int]:
+    """Two copies driven by the controller ``name`` (one policy state per copy, its actions
+    from each single env's observation), compared with their single envs."""
+    N = 2
+    vec = PegInHoleVectorEnv(N, nthread=1, **kwargs)
+    singles = [PegInHoleEnv(**kwargs) for _ in range(N)]
+    policies = [baselines.make(name, ENV_ID) for _ in range(N)]
+    states: list[Any] = [None] * N
+
+    def actions(k: int, obs: list) -> np.ndarray:
+        rows = []
+        for i, policy in enumerate(policies):
+            a, states[i] = policy.predict(obs[i], states[i], np.array([k == 0]))
+            rows.append(np.asarray(a, dtype=np.float32).reshape(-1))
+        return np.stack(rows)
+
+    counts = _compare(vec, singles, actions, seed=1000, steps=steps)
+    vec.close()
+    return counts
+
+
+def test_a_controller_drives_each_copy_as_the_single_env() -> None:
+    """hybrid_force_position from 4 mm above the hole: the approach, the touch down on the
+    face (about 0.8 s in) and the search in contact, each copy equal to its single env."""
+    counts = _drive("hybrid_force_position", {"episode_duration": 1.0, "start_height": 0.004}, 500)
+    assert counts["contact"] > 50, counts
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["hybrid_spiral", "hybrid_force_position"])
+def test_full_controller_episodes_are_the_single_envs(name: str) -> None:
+    """Whole default episodes (up to 12 s) of the leaderboard's controllers, through their
+    end (insertion, force limit or time) and the autoreset into the next one."""
+    steps = PegInHoleEnv().max_steps + 200
+    counts = _drive(name, {}, steps)
+    assert counts["ends"] >= 2 and counts["contact"] > 500, counts
+
+
+def test_batched_evaluation_is_the_sequential_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """cir_gym.evaluation.evaluate on the batched env (the policy's batched predict on the
+    stacked observations) gives the sequential episodes: lengths, success, return and
+    metrics to 1e-9 relative (the controller's rows and the env's copies are each computed
+    as alone, up to numpy's summation order)."""
+    from cir_gym import envs
+    from cir_gym.evaluation import evaluate
+
+    monkeypatch.setitem(
+        envs.BATCHED_ENVIRONMENTS, ENV_ID, "cir_gym.envs.peg_in_hole_vector:PegInHoleVectorEnv"
+    )
+    policy = baselines.make("position_only", ENV_ID)
+    kw = {"episode_duration": 0.6, "start_height": 0.002}
+    batched = evaluate(policy, ENV_ID, 3, seed=7, batched=True, **kw).episodes
+    alone = evaluate(policy, ENV_ID, 3, seed=7, batched=False, **kw).episodes
+    for b, s in zip(batched, alone, strict=True):
+        same = (b.seed, b.length, b.success, b.diverged)
+        assert same == (s.seed, s.length, s.success, s.diverged)
+        _close(b.episode_return, s.episode_return, "return")
+        for name, value in s.metrics.items():
+            _close(b.metrics[name], value, name)
+    assert any(e.metrics["peak_force"] > 0 for e in alone)  # the episodes reach the block
+
+
+def test_unsupported_and_bad_arguments_are_named() -> None:
+    with pytest.raises(InvalidArgument, match="render_mode"):
+        PegInHoleVectorEnv(2, render_mode="rgb_array")
+    with pytest.raises(InvalidArgument, match="clearance"):
+        PegInHoleVectorEnv(2, clearance=1.0)
+    with pytest.raises(InvalidArgument, match="num_envs"):
+        PegInHoleVectorEnv(0)
+    vec = PegInHoleVectorEnv(2, nthread=1)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        vec.step(np.full((2, 7), np.nan))
+    vec.close()
