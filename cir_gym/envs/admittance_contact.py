@@ -42,6 +42,7 @@ from cir_gym.ft_sensor import (
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
 from cir_gym.robot import Robot
+from cir_gym.trajectories import quat_from_matrix
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
@@ -569,10 +570,10 @@ class AdmittanceContactEnv(RobotEnv):
         vel = np.zeros(6)  # [ω; v] of the tcp, world frame
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
         tool_pos = d.site_xpos[self._site].copy()
-        tool_quat = scene.quat_of(d.site_xmat[self._site].reshape(3, 3))
+        tool_quat = quat_from_matrix(d.site_xmat[self._site].reshape(3, 3))
         if self.interface is not None:
             setpoint_pos, setpoint_R = self.interface.setpoint_pose()
-            setpoint_quat = scene.quat_of(setpoint_R)
+            setpoint_quat = quat_from_matrix(setpoint_R)
         else:
             setpoint_pos, setpoint_quat = tool_pos, tool_quat
         obs = {

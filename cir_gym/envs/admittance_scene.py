@@ -63,7 +63,6 @@ __all__ = [
     "build_model",
     "draw",
     "draw_surface",
-    "quat_of",
     "surface_force",
     "tilt_rotation",
     "tool_robot",
@@ -289,13 +288,6 @@ def wipe_reference(t: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np
     position = start + np.outer(blend, SURFACE_POINT - start) + np.outer(s_wipe, direction)
     velocity = np.outer(dblend, SURFACE_POINT - start) + np.outer(v_wipe, direction)
     return position, velocity
-
-
-def quat_of(R: np.ndarray) -> np.ndarray:
-    """The unit quaternion (w, x, y, z) of rotation matrix ``R`` (3, 3), with w ≥ 0."""
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R).reshape(9))
-    return q if q[0] >= 0 else -q
 
 
 def draw(

@@ -55,6 +55,7 @@ from cir_gym.envs.admittance_task import (
 from cir_gym.envs.vector_base import BatchedTaskEnv
 from cir_gym.ft_sensor import WrenchSensor
 from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.trajectories import quat_from_matrix
 
 __all__ = ["AdmittanceContactVectorEnv"]
 
@@ -213,7 +214,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         t, rows = self.template, self._rows
         kk = np.minimum(self._k, t.max_steps)
         tool_pos = self._site_xpos[:, t._site]
-        tool_quat = np.array([scene.quat_of(R.reshape(3, 3)) for R in self._site_xmat[:, t._site]])
+        tool_quat = quat_from_matrix(self._site_xmat[:, t._site].reshape(-1, 3, 3))
         # the tcp's velocity (mj_objectVelocity, world frame): the body's spatial velocity
         # [ω; v] about its subtree's centre of mass, moved to the site: v + ω × (p − c)
         cvel = self._cvel[:, self._site_body]
@@ -224,7 +225,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
             robot, site = self.interface.robot, self.interface.site
             poses = [robot.site_pose(site, q_c) for q_c in self.interface.q_c]
             setpoint_pos = np.array([p for p, _ in poses])
-            setpoint_quat = np.array([scene.quat_of(R) for _, R in poses])
+            setpoint_quat = quat_from_matrix(np.array([R for _, R in poses]))
         else:
             setpoint_pos, setpoint_quat = tool_pos, tool_quat
         obs = {
