@@ -7,7 +7,9 @@
 A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
 
 * ``config.yml``: env id and kwargs, algorithm, resolved hyperparameters, seed, observation
-  layout, residual controller and scale, versions (torch, SB3, gymnasium, mujoco, cir_gym);
+  layout, residual controller and scale, versions (torch, SB3, gymnasium, mujoco, cir_gym), and
+  ``command``: the ``cir-gym train ...`` command line that trains the same run again
+  (:func:`train_command`, rebuilt from the arguments however ``train`` was called);
 * ``model.zip`` + ``vecnormalize.pkl`` + ``normalization.npz``: the final model and its frozen
   observation statistics (``best/`` holds the same for the best evaluation);
 * ``learning_curve.csv``: timesteps, wall time, mean evaluation return, mean primary metric,
@@ -15,7 +17,8 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
   ``cir_gym.evaluation.evaluate(..., seed=EVAL_SEED)`` runs (the same ones every time);
 * ``meta.json``: steps, wall time, steps/s, whether it finished or was interrupted;
 * ``checkpoints/`` (model + VecNormalize every ``checkpoint_freq`` steps, and on Ctrl-C) and
-  ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint, with the
+  ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint (or from the
+  final model of a finished run, to a larger ``timesteps``), with the
   optimiser keys of ``config.yml`` (:data:`RESUME_KEYS`) as they are in the file then: editing
   ``learning_rate`` there (e.g. ``lin_3.0e-4``) before resuming fine-tunes a run. A linear
   schedule then runs over the steps of the resumed part only from where it would stand at the
@@ -27,10 +30,13 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
 
 from __future__ import annotations
 
+import ast
 import csv
 import json
+import os
 import platform
 import re
+import shlex
 import shutil
 import signal
 import sys
@@ -75,7 +81,7 @@ from stable_baselines3.common.vec_env import (
 
 import cir_gym
 
-__all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train"]
+__all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train", "train_command"]
 
 EVAL_SEED = 100_000  # evaluation episodes during training: seeds EVAL_SEED, EVAL_SEED + 1, …
 SHIPPED_FILES = ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
@@ -236,15 +242,25 @@ def zero_action_layer(model: Any) -> None:
 
 
 def _last_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
+    """(model, VecNormalize file or None) to resume ``run_dir`` from: its checkpoint of the
+    most steps (``checkpoints/model_<k>_steps.zip``), or its final ``model.zip`` when the run
+    finished past every checkpoint (``meta.json``'s ``timesteps``; a finished run lengthened
+    with ``--timesteps``). None when there is neither."""
     ckpts = []
     for f in (run_dir / "checkpoints").glob("model_*_steps.zip"):
         m = re.fullmatch(r"model_(\d+)_steps\.zip", f.name)
         if m:
-            ckpts.append((int(m.group(1)), f))
+            vn = run_dir / "checkpoints" / f"model_vecnormalize_{m.group(1)}_steps.pkl"
+            ckpts.append((int(m.group(1)), f, vn))
+    meta_path = run_dir / "meta.json"
+    if (run_dir / "model.zip").is_file() and meta_path.is_file():
+        meta = json.loads(meta_path.read_text())
+        if meta.get("finished"):
+            ckpts.append((int(meta["timesteps"]), run_dir / "model.zip",
+                          run_dir / "vecnormalize.pkl"))
     if not ckpts:
         return None
-    steps, model = max(ckpts)
-    vn = run_dir / "checkpoints" / f"model_vecnormalize_{steps}_steps.pkl"
+    _, model, vn = max(ckpts, key=lambda c: c[0])
     return model, (vn if vn.exists() else None)
 
 
@@ -278,6 +294,74 @@ def _normalize_kwargs(hp: dict[str, Any], gamma: float) -> dict[str, Any] | None
     if isinstance(norm, dict):
         kw.update(norm)
     return kw
+
+
+def _set_value(value: Any) -> str:
+    """A ``--set key=value`` value that the command line reads back as ``value``: the text of
+    a string that does not read as a Python literal, else the literal (``3.0``, ``[1, 2]``,
+    ``'3'``)."""
+    value = _plain(value)
+    if isinstance(value, str):
+        try:
+            ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            return value
+    return repr(value)
+
+
+def _path_arg(path: str | Path) -> str:
+    """``path`` relative to the working directory when it lies below it (a repository's
+    ``agents/hyperparams/...``), else absolute."""
+    p = Path(path).resolve()
+    try:
+        return p.relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return str(p)
+
+
+def train_command(
+    env_id: str,
+    algo: str,
+    *,
+    timesteps: int,
+    seed: int,
+    name: str,
+    out: str | Path,
+    residual: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    n_envs: int | None = None,
+    residual_scale: float | list[float] | None = None,
+    residual_gains: dict[str, Any] | None = None,
+    hyperparams_path: str | Path | None = None,
+) -> str:
+    """The ``cir-gym train`` command line (shell-quoted) that runs :func:`train` with these
+    arguments: what ``config.yml`` records as ``command``. Environment arguments and the
+    residual controller's gains are both ``--set key=value`` (the command line tells them
+    apart by name); the hyperparameter file and ``--out`` are relative to the working
+    directory when below it."""
+    argv = ["cir-gym", "train", "--env", env_id, "--algo", algo, "--timesteps", str(timesteps),
+            "--seed", str(seed)]
+    if residual:
+        argv += ["--residual", residual]
+    if residual_scale is not None:
+        argv += ["--residual-scale", _set_value(residual_scale)]
+    if n_envs is not None:
+        argv += ["--n-envs", str(int(n_envs))]
+    if hyperparams_path is not None:
+        argv += ["--hyperparams", _path_arg(hyperparams_path)]
+    argv += ["--out", _path_arg(out), "--name", name]
+    for key, value in {**(env_kwargs or {}), **(residual_gains or {})}.items():
+        argv += ["--set", f"{key}={_set_value(value)}"]
+    return shlex.join(argv)
+
+
+def _with_timesteps(command: str, timesteps: int) -> str:
+    """``command`` (a :func:`train_command`) with ``--timesteps`` set to ``timesteps``."""
+    argv = shlex.split(command)
+    if "--timesteps" not in argv:
+        return command  # a command recorded otherwise: left as it is
+    argv[argv.index("--timesteps") + 1] = str(int(timesteps))
+    return shlex.join(argv)
 
 
 def train(
@@ -341,6 +425,8 @@ def train(
                              f"not {algo} on {key}")
         if timesteps is not None and int(timesteps) != config["n_timesteps"]:
             config["n_timesteps"] = int(timesteps)
+            if config.get("command"):  # the command that trains this run to its new length
+                config["command"] = _with_timesteps(config["command"], int(timesteps))
             config_path.write_text(yaml.safe_dump(config, sort_keys=False))
     else:
         if config_path.exists():
@@ -382,18 +468,23 @@ def train(
             probe.close()
             raise ValueError("residual_gains needs residual=<controller>")
         probe.close()
+        n_timesteps = int(timesteps if timesteps is not None else hp["n_timesteps"])
         config = {
             "env_id": key,
             "env_kwargs": dict(env_kwargs or {}),
             "algo": algo,
             "seed": int(seed),
-            "n_timesteps": int(timesteps if timesteps is not None else hp["n_timesteps"]),
+            "n_timesteps": n_timesteps,
             "hyperparams": hp,
             "residual": res_cfg,
             "observation": layout.to_dict(),
             "primary_metric": cir_gym.ENVIRONMENTS[key][0].primary_metric,
             "versions": versions(),
-            "command": " ".join(sys.argv),
+            "command": train_command(
+                key, algo, timesteps=n_timesteps, seed=int(seed), name=name, out=out,
+                residual=residual, env_kwargs=env_kwargs, n_envs=n_envs,
+                residual_scale=residual_scale, residual_gains=residual_gains,
+                hyperparams_path=hyperparams_path),
         }
         text = yaml.safe_dump(_plain(config), sort_keys=False)
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -460,7 +551,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     if resume:
         last = _last_checkpoint(run_dir)
         if last is None:
-            raise ValueError(f"no checkpoint to resume from in {run_dir / 'checkpoints'}")
+            raise ValueError(f"no checkpoint to resume from in {run_dir / 'checkpoints'} "
+                             "and no finished model.zip")
         model_file, vn_file = last
         if norm_kwargs is not None:
             if vn_file is None:
@@ -529,7 +621,7 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
             "finished": not interrupted and model.num_timesteps >= total,
             "interrupted": interrupted,
             "n_envs": n_envs,
-            "cpu_count": __import__("os").cpu_count(),
+            "cpu_count": os.cpu_count(),
             "sessions": int(meta.get("sessions", 0)) + 1,
         }
         meta_path.write_text(json.dumps(meta, indent=2) + "\n")

@@ -7,6 +7,7 @@ cir-gym leaderboard [--episodes N] [--out runs/leaderboard] [--env ID ...] [--no
 cir-gym leaderboard --from DIR [--out DIR]    (a sweep's table: tables and figures)
 cir-gym sweep GRID.yaml --out DIR [--workers N] [--ray ADDRESS|auto|local] [--retries N]
 cir-gym train ...      (see ``cir_gym.agents.train``)
+cir-gym export-zoo --env ID --agent NAME [--out logs]   (rl-zoo3's layout, ``cir_gym.agents.zoo``)
 cir-gym identify ...   (see ``cir_gym.scoring.identify``)
 """
 
@@ -30,6 +31,7 @@ from cir_gym.scoring.policies import (
     check_policy,
     make_policy,
     module_missing,
+    parse_value,
     plugin_factories,
     policy_names,
     resolve_tuned,
@@ -186,12 +188,16 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     return 1 if md is not None and FAILED_HEADING in md.read_text() else 0
 
 
-def cmd_train(args: argparse.Namespace) -> int:
+def _need_train_extra(what: str) -> None:
     if train_extra_missing():
         raise CliError(
-            f"training needs the train extra (missing: {', '.join(train_extra_missing())}): "
+            f"{what} needs the train extra (missing: {', '.join(train_extra_missing())}): "
             f"{TRAIN_EXTRA}"
         )
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    _need_train_extra("training")
     try:
         from cir_gym.agents.train import train
     except ImportError as exc:
@@ -214,10 +220,27 @@ def cmd_train(args: argparse.Namespace) -> int:
             name=args.name,
             env_kwargs=env_kwargs,
             n_envs=args.n_envs,
+            residual_scale=parse_value(args.residual_scale)
+            if args.residual_scale is not None else None,
             hyperparams_path=args.hyperparams,
         )
     except ValueError as exc:  # bad residual controller, existing run without --resume, ...
         raise CliError(str(exc)) from exc
+    return 0
+
+
+def cmd_export_zoo(args: argparse.Namespace) -> int:
+    _need_train_extra("export-zoo")
+    from cir_gym.agents.zoo import enjoy_command, export_zoo, record_video_command
+
+    env_id = check_env_id(args.env)
+    agent = args.agent.removeprefix("agent:")
+    try:
+        run = export_zoo(env_id, agent, args.out, seed=args.seed, exp_id=args.exp_id)
+    except ValueError as exc:  # unknown agent, existing experiment folder, ...
+        raise CliError(str(exc)) from exc
+    print(f"wrote {run}\nrun it:   {enjoy_command(run)}\n"
+          f"video:    {record_video_command(run, Path(args.out) / 'videos')}")
     return 0
 
 
@@ -386,13 +409,20 @@ def build_parser() -> argparse.ArgumentParser:
         "these --set environment arguments (cir_gym/scoring/tuned_gains/); --set "
         "<gain>=<value> sets a gain",
     )
-    t.add_argument("--timesteps", type=int, default=None)
+    t.add_argument("--residual-scale", metavar="SCALE", default=None,
+                   help="the residual's range per action component, a number or a list "
+                   "([0.1, 0.1, ...]); default: the hyperparameter entry's residual.scale")
+    t.add_argument("--timesteps", type=int, default=None,
+                   help="environment steps in total (default: the entry's n_timesteps)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--n-envs", type=int, default=None)
-    t.add_argument("--resume", action="store_true")
-    t.add_argument("--name", default=None)
-    t.add_argument("--out", default="runs")
-    t.add_argument("--set", action="append", metavar="KEY=VALUE", help="environment argument")
+    t.add_argument("--resume", action="store_true",
+                   help="continue <out>/<Env>/<name> from its last checkpoint up to --timesteps")
+    t.add_argument("--name", default=None, help="run name (default <algo> or "
+                   "residual_<algo>_<controller>; <agent>/seed_<k> for one seed of an agent)")
+    t.add_argument("--out", default="runs", help="root of the run folders (default: runs)")
+    t.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="an environment argument or a gain of the --residual controller")
     t.add_argument(
         "--hyperparams",
         metavar="YAML",
@@ -401,6 +431,19 @@ def build_parser() -> argparse.ArgumentParser:
         "(e.g. agents/hyperparams/levers/rik_*.yml)",
     )
     t.set_defaults(func=cmd_train)
+
+    z = sub.add_parser(
+        "export-zoo",
+        help="write a shipped agent in rl-zoo3's folder layout (rl_zoo3.enjoy, record_video)",
+    )
+    z.add_argument("--env", required=True, help="the id it runs on, e.g. cir_gym/JointTracking-v2")
+    z.add_argument("--agent", required=True, metavar="NAME",
+                   help="a shipped agent (agent:<name> or <name>; cir-gym list shows them)")
+    z.add_argument("--seed", type=int, default=None, help="training seed (default: the first)")
+    z.add_argument("--out", default="logs", help="rl-zoo3's log folder, -f (default: logs)")
+    z.add_argument("--exp-id", type=int, default=None,
+                   help="rl-zoo3's experiment id (default: the next free one)")
+    z.set_defaults(func=cmd_export_zoo)
 
     i = sub.add_parser("identify", help="least-squares identification, then computed torque")
     i.add_argument("--payload-mass", type=float, default=3.0)

@@ -775,6 +775,83 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
     code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "2000", "--n-envs", "2",
                  "--out", str(tmp_path), "--set", "episode_duration=0.2"])
     assert code == 2
+    # --resume continues to the new length from where the run stopped: here its final model
+    # (ppo.yml checkpoints every 200 k steps; tests/test_agents.py's resume tests start from
+    # checkpoints), and the recorded command is the one that trains the run to that length
+    assert not list((run / "checkpoints").glob("model_*_steps.zip"))
+    code = main(["train", "--env", ENV, "--algo", "ppo", "--timesteps", "6000", "--n-envs", "2",
+                 "--out", str(tmp_path), "--resume"])
+    assert code == 0
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["timesteps"] >= 6000 and meta["sessions"] == 2 and meta["finished"]
+    command = yaml.safe_load((run / "config.yml").read_text())["command"]
+    assert command.startswith("cir-gym train --env cir_gym/JointTracking-v2 --algo ppo "
+                              "--timesteps 6000 --seed 0 --n-envs 2 ")
+    assert command.endswith("--name ppo --set episode_duration=0.2")
+
+
+def test_cli_train_help_lists_every_option(capsys):
+    from cir_gym.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["train", "--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    for option in ("--env", "--algo", "--residual", "--residual-scale", "--timesteps", "--seed",
+                   "--n-envs", "--resume", "--name", "--out", "--set", "--hyperparams"):
+        assert option in text
+
+
+def test_config_records_the_command_that_trains_the_run_again(tiny_runs, tmp_path):
+    """train() called from Python records a `cir-gym train` command line (not sys.argv: a
+    `python -c` or a script path says nothing): run through the command line into another
+    folder, it trains the same run: the same configuration, the same learning curve returns
+    and the same weights (PPO on CPU, one thread, the same seed: deterministic)."""
+    import shlex
+
+    import torch
+    from cir_gym.agents.train import train, train_command
+
+    from cir_gym.cli import main
+
+    run = train(ENV, "ppo", out=tmp_path / "a", name="r", residual="computed_torque",
+                residual_scale=[0.2] * 7, residual_gains={"omega_n": 40.0},
+                env_kwargs={**SHORT, "payload_mass": 3.0}, hyperparams_path=tiny_runs["hp"],
+                progress_bar=False, verbose=0)
+    config = yaml.safe_load((run / "config.yml").read_text())
+    argv = shlex.split(config["command"])
+    assert argv[:2] == ["cir-gym", "train"]
+    assert "--residual-scale" in argv and "omega_n=40.0" in argv and "payload_mass=3.0" in argv
+    argv[argv.index("--out") + 1] = str(tmp_path / "b")
+    assert main(argv[1:]) == 0
+    again = tmp_path / "b" / "JointTracking-v2" / "r"
+    config_b = yaml.safe_load((again / "config.yml").read_text())
+    for c in (config, config_b):
+        c.pop("command")
+    assert config_b == config
+    curve = [r["mean_return"] for r in csv.DictReader((run / "learning_curve.csv").open())]
+    assert [r["mean_return"] for r in csv.DictReader(
+        (again / "learning_curve.csv").open())] == curve
+
+    def weights(d: Path) -> dict:
+        import io
+        import zipfile
+
+        with zipfile.ZipFile(d / "model.zip") as z:
+            return torch.load(io.BytesIO(z.read("policy.pth")), weights_only=True)
+
+    a, b = weights(run), weights(again)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    # every --set value reads back as the value given (a string that reads as a number is
+    # quoted as a literal); plain strings stay bare
+    from cir_gym.scoring.policies import parse_value
+
+    given = {"control": "position", "label": "3", "flag": True, "offset": (0.1, 0.2)}
+    argv = shlex.split(train_command(ENV, "ppo", timesteps=10, seed=1, name="n", out="runs",
+                                     env_kwargs=given))
+    sets = [argv[i + 1].split("=", 1) for i, a in enumerate(argv) if a == "--set"]
+    assert {k: parse_value(v) for k, v in sets} == {**given, "offset": [0.1, 0.2]}
+    assert "control=position" in argv
 
 
 def test_cli_train_rejects_an_unknown_residual_controller(tmp_path, capsys):
