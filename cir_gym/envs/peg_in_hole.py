@@ -528,6 +528,7 @@ class PegInHoleEnv(RobotEnv):
             tau = a * self.torque_limit
         d, steps, period = self.data, self.frame_skip, self._period
         played, diverged = 0, False
+        limit_sq = self.force_limit**2
         self.frame_skip = 1  # _simulate: one physics step per call
         try:
             for i in range(steps):
@@ -540,7 +541,8 @@ class PegInHoleEnv(RobotEnv):
                     break
                 period[i] = d.sensordata
                 played += 1
-                if self.sensors.largest(period[i]) > self.force_limit:
+                f = self.sensors.largest_force(period[i])
+                if f @ f > limit_sq:  # a single contact over the limit
                     # the stopped state's kinematics and contacts (mj_step leaves those of
                     # the state before its last substep): what the flags and observation read
                     mujoco.mj_forward(self.model, d)

@@ -44,9 +44,13 @@ class ContactSensors:
         self.slots = geo.PEG_CONTACT_SLOTS
         self._ft = address("ft_force"), address("ft_torque")
 
+    def largest_force(self, sensordata: np.ndarray) -> np.ndarray:
+        """The force of the contact with the largest force (..., 3), its contact frame (N)."""
+        return sensordata[..., self._largest : self._largest + 3]
+
     def largest(self, sensordata: np.ndarray) -> np.ndarray:
         """The largest single contact force max_i ‖f_i‖ (...,) (N; 0 without contact)."""
-        f = sensordata[..., self._largest : self._largest + 3]
+        f = self.largest_force(sensordata)
         return np.sqrt(np.sum(f * f, axis=-1))
 
     def net(self, sensordata: np.ndarray) -> np.ndarray:
@@ -105,8 +109,10 @@ def contact_flags(
         axial_speed: (...) tip speed along the axis (m/s).
         mu_diameter: μ D, the friction coefficient times the hole diameter (m).
     """
-    along = np.einsum("...ki,...i->...k", normal, axis)  # n · axis
+    along = (normal @ axis[..., None])[..., 0]  # n · axis
     side = (np.abs(along) < SIDE_NORMAL) & (pressing > 0)
+    if side.ndim == 1 and np.count_nonzero(side) < 2:  # one env with fewer than two
+        return ContactFlags()
     lateral = normal - along[..., None] * axis[..., None, :]
     lateral /= np.maximum(np.linalg.norm(lateral, axis=-1, keepdims=True), 1e-12)
     cosines = lateral @ np.swapaxes(lateral, -1, -2)  # (..., k, k)
