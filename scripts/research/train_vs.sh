@@ -5,35 +5,39 @@
 # /work/main/runs/rl, gitignored) in <Env-vN>/<algo>/seed_<k>/, checkpointed every 100k steps
 # (agents/hyperparams/vs/*.yml); its config.yml records the command that retrains it.
 #
-#   scripts/research/train_vs.sh            # start the queues that are not running
+#   scripts/research/train_vs.sh            # start the driver unless it is running
 #   scripts/research/train_vs.sh status     # progress of every run, the queues' PIDs
-#   scripts/research/train_vs.sh stop       # SIGTERM the queues' trainings (they checkpoint)
+#   scripts/research/train_vs.sh stop       # SIGTERM everything (trainings checkpoint)
 #
+# Everything runs in one background driver (setsid nohup nice 19, one torch/OMP thread): one
+# session, so with the kernel's autogroup scheduling (on here) the plan takes one session's
+# share of the machine, not one per process; its processes run at nice 19 inside it.
 # Stage 0: the Optuna study (scripts/research/optimize_vs.py) until STUDY_TRIALS trials are
 # complete; its best trial is written to agents/hyperparams/vs/ppo_study.yml, which every PPO
-# run uses (commit that file). Then two queues (one per environment), each a background shell in its own process group
-# (setsid nohup, nice 19, one torch/OMP thread) that trains its runs one after the other: a finished run (meta.json "finished":
-# true) is skipped, a started one resumes from its last checkpoint (`--resume`), a run
-# directory without a checkpoint (stopped in its first 100k steps) starts over. A queue whose
-# PID file names a live process is left alone. Order: PPO seed 0 (the first results), the
-# off-policy learner's seed 0, then PPO seeds 1-4 and the off-policy seeds 1-4.
+# run uses (commit that file). Then two queues (one per environment, side by side) that train
+# their runs one after the other: a finished run (meta.json "finished": true) is skipped, a
+# started one resumes from its last checkpoint (`--resume`), a run directory without a
+# checkpoint (stopped in its first 100k steps) starts over. Order: PPO seed 0 (the first
+# results), the off-policy learner's seed 0, then PPO seeds 1-4 and the off-policy seeds 1-4.
+# A driver whose PID file names a live process is left alone.
 # CPU time: each training session appends "wall user sys" seconds to <run>.time in
 # $VS_RUNS/logs/ (GNU time), so the budget is stated in CPU hours as well as env steps.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 ROOT="${VS_RUNS:-/work/main/runs/rl}"
 LOGS="$ROOT/logs"
-PPO_STEPS=3000000
-SAC_STEPS=500000
-SEEDS_REST="1 2 3 4"
-PPO_HP=agents/hyperparams/vs/ppo_study.yml  # the study's best trial (optimize_vs.py best)
+# the plan; the VS_* variables override it (a smoke test of this script: tiny budgets)
+PPO_STEPS="${VS_PPO_STEPS:-3000000}"
+SAC_STEPS="${VS_SAC_STEPS:-500000}"
+SEEDS_REST="${VS_SEEDS_REST-1 2 3 4}"
+PPO_HP="${VS_PPO_HP:-agents/hyperparams/vs/ppo_study.yml}"  # the study's best trial
 STUDY_WORKERS=3     # one process each, sharing the sqlite study
 STUDY_TRIALS=4      # complete trials before the best is adopted (the hand recipe among them)
 STUDY_STEPS=120000  # env steps per trial
 mkdir -p "$LOGS"
 
-# Stage 0 (background): the Optuna study until STUDY_TRIALS trials are complete, then its best
-# trial is written to $PPO_HP and this script starts the training queues.
+# Stage 0: the Optuna study until STUDY_TRIALS trials are complete, then its best trial is
+# written to $PPO_HP.
 study_stage() {
     local w
     for w in $(seq 0 $((STUDY_WORKERS - 1))); do
@@ -43,7 +47,6 @@ study_stage() {
     done
     wait
     python scripts/research/optimize_vs.py best --write "$PPO_HP" >> "$LOGS/queue.log" 2>&1
-    exec scripts/research/train_vs.sh start
 }
 
 # one queue's runs: "env_id algo seed timesteps hyperparameter_file"
@@ -94,18 +97,28 @@ run_queue() {  # env_id
     echo "$(date -u +%FT%TZ) queue ${1#cir_gym/} done" >> "$LOGS/queue.log"
 }
 
+driver() {  # the study if no trial is adopted yet, then both queues side by side
+    if [[ ! -f "$PPO_HP" ]]; then
+        mkdir -p "$ROOT/study/logs"
+        study_stage
+    fi
+    [[ -f "$PPO_HP" ]] || { echo "$(date -u +%FT%TZ) no adopted trial" >> "$LOGS/queue.log"; exit 1; }
+    run_queue cir_gym/VisualServo-v1 &
+    run_queue cir_gym/VisualServoEyeToHand-v1 &
+    wait
+}
+
 alive() {  # pid file
     [[ -f "$1" ]] && kill -0 "$(cat "$1")" 2> /dev/null
 }
 
 status() {
     local env_id line dir
-    if alive "$LOGS/study.pid"; then echo "study: running, PID $(cat "$LOGS/study.pid")"; fi
-    [[ -f "$PPO_HP" ]] && echo "study adopted: $PPO_HP"
+    if alive "$LOGS/driver.pid"; then echo "driver: running, PID $(cat "$LOGS/driver.pid")"
+    else echo "driver: not running"; fi
+    if [[ -f "$PPO_HP" ]]; then echo "study adopted: $PPO_HP"; else echo "study: not adopted"; fi
     for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
-        pid="$LOGS/queue_${env_id#cir_gym/}.pid"
-        if alive "$pid"; then echo "queue ${env_id#cir_gym/}: running, PID $(cat "$pid")"
-        else echo "queue ${env_id#cir_gym/}: not running"; fi
+        echo "${env_id#cir_gym/}:"
         while read -r line; do
             # shellcheck disable=SC2086
             set -- $line
@@ -120,40 +133,22 @@ status() {
     done
 }
 
+pid_file="$LOGS/driver.pid"
 case "${1:-start}" in
     status) status ;;
-    stop)
-        for pid in "$LOGS"/queue_*.pid "$LOGS"/study.pid; do
-            # the queue is a process group of its own (setsid): the shell, GNU time and the
-            # training all get SIGTERM; the training checkpoints before it exits
-            if alive "$pid"; then kill -TERM -- "-$(cat "$pid")" || true; fi
-        done ;;
+    stop)  # the driver is a process group of its own (setsid): every shell, GNU time and
+        # training gets SIGTERM; a training checkpoints before it exits
+        if alive "$pid_file"; then kill -TERM -- "-$(cat "$pid_file")"; fi ;;
     start)
+        if alive "$pid_file"; then echo "already running (PID $(cat "$pid_file"))"; exit 0; fi
         . .venv/bin/activate
         export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
-        if [[ ! -f "$PPO_HP" ]]; then  # the study first; it starts the queues when done
-            pid="$LOGS/study.pid"
-            if alive "$pid"; then echo "study running (PID $(cat "$pid"))"; exit 0; fi
-            mkdir -p "$ROOT/study/logs"
-            setsid nohup nice -n 19 bash -c "$(declare -f study_stage); \
-                ROOT='$ROOT' LOGS='$LOGS' PPO_HP='$PPO_HP' STUDY_WORKERS=$STUDY_WORKERS \
-                STUDY_TRIALS=$STUDY_TRIALS STUDY_STEPS=$STUDY_STEPS; study_stage" \
-                > /dev/null 2>&1 &
-            echo $! > "$pid"
-            echo "study started (PID $!); the queues start when it is done"
-            exit 0
-        fi
-        for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
-            pid="$LOGS/queue_${env_id#cir_gym/}.pid"
-            if alive "$pid"; then
-                echo "queue ${env_id#cir_gym/} already running (PID $(cat "$pid"))"
-                continue
-            fi
-            setsid nohup nice -n 19 bash -c "$(declare -f queue_runs run_dir finished train_one run_queue); \
-                ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS=$PPO_STEPS SAC_STEPS=$SAC_STEPS \
-                SEEDS_REST='$SEEDS_REST'; run_queue $env_id" > /dev/null 2>&1 &
-            echo $! > "$pid"
-            echo "queue ${env_id#cir_gym/} started (PID $!)"
-        done ;;
+        setsid nohup nice -n 19 bash -c "$(declare -f study_stage queue_runs run_dir finished \
+            train_one run_queue driver); ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS=$PPO_STEPS \
+            SAC_STEPS=$SAC_STEPS SEEDS_REST='$SEEDS_REST' PPO_HP='$PPO_HP' \
+            STUDY_WORKERS=$STUDY_WORKERS STUDY_TRIALS=$STUDY_TRIALS STUDY_STEPS=$STUDY_STEPS; \
+            driver" > /dev/null 2>&1 &
+        echo $! > "$pid_file"
+        echo "started (PID $!): $([[ -f "$PPO_HP" ]] && echo queues || echo "study, then queues")" ;;
     *) echo "usage: $0 [start|status|stop]" >&2; exit 2 ;;
 esac
