@@ -8,6 +8,7 @@ Run through :func:`cir_gym.cli.main` in the repository, at a tiny budget: one en
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -70,3 +71,7 @@ def test_the_main_job_leaves_the_checkout_clean_and_writes_its_folder(in_reposit
     assert "best per environment" in err and "ibvs_eye_to_hand" in err
     assert f"page: {(out / 'index.html').resolve()}" in err
     assert os.path.getsize(out / "timings.json") > 0
+    # each variant's hold-still run anchors the normalized score: its anchors file, the score
+    # in the summary and the tables
+    assert len(json.loads((out / "normalized.json").read_text())["variants"]) == 2
+    assert "score 1.00" in err and "| score |" in (out / "leaderboard.md").read_text()
