@@ -11,11 +11,13 @@ treats recurrent policies, so ``stable_baselines3.common.evaluation.evaluate_pol
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 import types
 import typing
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar, NamedTuple
 
 import mujoco
 import numpy as np
@@ -24,7 +26,18 @@ from cir_gym.context import TaskContext
 from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
 
-__all__ = ["Controller", "InvalidGain", "Observation", "RowDynamics", "check_gain_type"]
+__all__ = [
+    "Controller",
+    "InvalidGain",
+    "Observation",
+    "RobotRows",
+    "RowDynamics",
+    "RowLaw",
+    "SiteTerms",
+    "check_gain_type",
+    "matvec",
+    "rows_method",
+]
 
 Observation = dict[str, np.ndarray]
 
@@ -204,6 +217,32 @@ def check_gain_type(owner: type, field: dataclasses.Field, value: Any, controlle
     )
 
 
+class SiteTerms(NamedTuple):
+    """A site's kinematics and the arm's dynamics at rows of states (N rows).
+
+    Attributes:
+        x: site position (N, 3), m (world).
+        quat: site orientation (N, 4), (w, x, y, z), ``mju_mat2Quat`` of its rotation.
+        J: geometric Jacobian [J_P; J_O] (N, 6, n), world frame.
+        jdqd: J̇ q̇ (N, 6), m/s², rad/s².
+        inertia: B̂(q) (N, n, n), armature included (kg m²), or None when not asked for.
+        bias: n̂(q, q̇) = Ĉ q̇ + ĝ (N, n), N m, or None when not asked for.
+    """
+
+    x: np.ndarray
+    quat: np.ndarray
+    J: np.ndarray
+    jdqd: np.ndarray
+    inertia: np.ndarray | None
+    bias: np.ndarray | None
+
+
+def matvec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v (N, m) for rows of matrices (N, m, k) and vectors (N, k): one BLAS call per row,
+    the same for any N (so a row's product does not depend on the others)."""
+    return (A @ v[..., None])[..., 0]
+
+
 class RowDynamics:
     """ĝ(q) and B̂(q) y + n̂(q, q̇) of a robot model for rows of states, by MuJoCo's C calls.
 
@@ -351,6 +390,42 @@ class RowDynamics:
         mujoco.mj_comVel(m, d)
         mujoco.mj_rne(m, d, 1, out)
 
+    def site_terms(
+        self, site: int, q: np.ndarray, qd: np.ndarray, *, inertia: bool = False,
+        bias: bool = False,
+    ) -> SiteTerms:
+        """:class:`SiteTerms` of site id ``site`` for rows q, q̇ (N, n): per row one
+        ``mj_kinematics``, ``mj_comPos``, ``mj_comVel``, then ``mj_jacSite``, ``mj_jacDot``
+        (J̇ q̇ as one batched product after the loop), ``mju_mat2Quat`` and, when asked,
+        ``mj_crb`` + ``mj_fullM`` (B̂) and ``mj_rne`` (n̂) — the calls of
+        :meth:`Robot.site_pose`, :meth:`Robot.jacobian`, :meth:`Robot.jacobian_dot_qdot`,
+        :meth:`Robot.inertia` and :meth:`Robot.bias`, on this object's data."""
+        m, d = self.model, self.data
+        rows, nv = len(q), m.nv
+        x, quat = np.empty((rows, 3)), np.empty((rows, 4))
+        J, Jdot = np.empty((rows, 6, nv)), np.empty((rows, 6, nv))
+        B = np.empty((rows, nv, nv)) if inertia else None
+        n = np.empty((rows, nv)) if bias else None
+        body = int(m.site_bodyid[site])
+        site_xpos, site_xmat = d.site_xpos[site], d.site_xmat[site]
+        for i in range(rows):
+            self._qpos[:] = q[i]
+            self._qvel[:] = qd[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            J_i, Jdot_i = J[i], Jdot[i]
+            mujoco.mj_jacSite(m, d, J_i[:3], J_i[3:], site)
+            mujoco.mj_jacDot(m, d, Jdot_i[:3], Jdot_i[3:], site_xpos, body)
+            x[i] = site_xpos
+            mujoco.mju_mat2Quat(quat[i], site_xmat)
+            if B is not None:
+                mujoco.mj_crb(m, d)
+                mujoco.mj_fullM(m, d, B[i])
+            if n is not None:
+                mujoco.mj_rne(m, d, 0, n[i])
+        return SiteTerms(x, quat, J, matvec(Jdot, qd), B, n)
+
     def _inertia_row(self, q: np.ndarray, qd: np.ndarray, bias: np.ndarray) -> np.ndarray:
         """B̂(q) (a buffer, overwritten by the next call); n̂(q, q̇) into ``bias``."""
         m, d, M = self.model, self.data, self._M
@@ -363,6 +438,43 @@ class RowDynamics:
         mujoco.mj_comVel(m, d)
         mujoco.mj_rne(m, d, 0, bias)
         return M
+
+
+class RobotRows:
+    """The row calls of :class:`RowDynamics` (:meth:`~RowDynamics.gravity`,
+    :meth:`~RowDynamics.newton_euler`, :meth:`~RowDynamics.site_terms`) through a
+    :class:`Robot`'s own methods, row by row: for a robot whose joints are not its model's
+    whole state (where :meth:`RowDynamics.for_robot` gives None)."""
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """ĝ(q) (N, n) for rows q (N, n)."""
+        return np.stack([self.robot.gravity(q_i) for q_i in q])
+
+    def newton_euler(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """B̂(q) q̈ + n̂(q, q̇) (N, n) for rows (N, n)."""
+        return np.stack([self.robot.inverse_dynamics(*row) for row in zip(q, qd, qdd, strict=True)])
+
+    def site_terms(
+        self, site: int, q: np.ndarray, qd: np.ndarray, *, inertia: bool = False,
+        bias: bool = False,
+    ) -> SiteTerms:
+        """:class:`SiteTerms` (see :meth:`RowDynamics.site_terms`) by the Robot's methods."""
+        r = self.robot
+        x, quat = np.empty((len(q), 3)), np.empty((len(q), 4))
+        for i, q_i in enumerate(q):
+            x[i], R = r.site_pose(site, q_i)
+            mujoco.mju_mat2Quat(quat[i], R.ravel())
+        return SiteTerms(
+            x,
+            quat,
+            np.stack([r.jacobian(site, q_i) for q_i in q]),
+            np.stack([r.jacobian_dot_qdot(site, *row) for row in zip(q, qd, strict=True)]),
+            np.stack([r.inertia(q_i) for q_i in q]) if inertia else None,
+            np.stack([r.bias(*row) for row in zip(q, qd, strict=True)]) if bias else None,
+        )
 
 
 class Controller:
@@ -452,6 +564,16 @@ class Controller:
             cached = self._row_dynamics = (robot.model, RowDynamics.for_robot(robot))
         return cached[1]
 
+    def model_rows(self) -> RowDynamics | RobotRows:
+        """The row calls of the nominal ``self.robot``'s model: :meth:`row_dynamics`, or
+        :class:`RobotRows` where that is None."""
+        rows = self.row_dynamics()
+        if rows is None:
+            rows = self.__dict__.get("_robot_rows")
+            if rows is None or rows.robot is not self.robot:
+                rows = self._robot_rows = RobotRows(self.robot)
+        return rows
+
     #: True when :meth:`control_batch` is the law on all rows at once (and ``initial_state``
     #: has no side effect, so every starting row is initialised before the batch is run);
     #: False (default): ``initial_state`` and ``control`` row by row, as a row alone.
@@ -534,3 +656,56 @@ class Controller:
     def __call__(self, observation: Observation) -> np.ndarray:
         """Stateless convenience for a single step from a fresh state."""
         return self.predict(observation)[0]
+
+
+def _first_row(result: Any) -> Any:
+    """Row 0 of a result computed on rows: arrays, tuples (named too) and dataclasses of them."""
+    if isinstance(result, np.ndarray):
+        return result[0]
+    if isinstance(result, tuple):
+        rows = [_first_row(r) for r in result]
+        return type(result)._make(rows) if hasattr(result, "_fields") else tuple(rows)
+    if dataclasses.is_dataclass(result) and not isinstance(result, type):
+        return type(result)(
+            **{f.name: _first_row(getattr(result, f.name)) for f in dataclasses.fields(result)}
+        )
+    return result
+
+
+def rows_method(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Lets a method written on rows — ``method(self, obs, *arrays)`` with observation values
+    (N, ...) and arrays (N, ...) — take one observation (1-D ``q``) as a row of one: the
+    values and arrays get a leading axis (views: a float64 state updated in place is the
+    caller's), and the result (arrays, tuples, dataclasses of them) is given back as that
+    row. So one observation runs the very code of a batch."""
+
+    @functools.wraps(method)
+    def one_or_rows(self: Any, obs: Observation, *arrays: np.ndarray) -> Any:
+        if np.ndim(obs["q"]) != 1:
+            return method(self, obs, *arrays)
+        rows = {k: np.asarray(v, dtype=float)[None] for k, v in obs.items()}
+        return _first_row(method(self, rows, *(np.asarray(a)[None] for a in arrays)))
+
+    return one_or_rows
+
+
+class RowLaw(Controller):
+    """A controller whose law is written once, on rows (:meth:`control_rows`): one
+    observation is its one-row case, so a row gives the same command alone or in a batch
+    when its arithmetic is row by row — element-wise numpy, stacked matrix products and
+    solves (one BLAS/LAPACK call per row's matrices), model calls row by row (tested)."""
+
+    vectorized = True
+
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """The law on rows: values (N, ...), ``state`` (N, state_size) updated in place;
+        commands (N, m)."""
+        raise NotImplementedError
+
+    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return self.control_batch(obs, state)
+
+    @rows_method
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """:meth:`control_rows` on stacked observations, or on one as a row of one."""
+        return self.control_rows(obs, state)

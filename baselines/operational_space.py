@@ -24,7 +24,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation
+from cir_gym.baselines.base import (
+    InvalidGain,
+    Observation,
+    RowLaw,
+    SiteTerms,
+    matvec,
+    rows_method,
+)
 
 from cir_gym import operational_space as osp
 from cir_gym.context import TaskContext
@@ -50,8 +57,17 @@ def _check_positive(gains: object, *names: str, allow_zero: tuple[str, ...] = ()
             raise InvalidGain(f"{name} must be a finite number {bound}, got {value!r}")
 
 
-class _OperationalSpace(Controller):
-    """Shared plumbing: the nominal robot, the site, the posture target q₀ in the state."""
+def _transpose(A: np.ndarray) -> np.ndarray:
+    """Aᵀ of rows of matrices (N, m, k) → (N, k, m)."""
+    return np.swapaxes(A, -1, -2)
+
+
+class _OperationalSpace(RowLaw):
+    """Shared plumbing: the nominal robot, the site, the posture target q₀ in the state.
+
+    Each law is written once on rows of observations (:meth:`control_rows`, values (N, ...)):
+    the model calls row by row (:meth:`Controller.model_rows`), the arithmetic on all rows.
+    """
 
     tasks = TASKS
 
@@ -61,6 +77,7 @@ class _OperationalSpace(Controller):
         self.robot = robot if robot is not None else context.nominal_robot()
         self.n = self.robot.n
         self.site = context.site or "flange"
+        self.site_id = self.robot.site_id(self.site)
 
     @property
     def state_size(self) -> int:
@@ -69,21 +86,34 @@ class _OperationalSpace(Controller):
     def initial_state(self, obs: Observation) -> np.ndarray:
         return np.array(obs["q"], dtype=float)
 
-    def kinematics(self, obs: Observation) -> osp.PoseErrorKinematics:
-        """The pose error, J_A and J̇_A q̇ of the nominal model at the measured state."""
-        return osp.pose_error_kinematics(
-            self.robot, self.site, obs["q"], obs["qd"], obs["x_ref"], obs["quat_ref"],
+    def site_terms(self, obs: Observation, *, dynamics: bool = False) -> SiteTerms:
+        """The nominal model's site terms at rows of measured states (B̂, n̂ with
+        ``dynamics``)."""
+        return self.model_rows().site_terms(
+            self.site_id, obs["q"], obs["qd"], inertia=dynamics, bias=dynamics
+        )
+
+    def pose_error(self, obs: Observation, terms: SiteTerms) -> osp.PoseErrorKinematics:
+        """The pose error, J_A and J̇_A q̇ of rows from their site terms."""
+        return osp.pose_error_from_kinematics(
+            terms.x, terms.quat, terms.J, terms.jdqd, obs["qd"], obs["x_ref"], obs["quat_ref"],
             obs["twist_ref"], obs["acc_ref"],
         )
 
+    @rows_method
+    def kinematics(self, obs: Observation) -> osp.PoseErrorKinematics:
+        """The pose error, J_A and J̇_A q̇ of the nominal model at the measured state (one
+        observation, or rows)."""
+        return self.pose_error(obs, self.site_terms(obs))
+
     def task_command(self, kin: osp.PoseErrorKinematics) -> np.ndarray:
-        """ẍ̄_A + K_D x̃̇ + K_P x̃ − J̇_A q̇ (6,): the J_A q̈ that gives the error dynamics."""
+        """ẍ̄_A + K_D x̃̇ + K_P x̃ − J̇_A q̇ (N, 6): the J_A q̈ that gives the error dynamics."""
         g = self.gains
         kp, kd = g.omega_n**2, 2.0 * g.zeta * g.omega_n
         return kin.task_acceleration + kd * kin.error_rate + kp * kin.error
 
     def posture_acceleration(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        """y₀ = ω_0² (q₀ − q) − 2ζ_0ω_0 q̇ (n,), rad/s²."""
+        """y₀ = ω_0² (q₀ − q) − 2ζ_0ω_0 q̇ (N, n), rad/s²."""
         g = self.gains
         w0 = g.posture_omega
         return w0**2 * (state - obs["q"]) - 2.0 * g.posture_zeta * w0 * obs["qd"]
@@ -131,10 +161,11 @@ class OSPDGravity(_OperationalSpace):
         self.kd = 2.0 * g.zeta * g.omega * m
         self.kn = g.null_damping * np.diag(B)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         kin = self.kinematics(obs)
         force = self.kp * kin.error + self.kd * kin.error_rate
-        return self.robot.gravity(obs["q"]) + kin.J_A.T @ force - self.kn * obs["qd"]
+        gravity = self.model_rows().gravity(obs["q"])
+        return gravity + matvec(_transpose(kin.J_A), force) - self.kn * obs["qd"]
 
 
 # ---------------------------------------------------------------------- inverse dynamics
@@ -168,19 +199,22 @@ class OSInverseDynamics(_OperationalSpace):
     Gains = OSInverseDynamicsGains
 
     def inverse(self, J_A: np.ndarray) -> np.ndarray:
-        """The generalised inverse of J_A used for the task (n, 6)."""
+        """The generalised inverse of J_A used for the task (N, n, 6) for J_A (N, 6, n)."""
         return osp.damped_least_squares(J_A, 0.0)
 
+    @rows_method
     def joint_acceleration(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """y (n,) or (N, n), rad/s², for one observation or rows."""
         kin = self.kinematics(obs)
         J_inv = self.inverse(kin.J_A)
         y0 = self.posture_acceleration(obs, state)
-        return J_inv @ self.task_command(kin) + osp.null_space_projector(kin.J_A, J_inv) @ y0
+        N = osp.null_space_projector(kin.J_A, J_inv)
+        return matvec(J_inv, self.task_command(kin)) + matvec(N, y0)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        q, qd = obs["q"], obs["qd"]
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        # τ = B̂(q) y + n̂(q, q̇) by Newton-Euler (equal to forming B̂ to ~1e-14 relative)
         y = self.joint_acceleration(obs, state)
-        return self.robot.inertia(q) @ y + self.robot.bias(q, qd)
+        return self.model_rows().newton_euler(obs["q"], obs["qd"], y)
 
 
 @dataclass(frozen=True)
@@ -210,7 +244,7 @@ class OSInverseDynamicsDLS(OSInverseDynamics):
     Gains = OSInverseDynamicsDLSGains
 
     def inverse(self, J_A: np.ndarray) -> np.ndarray:
-        sigma = np.linalg.svd(J_A, compute_uv=False)[-1]
+        sigma = np.linalg.svd(J_A, compute_uv=False)[..., -1]
         k = osp.damping_schedule(sigma, self.gains.damping, self.gains.region)
         return osp.damped_least_squares(J_A, k)
 
@@ -244,19 +278,22 @@ class OSKhatib(_OperationalSpace):
     name = "os_khatib"
     Gains = OSKhatibGains
 
+    @rows_method
     def torques(self, obs: Observation, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(task torque, posture torque N_dynᵀ τ₀), both (n,) N m; their sum is τ."""
-        q, qd = obs["q"], obs["qd"]
-        kin = self.kinematics(obs)
-        B, n = self.robot.inertia(q), self.robot.bias(q, qd)
-        Lam = osp.task_inertia(kin.J_A, B, self.gains.lambda_damping)
-        J_bar = osp.dynamically_consistent_inverse(kin.J_A, B, Lam)
-        N = osp.null_space_projector(kin.J_A, J_bar)
-        task = kin.J_A.T @ (Lam @ self.task_command(kin) + J_bar.T @ n)
-        tau0 = B @ self.posture_acceleration(obs, state) + n
-        return task, N.T @ tau0
+        """(task torque, posture torque N_dynᵀ τ₀), both (n,) N m for one observation or
+        (N, n) for rows; their sum is τ."""
+        terms = self.site_terms(obs, dynamics=True)
+        kin = self.pose_error(obs, terms)
+        B, n, J_A = terms.inertia, terms.bias, kin.J_A
+        Lam = osp.task_inertia(J_A, B, self.gains.lambda_damping)
+        J_bar = osp.dynamically_consistent_inverse(J_A, B, Lam)
+        N = osp.null_space_projector(J_A, J_bar)
+        task = matvec(_transpose(J_A),
+                      matvec(Lam, self.task_command(kin)) + matvec(_transpose(J_bar), n))
+        tau0 = matvec(B, self.posture_acceleration(obs, state)) + n
+        return task, matvec(_transpose(N), tau0)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         task, posture = self.torques(obs, state)
         return task + posture
 

@@ -55,10 +55,12 @@ __all__ = [
     "left_jacobian_inverse_dot",
     "null_space_projector",
     "orientation_angle",
+    "pose_error_from_kinematics",
     "pose_error_kinematics",
     "quat_angle",
     "quat_dot",
     "quat_error",
+    "quat_times_conj",
     "rotvec_error",
     "rotvec_from_quat",
     "skew",
@@ -66,6 +68,7 @@ __all__ = [
 ]
 
 _ARCTAN2 = np.arctan2  # numpy's, not math.atan2: they differ in the last bit
+_SUM = np.add.reduce  # np.sum without its Python wrapper (the hot paths on rows)
 _SMALL_ANGLE = 0.05  # rad: below, the SO(3) Jacobian coefficients use their Taylor series
 
 
@@ -110,9 +113,32 @@ def quat_error(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
     Siciliano's e_O = η ε̄ − η̄ ε − S(ε̄) ε (world frame), taken on the shorter rotation so that
     Q and −Q give the same error; ‖ε_e‖ = sin(θ/2) with θ the error angle.
     """
-    qe = traj.quat_mul(quat_ref, traj.quat_conj(quat))
+    qe = quat_times_conj(quat_ref, quat)
     sign = np.where(qe[..., :1] < 0.0, -1.0, 1.0)
     return sign * qe[..., 1:]
+
+
+def _times_conj_constants() -> np.ndarray:
+    """T (16, 4): Q̄ ⊗ Q⁻¹ = vec(Q̄ Qᵀ) T for unit quaternions, T[4j + k] = e_j ⊗ e_k⁻¹ — the
+    structure constants of :func:`cir_gym.trajectories.quat_mul` with the conjugate, taken
+    from it on the basis quaternions (entries 0 and ±1)."""
+    E = np.eye(4)
+    return traj.quat_mul(E[:, None, :], traj.quat_conj(E)[None, :, :]).reshape(16, 4)
+
+
+_TIMES_CONJ = _times_conj_constants()
+
+
+def quat_times_conj(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
+    """Q̄ ⊗ Q⁻¹ (..., 4) of unit quaternions (..., 4) (broadcasts): the product of
+    :func:`cir_gym.trajectories.quat_mul` with the conjugate as one outer product and one
+    matrix product with its constants (a tenth of the cost on rows of poses). Equal to it up to
+    the order of the four products' sum (the constants are 0 and ±1: each product is exact)."""
+    a, b = np.asarray(quat_ref, dtype=float), np.asarray(quat, dtype=float)
+    outer = a[..., :, None] * b[..., None, :]
+    # a (1, 16) row times T for each pose: one BLAS call per pose, the same for any number
+    # of poses (a (N, 16) matrix product's kernel could block the poses differently)
+    return (outer.reshape(*outer.shape[:-2], 1, 16) @ _TIMES_CONJ)[..., 0, :]
 
 
 def rotvec_from_quat(quat: ArrayLike) -> np.ndarray:
@@ -127,18 +153,18 @@ def rotvec_from_quat(quat: ArrayLike) -> np.ndarray:
         return np.array([scale1 * x, scale1 * y, scale1 * z])
     q = q * np.where(q[..., :1] < 0.0, -1.0, 1.0)  # η ≥ 0: the shorter rotation
     eps = q[..., 1:]
-    s = np.linalg.norm(eps, axis=-1, keepdims=True)
+    s = np.sqrt(_SUM(eps * eps, axis=-1, keepdims=True))
     theta = 2.0 * np.arctan2(s, q[..., :1])
     # θ / sin(θ/2) → 2 as θ → 0 (the ratio is 2 (1 + θ²/24 + ...) there)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(s > 1e-12, theta / np.where(s > 1e-12, s, 1.0), 2.0)
+    finite = s > 1e-12
+    scale = np.where(finite, theta / np.where(finite, s, 1.0), 2.0)
     return scale * eps
 
 
 def rotvec_error(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
     """Axis-angle form of the orientation error: φ = θ r = log(R̄ Rᵀ) (..., 3), rad, world
     frame, θ ∈ [0, π] (the shorter rotation); Q and −Q give the same error."""
-    return rotvec_from_quat(traj.quat_mul(quat_ref, traj.quat_conj(quat)))
+    return rotvec_from_quat(quat_times_conj(quat_ref, quat))
 
 
 def orientation_angle(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
@@ -146,20 +172,19 @@ def orientation_angle(quat_ref: ArrayLike, quat: ArrayLike) -> np.ndarray:
     q, r = np.asarray(quat_ref, dtype=float), np.asarray(quat, dtype=float)
     if q.shape == r.shape == (4,):  # one pose (the envs' hot path)
         return np.float64(quat_angle(q.tolist(), r.tolist()))
-    dot = np.abs(np.sum(q * r, axis=-1)) / (np.linalg.norm(q, axis=-1) * np.linalg.norm(r, axis=-1))
-    # 2 acos |q·r| loses precision near 0; 2 atan2(‖ε_e‖, |η_e|) does not
-    eps = np.linalg.norm(quat_error(q, r), axis=-1) / (
-        np.linalg.norm(q, axis=-1) * np.linalg.norm(r, axis=-1)
-    )
-    return 2.0 * np.arctan2(eps, dot)
+    # 2 acos |q·r| loses precision near 0; 2 atan2(‖ε_e‖, |η_e|) does not (and does not
+    # depend on the quaternions' norms), η_e = q·r
+    qe = quat_times_conj(q, r)
+    eps = qe[..., 1:]
+    return 2.0 * np.arctan2(np.sqrt(_SUM(eps * eps, axis=-1)), np.abs(qe[..., 0]))
 
 
 def quat_angle(quat_ref: list[float], quat: list[float]) -> float:
     """:func:`orientation_angle` of two single quaternions given as 4 floats each (rad).
 
-    The same operations in the same order as the array version (Python floats round each
-    product and sum as numpy does; numpy's ``arctan2`` is kept because its SIMD kernel and
-    libm's differ in the last bit), so the result is bit-identical, at ~1/30 of the cost.
+    The array version's formula on Python floats (numpy's ``arctan2`` is kept because its
+    SIMD kernel and libm's differ in the last bit): equal to it to a few units in the last
+    place (its products are summed in another order), at ~1/30 of the cost.
     """
     r0, r1, r2, r3 = quat_ref
     q0, q1, q2, q3 = quat
@@ -183,11 +208,12 @@ def skew(v: ArrayLike) -> np.ndarray:
     if v.ndim == 1:  # the common single-vector case, without np.stack (~10x faster)
         x, y, w = v.tolist()
         return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
-    z = np.zeros(v.shape[:-1])
-    x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack(
-        [np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2
-    )
+    # S(v) is linear in v: vec S(v) = v [vec S(e_x); vec S(e_y); vec S(e_z)] (exact: one
+    # nonzero product per entry)
+    return (v[..., None, :] @ _SKEW_BASIS).reshape(*v.shape[:-1], 3, 3)
+
+
+_SKEW_BASIS = np.stack([skew(e).ravel() for e in np.eye(3)])  # (3, 9)
 
 
 def _coefficients(theta: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -197,13 +223,24 @@ def _coefficients(theta: np.ndarray) -> tuple[np.ndarray, ...]:
     small = theta < _SMALL_ANGLE
     t = np.where(small, 1.0, theta)  # a safe angle for the closed forms
     t2 = theta**2
-    half_cot = np.cos(t / 2) / np.sin(t / 2)
     a = np.where(small, 0.5 - t2 / 24 + t2**2 / 720, (1 - np.cos(t)) / t**2)
     b = np.where(small, 1 / 6 - t2 / 120 + t2**2 / 5040, (t - np.sin(t)) / t**3)
-    c = np.where(small, 1 / 12 + t2 / 720 + t2**2 / 30240, 1 / t**2 - half_cot / (2 * t))
-    c_prime = -2 / t**3 + half_cot / (2 * t**2) + 1 / (4 * t * np.sin(t / 2) ** 2)
-    d = np.where(small, 1 / 360 + t2 / 7560 + t2**2 / 201600, c_prime / t)
-    return a, b, c, d
+    return (a, b, *_inverse_coefficients(theta))
+
+
+def _inverse_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """c, d(θ) of J_l⁻¹ = I − S/2 + c S², d = c'(θ)/θ, for an array of angles (rad)."""
+    small = theta < _SMALL_ANGLE
+    t = np.where(small, 1.0, theta)  # a safe angle for the closed forms
+    t2 = theta * theta
+    u = 1.0 / t
+    sin_half = np.sin(0.5 * t)
+    half_cot = 0.5 * np.cos(0.5 * t) / sin_half  # cot(θ/2)/2
+    # c = 1/θ² − cot(θ/2)/(2θ);  c' = −2/θ³ + cot(θ/2)/(2θ²) + 1/(4θ sin²(θ/2)), d = c'/θ
+    c = np.where(small, 1 / 12 + t2 * (1 / 720 + t2 / 30240), u * (u - half_cot))
+    c_prime = u * (u * (half_cot - 2.0 * u) + 0.25 / (sin_half * sin_half))
+    d = np.where(small, 1 / 360 + t2 * (1 / 7560 + t2 / 201600), c_prime * u)
+    return c, d
 
 
 def _scalar_coefficients(t: float) -> tuple[float, float, float, float]:
@@ -269,7 +306,8 @@ def error_rate(phi: ArrayLike, omega_ref: ArrayLike, omega: ArrayLike) -> np.nda
 # ---------------------------------------------------------------------- the pose error
 @dataclass(frozen=True)
 class PoseErrorKinematics:
-    """The pose error of a site and its first two time derivatives' ingredients (one instant).
+    """The pose error of a site and its first two time derivatives' ingredients (one instant;
+    for rows of states every field has the rows' leading axes, e.g. error (N, 6)).
 
     With x̃ = [p̄ − p; log(R̄ Rᵀ)] (module docstring):
     x̃̇ = ``error_rate`` = ``ref_rate`` − J_A q̇ and
@@ -314,7 +352,8 @@ def pose_error_kinematics(
     """The pose error of ``site`` against a reference, with J_A and J̇_A q̇, at (q, q̇).
 
     Uses :meth:`Robot.site_pose`, :meth:`Robot.jacobian` and :meth:`Robot.jacobian_dot_qdot`
-    (MuJoCo's mj_jacSite and mj_jacDot) of ``robot`` (a controller's nominal model).
+    (MuJoCo's mj_jacSite and mj_jacDot) of ``robot`` (a controller's nominal model), then
+    :func:`pose_error_from_kinematics`.
 
     Args:
         robot: the model; site: the end-effector site.
@@ -323,36 +362,76 @@ def pose_error_kinematics(
         twist_ref: [ṗ̄; ω̄] (6,) m/s, rad/s (world); acc_ref: [p̈̄; ω̄̇] (6,) m/s², rad/s².
     """
     x, R = robot.site_pose(site, q)
-    J = robot.jacobian(site, q)
-    jdqd = robot.jacobian_dot_qdot(site, q, qd)
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
+    return pose_error_from_kinematics(
+        x, quat, robot.jacobian(site, q), robot.jacobian_dot_qdot(site, q, qd), qd,
+        x_ref, quat_ref, twist_ref, acc_ref,
+    )
+
+
+def _times(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v (..., m) for matrices (..., m, k) and vectors (..., k)."""
+    return (A @ v[..., None])[..., 0]
+
+
+def pose_error_from_kinematics(
+    x: ArrayLike,
+    quat: ArrayLike,
+    J: ArrayLike,
+    jdqd: ArrayLike,
+    qd: ArrayLike,
+    x_ref: ArrayLike,
+    quat_ref: ArrayLike,
+    twist_ref: ArrayLike,
+    acc_ref: ArrayLike,
+) -> PoseErrorKinematics:
+    """:class:`PoseErrorKinematics` from a site's kinematics, for one state or rows (...).
+
+    Args:
+        x: site position p (..., 3), m; quat: its orientation Q (..., 4), either sign.
+        J: geometric Jacobian (..., 6, n); jdqd: J̇ q̇ (..., 6); qd: q̇ (..., n), rad/s.
+        x_ref, quat_ref, twist_ref, acc_ref: p̄ (..., 3), Q̄ (..., 4), [ṗ̄; ω̄] (..., 6) and
+            [p̈̄; ω̄̇] (..., 6) (see :func:`pose_error_kinematics`).
+
+    The fields have the rows' leading axes (error (..., 6), J_A (..., 6, n), ...).
+    """
+    J, jdqd = np.asarray(J, dtype=float), np.asarray(jdqd, dtype=float)
     twist_ref = np.asarray(twist_ref, dtype=float)
     acc_ref = np.asarray(acc_ref, dtype=float)
-    twist = J @ qd
-    # φ = log(Q̄ ⊗ Q⁻¹) with MuJoCo's quaternion C calls (single pose: the hot path)
-    quat, conj, q_err = np.empty(4), np.empty(4), np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
-    mujoco.mju_negQuat(conj, quat)
-    mujoco.mju_mulQuat(q_err, np.asarray(quat_ref, dtype=float), conj)
-    phi = rotvec_from_quat(q_err / np.linalg.norm(q_err))
-    _, _, c, d = _scalar_coefficients(float(np.linalg.norm(phi)))
+    twist = _times(J, np.asarray(qd, dtype=float))
+    # φ = log(Q̄ ⊗ Q⁻¹) (Q̄ ⊗ Q⁻¹ normalised: rotvec_from_quat takes unit quaternions)
+    q_err = quat_times_conj(quat_ref, quat)
+    q_err = q_err / np.sqrt(_SUM(q_err * q_err, axis=-1, keepdims=True))
+    phi = rotvec_from_quat(q_err)
+    c, d = _inverse_coefficients(np.sqrt(_SUM(phi * phi, axis=-1)))
+    c, d = np.asarray(c)[..., None, None], np.asarray(d)[..., None, None]
     S = skew(phi)
     S2 = S @ S
-    Jl_inv = np.eye(3) - 0.5 * S + c * S2  # J_l⁻¹(φ)
-    Jr_inv = np.eye(3) + 0.5 * S + c * S2  # J_r⁻¹(φ) = J_l⁻¹(−φ)
-    w_ref, w = twist_ref[3:], twist[3:]
-    phi_dot = Jl_inv @ w_ref - Jr_inv @ w
+    eye_cS2 = np.eye(3) + c * S2
+    half_S = 0.5 * S
+    Jl_inv = eye_cS2 - half_S  # J_l⁻¹(φ)
+    Jr_inv = eye_cS2 + half_S  # J_r⁻¹(φ) = J_l⁻¹(−φ)
+    w_ref, w = twist_ref[..., 3:], twist[..., 3:]
+    phi_dot = _times(Jl_inv, w_ref) - _times(Jr_inv, w)
     # d/dt J_l⁻¹(φ) and d/dt J_r⁻¹(φ) = D J_l⁻¹(−φ)[−φ̇] (left_jacobian_inverse_dot)
     Sd = skew(phi_dot)
-    common = d * float(phi @ phi_dot) * S2 + c * (Sd @ S + S @ Sd)
-    Jl_inv_dot, Jr_inv_dot = common - 0.5 * Sd, common + 0.5 * Sd
-    J_A = J.copy()
-    J_A[3:] = Jr_inv @ J[3:]
-    ref_rate = np.concatenate((twist_ref[:3], Jl_inv @ w_ref))
-    ref_acc = np.concatenate((acc_ref[:3], Jl_inv @ acc_ref[3:] + Jl_inv_dot @ w_ref))
-    JA_dot_qd = np.concatenate((jdqd[:3], Jr_inv @ jdqd[3:] + Jr_inv_dot @ w))
+    rate = _SUM(phi * phi_dot, axis=-1)[..., None, None]  # θ θ̇
+    common = (d * rate) * S2 + c * (Sd @ S + S @ Sd)
+    half_Sd = 0.5 * Sd
+    Jl_inv_dot, Jr_inv_dot = common - half_Sd, common + half_Sd
+    J_A = np.concatenate((J[..., :3, :], Jr_inv @ J[..., 3:, :]), axis=-2)
+    ref_rate = np.concatenate((twist_ref[..., :3], _times(Jl_inv, w_ref)), axis=-1)
+    ref_acc = np.concatenate(
+        (acc_ref[..., :3], _times(Jl_inv, acc_ref[..., 3:]) + _times(Jl_inv_dot, w_ref)),
+        axis=-1,
+    )
+    JA_dot_qd = np.concatenate(
+        (jdqd[..., :3], _times(Jr_inv, jdqd[..., 3:]) + _times(Jr_inv_dot, w)), axis=-1
+    )
     return PoseErrorKinematics(
-        error=np.concatenate((np.asarray(x_ref, dtype=float) - x, phi)),
-        error_rate=np.concatenate((twist_ref[:3] - twist[:3], phi_dot)),
+        error=np.concatenate((np.asarray(x_ref, dtype=float) - x, phi), axis=-1),
+        error_rate=np.concatenate((twist_ref[..., :3] - twist[..., :3], phi_dot), axis=-1),
         J_A=J_A,
         J=J,
         ref_rate=ref_rate,

@@ -1,0 +1,151 @@
+"""The row-vectorised laws (``RowLaw``): a batch of observations gives, row for row, the
+command of each observation alone, and each row is the course's law.
+
+Two tolerances, two reasons:
+
+* a row of a batch against the same observation alone: **bit for bit**. One observation runs
+  the very code of a batch (a row of one); every product is a stacked matrix product or
+  solve (one BLAS/LAPACK call per row's matrices, the same call for any number of rows), the
+  rest is element-wise, and the model calls run row by row. So ``evaluate`` may batch these
+  controllers (``batches_exactly``) and its episodes are the sequential ones.
+* a row against the law written out here with the nominal ``Robot``'s single-state methods
+  (B̂ formed, then B̂ y + n̂; ``np.linalg.pinv``; Λ by ``inv``): **1e-11 of the largest
+  torque**. The same formulas, with sums in other orders (Newton-Euler instead of B̂ y + n̂:
+  ~1e-14 relative, a pseudo-inverse by SVD instead of a solve: ~1e-13 on these
+  well-conditioned Jacobians).
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from cir_gym.baselines.base import RobotRows, RowDynamics
+
+from cir_gym import baselines
+from cir_gym import operational_space as osp
+
+CARTESIAN = "cir_gym/CartesianTracking-v1"
+OS_LAWS = ("os_pd_gravity", "os_inverse_dynamics", "os_inverse_dynamics_dls", "os_khatib")
+REL = 1e-11
+
+
+def _rollout(env_id: str, policy_name: str, seeds: range, steps: int, every: int,
+             **env_kwargs) -> dict[str, np.ndarray]:
+    """Observations (stacked) every ``every`` steps of short episodes under a controller."""
+    env = gym.make(env_id, **env_kwargs)
+    policy = baselines.make(policy_name, env_id, env=env.unwrapped)
+    rows = []
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        state, start = None, np.ones(1, dtype=bool)
+        for k in range(steps):
+            action, state = policy.predict(obs, state, start)
+            start[:] = False
+            if k % every == 0:
+                rows.append({key: np.array(v) for key, v in obs.items()})
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    env.close()
+    return {key: np.stack([r[key] for r in rows]) for key in rows[0]}
+
+
+@pytest.fixture(scope="module")
+def cartesian_obs() -> dict[str, np.ndarray]:
+    obs = _rollout(CARTESIAN, "os_khatib", range(2), 240, 12)
+    rng = np.random.default_rng(0)
+    obs["qd"] = obs["qd"] + rng.normal(0.0, 0.3, obs["qd"].shape)  # velocity errors too
+    return obs
+
+
+def _row(obs: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
+    return {k: v[i].copy() for k, v in obs.items()}
+
+
+@pytest.mark.parametrize("name", OS_LAWS)
+def test_operational_space_rows_equal_each_row_alone_bit_for_bit(name, cartesian_obs) -> None:
+    policy = baselines.make(name, CARTESIAN)
+    assert policy.vectorized
+    n_rows = len(cartesian_obs["q"])
+    rng = np.random.default_rng(1)
+    posture = cartesian_obs["q"] + rng.normal(0.0, 0.2, cartesian_obs["q"].shape)
+    alone = np.stack([policy.control(_row(cartesian_obs, i), posture[i].copy())
+                      for i in range(n_rows)])
+    for count in (1, 3, 16, n_rows):  # batches of several sizes, rows in another order
+        pick = rng.permutation(n_rows)[:count]
+        rows = {k: v[pick] for k, v in cartesian_obs.items()}
+        np.testing.assert_array_equal(policy.control_batch(rows, posture[pick]), alone[pick])
+    # predict: the actions of a batch with some rows starting are those of each row alone
+    starts = np.arange(n_rows) % 3 == 0
+    actions, state = policy.predict(cartesian_obs, posture.copy(), starts)
+    for i in range(n_rows):
+        one, one_state = policy.predict(_row(cartesian_obs, i), posture[i : i + 1].copy(),
+                                        starts[i : i + 1])
+        np.testing.assert_array_equal(actions[i], one)
+        np.testing.assert_array_equal(state[i], one_state[0])
+
+
+def _reference_torque(policy, obs: dict[str, np.ndarray], q0: np.ndarray) -> np.ndarray:
+    """The law of ``policy`` on one observation, written out with the Robot's methods."""
+    robot, site, g = policy.robot, policy.site, policy.gains
+    q, qd = obs["q"], obs["qd"]
+    kin = osp.pose_error_kinematics(robot, site, q, qd, obs["x_ref"], obs["quat_ref"],
+                                    obs["twist_ref"], obs["acc_ref"])
+    J_A, B, n = kin.J_A, robot.inertia(q), robot.bias(q, qd)
+    if policy.name == "os_pd_gravity":
+        force = policy.kp * kin.error + policy.kd * kin.error_rate
+        return robot.gravity(q) + J_A.T @ force - policy.kn * qd
+    command = kin.task_acceleration + 2 * g.zeta * g.omega_n * kin.error_rate \
+        + g.omega_n**2 * kin.error
+    y0 = g.posture_omega**2 * (q0 - q) - 2 * g.posture_zeta * g.posture_omega * qd
+    if policy.name == "os_khatib":
+        Lam = np.linalg.inv(J_A @ np.linalg.inv(B) @ J_A.T)
+        J_bar = np.linalg.inv(B) @ J_A.T @ Lam
+        N = np.eye(len(q)) - J_bar @ J_A
+        return J_A.T @ (Lam @ command + J_bar.T @ n) + N.T @ (B @ y0 + n)
+    J_inv = np.linalg.pinv(J_A)  # σ_min ≥ region on these paths: the DLS law is the plain one
+    assert np.linalg.svd(J_A, compute_uv=False)[-1] > getattr(g, "region", 0.0)
+    y = J_inv @ command + (np.eye(len(q)) - J_inv @ J_A) @ y0
+    return B @ y + n
+
+
+@pytest.mark.parametrize("name", OS_LAWS)
+def test_operational_space_rows_are_the_course_law(name, cartesian_obs) -> None:
+    policy = baselines.make(name, CARTESIAN)
+    posture = cartesian_obs["q"] + 0.1
+    tau = policy.control_batch(cartesian_obs, posture)
+    for i in range(len(tau)):
+        want = _reference_torque(policy, _row(cartesian_obs, i), posture[i])
+        np.testing.assert_allclose(tau[i], want, rtol=0, atol=REL * np.max(np.abs(want)))
+
+
+def test_pose_error_rows_equal_the_single_pose_function(cartesian_obs) -> None:
+    """pose_error_from_kinematics on rows equals pose_error_kinematics (the Robot's methods) on
+    each row to 1e-13 (the same formula; MuJoCo's J̇q̇ as one (6, n) product instead of two
+    (3, n) ones, so the sums run in another order)."""
+    policy = baselines.make("os_khatib", CARTESIAN)
+    kin = policy.kinematics(cartesian_obs)
+    for i in range(len(cartesian_obs["q"])):
+        o = _row(cartesian_obs, i)
+        one = osp.pose_error_kinematics(policy.robot, policy.site, o["q"], o["qd"], o["x_ref"],
+                                        o["quat_ref"], o["twist_ref"], o["acc_ref"])
+        for field in ("error", "error_rate", "J_A", "ref_rate", "ref_acc", "JA_dot_qd"):
+            np.testing.assert_allclose(getattr(kin, field)[i], getattr(one, field),
+                                       rtol=0, atol=1e-13, err_msg=field)
+
+
+def test_robot_rows_fallback_equals_row_dynamics(cartesian_obs) -> None:
+    """RobotRows (the Robot's own methods, for robots RowDynamics does not serve) gives the
+    site terms, ĝ and the inverse dynamics of RowDynamics (the same MuJoCo calls: 1e-12, the
+    inverse dynamics formed as B̂ q̈ + n̂ rather than by Newton-Euler)."""
+    policy = baselines.make("os_khatib", CARTESIAN)
+    fast, slow = RowDynamics.for_robot(policy.robot), RobotRows(policy.robot)
+    q, qd = cartesian_obs["q"][:5], cartesian_obs["qd"][:5]
+    a = fast.site_terms(policy.site_id, q, qd, inertia=True, bias=True)
+    b = slow.site_terms(policy.site_id, q, qd, inertia=True, bias=True)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.gravity(q), slow.gravity(q), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.newton_euler(q, qd, qd), slow.newton_euler(q, qd, qd),
+                               rtol=0, atol=1e-11)
