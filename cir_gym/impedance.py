@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import mujoco
+import mujoco.batch
 import numpy as np
 
 from cir_gym import operational_space as osp
@@ -35,6 +36,10 @@ from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument
+
+_VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
+#: v = R[_VEE_ROW, _VEE_COL] − R[_VEE_COL, _VEE_ROW] = [R₃₂ − R₂₃, R₁₃ − R₃₁, R₂₁ − R₁₂]
+_VEE_ROW, _VEE_COL = np.array([2, 0, 1]), np.array([1, 2, 0])
 
 __all__ = [
     "CartesianImpedance",
@@ -48,23 +53,41 @@ __all__ = [
 
 
 def exp_rotvec(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) of a rotation vector φ = θ r (3,) (rad): Rodrigues' formula."""
-    theta = math.sqrt(float(phi @ phi))
-    if theta < 1e-12:
-        return np.eye(3) + osp.skew(phi)
-    K = osp.skew(phi / theta)
-    return np.eye(3) + math.sin(theta) * K + (1.0 - math.cos(theta)) * (K @ K)
+    """Rotation matrices (..., 3, 3) of rotation vectors φ = θ r (..., 3) (rad): Rodrigues'
+    formula R = I + sin θ S(r) + (1 − cos θ) S(r)², with R = I + S(φ) below θ = 1e-12."""
+    phi = np.asarray(phi, dtype=float)
+    theta = np.linalg.norm(phi, axis=-1)[..., None, None]
+    S = osp.skew(phi)  # S(φ) = θ S(r)
+    tiny = theta < 1e-12
+    with np.errstate(invalid="ignore", divide="ignore"):
+        K = S / np.where(tiny, 1.0, theta)
+    turn = np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+    return np.eye(3) + np.where(tiny, S, turn)
 
 
 def log_rotation(R: np.ndarray) -> np.ndarray:
-    """Rotation vector φ (3,) of a rotation matrix (3, 3), θ = ‖φ‖ ∈ [0, π] (rad)."""
-    return osp.rotvec_from_quat(traj.quat_from_matrix(R))
+    """Rotation vectors φ (..., 3) of rotation matrices (..., 3, 3), θ = ‖φ‖ ∈ [0, π] (rad).
+
+    φ = θ / (2 sin θ) · v with v = [R₃₂ − R₂₃, R₁₃ − R₃₁, R₂₁ − R₁₂] = 2 sin θ r and
+    θ = atan2(‖v‖, tr R − 1); within 5e-4 rad of θ = π, where v no longer gives the axis
+    accurately, from the quaternion (Shepperd's method)."""
+    R = np.asarray(R, dtype=float)
+    v = R[..., _VEE_ROW, _VEE_COL] - R[..., _VEE_COL, _VEE_ROW]
+    two_sin = np.sqrt(np.sum(v * v, axis=-1))
+    two_cos = np.trace(R, axis1=-2, axis2=-1) - 1.0
+    # θ / (2 sin θ) (→ 1/2 as θ → 0; v = 0 at θ = 0)
+    phi = (np.arctan2(two_sin, two_cos) / np.maximum(two_sin, 1e-300))[..., None] * v
+    if np.min(two_cos) < -1.999:  # near π: 2 sin θ < 1e-3 there implies 2 cos θ < −1.999
+        flipped = (two_sin < 1e-3) & (two_cos < 0.0)
+        phi[flipped] = osp.rotvec_from_quat(traj.quat_from_matrix(R[flipped]))
+    return phi
 
 
 def pose_error(p_d: np.ndarray, R_d: np.ndarray, p: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """x̃ = [p_d − p; log(R_d Rᵀ)] (6,): position error (m) and orientation error as a rotation
-    vector (rad), both in the world frame (the frame of the geometric Jacobian's rows)."""
-    return np.concatenate((p_d - p, log_rotation(R_d @ R.T)))
+    """x̃ = [p_d − p; log(R_d Rᵀ)] (..., 6): position error (m) and orientation error as a
+    rotation vector (rad), both in the world frame (the frame of the geometric Jacobian's rows).
+    Positions (..., 3), rotations (..., 3, 3)."""
+    return np.concatenate((p_d - p, log_rotation(R_d @ np.swapaxes(R, -1, -2))), axis=-1)
 
 
 def critical_damping(stiffness: np.ndarray, inertia: np.ndarray, ratio: float = 1.0) -> np.ndarray:
@@ -137,13 +160,21 @@ class ImpedanceGains:
 
 
 class CartesianImpedance:
-    """τ = Jᵀ(K_p x̃ − K_d ẋ) + g(q) + Nᵀ τ₀ at a site of a nominal robot (module docstring).
+    """τ = Jᵀ(K_p x̃ − K_d ẋ) + g(q) + Nᵀ τ₀ at a site of a nominal robot (module docstring), for
+    one arm or for N arms at once: every method takes q of shape (n,) (one arm) or (N, n) and
+    answers with the same leading shape.
+
+    The nominal model is evaluated for all arms by one ``mujoco.batch.Batch`` (MuJoCo's own
+    computations, row by row: forward kinematics, B(q) from the composite rigid bodies with
+    the armature, g(q) as the bias at q̇ = 0, and the site's Jacobian), and the law is numpy
+    on (..., 6) and (..., n) arrays: one arm is the one-row case of the same code.
 
     Args:
         robot: the nominal model (e.g. :func:`tool_robot`); never the simulator's.
         site: the controlled point's site.
-        gains: :class:`ImpedanceGains`.
-        q_rest: (n,) posture the null-space regulator pulls towards (rad).
+        gains: :class:`ImpedanceGains` (K_p, K_d are the defaults of :meth:`torque`).
+        q_rest: posture the null-space regulator pulls towards (rad): (n,) for one arm, or
+            (N, n), one per arm; a live array (``q_rest[i] = q`` sets arm i's).
     """
 
     def __init__(self, robot: Robot, site: str, gains: ImpedanceGains, q_rest: np.ndarray) -> None:
@@ -151,16 +182,74 @@ class CartesianImpedance:
         self.site = robot.site_id(site)
         self.gains = gains
         self.q_rest = np.array(q_rest, dtype=float)
-        if self.q_rest.shape != (robot.n,):
-            raise InvalidArgument(f"q_rest must have shape ({robot.n},), got {self.q_rest.shape}")
+        n = robot.n
+        if self.q_rest.ndim not in (1, 2) or self.q_rest.shape[-1] != n:
+            raise InvalidArgument(
+                f"q_rest must have shape ({n},) or (num_arms, {n}), got {self.q_rest.shape}"
+            )
+        self.num_arms = 1 if self.q_rest.ndim == 1 else self.q_rest.shape[0]
+        m = robot.model
+        self._arms = mujoco.batch.Batch(m, nsim=self.num_arms, nthread=1)
+        self._qpos = self._arms.bind("qpos")  # (N, nq); q̇ stays 0: qfrc_bias is g(q)
+        self._site_xpos = self._arms.bind("site_xpos")
+        self._site_xmat = self._arms.bind("site_xmat")
+        self._M = self._arms.bind("M")  # B(q) in MuJoCo's sparse rows (N, nM)
+        self._bias = self._arms.bind("qfrc_bias")
+        self._body = int(m.site_bodyid[self.site])
+        # B's lower-triangle entries: M[:, k] is B[row[k], col[k]] (and B[col[k], row[k]])
+        self._M_row = np.repeat(np.arange(m.nv), m.M_rownnz)
+        self._M_col = m.M_colind.copy()
+        self._qadr, self._dadr = robot.qpos_adr, robot.dof_adr
+        # the arm's dofs are the model's, in order: no selection of rows and columns
+        self._whole = np.array_equal(self._dadr, np.arange(m.nv))
+        self._q_key: bytes | None = None
+        self._p = self._R = self._J = self._B = self._g = np.zeros(0)
+
+    def _evaluate(self, q: np.ndarray) -> None:
+        """The nominal model's site pose, Jacobian, B and g at ``q`` (N, n), row by row
+        (kept until q changes)."""
+        key = q.tobytes()
+        if key == self._q_key:
+            return
+        if not np.isfinite(np.sum(q)):
+            raise ValueError("q contains NaN or inf; expected finite values")
+        self._qpos[:, self._qadr] = q
+        self._arms.forward(stage=_VELOCITY_STAGE)  # kinematics, B (crb), bias at q̇ = 0
+        self._p = self._site_xpos[:, self.site].copy()  # (N, 3)
+        self._R = self._site_xmat[:, self.site].reshape(-1, 3, 3)  # (N, 3, 3)
+        jacp, jacr = self._arms.jac(self._body, self._p)  # (N, 3, nv) each (mj_jacSite)
+        J = np.concatenate((jacp, jacr), axis=1)  # [J_P; J_O] (N, 6, nv)
+        nv = self.robot.model.nv
+        B = np.zeros((q.shape[0], nv, nv))
+        B[:, self._M_row, self._M_col] = self._M
+        B[:, self._M_col, self._M_row] = self._M
+        g = self._bias  # g(q) (N, nv)
+        if not self._whole:
+            J, B, g = J[:, :, self._dadr], B[:, self._dadr][:, :, self._dadr], g[:, self._dadr]
+        self._J, self._B, self._g = J, B, g.copy()  # (N, 6, n), (N, n, n), (N, n)
+        self._q_key = key
+
+    def _rows(self, q: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+        """``q`` as (N, n) float64 rows, and the leading shape of the answers (() or (N,))."""
+        q = np.asarray(q, dtype=float)
+        lead = q.shape[:-1]
+        n, arms = self.robot.n, self.num_arms
+        if q.shape[-1:] != (n,) or (arms,) != (lead or (1,)):
+            allowed = f"({n},)" if arms == 1 else f"({arms}, {n})"
+            raise ValueError(f"q must have shape {allowed}, got {q.shape}")
+        rows = q.reshape(arms, n)
+        self._evaluate(rows)
+        return rows, lead
 
     def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The controlled point's position (3,) m and rotation (3, 3) (site → world) at q."""
-        return self.robot.site_pose(self.site, q)
+        """The controlled point's position (..., 3) m and rotation (..., 3, 3) (site → world)."""
+        _, lead = self._rows(q)
+        return self._p.reshape(*lead, 3).copy(), self._R.reshape(*lead, 3, 3).copy()
 
     def task_inertia(self, q: np.ndarray) -> np.ndarray:
-        """Λ(q) = (J B⁻¹ Jᵀ)⁻¹ (6, 6) at the controlled point (kg, kg m)."""
-        return osp.task_inertia(self.robot.jacobian(self.site, q), self.robot.inertia(q))
+        """Λ(q) = (J B⁻¹ Jᵀ)⁻¹ (..., 6, 6) at the controlled point (kg, kg m)."""
+        _, lead = self._rows(q)
+        return osp.task_inertia(self._J, self._B).reshape(*lead, 6, 6)
 
     def torque(
         self,
@@ -171,25 +260,34 @@ class CartesianImpedance:
         stiffness: np.ndarray | None = None,
         damping: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Joint torque τ (n,) N m driving the controlled point to the setpoint (p_d, R_d).
+        """Joint torques τ (..., n) N m driving the controlled points to the setpoints.
 
         Args:
-            q, qd: measured joint positions (rad) and velocities (rad/s), (n,).
-            p_d: setpoint position (3,) m, world; R_d: setpoint rotation (3, 3), world.
-            stiffness, damping: K_p, K_d (6,) for this call (variable impedance); None: the
-                gains'.
+            q, qd: measured joint positions (rad) and velocities (rad/s), (n,) or (N, n).
+            p_d: setpoint positions (..., 3) m, world; R_d: setpoint rotations (..., 3, 3).
+            stiffness, damping: K_p, K_d (6,) or (N, 6) for this call (variable impedance);
+                None: the gains'.
         """
-        K_p = self.gains.stiffness if stiffness is None else stiffness
-        K_d = self.gains.damping if damping is None else damping
-        p, R = self.pose(q)
-        J = self.robot.jacobian(self.site, q)
-        x_err = pose_error(p_d, R_d, p, R)
-        twist = J @ qd
-        tau = J.T @ (K_p * x_err - K_d * twist) + self.robot.gravity(q)
+        rows, lead = self._rows(q)
         g = self.gains
+        K_p = g.stiffness if stiffness is None else stiffness
+        K_d = g.damping if damping is None else damping
+        n = self.robot.n
+        qd = np.reshape(qd, (-1, n, 1))  # (N, n, 1)
+        J, B = self._J, self._B
+        JT = np.swapaxes(J, -1, -2)
+        x_err = pose_error(np.reshape(p_d, (-1, 3)), np.reshape(R_d, (-1, 3, 3)), self._p, self._R)
+        # the impedance's wrench K_p x̃ − K_d ẋ, ẋ = J q̇ (N, 6, 1); K_p, K_d (6,) or (N, 6)
+        wrench = (K_p * x_err)[:, :, None] - np.reshape(K_d, (-1, 6, 1)) * (J @ qd)
+        tau = self._g.copy()
         if g.posture_stiffness > 0.0 or g.posture_damping > 0.0:
-            B = self.robot.inertia(q)
-            J_bar = osp.dynamically_consistent_inverse(J, B)
-            tau0 = g.posture_stiffness * (self.q_rest - q) - g.posture_damping * qd
-            tau += tau0 - J.T @ (J_bar.T @ tau0)  # Nᵀ τ₀ = (I − Jᵀ J̄ᵀ) τ₀
-        return tau
+            tau0 = g.posture_stiffness * (self.q_rest.reshape(-1, n, 1) - rows[:, :, None]) \
+                - g.posture_damping * qd  # (N, n, 1)
+            # Nᵀ τ₀ = τ₀ − Jᵀ J̄ᵀ τ₀ with J̄ᵀ τ₀ = Λ J B⁻¹ τ₀, Λ = (J B⁻¹ Jᵀ)⁻¹: one solve
+            # with B for [Jᵀ τ₀] and one with Λ⁻¹ (the dynamically consistent inverse, unformed)
+            task_inverse = J @ np.linalg.solve(B, np.concatenate((JT, tau0), axis=2))
+            # [Λ⁻¹ | J B⁻¹ τ₀] (N, 6, 7): J̄ᵀ τ₀ = Λ (J B⁻¹ τ₀)
+            wrench -= np.linalg.solve(task_inverse[:, :, :6], task_inverse[:, :, 6:])
+            tau += tau0[..., 0]
+        tau += (JT @ wrench)[..., 0]  # τ = Jᵀ(K_p x̃ − K_d ẋ − J̄ᵀ τ₀) + g + τ₀
+        return tau.reshape(*lead, n)

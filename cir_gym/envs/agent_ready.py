@@ -29,6 +29,7 @@ from cir_gym.impedance import (
     critical_damping,
     exp_rotvec,
     log_rotation,
+    pose_error,
     tool_robot,
 )
 from cir_gym.validation import InvalidArgument, check_flag, check_number
@@ -39,6 +40,8 @@ __all__ = [
     "AdmittanceContactImpedanceEnv",
     "ImpedanceTaskEnv",
     "PegInHoleImpedanceEnv",
+    "move_setpoint",
+    "stiffness_from_action",
 ]
 
 #: Hz: the rate of the impedance loop, the task's torque interface (its default control rate)
@@ -49,13 +52,59 @@ POLICY_FREQ_RANGE = (10.0, 50.0)
 STIFFNESS_RANGE = ((100.0, 5000.0), (5.0, 250.0))
 #: observation bound of the setpoint offset: m, rad (the offset is clamped far below)
 _OFFSET_BOUND = np.r_[np.full(3, 1.0), np.full(3, np.pi)]
+#: STIFFNESS_RANGE as (6,) arrays: K_p's lowest and highest values
+_K_LOW = np.r_[np.full(3, STIFFNESS_RANGE[0][0]), np.full(3, STIFFNESS_RANGE[1][0])]
+_K_HIGH = np.r_[np.full(3, STIFFNESS_RANGE[0][1]), np.full(3, STIFFNESS_RANGE[1][1])]
+
+
+def move_setpoint(
+    p_d: np.ndarray,
+    R_d: np.ndarray,
+    dx: np.ndarray,
+    p: np.ndarray,
+    R: np.ndarray,
+    max_offset: float,
+    max_angle: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The setpoints moved by dx = [δp; δφ] (..., 6) (m, rad, world frame): p_d + δp and
+    exp(δφ) R_d, then clamped to ``max_offset`` (m) and ``max_angle`` (rad) from the current
+    poses (p (..., 3), R (..., 3, 3)). One setpoint or N (leading shape (N,)).
+
+    Returns:
+        (p_d (..., 3), R_d (..., 3, 3)).
+    """
+    p_new = p_d + dx[..., :3]
+    offset = p_new - p
+    dist = np.linalg.norm(offset, axis=-1, keepdims=True)
+    far = dist > max_offset
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p_new = np.where(far, p + offset * (max_offset / np.where(far, dist, 1.0)), p_new)
+    R_new = exp_rotvec(dx[..., 3:]) @ R_d
+    phi = log_rotation(R_new @ np.swapaxes(R, -1, -2))
+    angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+    wide = angle > max_angle
+    if np.any(wide):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            clamped = exp_rotvec(phi * (max_angle / np.where(wide, angle, 1.0))) @ R
+        R_new = np.where(wide[..., None], clamped, R_new)
+    return p_new, R_new
+
+
+def stiffness_from_action(a: np.ndarray) -> np.ndarray:
+    """K_p (..., 6) of the stiffness actions a (..., 6) ∈ [−1, 1]: log scale over
+    STIFFNESS_RANGE (−1: the lowest, 0: the geometric mean, 1: the highest)."""
+    return _K_LOW * (_K_HIGH / _K_LOW) ** ((a + 1.0) / 2.0)
 
 
 class ImpedanceTaskEnv(RobotEnv):
     """Shared plumbing of the agent-ready variants (module docstring); not registered itself.
 
-    A subclass builds its task and says what its reward's task term is (:meth:`_task_term`,
-    per task control step, in [−1, 0]) and where the controlled point is (:meth:`_tcp_offset`).
+    A subclass builds its task from ``task_arguments`` (the task's constructor arguments,
+    kept so that a batched env builds the same task) and says what its reward's task term is
+    (:meth:`_task_term`, per task control step, in [−1, 0]) and where the controlled point is
+    (:meth:`_tcp_offset`). The policy step's arithmetic (setpoint, observation, reward terms)
+    is written on arrays: one env is the one-row case of
+    :mod:`cir_gym.envs.agent_ready_vector`'s N copies.
     """
 
     task_class: ClassVar[type[RobotEnv]]
@@ -132,7 +181,8 @@ class ImpedanceTaskEnv(RobotEnv):
         context = task.controller_context()
         self.task_context = context
         self.nominal = tool_robot(context, self._tcp_offset(context))
-        self.impedance: CartesianImpedance | None = None  # built at reset (q_rest, damping)
+        gains = ImpedanceGains(self.stiffness, np.zeros(6))  # K_d set at reset
+        self.impedance = CartesianImpedance(self.nominal, "tcp", gains, np.zeros(self.nominal.n))
         self.action_scale = np.r_[np.full(3, self.max_translation), np.full(3, self.max_rotation)]
         dim = 12 if self.variable_stiffness else 6
         self.action_space = spaces.Box(-1.0, 1.0, (dim,), dtype=np.float32)
@@ -141,9 +191,7 @@ class ImpedanceTaskEnv(RobotEnv):
             -_OFFSET_BOUND, _OFFSET_BOUND, (6,), dtype=np.float64
         )
         if self.variable_stiffness:
-            low = np.r_[np.full(3, k_lo), np.full(3, kr_lo)]
-            high = np.r_[np.full(3, k_hi), np.full(3, kr_hi)]
-            obs_spaces["stiffness"] = spaces.Box(low, high, (6,), dtype=np.float64)
+            obs_spaces["stiffness"] = spaces.Box(_K_LOW, _K_HIGH, (6,), dtype=np.float64)
         self.observation_space = spaces.Dict(obs_spaces)
         self.p_d = np.zeros(3)  # setpoint position (m, world)
         self.R_d = np.eye(3)  # setpoint rotation (site → world)
@@ -159,8 +207,9 @@ class ImpedanceTaskEnv(RobotEnv):
         """The controlled point beyond the flange (m), or None for the robot file's ``tcp``."""
         return None
 
-    def _task_term(self, info: dict[str, Any]) -> float:
-        """The task's reward term of one task control step, in [−1, 0]."""
+    def _task_term(self, info: dict[str, Any]) -> Any:
+        """The task's reward term of one task control step, in [−1, 0]: a number from one
+        env's info, (N,) from N copies' step infos."""
         raise NotImplementedError
 
     def _task_terms(self) -> tuple[str, ...]:
@@ -171,26 +220,32 @@ class ImpedanceTaskEnv(RobotEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
         obs, info = self.task.reset(seed=seed, options=options)
-        q = obs["q"]
-        gains = ImpedanceGains(self.stiffness, np.zeros(6))
-        impedance = CartesianImpedance(self.nominal, "tcp", gains, q)
-        self._m_eff = np.diag(impedance.task_inertia(q)).copy()
+        self._start(obs)
+        return self._obs(), info
+
+    def _start(self, task_obs: dict[str, np.ndarray]) -> None:
+        """Hold still where the task starts (its first observation ``task_obs``): the
+        setpoint at the start pose, K_p the configured stiffness, K_d critical for the design
+        inertia diag Λ(q₀), the posture regulator's rest at q₀."""
+        q = task_obs["q"]
+        imp = self.impedance
+        imp.q_rest[:] = q
+        self._m_eff = np.diag(imp.task_inertia(q)).copy()
         self.K_p = self.stiffness.copy()
         self.K_d = critical_damping(self.K_p, self._m_eff, self.damping_ratio)
-        impedance.gains = ImpedanceGains(self.K_p, self.K_d)
-        self.impedance = impedance
-        self.p_d, self.R_d = impedance.pose(q)  # hold still where the task starts
+        imp.gains = ImpedanceGains(self.K_p, self.K_d)
+        self.p_d, self.R_d = imp.pose(q)
         self._a_prev[:] = 0.0
         self._k = 0
-        self._task_obs = obs
-        return self._obs(), info
+        self._task_obs = task_obs
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         a = self._check_action(action)[0]
         imp = self.impedance
-        assert imp is not None  # reset() built it (the order of calls is checked)
-        q = self._task_obs["q"]
-        self._move_setpoint(a, q)
+        self.p_d, self.R_d, self.K_p, self.K_d = self._move_setpoint(
+            a, *imp.pose(self._task_obs["q"]), self.p_d, self.R_d, self.K_p, self.K_d,
+            self._m_eff,
+        )
         task_sum, played = 0.0, 0
         terminated = truncated = False
         info: dict[str, Any] = {}
@@ -207,72 +262,81 @@ class ImpedanceTaskEnv(RobotEnv):
         self._k += 1
         success = bool(info.get("is_success", False))
         failed = bool(terminated and not success)
-        terms = {
-            "task": max(task_sum / played, -1.0),
-            "action_rate": -self.action_rate_weight
-            * float(np.sum((a - self._a_prev) ** 2)) / (4 * a.size),
-        }
+        terms = self._reward_terms(task_sum / played, a, self._a_prev, success, failed, self._k)
         self._a_prev[:] = a
-        terms.update(self._end_terms(success, failed))
-        reward = math.fsum(terms.values())
+        reward = math.fsum(float(v) for v in terms.values())
         out = {k: v for k, v in info.items() if not k.startswith("reward_")}
-        out.update({f"reward_{k}": v for k, v in terms.items()})
+        out.update({f"reward_{k}": float(v) for k, v in terms.items()})
         out["task_steps"] = played
         out["diverged"] = bool(info.get("diverged", False))
         return self._obs(), reward, bool(terminated), bool(truncated), out
 
-    def _end_terms(self, success: bool, failed: bool) -> dict[str, float]:
+    def _reward_terms(
+        self, task_mean: Any, a: np.ndarray, a_prev: np.ndarray, success: Any, failed: Any,
+        k: Any,
+    ) -> dict[str, Any]:
+        """The reward's terms of a policy step (Rewards section): numbers for one env, (N,)
+        arrays for N copies. ``task_mean``: the mean task term over the step's task control
+        steps; ``a``, ``a_prev`` (..., dim): this and the previous action; ``success``,
+        ``failed``: the task's end; ``k``: policy steps played, this one included."""
+        terms = {
+            "task": np.maximum(task_mean, -1.0),
+            "action_rate": -self.action_rate_weight
+            * np.sum((a - a_prev) ** 2, axis=-1) / (4 * a.shape[-1]),
+        }
+        terms.update(self._end_terms(success, failed, k))
+        return terms
+
+    def _end_terms(self, success: Any, failed: Any, k: Any) -> dict[str, Any]:
         """The terminal terms: a failure (the task terminated without success) loses
         ``failure_penalty`` and, with ``charge_unplayed_steps``, the worst reward of every
         policy step it does not play, (T − k)(1 + ``action_rate_weight``)."""
-        unplayed = (self.max_steps - self._k) * self.worst_step_reward()
+        unplayed = (self.max_steps - k) * self.worst_step_reward()
         charge = unplayed if self.charge_unplayed_steps else 0.0
-        return {"failure": -(self.failure_penalty + charge) if failed else 0.0}
+        return {"failure": np.where(failed, -(self.failure_penalty + charge), 0.0)}
 
     def worst_step_reward(self) -> float:
         """The magnitude of the worst reward of a step that does not end the episode."""
         return 1.0 + self.action_rate_weight
 
     # ------------------------------------------------------------------ the setpoint
-    def _move_setpoint(self, a: np.ndarray, q: np.ndarray) -> None:
-        """Apply a policy action: the setpoint moves by [δp; δφ] = a[:6] ⊙ action_scale
-        (world frame; δφ a rotation vector, R_d ← exp(δφ) R_d), then is clamped to
-        ``max_setpoint_offset`` and ``max_setpoint_angle`` from the current pose; with
-        ``variable_stiffness`` a[6:] sets K_p (log scale over STIFFNESS_RANGE) and K_d."""
-        assert self.impedance is not None
-        dx = a[:6] * self.action_scale
-        p, R = self.impedance.pose(q)
-        p_d = self.p_d + dx[:3]
-        offset = p_d - p
-        dist = math.sqrt(float(offset @ offset))
-        if dist > self.max_setpoint_offset:
-            p_d = p + offset * (self.max_setpoint_offset / dist)
-        R_d = exp_rotvec(dx[3:]) @ self.R_d
-        phi = log_rotation(R_d @ R.T)
-        angle = math.sqrt(float(phi @ phi))
-        if angle > self.max_setpoint_angle:
-            R_d = exp_rotvec(phi * (self.max_setpoint_angle / angle)) @ R
-        self.p_d, self.R_d = p_d, R_d
+    def _move_setpoint(
+        self, a: np.ndarray, p: np.ndarray, R: np.ndarray, p_d: np.ndarray, R_d: np.ndarray,
+        K_p: np.ndarray, K_d: np.ndarray, m_eff: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Apply policy actions a (..., dim) to setpoints (p_d, R_d) and gains (K_p, K_d)
+        from the current poses (p, R): the setpoint moves by [δp; δφ] = a[:6] ⊙ action_scale
+        and is clamped (:func:`move_setpoint`); with ``variable_stiffness`` a[6:] sets K_p
+        (:func:`stiffness_from_action`) and K_d (critical for ``m_eff``). One env or N copies
+        ((N, ...) arrays). Returns the new (p_d, R_d, K_p, K_d)."""
+        p_d, R_d = move_setpoint(
+            p_d, R_d, a[..., :6] * self.action_scale, p, R, self.max_setpoint_offset,
+            self.max_setpoint_angle,
+        )
         if self.variable_stiffness:
-            (k_lo, k_hi), (kr_lo, kr_hi) = STIFFNESS_RANGE
-            low = np.r_[np.full(3, k_lo), np.full(3, kr_lo)]
-            high = np.r_[np.full(3, k_hi), np.full(3, kr_hi)]
-            self.K_p = low * (high / low) ** ((a[6:] + 1.0) / 2.0)
-            self.K_d = critical_damping(self.K_p, self._m_eff, self.damping_ratio)
+            K_p = stiffness_from_action(a[..., 6:])
+            K_d = critical_damping(K_p, m_eff, self.damping_ratio)
+        return p_d, R_d, K_p, K_d
 
     def setpoint_offset(self) -> np.ndarray:
         """[p_d − p; log(R_d Rᵀ)] (6,): the setpoint relative to the current pose (m, rad,
         world frame), from the nominal model at the measured q."""
-        assert self.impedance is not None
-        p, R = self.impedance.pose(self._task_obs["q"])
-        return np.concatenate((self.p_d - p, log_rotation(self.R_d @ R.T)))
+        return pose_error(self.p_d, self.R_d, *self.impedance.pose(self._task_obs["q"]))
 
     def _obs(self) -> dict[str, np.ndarray]:
-        obs = dict(self._task_obs)
-        obs["setpoint_offset"] = np.clip(self.setpoint_offset(), -_OFFSET_BOUND, _OFFSET_BOUND)
+        p, R = self.impedance.pose(self._task_obs["q"])
+        return self._observation(self._task_obs, p, R, self.p_d, self.R_d, self.K_p)
+
+    def _observation(
+        self, task_obs: dict[str, np.ndarray], p: np.ndarray, R: np.ndarray, p_d: np.ndarray,
+        R_d: np.ndarray, K_p: np.ndarray,
+    ) -> dict[str, np.ndarray]:
+        """The observation: the task's ``task_obs`` plus the setpoint relative to the pose
+        (p, R) and, with ``variable_stiffness``, K_p. One env or N copies ((N, ...) arrays)."""
+        obs = dict(task_obs)
+        obs["setpoint_offset"] = np.clip(pose_error(p_d, R_d, p, R), -_OFFSET_BOUND, _OFFSET_BOUND)
         if self.variable_stiffness:
-            box = self.observation_space["stiffness"]
-            obs["stiffness"] = np.clip(self.K_p, box.low, box.high)
+            obs["stiffness"] = np.clip(K_p, _K_LOW, _K_HIGH)
         return obs
 
     # ------------------------------------------------------------------ metrics, pictures
@@ -495,7 +559,7 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     ) -> None:
         self.force_weight = check_number("force_weight", force_weight, 0.0, 100.0)
         self.success_bonus = check_number("success_bonus", success_bonus, 0.0, 1e4)
-        task = PegInHoleEnv(
+        self.task_arguments: dict[str, Any] = dict(
             control="torque",
             sensor=sensor,
             clearance=clearance,
@@ -508,6 +572,7 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
             control_freq=IMPEDANCE_FREQ,
             episode_duration=episode_duration,
         )
+        task = PegInHoleEnv(**self.task_arguments)
         self.force_limit = task.force_limit
         super().__init__(
             task,
@@ -531,13 +596,13 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     def _tcp_offset(self, context: TaskContext) -> float | None:
         return float(context.extras["tip_offset"])  # the peg tip
 
-    def _task_term(self, info: dict[str, Any]) -> float:
-        force = min(info["contact_force"] / self.force_limit, 1.0) ** 2
+    def _task_term(self, info: dict[str, Any]) -> Any:
+        force = np.minimum(info["contact_force"] / self.force_limit, 1.0) ** 2
         return (info["reward_distance"] - self.force_weight * force) / (1.0 + self.force_weight)
 
-    def _end_terms(self, success: bool, failed: bool) -> dict[str, float]:
-        return {"success": self.success_bonus if success else 0.0,
-                **super()._end_terms(success, failed)}
+    def _end_terms(self, success: Any, failed: Any, k: Any) -> dict[str, Any]:
+        return {"success": np.where(success, self.success_bonus, 0.0),
+                **super()._end_terms(success, failed, k)}
 
 
 class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
@@ -703,7 +768,7 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
         width: int = 480,
         height: int = 480,
     ) -> None:
-        task = AdmittanceContactEnv(
+        self.task_arguments: dict[str, Any] = dict(
             control="torque",
             control_freq=IMPEDANCE_FREQ,
             episode_duration=episode_duration,
@@ -729,6 +794,7 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
             action_rate_weight=0.0,  # the task's term is on torques: not used here
             success_threshold=success_threshold,
         )
+        task = AdmittanceContactEnv(**self.task_arguments)
         self.path_weight = task.path_weight
         super().__init__(
             task,
@@ -749,16 +815,14 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
             height=height,
         )
 
-    def _task_term(self, info: dict[str, Any]) -> float:
+    def _task_term(self, info: dict[str, Any]) -> Any:
         return (info["reward_force"] + info["reward_path"]) / (1.0 + self.path_weight)
 
-    def _obs(self) -> dict[str, np.ndarray]:
-        obs = super()._obs()
-        obs["setpoint_pos"] = np.clip(self.p_d, -2.0, 2.0)
-        obs["setpoint_quat"] = _quat(self.R_d)
+    def _observation(
+        self, task_obs: dict[str, np.ndarray], p: np.ndarray, R: np.ndarray, p_d: np.ndarray,
+        R_d: np.ndarray, K_p: np.ndarray,
+    ) -> dict[str, np.ndarray]:
+        obs = super()._observation(task_obs, p, R, p_d, R_d, K_p)
+        obs["setpoint_pos"] = np.clip(p_d, -2.0, 2.0)
+        obs["setpoint_quat"] = traj.quat_from_matrix(R_d)  # (w, x, y, z), w ≥ 0
         return obs
-
-
-def _quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (4,) (w, x, y, z), w ≥ 0, of a rotation matrix (3, 3)."""
-    return traj.quat_from_matrix(R)

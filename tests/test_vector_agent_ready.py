@@ -1,0 +1,177 @@
+"""The batched agent-ready variants (cir_gym.envs.agent_ready_vector) against the single
+variants, copy by copy, and the impedance law on N arms against each arm alone.
+
+Tolerance: a copy runs the single variant's computations — the task's batched env (itself
+equal to the single task to 1e-12, tests/test_vector_admittance.py), MuJoCo's forward
+kinematics and dynamics of the nominal arm row by row, and the single variant's own methods
+(setpoint move, impedance law, reward terms, observation) on (N, ...) arrays instead of one
+row. What may differ is round-off: numpy may reduce an (N, n) array and a (1, n) row in
+different orders (SIMD lanes). So observations, rewards, step infos and metrics agree to 1e-12
+(relative, or absolute near 0); lengths, ends and success exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import cir_gym
+from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv
+from cir_gym.envs.agent_ready_vector import AdmittanceContactImpedanceVectorEnv
+from cir_gym.impedance import CartesianImpedance, ImpedanceGains, exp_rotvec
+from cir_gym.validation import InvalidArgument
+
+CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
+CONTACT_CLASS = "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
+TOL = 1e-12
+
+
+def _close(got: Any, want: Any, what: str) -> None:
+    """``got`` equal to ``want`` to TOL (relative, or absolute near 0), numbers or arrays."""
+    got, want = np.asarray(got, float), np.asarray(want, float)
+    np.testing.assert_allclose(got, want, TOL, TOL, err_msg=what)
+
+
+def _assert_obs(got: dict, want: dict, what: str) -> None:
+    assert set(got) == set(want), what
+    for key in want:
+        _close(got[key], want[key], f"{what} {key}")
+
+
+def _lockstep(envs: Any, singles: list, seed: int, actions: np.ndarray) -> list[dict]:
+    """Step ``envs`` and one single variant per copy (reset with seed + i, then by itself)
+    with ``actions`` (steps, N, dim); assert every copy equal to its single variant at every
+    step (observation, reward, ends, step infos) and episode end (final observation, final
+    info, metrics, success); return the single variants' last infos of the ended episodes."""
+    obs, _ = envs.reset(seed=seed)
+    for i, single in enumerate(singles):
+        _assert_obs({k: v[i] for k, v in obs.items()}, single.reset(seed=seed + i)[0], "reset")
+    ends = []
+    for k, a in enumerate(actions):
+        obs, rew, term, trunc, infos = envs.step(a)
+        for i, single in enumerate(singles):
+            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
+            what = f"step {k} copy {i}"
+            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc), what
+            _close(rew[i], w_rew, f"{what} reward")
+            step_keys = set(w_info) - {"episode_metrics", "is_success"}
+            if w_term or w_trunc:
+                ends.append(w_info)
+                final = infos["final_info"]
+                _assert_obs(infos["final_obs"][i], w_obs, f"{what} final")
+                assert set(final) - {"episode_metrics", "is_success"} >= step_keys, what
+                for name in step_keys:
+                    _close(final[name][i], w_info[name], f"{what} final {name}")
+                assert bool(final["is_success"][i]) == w_info["is_success"], what
+                for name, value in w_info["episode_metrics"].items():
+                    _close(final["episode_metrics"][name][i], value, f"{what} {name}")
+                w_obs, _ = single.reset()
+            else:
+                for name in step_keys:
+                    _close(infos[name][i], w_info[name], f"{what} {name}")
+            _assert_obs({key: v[i] for key, v in obs.items()}, w_obs, what)
+    return ends
+
+
+def test_each_copy_is_the_single_variant_with_ends_inside_a_policy_step() -> None:
+    """Random setpoint increments pushing down with random high stiffness (variable
+    impedance) on plates of unknown stiffness: copies exceed a 40-N force limit at different
+    task steps inside a policy step (their task-term sums, final infos and metrics as of that
+    task step), the others run on; every end is autoreset in the same step. Sensor noise on:
+    an ended copy's unused task steps must draw nothing from its generator."""
+    kw = {"episode_duration": 1.0, "variable_stiffness": True, "randomize": True,
+          "force_limit": 40.0}
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.0, 1.0, (45, 3, 12))
+    actions[:, :, 2] = -1.0  # down onto the plate
+    actions[:, :, 6:9] = rng.uniform(0.0, 1.0, (45, 3, 3))  # stiff
+    envs = AdmittanceContactImpedanceVectorEnv(num_envs=3, nthread=1, **kw)
+    singles = [AdmittanceContactImpedanceEnv(**kw) for _ in range(3)]
+    ends = _lockstep(envs, singles, 5, actions)
+    envs.close()
+    assert len(ends) >= 6
+    assert all(e["force_limit_exceeded"] for e in ends)
+    assert any(e["task_steps"] < singles[0].substeps for e in ends)  # inside a policy step
+
+
+def test_each_copy_is_the_single_variant_over_whole_episodes() -> None:
+    """The default variant (constant stiffness): wiping increments pressing the tip into the
+    plate, two truncated episodes per copy (10 policy steps each)."""
+    kw = {"episode_duration": 0.5}
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(-0.5, 0.5, (20, 2, 6))
+    actions[:, :, 2] = -1.0
+    envs = AdmittanceContactImpedanceVectorEnv(num_envs=2, nthread=1, **kw)
+    ends = _lockstep(envs, [AdmittanceContactImpedanceEnv(**kw) for _ in range(2)], 11, actions)
+    envs.close()
+    assert len(ends) == 4 and not any(e["force_limit_exceeded"] for e in ends)
+
+
+def test_the_impedance_law_on_n_arms_is_each_arm_alone() -> None:
+    """CartesianImpedance of N arms (q (N, n)) against one arm per row ((n,)): poses, Λ and
+    torques to 1e-12 (the same MuJoCo computations and formulas; round-off only)."""
+    env = AdmittanceContactImpedanceEnv(episode_duration=0.5)
+    obs, _ = env.reset(seed=0)
+    rng = np.random.default_rng(2)
+    N, n = 4, env.nominal.n
+    q = obs["q"] + 0.1 * rng.standard_normal((N, n))
+    qd = 0.5 * rng.standard_normal((N, n))
+    q_rest = obs["q"] + 0.05 * rng.standard_normal((N, n))
+    gains = ImpedanceGains(np.r_[np.full(3, 800.0), np.full(3, 40.0)], np.full(6, 30.0))
+    arms = CartesianImpedance(env.nominal, "tcp", gains, q_rest)
+    p, R = arms.pose(q)
+    p_d = p + 0.01 * rng.standard_normal((N, 3))
+    R_d = exp_rotvec(0.1 * rng.standard_normal((N, 3))) @ R
+    K_p = rng.uniform(100.0, 5000.0, (N, 6))
+    K_d = rng.uniform(1.0, 100.0, (N, 6))
+    tau = arms.torque(q, qd, p_d, R_d, K_p, K_d)
+    Lam = arms.task_inertia(q)
+    for i in range(N):
+        one = CartesianImpedance(env.nominal, "tcp", gains, q_rest[i])
+        p_i, R_i = one.pose(q[i])
+        _close(p[i], p_i, "p")
+        _close(R[i], R_i, "R")
+        _close(Lam[i], one.task_inertia(q[i]), "Λ")
+        _close(tau[i], one.torque(q[i], qd[i], p_d[i], R_d[i], K_p[i], K_d[i]), "τ")
+    with pytest.raises(ValueError, match="shape"):
+        arms.torque(q[0], qd[0], p_d[0], R_d[0])
+
+
+def test_make_vec_gives_the_batched_variant_and_falls_back(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(cir_gym.envs.BATCHED_ENVIRONMENTS, CONTACT, CONTACT_CLASS)
+    native = cir_gym.make_vec(CONTACT, 2, nthread=1, episode_duration=0.5, randomize=True)
+    assert type(native) is AdmittanceContactImpedanceVectorEnv and native.num_envs == 2
+    assert native.single_observation_space == AdmittanceContactImpedanceEnv(
+        episode_duration=0.5).observation_space
+    native.close()
+    with pytest.raises(InvalidArgument, match="render_mode"):
+        AdmittanceContactImpedanceVectorEnv(num_envs=2, render_mode="rgb_array")
+    with pytest.raises(InvalidArgument, match="control_freq"):
+        AdmittanceContactImpedanceVectorEnv(num_envs=2, control_freq=30.0)  # the single's check
+    sync = cir_gym.make_vec(CONTACT, 2, render_mode="rgb_array", episode_duration=0.5)
+    assert isinstance(sync, gym.vector.SyncVectorEnv)
+    sync.close()
+
+
+def test_sb3_adapter_reports_the_ends() -> None:
+    """The SB3 VecEnv over the batched variant: dones, terminal observations and episode
+    metrics at the truncation of a 5-policy-step episode."""
+    from cir_gym.envs.vector import sb3_vec_env
+
+    venv = sb3_vec_env(
+        AdmittanceContactImpedanceVectorEnv(num_envs=2, nthread=1, episode_duration=0.25)
+    )
+    venv.seed(3)
+    obs = venv.reset()
+    assert obs["setpoint_offset"].shape == (2, 6)
+    for _ in range(5):
+        obs, rew, dones, infos = venv.step(np.zeros((2, 6), dtype=np.float32))
+    assert dones.all() and rew.dtype == np.float32
+    assert all(info["TimeLimit.truncated"] and "force_rms_error" in info["episode_metrics"]
+               for info in infos)
+    venv.close()
