@@ -148,6 +148,45 @@ def test_the_position_interface_batches_its_torque_law() -> None:
     assert len(_lockstep(envs, kw, 5, len(actions), lambda k, obs, start: actions[k])) >= 2
 
 
+def test_a_copy_that_diverges_stops_as_the_single_env() -> None:
+    """NaN injected into copy 1's velocities: that copy alone ends diverged, back at its last
+    finite state (the single env's RobotEnv._simulate rule), with the single env's final
+    observation, reward and metrics; the other copy goes on. (The torque interface: the
+    position interface's torque law rejects a NaN state, in the single env as here.)"""
+    kw = {"episode_duration": 0.1}
+    actions = np.random.default_rng(2).uniform(-0.3, 0.3, (6, 2, 7))
+    single = AdmittanceContactEnv(**kw)
+    single.reset(seed=8)  # copy 1 of seed 7
+    envs = AdmittanceContactVectorEnv(num_envs=2, nthread=1, **kw)
+    envs.reset(seed=7)
+    for a in actions[:5]:
+        single.step(a[1])
+        envs.step(a)
+    single.data.qvel[0] = np.nan
+    envs.batch.bind("qvel")[1, 0] = np.nan
+    w_obs, w_rew, w_term, _, w_info = single.step(actions[5, 1])
+    obs, rew, term, _, infos = envs.step(actions[5])
+    assert w_term and w_info["diverged"]
+    assert list(term) == [False, True] and list(infos["diverged"]) == [False, True]
+    assert rew[1] == pytest.approx(w_rew, rel=TOL)
+    _assert_obs(infos["final_obs"][1], w_obs, "diverged")
+    assert all(np.all(np.isfinite(v)) for v in obs.values())
+    for name, value in w_info["episode_metrics"].items():
+        assert infos["final_info"]["episode_metrics"][name][1] == pytest.approx(value, rel=TOL)
+
+
+def test_a_rollout_stopped_by_mujoco_is_found_at_its_step() -> None:
+    """Batch.rollout stops a copy whose instability warnings rise and repeats its last record:
+    the step found is the first one the next records repeat (the last step if none does)."""
+    from cir_gym.envs.admittance_vector import _stopped_at
+
+    qpos = np.arange(8.0)[:, None] * np.ones((8, 3))
+    qvel = qpos + 0.5
+    assert _stopped_at(qpos, qvel) == 7
+    qpos[4:], qvel[4:] = qpos[3], qvel[3]
+    assert _stopped_at(qpos, qvel) == 3
+
+
 def test_make_vec_and_unsupported_arguments(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(cir_gym.envs.BATCHED_ENVIRONMENTS, ENV, CLASS_PATH)
     native = cir_gym.make_vec(ENV, 2, nthread=1, episode_duration=0.1, randomize=True)

@@ -524,12 +524,17 @@ class AdmittanceContactEnv(RobotEnv):
         if self._ended:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
-            info["is_success"] = bool(
-                not terminated
-                and metrics["force_rms_error"] < self.success_threshold
-                and metrics["contact_loss"] < 0.01
-            )
+            info["is_success"] = self.succeeded(metrics, terminated)
         return self._obs(), reward, terminated, truncated, info
+
+    def succeeded(self, metrics: dict[str, float], terminated: bool) -> bool:
+        """Success of an ended episode with ``metrics`` (see Metrics): not stopped, the force
+        RMS error below ``success_threshold`` and contact lost on < 1 % of the scored steps."""
+        return bool(
+            not terminated
+            and metrics["force_rms_error"] < self.success_threshold
+            and metrics["contact_loss"] < 0.01
+        )
 
     def worst_step_reward(self) -> float:
         """The magnitude of the worst reward of one step: what ``charge_unplayed_steps``

@@ -46,12 +46,8 @@ import numpy as np
 
 from cir_gym.envs import admittance_scene as scene
 from cir_gym.envs.admittance_contact import START_Q, AdmittanceContactEnv
-from cir_gym.envs.admittance_task import (
-    CONTACT_THRESHOLD,
-    REWARD_TERMS,
-    episode_metrics,
-    period_forces,
-)
+from cir_gym.envs.admittance_task import CONTACT_THRESHOLD, REWARD_TERMS, period_forces
+from cir_gym.envs.base import MAX_JOINT_SPEED
 from cir_gym.envs.vector_base import BatchedTaskEnv
 from cir_gym.ft_sensor import WrenchSensor
 from cir_gym.motion_interface import CartesianMotionInterface
@@ -60,6 +56,8 @@ from cir_gym.trajectories import quat_from_matrix
 __all__ = ["AdmittanceContactVectorEnv"]
 
 _VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
+#: what a period records of each physics step
+_RECORD = ("sensordata", "qpos", "qvel")
 #: the per-copy model fields an episode's surface sets (AdmittanceContactEnv.reset)
 _SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
 
@@ -78,12 +76,15 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
     env_id: ClassVar[str] = "cir_gym/AdmittanceContact-v1"
     template: AdmittanceContactEnv
 
+    episode_state: ClassVar[tuple[str, ...]] = (
+        "_normal", "_f_ref", "_pos_ref", "_vel_ref", "_a_prev",
+    )
+    episode_history: ClassVar[tuple[str, ...]] = ("_force", "_touch", "_peak", "_path")
+
     # ------------------------------------------------------------------ allocation, resets
     def _allocate(self) -> None:
-        t, N = self.template, self.num_envs
-        m, steps = t.model, t.max_steps
+        t, N, m, n = self.template, self.num_envs, self.template.model, self.template.substeps
         self._model_rows = {name: self.batch.expand(name) for name in _SURFACE_FIELDS}
-        self._sensordata = self.batch.bind("sensordata")
         self._site_xpos = self.batch.bind("site_xpos")
         self._site_xmat = self.batch.bind("site_xmat")
         self._cvel = self.batch.bind("cvel")
@@ -97,19 +98,16 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         )
         if self.interface is not None:
             self.interface.reset(np.tile(START_Q, (N, 1)))
-        self._record = np.zeros((N, t.substeps, m.nsensordata))  # sensordata per physics step
-        self._normal = np.zeros((N, 3))  # the true surface normal
-        self._f_ref = np.zeros(N)
-        self._pos_ref = np.zeros((N, steps + 1, 3))
-        self._vel_ref = np.zeros((N, steps + 1, 3))
-        self._force = np.zeros((N, steps))  # per control step, as the single env's histories
-        self._touch = np.zeros((N, steps))
-        self._peak = np.zeros((N, steps))
-        self._path = np.zeros((N, steps))
-        self._first_contact = np.full(N, -1)  # -1: no contact yet
-        self._a_prev = np.zeros((N, t.action_space.shape[0]))
-        self._frozen_q = np.zeros((N, m.nq))  # a copy's state where it diverged mid-period
-        self._frozen_qd = np.zeros((N, m.nv))
+        # a period's records, (N, n, ...) per item of _RECORD, and those of one physics step
+        # (the position interface's torque law runs between them)
+        self._record = {key: np.zeros((N, n, size)) for key, size in
+                        (("sensordata", m.nsensordata), ("qpos", m.nq), ("qvel", m.nv))}
+        self._one_step = {key: np.zeros((N, 1, v.shape[2])) for key, v in self._record.items()}
+        self._start_q = np.zeros((N, m.nq))  # the state a period starts from
+        self._start_qd = np.zeros((N, m.nv))
+        self._last_safe_q = np.zeros((N, m.nq))  # see _advance
+        self._last_safe_qd = np.zeros((N, m.nv))
+        self._first_contact = np.full(N, -1)  # the step of the first contact; -1: none yet
         self._bounds = {
             key: (space.low, space.high) for key, space in t.observation_space.spaces.items()
         }
@@ -121,40 +119,69 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         self.sensor.load_row(i, t.sensor)
         if self.interface is not None:
             self.interface.reset(START_Q, rows=[i])
-        self._normal[i] = t._normal
-        self._f_ref[i] = t._f_ref
-        self._pos_ref[i] = t._pos_ref
-        self._vel_ref[i] = t._vel_ref
         self._first_contact[i] = -1
-        self._a_prev[i] = 0.0
+        self._last_safe_q[i] = self._qpos[i]
+        self._last_safe_qd[i] = self._qvel[i]
 
     # ------------------------------------------------------------------ step
     def _advance(self, a: np.ndarray) -> np.ndarray:
-        """One control period of every copy (AdmittanceContactEnv._advance on the rows):
-        fill ``_record`` with each physics step's sensordata (0 for the steps a divergence
-        leaves unplayed) and feed it to the wrist sensors; return the (N,) copies that
-        diverged (left at their last finite state, as the single env stops there)."""
-        t, n, record = self.template, self.template.substeps, self._record
-        q, qd = self._qpos, self._qvel
-        played = np.full(self.num_envs, n)
-        tau = a * t.torque_limit if self.interface is None else None
-        for i in range(n):
-            if self.interface is not None:
-                tau = self.interface.torque(q[:, t._qa], qd[:, t._da], (i + 1) / n)
-                np.clip(tau, -t.torque_limit, t.torque_limit, out=tau)
-            diverged = self._simulate(tau, nstep=1)
-            record[:, i] = self._sensordata
-            if diverged.any():
-                new = diverged & (played == n)
-                played[new] = i
-                self._frozen_q[new] = q[new]
-                self._frozen_qd[new] = qd[new]
+        """One control period of every copy (AdmittanceContactEnv._advance on the rows); return
+        the (N,) copies that diverged.
+
+        The torque interface's period is one ``Batch.rollout`` of ``substeps`` physics steps
+        at the held torque; the position interface's, one rollout per physics step with its
+        torque law in between. Each step's sensordata, qpos and qvel go to ``_record``. A
+        copy diverged at step j if MuJoCo raised an instability warning there (the rollout
+        stops that copy: its later records repeat step j's) or if step j left q or q̇
+        non-finite or |q̇| > MAX_JOINT_SPEED (RobotEnv._simulate's rule, at each physics
+        step): it is put back to its state after step j − 1 (the period's start for j = 0)
+        and its records from step j on are zeroed, as the single env stops there. Then the
+        records feed the wrist sensors, and ``Batch.forward`` makes the poses and velocities
+        of the reached state current."""
+        t, n, N = self.template, self.template.substeps, self.num_envs
+        q, qd, record = self._qpos, self._qvel, self._record
+        self._start_q[:] = q
+        self._start_qd[:] = qd
+        played = np.full(N, n)
+        held = self.interface is None
+        for j in range(0, n, n if held else 1):
+            if held:
+                self._ctrl[:] = a * t.torque_limit
+            else:
+                tau = self.interface.torque(q[:, t._qa], qd[:, t._da], (j + 1) / n)
+                self._ctrl[:] = np.clip(tau, -t.torque_limit, t.torque_limit)
+            before = self._warning_counts().copy()
+            out = self.batch.rollout(n if held else 1, record=_RECORD,
+                                     out=record if held else self._one_step)
+            if not held:
+                for key, value in out.items():
+                    record[key][:, j] = value[:, 0]
+            for i in np.flatnonzero(np.any(self._warning_counts() != before, axis=1)):
+                played[i] = min(played[i], j + _stopped_at(out["qpos"][i], out["qvel"][i]))
+        qpos, qvel = record["qpos"], record["qvel"]
+        if np.max(np.abs(qvel)) > MAX_JOINT_SPEED or not np.isfinite(np.sum(qpos)):
+            with np.errstate(all="ignore"):  # NaN fails the comparison
+                bad = ~np.all(np.isfinite(qpos), axis=2) | ~(
+                    np.max(np.abs(qvel), axis=2) <= MAX_JOINT_SPEED
+                )
+            played = np.minimum(played, np.where(bad.any(axis=1), bad.argmax(axis=1), n))
         stopped = played < n
-        if stopped.any():  # back to where each stopped, its unplayed steps' records zeroed
-            record[np.arange(n)[None, :] >= played[:, None]] = 0.0
-            q[stopped] = self._frozen_q[stopped]
-            qd[stopped] = self._frozen_qd[stopped]
-        self.sensor.advance_many(record[:, :, t._wrench_at])
+        if stopped.any():
+            for i in np.flatnonzero(stopped):  # back to the last finite state before the step
+                j = played[i] - 1
+                start_finite = np.isfinite(self._start_q[i].sum() + self._start_qd[i].sum())
+                q[i], qd[i] = (
+                    (qpos[i, j], qvel[i, j]) if j >= 0
+                    else (self._start_q[i], self._start_qd[i]) if start_finite
+                    else (self._last_safe_q[i], self._last_safe_qd[i])
+                )
+            for value in record.values():
+                value[np.arange(n)[None, :] >= played[:, None]] = 0.0
+        # the state before this period's last step: the last finite state of a period that
+        # starts from a non-finite one (RobotEnv._simulate keeps it for that case)
+        self._last_safe_q[:] = qpos[:, n - 2] if n > 1 else self._start_q
+        self._last_safe_qd[:] = qvel[:, n - 2] if n > 1 else self._start_qd
+        self.sensor.advance_many(record["sensordata"][:, :, t._wrench_at])
         self.batch.forward(stage=_VELOCITY_STAGE)  # poses and velocities of the reached state
         return stopped
 
@@ -165,7 +192,9 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         if self.interface is not None:
             self.interface.command(a * t.increment_scale, t.dt)
         diverged = self._advance(a)
-        tool, peak_steps = period_forces(self._record, self._normal, t._tool_at, t._peak_at)
+        tool, peak_steps = period_forces(
+            self._record["sensordata"], self._normal, t._tool_at, t._peak_at
+        )
         force = tool.mean(axis=1)
         touch = (tool > CONTACT_THRESHOLD).mean(axis=1)
         largest = peak_steps.max(axis=1)
@@ -248,15 +277,21 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         self, i: int, infos: dict[str, Any], terminated: bool, truncated: bool
     ) -> dict[str, Any]:
         t = self.template
+        self._load_template(i)  # its histories, f̄ and steps played: its own metrics score it
         first = int(self._first_contact[i])
-        metrics = episode_metrics(
-            self._force[i], self._touch[i], self._peak[i], self._path[i], int(self._k[i]),
-            terminated, None if first < 0 else first, float(self._f_ref[i]),
-            round(t.settle_time / t.dt), t.max_steps,
-        )
-        success = (
-            not terminated
-            and metrics["force_rms_error"] < t.success_threshold
-            and metrics["contact_loss"] < 0.01
-        )
-        return {**self._row_info(infos, i), "episode_metrics": metrics, "is_success": success}
+        t._first_contact = None if first < 0 else first
+        t._stopped_at = t._k if terminated else None
+        metrics = t.episode_metrics()
+        return {
+            **self._row_info(infos, i),
+            "episode_metrics": metrics,
+            "is_success": t.succeeded(metrics, terminated),
+        }
+
+
+def _stopped_at(qpos: np.ndarray, qvel: np.ndarray) -> int:
+    """The step (0-based) of a rollout's records (steps, nq) and (steps, nv) at which MuJoCo
+    stopped the simulation for an instability warning: the first record the next ones
+    repeat (the last step if none does)."""
+    same = np.all(qpos[1:] == qpos[:-1], axis=1) & np.all(qvel[1:] == qvel[:-1], axis=1)
+    return int(same.argmax()) if same.any() else len(qpos) - 1
