@@ -69,6 +69,7 @@ BATCHED_ENVIRONMENTS: dict[str, str] = {
     "cir_gym/JointTracking-v2": "cir_gym.envs.vector:JointTrackingVectorEnv",
     "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector:ElasticJointTrackingVectorEnv",
     "cir_gym/CartesianTracking-v1": "cir_gym.envs.cartesian_vector:CartesianTrackingVectorEnv",
+    "cir_gym/AdmittanceContact-v1": "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv",
 }
 
 
