@@ -93,6 +93,9 @@ FRICTION = 0.3
 LARGEST_CONTACT = "largest_contact"
 NET_CONTACT = "net_contact"
 PEG_CONTACTS = "peg_contacts"
+#: the sensors whose values of every physics step a control period needs: the largest and
+#: the net contact force, the wrist's force and torque (the robot file's F/T sensor)
+HISTORY_SENSORS = (LARGEST_CONTACT, NET_CONTACT, "ft_force", "ft_torque")
 #: slots of PEG_CONTACTS: the peg's strongest contacts reported (the rest are dropped)
 PEG_CONTACT_SLOTS = 16
 ROBOT_ROOT = "base"  # the robot file's root body
@@ -223,6 +226,7 @@ def build_peg_in_hole(
     chamfer: float = 0.0,
     hole_pos: np.ndarray | None = None,
     hole_quat: np.ndarray | None = None,
+    history: int = 0,
 ) -> tuple[mujoco.MjModel, HoleGeometry]:
     """Compile the scene; the hole's top centre at ``hole_pos`` with orientation ``hole_quat``.
 
@@ -232,6 +236,10 @@ def build_peg_in_hole(
         hole_pos: (3,) true position of the hole frame (top centre, z along the bore axis
             pointing out of the hole); default ``HOLE_POSITION``.
         hole_quat: (4,) w-first orientation of the hole frame; default identity.
+        history: physics steps kept in MuJoCo's history buffer of the sensors of
+            :data:`HISTORY_SENSORS` (``nsample``; 0: none): with a control period's steps,
+            ``mjData.history`` holds every physics step of the period after one
+            ``mj_step(m, d, history)``.
 
     The block is a mocap-free static body, so its pose can be changed per episode without
     recompiling: write ``model.body_pos``/``body_quat`` of body ``block`` and call mj_forward.
@@ -314,6 +322,8 @@ def build_peg_in_hole(
         g.solimp = list(SOLIMP)
         g.margin = MARGIN
     _add_contact_sensors(spec)
+    for name in HISTORY_SENSORS if history else ():
+        spec.sensor(name).nsample = int(history)  # history only: sensordata is unchanged
     try:
         model = spec.compile()
     except ValueError as exc:

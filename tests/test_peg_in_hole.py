@@ -383,25 +383,31 @@ def test_peak_force_is_the_largest_single_contact_at_every_physics_step(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """hybrid_spiral on seed 1017: the metrics are the largest single contact force and the
-    largest net force over every physics step (measured here after each mj_step call by
+    largest net force over every physics step (measured here after each physics step by
     mj_contactForce), and the force limit reads the single contact. A 2-ms average of the net
     force (opposing wall forces cancel in it) reported 34 N here while a single wall contact
     carried 142 N, and the 100-N limit never tripped."""
     from cir_gym import baselines
     from cir_gym.evaluation import evaluate
 
-    seen: list[tuple[float, float]] = []
+    seen: dict[float, tuple[float, float]] = {}  # by the simulated time before the step
+    last: list[mujoco.MjData] = []
     mj_step = mujoco.mj_step
 
     def step(m: mujoco.MjModel, d: mujoco.MjData, nstep: int = 1) -> None:
         for _ in range(nstep):
+            t = d.time
             mj_step(m, d)
-            seen.append(_reference_contact_forces(m, d))
+            seen[round(t, 9)] = _reference_contact_forces(m, d)
+        last[:] = [d]
 
     monkeypatch.setattr(mujoco, "mj_step", step)
     policy = baselines.make("hybrid_spiral", "cir_gym/PegInHole-v2")
     ep = evaluate(policy, "cir_gym/PegInHole-v2", 1, seed=1017, batched=False).episodes[0]
-    largest, net = np.array(seen).T
+    # the steps the episode played: a period stopped by the force limit is simulated again
+    # from its start up to the stop, so its steps beyond the stop are not part of it
+    end = last[0].time
+    largest, net = np.array([f for t, f in seen.items() if t < end - 1e-9]).T
     assert ep.metrics["peak_force"] == pytest.approx(largest.max(), rel=1e-9)
     assert ep.metrics["peak_net_force"] == pytest.approx(net.max(), rel=1e-9)
     assert largest.max() > 100.0 and not ep.success  # the limit tripped on the single contact
@@ -685,3 +691,33 @@ def test_the_contact_sensors_read_every_contact_as_mj_contact_force() -> None:
         touching += largest > 0
         most = max(most, len(pressing))
     assert touching > 50 and most > geo.PEG_CONTACT_SLOTS, (touching, most)
+
+
+def test_a_period_reads_each_physics_step_from_the_sensor_history() -> None:
+    """Torque interface, the peg striking the bore's edge (~600 N): the period's rows the env
+    reads from MuJoCo's history buffer after one mj_step call of 4 physics steps are the
+    sensordata of each physics step stepped one by one from the same state (largest and net
+    contact, wrist wrench: equal to the last bit)."""
+    env = _exact_env(start_height=0.002, force_limit=1e4)
+    m = env.model
+    action = np.zeros(7, dtype=np.float32)
+    action[1] = 0.3  # the shoulder lowers the arm: the peg strikes the bore's edge
+    for _ in range(14):
+        env.step(action)
+    start = np.zeros(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION))
+    mujoco.mj_getState(m, env.data, start, mujoco.mjtState.mjSTATE_INTEGRATION)
+    env.step(action)
+    d = mujoco.MjData(m)
+    mujoco.mj_setState(m, d, start, mujoco.mjtState.mjSTATE_INTEGRATION)
+    d.ctrl[:] = action * env.torque_limit
+    rows = []
+    for _ in range(env.frame_skip):
+        mujoco.mj_step(m, d)
+        rows.append(d.sensordata.copy())
+    rows = np.array(rows)
+    got = env._period
+    s = env.sensors
+    assert np.max(s.largest(rows)) > 0  # in contact
+    np.testing.assert_array_equal(s.largest(got), s.largest(rows))
+    np.testing.assert_array_equal(s.net(got), s.net(rows))
+    np.testing.assert_array_equal(s.wrist(got), s.wrist(rows))

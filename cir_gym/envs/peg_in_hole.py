@@ -13,7 +13,7 @@ from gymnasium import spaces
 from cir_gym import peg_hole_geometry as geo
 from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
-from cir_gym.envs.base import RobotEnv
+from cir_gym.envs.base import MIN_CONTROL_FREQ, RobotEnv, frame_skip
 from cir_gym.envs.peg_in_hole_contacts import ContactFlags, ContactSensors, contact_flags
 from cir_gym.envs.peg_in_hole_scene import ALIGNED, draw_task, start_posture
 from cir_gym.ft_sensor import PRESETS, WrenchSensor, sensor_spec, tool_gravity_wrench
@@ -23,7 +23,9 @@ from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
 from cir_gym.validation import InvalidArgument, check_number
 
-__all__ = ["ALIGNED", "CONTROLS", "PegInHoleEnv"]
+__all__ = ["ALIGNED", "CONTROLS", "PegInHoleEnv", "tip_twist"]
+
+_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 
 CONTROLS = ("torque", "position")
 #: Position interface: largest setpoint speed (m/s) and angular speed (rad/s); an action of 1 moves
@@ -306,7 +308,12 @@ class PegInHoleEnv(RobotEnv):
         # at the force limit
         self._worst_step = 1.0 + self.force_weight
 
-        model, self.geometry = geo.build_peg_in_hole(self.clearance, self.chamfer)
+        # the control period's physics steps in the sensors' history (see _advance)
+        control_freq = check_number(
+            "control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / geo.TIMESTEP
+        )
+        steps = frame_skip(control_freq, geo.TIMESTEP)
+        model, self.geometry = geo.build_peg_in_hole(self.clearance, self.chamfer, history=steps)
         super().__init__(
             model,
             control_freq=control_freq,
@@ -336,6 +343,7 @@ class PegInHoleEnv(RobotEnv):
         self.sensors = ContactSensors(model)
         # sensordata of each physics step of a control period (frame_skip, nsensordata)
         self._period = np.zeros((self.frame_skip, model.nsensordata))
+        self._period_start = np.zeros(mujoco.mj_stateSize(model, _INTEGRATION))
         self._mu_diameter = geo.FRICTION * 2 * self.geometry.hole_radius
         self.hole_pos = np.asarray(geo.HOLE_POSITION, dtype=float)  # nominal, world
         self.hole_quat = np.array([1.0, 0.0, 0.0, 0.0])
@@ -510,51 +518,67 @@ class PegInHoleEnv(RobotEnv):
 
     # ------------------------------------------------------------------ physics
     def _advance(self, a: np.ndarray) -> tuple[bool, float, float, float]:
-        """One control period, physics step by physics step: the position interface's torque
-        and the contact sensors' readings at the physics rate.
+        """One control period: its physics steps (:meth:`_physics`), then the contact
+        sensors' readings of each of them from MuJoCo's history buffer.
+
+        The period stops at the physics step where a single contact exceeds ``force_limit``:
+        the period is simulated again from its start up to that step (the same
+        computation), then ``mj_forward`` (the flags and the observation read the stopped
+        state). A diverged period (state restored to the last finite one) counts no contact.
 
         Returns:
             (diverged, the largest single contact force (N), the largest net contact force
-            (N), the sum of the net force's magnitude over the physics steps (N)). The period
-            stops at the physics step where a single contact exceeds ``force_limit`` (or
-            diverges); the F/T sensor is fed the wrist's wrench of every physics step played
-            and, for the rest of a stopped period, that of the stopped state (the arm held).
+            (N), the sum of the net force's magnitude over the physics steps (N)). The F/T
+            sensor is fed the wrist's wrench of every physics step played and, for the rest
+            of a stopped period, that of the stopped state (the arm held).
         """
         if self.control == "position":
             R_h = self._R_hole  # the action is in the nominal hole frame
             dx = a * self.increment_scale
             self.motion.command(np.concatenate((R_h @ dx[:3], R_h @ dx[3:])), self.dt)
+            tau = None
         else:
             tau = a * self.torque_limit
-        d, steps, period = self.data, self.frame_skip, self._period
-        played, diverged = 0, False
-        limit_sq = self.force_limit**2
-        self.frame_skip = 1  # _simulate: one physics step per call
-        try:
-            for i in range(steps):
-                if self.control == "position":
-                    qa, da = self.robot.qpos_adr, self.robot.dof_adr
-                    tau = self.motion.torque(d.qpos[qa], d.qvel[da], (i + 1) / steps)
-                    tau = np.clip(tau, -self.torque_limit, self.torque_limit)
-                diverged = self._simulate(tau)
-                if diverged:
-                    break
-                period[i] = d.sensordata
-                played += 1
-                f = self.sensors.largest_force(period[i])
-                if f @ f > limit_sq:  # a single contact over the limit
-                    # the stopped state's kinematics and contacts (mj_step leaves those of
-                    # the state before its last substep): what the flags and observation read
-                    mujoco.mj_forward(self.model, d)
-                    break
-        finally:
-            self.frame_skip = steps
+        m, d, steps, period = self.model, self.data, self.frame_skip, self._period
+        mujoco.mj_getState(m, d, self._period_start, _INTEGRATION)
+        diverged = self._physics(tau, steps)
+        played = 0 if diverged else steps
+        largest = np.zeros(0)
+        if not diverged:
+            self.sensors.period(d.history, period)
+            largest = self.sensors.largest(period)  # (steps,)
+            over = np.flatnonzero(largest > self.force_limit)
+            if over.size:  # a single contact over the limit: stop at that physics step
+                played = int(over[0]) + 1
+                if played < steps:
+                    mujoco.mj_setState(m, d, self._period_start, _INTEGRATION)
+                    self._physics(tau, played)
+                mujoco.mj_forward(m, d)  # mj_step leaves the kinematics of the step before
+        net = np.linalg.norm(self.sensors.net(period[:played]), axis=-1)
         period[played:] = d.sensordata  # stopped early: the sensor feels the stopped state
         self.ft_sensor.advance_many(self.sensors.wrist(period))
-        done = period[:played]
-        net = np.linalg.norm(self.sensors.net(done), axis=-1)
-        largest = np.max(self.sensors.largest(done), initial=0.0)
-        return diverged, float(largest), float(np.max(net, initial=0.0)), float(np.sum(net))
+        peak = float(largest[:played].max()) if played else 0.0
+        return diverged, peak, float(net.max()) if played else 0.0, float(net.sum())
+
+    def _physics(self, tau: np.ndarray | None, steps: int) -> bool:
+        """The first ``steps`` physics steps of the control period: the torque ``tau`` held
+        (torque interface: one ``mj_step`` call), or the position interface's torque at
+        each physics step (``tau`` None). Returns True if the physics diverged (state
+        restored by ``_simulate``)."""
+        skip = self.frame_skip
+        try:
+            if tau is not None:
+                self.frame_skip = steps  # _simulate runs frame_skip physics steps
+                return self._simulate(tau)
+            self.frame_skip = 1
+            d, qa, da = self.data, self.robot.qpos_adr, self.robot.dof_adr
+            for i in range(steps):
+                tau_i = self.motion.torque(d.qpos[qa], d.qvel[da], (i + 1) / skip)
+                if self._simulate(np.clip(tau_i, -self.torque_limit, self.torque_limit)):
+                    return True
+            return False
+        finally:
+            self.frame_skip = skip
 
     # ------------------------------------------------------------------ contact
     def _tip_in_hole(self) -> np.ndarray:

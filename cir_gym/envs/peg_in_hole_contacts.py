@@ -38,11 +38,46 @@ class ContactSensors:
         def address(name: str) -> int:
             return int(model.sensor_adr[model.sensor(name).id])
 
+        ids = [model.sensor(name).id for name in geo.HISTORY_SENSORS]
+        #: physics steps in the history buffer (0: none)
+        self.steps = K = int(model.sensor_history[ids[0], 0])
+        # the history's layout per sensor (MuJoCo's ring buffer): [·, slot of the newest
+        # sample, K times, K × dim values]; the sensors are written together, so one slot
+        # index is every sensor's. _gather[h, k]: where the values of the k-th oldest sample
+        # are when the newest is in slot h, for the sensordata columns _columns
+        self._columns = np.concatenate(
+            [np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i]) for i in ids]
+        )
+        self._newest = int(model.sensor_historyadr[ids[0]]) + 1
+        self._gather = np.array([
+            [
+                np.concatenate([
+                    model.sensor_historyadr[i] + 2 + K + (h + 1 + k) % K * model.sensor_dim[i]
+                    + np.arange(model.sensor_dim[i])
+                    for i in ids
+                ])
+                for k in range(K)
+            ]
+            for h in range(K)
+        ]) if K else np.zeros((0, 0, len(self._columns)), dtype=int)
         self._largest = address(geo.LARGEST_CONTACT)
         self._net = address(geo.NET_CONTACT)
         self._peg = address(geo.PEG_CONTACTS)
         self.slots = geo.PEG_CONTACT_SLOTS
         self._ft = address("ft_force"), address("ft_torque")
+
+    def period(self, history: np.ndarray, out: np.ndarray) -> None:
+        """The physics steps of a control period from MuJoCo's history buffer ``history``
+        (..., nhistory): into ``out`` (..., steps, nsensordata), oldest first, the values of
+        :data:`~cir_gym.peg_hole_geometry.HISTORY_SENSORS` at their sensordata addresses
+        (the other columns are left as they are)."""
+        where = self._gather[history[..., self._newest].astype(np.int64)]  # (..., steps, d)
+        if history.ndim == 1:
+            out[:, self._columns] = history[where]
+        else:
+            flat = where.reshape(len(history), -1)
+            values = np.take_along_axis(history, flat, axis=-1).reshape(where.shape)
+            out[..., self._columns] = values
 
     def largest_force(self, sensordata: np.ndarray) -> np.ndarray:
         """The force of the contact with the largest force (..., 3), its contact frame (N)."""

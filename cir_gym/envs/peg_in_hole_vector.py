@@ -73,11 +73,12 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
         self._body_pos = b.expand("body_pos")  # (N, nbody, 3): each copy's hole pose
         self._body_quat = b.expand("body_quat")
         self._sensordata = b.bind("sensordata")
+        self._history = b.bind("history")
         self._site_xpos = b.bind("site_xpos")
         self._site_xmat = b.bind("site_xmat")
         self._cdof = b.bind("cdof")
         self._subtree_com = b.bind("subtree_com")
-        self._held = np.zeros_like(b.state)  # states of copies stopped within a period
+        self._held = np.zeros_like(b.state)  # states of copies that diverged within a period
         self._period = np.zeros((N, t.frame_skip, m.nsensordata))
         self._hole_pos = np.zeros((N, 3))  # the true hole pose of each copy
         self._hole_R = np.zeros((N, 3, 3))
@@ -119,48 +120,87 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
 
     # ------------------------------------------------------------------ physics
     def _advance(self, a: np.ndarray) -> tuple[np.ndarray, ...]:
-        """One control period of every copy (PegInHoleEnv._advance on (N, ...) arrays).
+        """One control period of every copy (PegInHoleEnv._advance on (N, ...) arrays): the
+        physics, the contact sensors of each physics step from the history buffer, and the
+        copies stopped by the force limit simulated again from the period's start up to
+        their stop.
 
         Returns:
             (diverged, largest single contact force, largest net force, sum of the net force
             over the physics steps played), each (N,).
         """
-        t, N, steps = self.template, self.num_envs, self.template.frame_skip
+        t, steps = self.template, self.template.frame_skip
         if self.motion is not None:
             dx = a * t.increment_scale  # in the nominal hole frame
             R_h = t._R_hole
             self.motion.command(np.concatenate((dx[:, :3] @ R_h.T, dx[:, 3:] @ R_h.T), axis=1), t.dt)
-            qa, da = t.robot.qpos_adr, t.robot.dof_adr
+            tau = None
         else:
             tau = a * t.torque_limit
         period, sensors = self._period, t.sensors
-        played = np.full(N, steps)
-        stopped = np.zeros(N, dtype=bool)
-        diverged = np.zeros(N, dtype=bool)
-        for i in range(steps):
-            if self.motion is not None:
-                tau = self.motion.torque(self._qpos[:, qa], self._qvel[:, da], (i + 1) / steps)
-                tau = np.clip(tau, -t.torque_limit, t.torque_limit)
-            div = self._simulate(tau, nstep=1) & ~stopped
-            period[:, i] = self._sensordata
-            over = ~stopped & ~div & (sensors.largest(period[:, i]) > t.force_limit)
-            stop = div | over
-            if stop.any():  # held here while the others finish the period
-                played[div], played[over] = i, i + 1
-                diverged |= div
-                stopped |= stop
-                self._held[stop] = self.batch.state[stop]
+        start = self.batch.state.copy()
+        diverged = self._physics(tau, steps)
+        sensors.period(self._history, period)
+        over = (sensors.largest(period) > t.force_limit) & ~diverged[:, None]  # (N, steps)
+        stopping = np.any(over, axis=1)
+        played = np.where(stopping, np.argmax(over, axis=1) + 1, steps)
+        played[diverged] = 0
+        again = np.flatnonzero(stopping & (played < steps))
+        if again.size:  # the same computation from the period's start, up to the stop
+            self.batch.state[again] = start[again]
+            self._replay(again, tau, played[again])
+        stopped = np.flatnonzero(stopping | diverged)
         done = np.arange(steps) < played[:, None]  # (N, steps): the physics steps played
-        if stopped.any():
-            ids = np.flatnonzero(stopped)
-            self.batch.state[ids] = self._held[ids]
-            self.batch.forward(ids=ids)
+        if stopped.size:
+            self.batch.forward(ids=np.flatnonzero(stopping))  # the stopped state
             # the rest of a stopped period: the sensor feels the stopped state
-            period[ids] = np.where(done[ids, :, None], period[ids], self._sensordata[ids, None])
+            period[stopped] = np.where(
+                done[stopped, :, None], period[stopped], self._sensordata[stopped, None]
+            )
         self.ft_sensor.advance_many(sensors.wrist(period))
         net = np.where(done, np.linalg.norm(sensors.net(period), axis=-1), 0.0)
         largest = np.max(np.where(done, sensors.largest(period), 0.0), axis=1)
         return diverged, largest, np.max(net, axis=1), np.sum(net, axis=1)
+
+    def _physics(self, tau: np.ndarray | None, steps: int) -> np.ndarray:
+        """A control period's physics of every copy (PegInHoleEnv._physics): the torques
+        ``tau`` (N, 7) held, one ``Batch.step``, or the position interface's torques at each
+        physics step (``tau`` None). A copy that diverges is restored (``_simulate``) and
+        held there for the rest of the period. Returns the (N,) diverged copies."""
+        if tau is not None:
+            return self._simulate(tau, nstep=steps)
+        t, qa, da = self.template, self.template.robot.qpos_adr, self.template.robot.dof_adr
+        diverged = np.zeros(self.num_envs, dtype=bool)
+        for i in range(steps):
+            tau_i = self.motion.torque(self._qpos[:, qa], self._qvel[:, da], (i + 1) / steps)
+            new = self._simulate(np.clip(tau_i, -t.torque_limit, t.torque_limit), nstep=1)
+            new &= ~diverged
+            if new.any():
+                self._held[new] = self.batch.state[new]
+                diverged |= new
+        if diverged.any():  # held at their restored state
+            ids = np.flatnonzero(diverged)
+            self.batch.state[ids] = self._held[ids]
+            self.batch.forward(ids=ids)
+        return diverged
+
+    def _replay(self, ids: np.ndarray, tau: np.ndarray | None, counts: np.ndarray) -> None:
+        """Copies ``ids``, set back to their period's start, run their first ``counts``
+        physics steps again (none diverged there in the first pass)."""
+        ctrl = self._ctrl
+        if tau is not None:
+            for count in np.unique(counts):
+                group = ids[counts == count]
+                ctrl[group] = tau[group]
+                self.batch.step(ids=group, nstep=int(count))
+            return
+        t, qa, da = self.template, self.template.robot.qpos_adr, self.template.robot.dof_adr
+        steps = t.frame_skip
+        for i in range(int(np.max(counts))):
+            group = ids[counts > i]
+            tau_i = self.motion.torque(self._qpos[:, qa], self._qvel[:, da], (i + 1) / steps)
+            ctrl[group] = np.clip(tau_i[group], -t.torque_limit, t.torque_limit)
+            self.batch.step(ids=group, nstep=1)
 
     # ------------------------------------------------------------------ task
     def _task_step(
