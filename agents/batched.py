@@ -1,18 +1,22 @@
-"""Training on ``cir_gym.envs.vector.JointTrackingVectorEnv``: the batched env as an agent's VecEnv.
+"""Training on a native batched env (``cir_gym.envs.vector.VECTOR_ENVS``): the batched env as
+an agent's VecEnv.
 
 ``vec_env: batched`` in a hyperparameter entry (``training`` section) makes :mod:`agents.train`
-step all ``n_envs`` training copies of JointTracking-v2 with one ``mujoco.batch.Batch`` call
-(~64 k env-steps/s for 64 copies, measured in results/benchmarks.md) instead of a
-``DummyVecEnv`` of single envs (~3 k). Each copy is the single env step for step (the vector
-env's own test), so an agent trained here is evaluated, shipped and loaded exactly as one
-trained on ``DummyVecEnv``; evaluations during training still run the single env.
+step all ``n_envs`` training copies on the env id's native batched env (the registry's
+:func:`~cir_gym.envs.vector.native_vector_env`: every id of ``cir_gym.envs.
+BATCHED_ENVIRONMENTS`` whose batched class takes the entry's ``env_kwargs``), its physics one
+``mujoco.batch.Batch`` (JointTracking-v2: ~64 k env-steps/s for 64 copies, measured in
+results/benchmarks.md, against ~3 k for a ``DummyVecEnv`` of single envs). Each copy is the
+single env step for step (each batched env's own test), so an agent trained here is
+evaluated, shipped and loaded exactly as one trained on ``DummyVecEnv``; evaluations during
+training still run the single env.
 
 :class:`BatchedTaskObservation` is the batched counterpart of the single-env wrapper stack of
 ``agents.train.EnvFactory``: the observation layout (:class:`agents.observation.
 ObservationLayout`, with its features), the training-only shaping of :mod:`agents.shaping`
-(``reward_offset``, ``log_error_bonus``: the error norm ‖q̄ − q‖ is read from the observation,
-the value ``info["joint_error"]`` holds in the single env), and the episode statistics SB3's
-``Monitor`` would report (``info["episode"]``).
+(``reward_offset``; ``log_error_bonus`` on the joint-tracking envs, whose error norm ‖q̄ − q‖ is
+read from the observation, the value ``info["joint_error"]`` holds in the single env), and the
+episode statistics SB3's ``Monitor`` would report (``info["episode"]``).
 """
 
 from __future__ import annotations
@@ -24,13 +28,7 @@ from cir_gym.agents.observation import ObservationLayout
 from cir_gym.agents.shaping import check_log_error_bonus, log_error_bonus
 from stable_baselines3.common.vec_env import VecEnv
 
-__all__ = ["BATCHED_ENVS", "BatchedTaskObservation", "make_batched_vec_env"]
-
-#: env ids with a native batched implementation → what it needs
-BATCHED_ENVS = {
-    "cir_gym/JointTracking-v2": "cir_gym.envs.vector.JointTrackingVectorEnv",
-    "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector.ElasticJointTrackingVectorEnv",
-}
+__all__ = ["BatchedTaskObservation", "make_batched_vec_env"]
 
 
 class BatchedTaskObservation(VecEnv):
@@ -67,7 +65,11 @@ class BatchedTaskObservation(VecEnv):
         self._flatten = flatten
         self.reward_offset = float(reward_offset)
         self.log_error = check_log_error_bonus(log_error) if log_error else None
-        if self.log_error:  # the batched envs have no orientation task (JointTracking)
+        if self.log_error:  # the joint error ‖q̄ − q‖ of the joint-tracking envs
+            if "q_ref" not in layout.keys:
+                raise ValueError("log_error_bonus with vec_env 'batched' needs the joint "
+                                 "reference q_ref in the observation (the joint-tracking "
+                                 "envs); use vec_env 'dummy'")
             if self.log_error.pop("orientation_scale") > 0:
                 raise ValueError("log_error_bonus orientation_scale > 0 needs an orientation "
                                  "error; the batched envs have none (use 0 or vec_env 'dummy')")
@@ -134,20 +136,24 @@ def make_batched_vec_env(
     reward_offset: float = 0.0,
     log_error: dict[str, float] | None = None,
 ) -> VecEnv:
-    """``n_envs`` batched training copies of ``env_id`` as an SB3 VecEnv (copy i: seed + i).
+    """``n_envs`` batched training copies of ``env_id`` as an SB3 VecEnv (copy i: seed + i), on
+    the id's native batched env (:func:`cir_gym.envs.vector.native_vector_env`).
 
     Raises:
-        ValueError: ``env_id`` has no batched implementation (:data:`BATCHED_ENVS`).
+        ValueError: ``env_id`` has no native batched env, or it does not batch ``env_kwargs``.
     """
-    key = env_id.split(":")[-1]
-    if key not in BATCHED_ENVS:
-        raise ValueError(
-            f"vec_env 'batched' exists for {sorted(BATCHED_ENVS)} only, not "
-            f"{key!r}; use vec_env 'dummy'"
-        )
-    from cir_gym.envs.vector import VECTOR_ENVS, sb3_vec_env
+    from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
 
-    venv = VECTOR_ENVS[key](num_envs=n_envs, nthread=1, **env_kwargs)
+    cls = native_vector_env(env_id, env_kwargs)
+    if cls is None:
+        key = env_id.split(":")[-1]
+        why = (VECTOR_ENVS[key].unsupported(env_kwargs) if key in VECTOR_ENVS
+               else "no native batched env")
+        raise ValueError(
+            f"vec_env 'batched' needs a native batched env; {key!r}: {why} (batched ids: "
+            f"{sorted(VECTOR_ENVS)}); use vec_env 'dummy'"
+        )
+    venv = cls(num_envs=n_envs, nthread=1, **env_kwargs)
     layout.check_space(venv.single_observation_space)
     flatten = layout.bind(venv.template)
     sb3 = sb3_vec_env(venv)

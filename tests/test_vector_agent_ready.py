@@ -175,3 +175,26 @@ def test_sb3_adapter_reports_the_ends() -> None:
     assert all(info["TimeLimit.truncated"] and "force_rms_error" in info["episode_metrics"]
                for info in infos)
     venv.close()
+
+
+def test_batched_training_env_is_the_registry_s(monkeypatch: pytest.MonkeyPatch) -> None:
+    """vec_env 'batched' (agents/batched.py) takes the id's class from the registry: the
+    batched variant once it is in BATCHED_ENVIRONMENTS (copy i the flat single observation
+    with seed 7 + i), a clear error for an id with none or an argument it does not batch."""
+    from cir_gym.agents.batched import make_batched_vec_env
+    from cir_gym.agents.observation import ObservationLayout
+
+    monkeypatch.setitem(cir_gym.envs.BATCHED_ENVIRONMENTS, CONTACT, CONTACT_CLASS)
+    kw = {"episode_duration": 0.25}
+    single = AdmittanceContactImpedanceEnv(**kw)
+    layout = ObservationLayout.from_space(single.observation_space)
+    venv = make_batched_vec_env(CONTACT, kw, layout, 2, seed=7)
+    obs = venv.reset()
+    assert type(venv.venv.venv) is AdmittanceContactImpedanceVectorEnv
+    for i in range(2):
+        _close(obs[i], layout.flatten(single.reset(seed=7 + i)[0]), f"reset {i}")
+    venv.close()
+    with pytest.raises(ValueError, match="render_mode"):
+        make_batched_vec_env(CONTACT, {"render_mode": "rgb_array"}, layout, 2, seed=7)
+    with pytest.raises(ValueError, match="no native batched env"):
+        make_batched_vec_env("cir_gym/RedundantIK-v4", {}, layout, 2, seed=7)
