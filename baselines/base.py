@@ -227,6 +227,7 @@ class SiteTerms(NamedTuple):
         jdqd: J̇ q̇ (N, 6), m/s², rad/s².
         inertia: B̂(q) (N, n, n), armature included (kg m²), or None when not asked for.
         bias: n̂(q, q̇) = Ĉ q̇ + ĝ (N, n), N m, or None when not asked for.
+        rotations: the rotations (site → world) of other sites asked for (N, k, 3, 3), or None.
     """
 
     x: np.ndarray
@@ -235,6 +236,7 @@ class SiteTerms(NamedTuple):
     jdqd: np.ndarray
     inertia: np.ndarray | None
     bias: np.ndarray | None
+    rotations: np.ndarray | None = None
 
 
 def matvec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -392,20 +394,23 @@ class RowDynamics:
 
     def site_terms(
         self, site: int, q: np.ndarray, qd: np.ndarray, *, inertia: bool = False,
-        bias: bool = False,
+        bias: bool = False, rotations: tuple[int, ...] = (),
     ) -> SiteTerms:
         """:class:`SiteTerms` of site id ``site`` for rows q, q̇ (N, n): per row one
         ``mj_kinematics``, ``mj_comPos``, ``mj_comVel``, then ``mj_jacSite``, ``mj_jacDot``
         (J̇ q̇ as one batched product after the loop), ``mju_mat2Quat`` and, when asked,
-        ``mj_crb`` + ``mj_fullM`` (B̂) and ``mj_rne`` (n̂) — the calls of
-        :meth:`Robot.site_pose`, :meth:`Robot.jacobian`, :meth:`Robot.jacobian_dot_qdot`,
-        :meth:`Robot.inertia` and :meth:`Robot.bias`, on this object's data."""
+        ``mj_crb`` + ``mj_fullM`` (B̂), ``mj_rne`` (n̂) and the rotations of the site ids
+        ``rotations`` — the calls of :meth:`Robot.site_pose`, :meth:`Robot.jacobian`,
+        :meth:`Robot.jacobian_dot_qdot`, :meth:`Robot.inertia` and :meth:`Robot.bias`, on
+        this object's data."""
         m, d = self.model, self.data
         rows, nv = len(q), m.nv
         x, quat = np.empty((rows, 3)), np.empty((rows, 4))
         J, Jdot = np.empty((rows, 6, nv)), np.empty((rows, 6, nv))
         B = np.empty((rows, nv, nv)) if inertia else None
         n = np.empty((rows, nv)) if bias else None
+        R = np.empty((rows, len(rotations), 9)) if rotations else None
+        others = list(rotations)
         body = int(m.site_bodyid[site])
         site_xpos, site_xmat = d.site_xpos[site], d.site_xmat[site]
         for i in range(rows):
@@ -424,7 +429,12 @@ class RowDynamics:
                 mujoco.mj_fullM(m, d, B[i])
             if n is not None:
                 mujoco.mj_rne(m, d, 0, n[i])
-        return SiteTerms(x, quat, J, matvec(Jdot, qd), B, n)
+            if R is not None:
+                R[i] = d.site_xmat[others]
+        return SiteTerms(
+            x, quat, J, matvec(Jdot, qd), B, n,
+            None if R is None else R.reshape(rows, len(others), 3, 3),
+        )
 
     def _inertia_row(self, q: np.ndarray, qd: np.ndarray, bias: np.ndarray) -> np.ndarray:
         """B̂(q) (a buffer, overwritten by the next call); n̂(q, q̇) into ``bias``."""
@@ -459,7 +469,7 @@ class RobotRows:
 
     def site_terms(
         self, site: int, q: np.ndarray, qd: np.ndarray, *, inertia: bool = False,
-        bias: bool = False,
+        bias: bool = False, rotations: tuple[int, ...] = (),
     ) -> SiteTerms:
         """:class:`SiteTerms` (see :meth:`RowDynamics.site_terms`) by the Robot's methods."""
         r = self.robot
@@ -474,6 +484,8 @@ class RobotRows:
             np.stack([r.jacobian_dot_qdot(site, *row) for row in zip(q, qd, strict=True)]),
             np.stack([r.inertia(q_i) for q_i in q]) if inertia else None,
             np.stack([r.bias(*row) for row in zip(q, qd, strict=True)]) if bias else None,
+            np.array([[r.site_pose(o, q_i)[1] for o in rotations] for q_i in q])
+            if rotations else None,
         )
 
 

@@ -86,7 +86,14 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation
+from cir_gym.baselines.base import (
+    Controller,
+    InvalidGain,
+    Observation,
+    RowLaw,
+    SiteTerms,
+    matvec,
+)
 
 from cir_gym import operational_space as osp
 from cir_gym.context import TaskContext
@@ -185,9 +192,16 @@ class _CommonGains:
         _positive(self, "bias_time", "ramp_time", allow_zero=("bias_time", "ramp_time"))
 
 
-class _Interaction(Controller):
+class _Interaction(RowLaw):
     """Shared: the nominal arm with its tool, re-biasing, f̂, the guarded approach, the motion
-    laws and both output interfaces (see the module docstring)."""
+    laws and both output interfaces (see the module docstring).
+
+    Every law is written once on rows of observations (values (N, ...), state (N, size)):
+    the branches of one row (holding, approaching, in contact) are masks over the rows, the
+    model calls run row by row (:meth:`Controller.model_rows`), one observation is a row of
+    one. The gains of :meth:`design` come from the start posture, which the task fixes
+    (every row's ``initial_state`` designs the same gains).
+    """
 
     tasks: ClassVar[tuple[str, ...]] = TASKS
     #: the stiffness in the env's range each law designs for when it is unknown: 0 low, 1 high
@@ -266,122 +280,152 @@ class _Interaction(Controller):
         """Compute the law's gains from its rules at the start posture ``q``."""
 
     # ------------------------------------------------------------------ measurement
-    def measure(self, obs: Observation, state: np.ndarray) -> tuple[np.ndarray, float]:
-        """ĥ (6,) world wrench on the environment and f̂ (N); re-biases during ``bias_time``."""
-        q = obs["q"]
-        R_s = self.robot.site_pose(self.ft_site, q)[1]
-        if state[_TIME] < self.gains.bias_time:  # free space, held still: average w − w_tool
-            sample = obs["wrench"] - tool_gravity_wrench(self.tool_mass, self.tool_com, R_s)
-            n = state[_BIAS_N]
-            state[_BIAS] = (n * state[_BIAS] + sample) / (n + 1)
-            state[_BIAS_N] = n + 1
-        h = contact_wrench(
-            obs["wrench"], R_s, tool_mass=self.tool_mass, tool_com=self.tool_com, bias=state[_BIAS]
-        )
-        return h, float(-self.normal @ h[:3])
+    def measure(
+        self, obs: Observation, state: np.ndarray, R_s: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """ĥ (N, 6) world wrenches on the environment and f̂ (N,) (N) of rows, with the
+        sensor rotations R_s (N, 3, 3); re-biases the rows within ``bias_time``."""
+        wrench = obs["wrench"]
+        for i in np.flatnonzero(state[:, _TIME] < self.gains.bias_time):
+            # free space, held still: average w − w_tool
+            sample = wrench[i] - tool_gravity_wrench(self.tool_mass, self.tool_com, R_s[i])
+            n = state[i, _BIAS_N]
+            state[i, _BIAS] = (n * state[i, _BIAS] + sample) / (n + 1)
+            state[i, _BIAS_N] = n + 1
+        h = np.stack([
+            contact_wrench(wrench[i], R_s[i], tool_mass=self.tool_mass, tool_com=self.tool_com,
+                           bias=state[i, _BIAS])
+            for i in range(len(wrench))
+        ])
+        return h, -self.along_normal(h[:, :3])
 
     # ------------------------------------------------------------------ motion
-    def path_in_plane(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """The path reference and its velocity projected on the nominal surface plane."""
-        n = self.normal
-        p = obs["tool_pos_ref"] - (n @ (obs["tool_pos_ref"] - self.surface_point)) * n
-        v = obs["tool_vel_ref"] - (n @ obs["tool_vel_ref"]) * n
-        return p, v
+    def along_normal(self, v: np.ndarray) -> np.ndarray:
+        """n̂ · v (...) of vectors v (..., 3), one product per vector."""
+        return (v[..., None, :] @ self.normal)[..., 0]
 
-    def _kinematics(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, ...]:
-        J = self.robot.jacobian(self.site, q)
-        B = self.robot.inertia(q)
-        Lam = osp.task_inertia(J, B)
-        return J, B, Lam, self.robot.jacobian_dot_qdot(self.site, q, qd)
+    def path_in_plane(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """The path reference and its velocity (N, 3) projected on the nominal surface plane."""
+        n, ref, vel = self.normal, obs["tool_pos_ref"], obs["tool_vel_ref"]
+        p = ref - self.along_normal(ref - self.surface_point)[:, None] * n
+        v = vel - self.along_normal(vel)[:, None] * n
+        return p, v
 
     def osc_torque(
         self,
         obs: Observation,
         state: np.ndarray,
+        terms: SiteTerms,
         a_p: np.ndarray,
         force: np.ndarray | None = None,
         normal_free: bool = False,
         omega_o: float | None = None,
     ) -> np.ndarray:
-        """τ = Jᵀ F + n̂(q, q̇) + N_dynᵀ τ₀, F = Λ ([a_p; a_o] − J̇q̇) (+ ``force`` (3,)).
+        """τ = Jᵀ F + n̂(q, q̇) + N_dynᵀ τ₀ (N, n), F = Λ ([a_p; a_o] − J̇q̇) (+ ``force``
+        (N, 3)), for rows with their site terms (J, B̂, n̂, J̇q̇ at the tool site).
 
         a_o = K_o φ − D_o ω toward the task's orientation (ω_o = ``motion_omega``);
         ``normal_free`` removes the normal component of the motion force (the explicit force
         law owns that direction).
         """
         q, qd = obs["q"], obs["qd"]
-        J, B, Lam, Jdqd = self._kinematics(q, qd)
+        J, B = terms.J, terms.inertia
+        J_T = np.swapaxes(J, -1, -2)
+        Lam = osp.task_inertia(J, B)
         w = self.gains.motion_omega if omega_o is None else omega_o
         phi = osp.rotvec_error(self.quat_ref, obs["tool_quat"])
         a_o = w * w * phi - 2.0 * w * obs["tool_angvel"]
-        F = Lam @ (np.concatenate((a_p, a_o)) - Jdqd)
+        F = matvec(Lam, np.concatenate((a_p, a_o), axis=-1) - terms.jdqd)
         if normal_free:
-            F[:3] -= (self.normal @ F[:3]) * self.normal
+            F[:, :3] -= self.along_normal(F[:, :3])[:, None] * self.normal
         if force is not None:
-            F[:3] += force
+            F[:, :3] += force
         J_bar = osp.dynamically_consistent_inverse(J, B, Lam)
         N = osp.null_space_projector(J, J_bar)
         wp = self.gains.posture_omega
-        tau0 = B @ (wp * wp * (state[_Q0] - q) - 2.0 * wp * qd)
-        return J.T @ F + self.robot.bias(q, qd) + N.T @ tau0
+        tau0 = matvec(B, wp * wp * (state[:, _Q0] - q) - 2.0 * wp * qd)
+        return matvec(J_T, F) + terms.bias + matvec(np.swapaxes(N, -1, -2), tau0)
 
     def track(
-        self, obs: Observation, state: np.ndarray, x_c: np.ndarray, v_c: np.ndarray
+        self, obs: Observation, state: np.ndarray, terms: SiteTerms, x_c: np.ndarray,
+        v_c: np.ndarray,
     ) -> np.ndarray:
-        """The command that moves the tool to the frame x_c (velocity v_c), task orientation."""
+        """The commands (N, m) that move the tool to the frames x_c (velocities v_c) (N, 3),
+        task orientation."""
         if not self.torque:  # the env's motion controller: an increment from its setpoint
             d_p = x_c - obs["setpoint_pos"]
             d_o = osp.rotvec_error(self.quat_ref, obs["setpoint_quat"])
-            return np.concatenate((d_p, d_o))
+            return np.concatenate((d_p, d_o), axis=-1)
         w = self.gains.inner_omega
         a_p = w * w * (x_c - obs["tool_pos"]) + 2.0 * w * (v_c - obs["tool_vel"])
-        return self.osc_torque(obs, state, a_p, omega_o=w)
+        return self.osc_torque(obs, state, terms, a_p, omega_o=w)
 
     # ------------------------------------------------------------------ the loop
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        h, f = self.measure(obs, state)
-        holding = state[_TIME] < self.gains.bias_time
-        if not holding and state[_CONTACT] == 0.0 and f > self.gains.contact_force:
-            state[_CONTACT] = 1.0
-            state[_T_CONTACT], state[_F_CONTACT] = 0.0, f
-            self.on_contact(obs, state, f)
-        command = self.law(obs, state, h, f, holding)
-        state[_TIME] += self.dt
-        if state[_CONTACT]:
-            state[_T_CONTACT] += self.dt
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        g = self.gains
+        terms = self.model_rows().site_terms(
+            self.site, obs["q"], obs["qd"], inertia=self.torque, bias=self.torque,
+            rotations=(self.ft_site,),
+        )
+        h, f = self.measure(obs, state, terms.rotations[:, 0])
+        holding = state[:, _TIME] < g.bias_time
+        touch = ~holding & (state[:, _CONTACT] == 0.0) & (f > g.contact_force)
+        if touch.any():  # the first contact of these rows
+            state[touch, _CONTACT] = 1.0
+            state[touch, _T_CONTACT], state[touch, _F_CONTACT] = 0.0, f[touch]
+            self.on_contact(obs, state, f, touch)
+        command = self.law(obs, state, terms, h, f, holding)
+        state[:, _TIME] += self.dt
+        state[:, _T_CONTACT] += np.where(state[:, _CONTACT] != 0.0, self.dt, 0.0)
         return command
 
-    def force_reference(self, obs: Observation, state: np.ndarray) -> tuple[float, float, float]:
-        """f_r, ḟ_r, f̈_r (N, N/s, N/s²): f̄ (the course's step, ``ramp_time=0``), or a quintic
-        from f̂ at the first contact to f̄ over ``ramp_time`` s (f̄ before the contact)."""
-        f_bar = float(obs["f_ref"][0])
+    def force_reference(
+        self, obs: Observation, state: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """f_r, ḟ_r, f̈_r (N, N/s, N/s²), one observation's or rows' (N,): f̄ (the course's
+        step, ``ramp_time=0``), or a quintic from f̂ at the first contact to f̄ over
+        ``ramp_time`` s (f̄ before the contact)."""
+        f_bar = obs["f_ref"][..., 0]
         T = self.gains.ramp_time
-        if T <= 0.0 or state[_CONTACT] == 0.0:
-            return f_bar, 0.0, 0.0
-        tau = min(state[_T_CONTACT] / T, 1.0)
-        df = f_bar - state[_F_CONTACT]
+        zero = np.zeros_like(f_bar)
+        if T <= 0.0:
+            return f_bar, zero, zero
+        tau = np.minimum(state[..., _T_CONTACT] / T, 1.0)
+        df = f_bar - state[..., _F_CONTACT]
         s = tau**3 * (10 - 15 * tau + 6 * tau**2)
         ds = 30 * tau**2 * (1 - tau) ** 2 / T
         dds = 60 * tau * (1 - tau) * (1 - 2 * tau) / T**2
-        return state[_F_CONTACT] + df * s, df * ds, df * dds
+        contact = state[..., _CONTACT] != 0.0
+        return (
+            np.where(contact, state[..., _F_CONTACT] + df * s, f_bar),
+            np.where(contact, df * ds, zero),
+            np.where(contact, df * dds, zero),
+        )
 
-    def approach(self, state: np.ndarray, holding: bool) -> tuple[float, float]:
-        """The guarded approach's depth coordinate z (along n̂ from s₀) and its rate."""
-        if holding:
-            return float(state[_Z]), 0.0
+    def approach(
+        self, state: np.ndarray, holding: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The guarded approach's depth coordinate z (along n̂ from s₀) and its rate (N,);
+        moves z of the ``rows`` (a mask) that are not holding still."""
         # the speed ramps up over APPROACH_RAMP s: a step would shake the tool's weight
         # through the sensor (m a) and fake a contact
         g = self.gains
-        ramp = min(1.0, (state[_TIME] - g.bias_time) / APPROACH_RAMP)
-        speed = ramp * (g.approach_speed if state[_Z] > g.slow_height else g.slow_speed)
-        state[_Z] -= speed * self.dt
-        return float(state[_Z]), -speed
+        z = state[:, _Z]
+        ramp = np.minimum(1.0, (state[:, _TIME] - g.bias_time) / APPROACH_RAMP)
+        speed = ramp * np.where(z > g.slow_height, g.approach_speed, g.slow_speed)
+        moving = rows & ~holding
+        state[:, _Z] = np.where(moving, z - speed * self.dt, z)
+        return state[:, _Z], np.where(holding, 0.0, -speed)
 
-    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
-        """Initialise the law's filter states at the first contact."""
+    def on_contact(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> None:
+        """Initialise the law's filter states of the ``rows`` (a mask) at their first
+        contact."""
 
     def law(
-        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+        self, obs: Observation, state: np.ndarray, terms: SiteTerms, h: np.ndarray,
+        f: np.ndarray, holding: np.ndarray,
     ) -> np.ndarray:
         raise NotImplementedError
 
@@ -389,18 +433,25 @@ class _Interaction(Controller):
 class _PositionBased(_Interaction):
     """A law that outputs a depth z_c along n̂: x_c = path (in the plane) + n̂ z_c."""
 
-    def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
+    def depth(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """z_c and ż_c (N,) of the force law; advances the filter states of the ``rows`` (a
+        mask: those in contact)."""
         raise NotImplementedError
 
     def law(
-        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+        self, obs: Observation, state: np.ndarray, terms: SiteTerms, h: np.ndarray,
+        f: np.ndarray, holding: np.ndarray,
     ) -> np.ndarray:
         p, v = self.path_in_plane(obs)
-        if state[_CONTACT] == 0.0:  # holding still (re-bias), then the guarded approach
-            z, z_dot = self.approach(state, holding)
-        else:
-            z, z_dot = self.depth(obs, state, f)
-        return self.track(obs, state, p + z * self.normal, v + z_dot * self.normal)
+        contact = state[:, _CONTACT] != 0.0
+        # holding still (re-bias), then the guarded approach; then the force law
+        z_a, z_dot_a = self.approach(state, holding, ~contact)
+        z_f, z_dot_f = self.depth(obs, state, f, contact)
+        z, z_dot = np.where(contact, z_f, z_a), np.where(contact, z_dot_f, z_dot_a)
+        n = self.normal
+        return self.track(obs, state, terms, p + z[:, None] * n, v + z_dot[:, None] * n)
 
 
 # ---------------------------------------------------------------------- impedance
@@ -452,31 +503,35 @@ class Impedance(_Interaction):
             )
         )
 
-    def sink(self, f_bar: float) -> float:
-        """The setpoint's depth below the nominal surface (m) whose equilibrium force is f̄:
-        f̄ (1/K_d,n + 1/k̂), or f̄/K_d,n without ``surface_compliance``."""
+    def sink(self, f_bar: np.ndarray) -> np.ndarray:
+        """The setpoint's depth below the nominal surface (m) whose equilibrium force is f̄
+        (N, or rows (N,)): f̄ (1/K_d,n + 1/k̂), or f̄/K_d,n without ``surface_compliance``."""
         g = self.gains
         compliance = 1.0 / g.normal_stiffness
         if g.surface_compliance:
             compliance += 1.0 / self.k_hat
-        return f_bar * compliance if g.use_force_ref else 0.0
+        return f_bar * compliance if g.use_force_ref else np.zeros_like(f_bar)
 
     def setpoint(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """x_d and ẋ_d: the path reference, sunk by :meth:`sink`."""
-        x_d = obs["tool_pos_ref"] - self.normal * self.sink(float(obs["f_ref"][0]))
+        """x_d and ẋ_d (3,) of one observation or (N, 3) of rows: the path reference, sunk by
+        :meth:`sink`."""
+        sink = self.sink(np.asarray(obs["f_ref"], dtype=float)[..., 0])
+        x_d = obs["tool_pos_ref"] - self.normal * sink[..., None]
         return x_d, obs["tool_vel_ref"]
 
     def law(
-        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+        self, obs: Observation, state: np.ndarray, terms: SiteTerms, h: np.ndarray,
+        f: np.ndarray, holding: np.ndarray,
     ) -> np.ndarray:
         x_d, v_d = self.setpoint(obs)
-        if holding:
-            x_d, v_d = obs["tool_pos_ref"], np.zeros(3)
-        h_f = np.zeros(3) if holding else h[:3]
+        still = holding[:, None]  # re-biasing: hold the path's start, no force
+        x_d = np.where(still, obs["tool_pos_ref"], x_d)
+        v_d = np.where(still, 0.0, v_d)
+        h_f = np.where(still, 0.0, h[:, :3])
         # M_d x̃̈ + D_d x̃̇ + K_d x̃ = h_e  ⇒  ẍ = ẍ_d + M_d⁻¹ (D_d x̃̇ + K_d x̃ − h_e)
-        a_p = self.D @ (v_d - obs["tool_vel"]) + self.K @ (x_d - obs["tool_pos"]) - h_f
+        a_p = matvec(self.D, v_d - obs["tool_vel"]) + matvec(self.K, x_d - obs["tool_pos"]) - h_f
         a_p = a_p / self.gains.mass
-        return self.osc_torque(obs, state, a_p, force=h_f)
+        return self.osc_torque(obs, state, terms, a_p, force=h_f)
 
 
 # ---------------------------------------------------------------------- admittance
@@ -516,12 +571,16 @@ class Admittance(_PositionBased):
         self.D_d = g.damping if g.damping is not None else self.k_e / self.omega_c
         self.M_d = g.mass if g.mass is not None else self.D_d / (4.0 * self.omega_c)
 
-    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
-        state[_COMMON] = state[_Z]
-        state[_COMMON + 1] = -self.gains.approach_speed
+    def on_contact(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> None:
+        state[rows, _COMMON] = state[rows, _Z]
+        state[rows, _COMMON + 1] = -self.gains.approach_speed
 
-    def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
-        z, z_dot = state[_COMMON], state[_COMMON + 1]
+    def depth(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        z, z_dot = state[:, _COMMON], state[:, _COMMON + 1]
         # M_d z̈ + D_d ż + K_d z = f̂ − f_r (z up along n̂: pressing too hard moves up)
         f_r = self.force_reference(obs, state)[0]
         z_ddot = f - f_r - self.D_d * z_dot - self.gains.stiffness_normal * z
@@ -531,8 +590,8 @@ class Admittance(_PositionBased):
             1.0 + self.dt * self.D_d / self.M_d
         )
         z = z + self.dt * z_dot
-        state[_COMMON], state[_COMMON + 1] = z, z_dot
-        return float(z), float(z_dot)
+        state[rows, _COMMON], state[rows, _COMMON + 1] = z[rows], z_dot[rows]
+        return z, z_dot
 
 
 # ---------------------------------------------------------------------- explicit force
@@ -578,33 +637,39 @@ class ExplicitForce(_Interaction):
         known = g.stiffness is not None or self.context.extras.get("stiffness") is not None
         self.ff = g.feedforward and known and g.ramp_time > 0.0
 
-    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
+    def on_contact(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> None:
         # bumpless transfer: u = f_r + K_if ∫e starts at the measured force f̂
         f_r = self.force_reference(obs, state)[0]
-        state[_COMMON] = (f - f_r) / self.k_if
+        state[rows, _COMMON] = ((f - f_r) / self.k_if)[rows]
 
     def law(
-        self, obs: Observation, state: np.ndarray, h: np.ndarray, f: float, holding: bool
+        self, obs: Observation, state: np.ndarray, terms: SiteTerms, h: np.ndarray,
+        f: np.ndarray, holding: np.ndarray,
     ) -> np.ndarray:
         p, v = self.path_in_plane(obs)
         w = self.gains.motion_omega
         a_p = w * w * (p - obs["tool_pos"]) + 2 * w * (v - obs["tool_vel"])
-        x_dot_n = float(self.normal @ obs["tool_vel"])
-        if state[_CONTACT] == 0.0:  # hold still, then the guarded approach: PD on z along n̂
-            z, z_dot = self.approach(state, holding)
-            x_n = float(self.normal @ (obs["tool_pos"] - self.surface_point))
-            f_n = self.m_hat * (w * w * (z - x_n) + 2 * w * (z_dot - x_dot_n))
-        else:
-            f_r, df_r, ddf_r = self.force_reference(obs, state)
-            e = f_r - f
-            state[_COMMON] += e * self.dt
-            # u = f_r + K_if ∫e, with the plant's inverse on the ramp: f = k x ⇒
-            # u = f + (d ḟ + m̂ f̈)/k̂ (zero once the ramp is over)
-            u = f_r + self.k_if * state[_COMMON]
-            if self.ff:
-                u += (self.d * df_r + self.m_hat * ddf_r) / self.k_hat
-            f_n = -u - self.d * x_dot_n
-        return self.osc_torque(obs, state, a_p, force=f_n * self.normal, normal_free=True)
+        x_dot_n = self.along_normal(obs["tool_vel"])
+        contact = state[:, _CONTACT] != 0.0
+        # holding still, then the guarded approach: PD on z along n̂
+        z, z_dot = self.approach(state, holding, ~contact)
+        x_n = self.along_normal(obs["tool_pos"] - self.surface_point)
+        f_approach = self.m_hat * (w * w * (z - x_n) + 2 * w * (z_dot - x_dot_n))
+        # in contact: the force loop
+        f_r, df_r, ddf_r = self.force_reference(obs, state)
+        e = f_r - f
+        state[:, _COMMON] = np.where(contact, state[:, _COMMON] + e * self.dt, state[:, _COMMON])
+        # u = f_r + K_if ∫e, with the plant's inverse on the ramp: f = k x ⇒
+        # u = f + (d ḟ + m̂ f̈)/k̂ (zero once the ramp is over)
+        u = f_r + self.k_if * state[:, _COMMON]
+        if self.ff:
+            u += (self.d * df_r + self.m_hat * ddf_r) / self.k_hat
+        f_n = np.where(contact, -u - self.d * x_dot_n, f_approach)
+        return self.osc_torque(
+            obs, state, terms, a_p, force=f_n[:, None] * self.normal, normal_free=True
+        )
 
 
 # ---------------------------------------------------------------------- implicit force
@@ -640,20 +705,25 @@ class ImplicitForce(_PositionBased):
         self.k_e = self.effective_stiffness(q)
         self.omega_i = g.inner_omega
 
-    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
-        state[_COMMON : _COMMON + 4] = (0.0, self.gains.approach_speed, 0.0, state[_Z])
+    def on_contact(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> None:
+        state[rows, _COMMON : _COMMON + 3] = (0.0, self.gains.approach_speed, 0.0)
+        state[rows, _COMMON + 3] = state[rows, _Z]
 
-    def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
-        s = state[_COMMON : _COMMON + 4]
+    def depth(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        s = state[:, _COMMON : _COMMON + 4].copy()  # Δ, Δ̇, ∫e, z at contact
         e = self.force_reference(obs, state)[0] - f
-        s[2] += e * self.dt
-        r = self.k_pf * e + self.k_if * s[2]  # R_f(s) e
+        s[:, 2] += e * self.dt
+        r = self.k_pf * e + self.k_if * s[:, 2]  # R_f(s) e
         # C(s) = 1/(k̂_e s (1 + s/ω_i)):  (k̂_e/ω_i) Δ̈ + k̂_e Δ̇ = r
         tau = 1.0 / self.omega_i
-        s[1] = (s[1] + self.dt * r / (self.k_e * tau)) / (1.0 + self.dt / tau)
-        s[0] += self.dt * s[1]
-        state[_COMMON : _COMMON + 4] = s
-        return float(s[3] - s[0]), float(-s[1])
+        s[:, 1] = (s[:, 1] + self.dt * r / (self.k_e * tau)) / (1.0 + self.dt / tau)
+        s[:, 0] += self.dt * s[:, 1]
+        state[rows, _COMMON : _COMMON + 4] = s[rows]
+        return s[:, 3] - s[:, 0], -s[:, 1]
 
 
 # ---------------------------------------------------------------------- parallel
@@ -688,17 +758,22 @@ class ParallelForcePosition(_PositionBased):
         self.k_i = min(g.crossover, self.omega_s) / self.k_e
         self.k_f = g.proportional / self.k_e
 
-    def on_contact(self, obs: Observation, state: np.ndarray, f: float) -> None:
+    def on_contact(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> None:
         # continuity: z̄ − K_I ∫e = z at contact (z̄ = the path's depth, 0 on the surface)
-        z_bar = float(self.normal @ (obs["tool_pos_ref"] - self.surface_point))
-        state[_COMMON] = (z_bar - state[_Z]) / self.k_i
+        z_bar = self.along_normal(obs["tool_pos_ref"] - self.surface_point)
+        state[rows, _COMMON] = ((z_bar - state[:, _Z]) / self.k_i)[rows]
 
-    def depth(self, obs: Observation, state: np.ndarray, f: float) -> tuple[float, float]:
+    def depth(
+        self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         e = self.force_reference(obs, state)[0] - f
-        state[_COMMON] += e * self.dt
-        z_bar = float(self.normal @ (obs["tool_pos_ref"] - self.surface_point))
-        zd_bar = float(self.normal @ obs["tool_vel_ref"])
-        z = z_bar - self.k_f * e - self.k_i * state[_COMMON]
+        integral = state[:, _COMMON] + e * self.dt
+        state[rows, _COMMON] = integral[rows]
+        z_bar = self.along_normal(obs["tool_pos_ref"] - self.surface_point)
+        zd_bar = self.along_normal(obs["tool_vel_ref"])
+        z = z_bar - self.k_f * e - self.k_i * integral
         return z, zd_bar - self.k_i * e
 
 

@@ -142,10 +142,108 @@ def test_robot_rows_fallback_equals_row_dynamics(cartesian_obs) -> None:
     policy = baselines.make("os_khatib", CARTESIAN)
     fast, slow = RowDynamics.for_robot(policy.robot), RobotRows(policy.robot)
     q, qd = cartesian_obs["q"][:5], cartesian_obs["qd"][:5]
-    a = fast.site_terms(policy.site_id, q, qd, inertia=True, bias=True)
-    b = slow.site_terms(policy.site_id, q, qd, inertia=True, bias=True)
+    a = fast.site_terms(policy.site_id, q, qd, inertia=True, bias=True, rotations=(0, 1))
+    b = slow.site_terms(policy.site_id, q, qd, inertia=True, bias=True, rotations=(0, 1))
+    assert a.rotations.shape == (5, 2, 3, 3)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_allclose(x, y, rtol=0, atol=1e-12)
     np.testing.assert_allclose(fast.gravity(q), slow.gravity(q), rtol=0, atol=1e-12)
     np.testing.assert_allclose(fast.newton_euler(q, qd, qd), slow.newton_euler(q, qd, qd),
                                rtol=0, atol=1e-11)
+
+
+# ---------------------------------------------------------------------- interaction laws
+CONTACT = "cir_gym/AdmittanceContact-v1"
+CONTACT_KW = {"stiffness": 1.0e4, "force_ref": 20.0}
+TORQUE_LAWS = ("impedance", "admittance", "explicit_force", "implicit_force",
+               "parallel_force_position")
+VARIANTS = {  # (law, gains): the force reference's ramp and the feed-forward paths too
+    **{(name, "course"): {} for name in TORQUE_LAWS},
+    ("explicit_force", "ramp + feed-forward"): {"ramp_time": 0.3, "feedforward": True},
+    ("admittance", "ramp"): {"ramp_time": 0.3},
+    ("implicit_force", "ramp"): {"ramp_time": 0.3},
+    ("parallel_force_position", "ramp"): {"ramp_time": 0.3},
+}
+
+
+@pytest.fixture(scope="module", params=["torque", "position"])
+def contact_run(request) -> tuple[str, dict[str, np.ndarray]]:
+    """Observations of one episode's first 2.5 s (held still, the approach, the first
+    contact at ~2.3 s, pressing) under admittance control, every step."""
+    control = request.param
+    kw = {**CONTACT_KW, "control": control}
+    obs = _rollout(CONTACT, "admittance", range(1), 1250, 1, **kw)
+    return control, obs
+
+
+def _law_states(policy, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The law's state before each step of ``obs``, the law run along it (open loop)."""
+    states, state = [], None
+    for k in range(len(obs["q"])):
+        start = np.array([k == 0])
+        if state is not None:
+            states.append(state[0].copy())
+        _, state = policy.predict(_row(obs, k), state, start)
+    return np.stack(states)
+
+
+@pytest.mark.parametrize(("name", "variant"), list(VARIANTS))
+def test_interaction_rows_equal_each_row_alone_bit_for_bit(name, variant, contact_run) -> None:
+    """Rows at every phase (held still and re-biasing, approaching, the first contact,
+    pressing) in one batch: each row's command and new state are those of the row alone."""
+    control, obs = contact_run
+    env_kwargs = {**CONTACT_KW, "control": control}
+    try:
+        policy = baselines.make(name, CONTACT, env_kwargs=env_kwargs, **VARIANTS[name, variant])
+    except baselines.InvalidGain:  # a torque law on the position interface
+        assert control == "position" and name in ("impedance", "explicit_force")
+        return
+    assert policy.vectorized
+    states = _law_states(policy, obs)
+    obs = {k: v[1:] for k, v in obs.items()}  # (the state before step k + 1)
+    contact = states[:, 7] != 0.0
+    first = int(np.argmax(contact))  # the step whose control sets the contact latch
+    first = first - 1 if first else len(contact) - 1
+    assert contact.any() and (states[:, 8] < policy.gains.bias_time).any()
+    rng = np.random.default_rng(2)
+    pick = np.unique(np.concatenate(([0, 10, first, first + 1], rng.choice(len(contact), 12))))
+    rows = {k: v[pick] for k, v in obs.items()}
+    batch_state = states[pick].copy()
+    batch = policy.control_batch(rows, batch_state)
+    for j, i in enumerate(pick):
+        state = states[i].copy()
+        np.testing.assert_array_equal(batch[j], policy.control(_row(obs, i), state))
+        np.testing.assert_array_equal(batch_state[j], state)
+    assert (batch_state[:, 7] != states[pick, 7]).any()  # the first contact is in the batch
+
+
+def test_interaction_osc_torque_is_the_course_law(contact_run) -> None:
+    """The inner motion law on rows, τ = Jᵀ Λ ([a_p; a_o] − J̇q̇) + n̂ + N_dynᵀ B̂ y₀, against
+    the formula with the Robot's methods (Λ and J̄ by inv): 1e-11 of the largest torque."""
+    control, obs = contact_run
+    if control != "torque":
+        pytest.skip("the inner motion law runs on the torque interface only")
+    policy = baselines.make("impedance", CONTACT, env_kwargs={**CONTACT_KW, "control": control})
+    rows = {k: v[::50] for k, v in obs.items()}
+    state = np.stack([policy.initial_state(_row(rows, i)) for i in range(len(rows["q"]))])
+    state[:, 10:17] += 0.05  # a posture target away from q
+    terms = policy.model_rows().site_terms(policy.site, rows["q"], rows["qd"], inertia=True,
+                                           bias=True)
+    a_p = np.random.default_rng(3).normal(0.0, 2.0, (len(rows["q"]), 3))
+    tau = policy.osc_torque(rows, state, terms, a_p)
+    robot, g = policy.robot, policy.gains
+    for i in range(len(tau)):
+        o = _row(rows, i)
+        q, qd = o["q"], o["qd"]
+        J, B = robot.jacobian(policy.site, q), robot.inertia(q)
+        B_inv = np.linalg.inv(B)
+        Lam = np.linalg.inv(J @ B_inv @ J.T)
+        w = g.motion_omega
+        a_o = w * w * osp.rotvec_error(policy.quat_ref, o["tool_quat"]) \
+            - 2 * w * o["tool_angvel"]
+        F = Lam @ (np.concatenate((a_p[i], a_o)) - robot.jacobian_dot_qdot(policy.site, q, qd))
+        N = np.eye(len(q)) - B_inv @ J.T @ Lam @ J
+        wp = g.posture_omega
+        y0 = wp * wp * (state[i, 10:17] - q) - 2 * wp * qd
+        want = J.T @ F + robot.bias(q, qd) + N.T @ (B @ y0)
+        np.testing.assert_allclose(tau[i], want, rtol=0, atol=REL * np.max(np.abs(want)))
