@@ -41,8 +41,8 @@ from cir_gym.ft_sensor import (
 )
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
+from cir_gym.numeric import CLIP
 from cir_gym.robot import Robot
-from cir_gym.trajectories import quat_from_matrix
 from cir_gym.validation import InvalidArgument, check_number
 
 __all__ = [
@@ -375,6 +375,10 @@ class AdmittanceContactEnv(RobotEnv):
             key: spaces.Box(0.0 if key == "f_ref" else -bound, bound, (size,), dtype=np.float64)
             for key, (size, bound) in OBSERVATION.items()
         })
+        #: key → (low, high) of the observation space, as its arrays
+        self.observation_bounds = {
+            key: (space.low, space.high) for key, space in self.observation_space.spaces.items()
+        }
         steps = self.max_steps
         # the last control period, one entry per physics step
         self.period_record = np.zeros((self.substeps, model.nsensordata))  # sensordata per step
@@ -575,10 +579,10 @@ class AdmittanceContactEnv(RobotEnv):
         vel = np.zeros(6)  # [ω; v] of the tcp, world frame
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
         tool_pos = d.site_xpos[self._site].copy()
-        tool_quat = quat_from_matrix(d.site_xmat[self._site].reshape(3, 3))
+        tool_quat = scene.quat_of(d.site_xmat[self._site].reshape(3, 3))
         if self.interface is not None:
             setpoint_pos, setpoint_R = self.interface.setpoint_pose()
-            setpoint_quat = quat_from_matrix(setpoint_R)
+            setpoint_quat = scene.quat_of(setpoint_R)
         else:
             setpoint_pos, setpoint_quat = tool_pos, tool_quat
         obs = {
@@ -595,10 +599,7 @@ class AdmittanceContactEnv(RobotEnv):
             "setpoint_pos": setpoint_pos,
             "setpoint_quat": setpoint_quat,
         }
-        return {
-            key: np.clip(value, self.observation_space[key].low, self.observation_space[key].high)
-            for key, value in obs.items()
-        }
+        return {key: CLIP(value, *self.observation_bounds[key]) for key, value in obs.items()}
 
     def measured_contact_wrench(self) -> np.ndarray:
         """The sensor's reading compensated with the true bias and tool weight (world, (6,))."""

@@ -51,7 +51,7 @@ from cir_gym.envs.base import MAX_JOINT_SPEED
 from cir_gym.envs.vector_base import BatchedTaskEnv
 from cir_gym.ft_sensor import WrenchSensor
 from cir_gym.motion_interface import CartesianMotionInterface
-from cir_gym.trajectories import quat_from_matrix
+from cir_gym.numeric import CLIP
 
 __all__ = ["AdmittanceContactVectorEnv"]
 
@@ -108,9 +108,6 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         self._last_safe_q = np.zeros((N, m.nq))  # see _advance
         self._last_safe_qd = np.zeros((N, m.nv))
         self._first_contact = np.full(N, -1)  # the step of the first contact; -1: none yet
-        self._bounds = {
-            key: (space.low, space.high) for key, space in t.observation_space.spaces.items()
-        }
 
     def _start_episode(self, i: int) -> None:
         t = self.template
@@ -243,7 +240,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         t, rows = self.template, self._rows
         kk = np.minimum(self._k, t.max_steps)
         tool_pos = self._site_xpos[:, t._site]
-        tool_quat = quat_from_matrix(self._site_xmat[:, t._site].reshape(-1, 3, 3))
+        tool_quat = scene.quat_of(self._site_xmat[:, t._site].reshape(-1, 3, 3))
         # the tcp's velocity (mj_objectVelocity, world frame): the body's spatial velocity
         # [ω; v] about its subtree's centre of mass, moved to the site: v + ω × (p − c)
         cvel = self._cvel[:, self._site_body]
@@ -254,7 +251,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
             robot, site = self.interface.robot, self.interface.site
             poses = [robot.site_pose(site, q_c) for q_c in self.interface.q_c]
             setpoint_pos = np.array([p for p, _ in poses])
-            setpoint_quat = quat_from_matrix(np.array([R for _, R in poses]))
+            setpoint_quat = scene.quat_of(np.array([R for _, R in poses]))
         else:
             setpoint_pos, setpoint_quat = tool_pos, tool_quat
         obs = {
@@ -271,7 +268,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
             "setpoint_pos": setpoint_pos,
             "setpoint_quat": setpoint_quat,
         }
-        return {key: np.clip(v, *self._bounds[key]) for key, v in obs.items()}
+        return {key: CLIP(v, *t.observation_bounds[key]) for key, v in obs.items()}
 
     def _episode_end(
         self, i: int, infos: dict[str, Any], terminated: bool, truncated: bool
