@@ -709,6 +709,14 @@ class RowLaw(Controller):
 
     vectorized = True
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A subclass that redefines :meth:`control` alone (an adapter translating one
+        observation before the law) is served row by row through it (``vectorized`` False);
+        one that writes :meth:`control_rows` stays vectorised."""
+        super().__init_subclass__(**kwargs)
+        if "control" in cls.__dict__ and "control_rows" not in cls.__dict__:
+            cls.vectorized = False
+
     def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """The law on rows: values (N, ...), ``state`` (N, state_size) updated in place;
         commands (N, m)."""

@@ -247,3 +247,25 @@ def test_interaction_osc_torque_is_the_course_law(contact_run) -> None:
         y0 = wp * wp * (state[i, 10:17] - q) - 2 * wp * qd
         want = J.T @ F + robot.bias(q, qd) + N.T @ (B @ y0)
         np.testing.assert_allclose(tau[i], want, rtol=0, atol=REL * np.max(np.abs(want)))
+
+
+def test_an_adapter_that_redefines_control_is_served_row_by_row() -> None:
+    """A RowLaw subclass that translates one observation in ``control`` (PegInHole's
+    admittance adapter) is not vectorised (predict must call its control per row); one that
+    writes control_rows is."""
+    from cir_gym.baselines.hybrid import PegAdmittance
+    from cir_gym.baselines.interaction import Admittance
+
+    class Translating(Admittance):
+        def control(self, obs, state):
+            return super().control(obs, state)
+
+    class Rows(Admittance):
+        def control(self, obs, state):
+            return super().control(obs, state)
+
+        def control_rows(self, obs, state):
+            return super().control_rows(obs, state)
+
+    assert Admittance.vectorized and Rows.vectorized
+    assert not Translating.vectorized and not PegAdmittance.vectorized
