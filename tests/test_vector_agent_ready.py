@@ -19,14 +19,18 @@ import numpy as np
 import pytest
 
 import cir_gym
-from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv
-from cir_gym.envs.agent_ready_vector import AdmittanceContactImpedanceVectorEnv
+from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv, PegInHoleImpedanceEnv
+from cir_gym.envs.agent_ready_vector import (
+    AdmittanceContactImpedanceVectorEnv,
+    PegInHoleImpedanceVectorEnv,
+)
 from cir_gym.impedance import CartesianImpedance, ImpedanceGains, exp_rotvec
 from cir_gym.validation import InvalidArgument
 
 CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
 CONTACT_CLASS = "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
 TOL = 1e-12
+STEPS_PEG = 22  # copy 0 inserts at its 20th policy step
 
 
 def _close(got: Any, want: Any, what: str) -> None:
@@ -85,29 +89,51 @@ def test_each_copy_is_the_single_variant_with_ends_inside_a_policy_step() -> Non
     kw = {"episode_duration": 1.0, "variable_stiffness": True, "randomize": True,
           "force_limit": 40.0}
     rng = np.random.default_rng(0)
-    actions = rng.uniform(-1.0, 1.0, (45, 3, 12))
+    actions = rng.uniform(-1.0, 1.0, (26, 3, 12))
     actions[:, :, 2] = -1.0  # down onto the plate
-    actions[:, :, 6:9] = rng.uniform(0.0, 1.0, (45, 3, 3))  # stiff
+    actions[:, :, 6:9] = rng.uniform(0.0, 1.0, (26, 3, 3))  # stiff
     envs = AdmittanceContactImpedanceVectorEnv(num_envs=3, nthread=1, **kw)
     singles = [AdmittanceContactImpedanceEnv(**kw) for _ in range(3)]
     ends = _lockstep(envs, singles, 5, actions)
     envs.close()
-    assert len(ends) >= 6
+    assert len(ends) >= 4
     assert all(e["force_limit_exceeded"] for e in ends)
     assert any(e["task_steps"] < singles[0].substeps for e in ends)  # inside a policy step
 
 
 def test_each_copy_is_the_single_variant_over_whole_episodes() -> None:
     """The default variant (constant stiffness): wiping increments pressing the tip into the
-    plate, two truncated episodes per copy (10 policy steps each)."""
-    kw = {"episode_duration": 0.5}
+    plate, two truncated episodes per copy (6 policy steps each)."""
+    kw = {"episode_duration": 0.3}
     rng = np.random.default_rng(1)
-    actions = rng.uniform(-0.5, 0.5, (20, 2, 6))
+    actions = rng.uniform(-0.5, 0.5, (12, 2, 6))
     actions[:, :, 2] = -1.0
     envs = AdmittanceContactImpedanceVectorEnv(num_envs=2, nthread=1, **kw)
     ends = _lockstep(envs, [AdmittanceContactImpedanceEnv(**kw) for _ in range(2)], 11, actions)
     envs.close()
     assert len(ends) == 4 and not any(e["force_limit_exceeded"] for e in ends)
+
+
+def test_each_peg_copy_is_the_single_variant_with_insertions_and_stops() -> None:
+    """PegInHoleImpedance with the hole where it is believed to be (no pose error; 1 mm
+    clearance, 2 mm chamfer): copy 0 pushes straight down at the geometric-mean stiffness and
+    inserts (success ends inside a policy step), copy 1 wanders sideways at the highest
+    stiffness and is stopped by the force limit on the block's face; both are autoreset and
+    go on (the single PegInHole task's batched env underneath)."""
+    kw = {"episode_duration": 1.5, "variable_stiffness": True, "position_uncertainty": 0.0,
+          "tilt_uncertainty": 0.0, "clearance": 0.001, "chamfer": 0.002}
+    rng = np.random.default_rng(2)
+    actions = np.zeros((STEPS_PEG, 2, 12))
+    actions[:, :, 2] = -1.0
+    actions[:, 1, :2] = rng.uniform(-1.0, 1.0, (STEPS_PEG, 2))
+    actions[:, 1, 6:] = 1.0
+    envs = PegInHoleImpedanceVectorEnv(num_envs=2, nthread=1, **kw)
+    singles = [PegInHoleImpedanceEnv(**kw) for _ in range(2)]
+    ends = _lockstep(envs, singles, 0, actions)
+    envs.close()
+    assert any(e["is_success"] for e in ends)
+    assert any(e["force_limit_exceeded"] for e in ends)
+    assert any(e["task_steps"] < singles[0].substeps for e in ends)
 
 
 def test_the_impedance_law_on_n_arms_is_each_arm_alone() -> None:
@@ -158,29 +184,12 @@ def test_make_vec_gives_the_batched_variant_and_falls_back(
     sync.close()
 
 
-def test_sb3_adapter_reports_the_ends() -> None:
-    """The SB3 VecEnv over the batched variant: dones, terminal observations and episode
-    metrics at the truncation of a 5-policy-step episode."""
-    from cir_gym.envs.vector import sb3_vec_env
-
-    venv = sb3_vec_env(
-        AdmittanceContactImpedanceVectorEnv(num_envs=2, nthread=1, episode_duration=0.25)
-    )
-    venv.seed(3)
-    obs = venv.reset()
-    assert obs["setpoint_offset"].shape == (2, 6)
-    for _ in range(5):
-        obs, rew, dones, infos = venv.step(np.zeros((2, 6), dtype=np.float32))
-    assert dones.all() and rew.dtype == np.float32
-    assert all(info["TimeLimit.truncated"] and "force_rms_error" in info["episode_metrics"]
-               for info in infos)
-    venv.close()
-
-
 def test_batched_training_env_is_the_registry_s(monkeypatch: pytest.MonkeyPatch) -> None:
     """vec_env 'batched' (agents/batched.py) takes the id's class from the registry: the
     batched variant once it is in BATCHED_ENVIRONMENTS (copy i the flat single observation
-    with seed 7 + i), a clear error for an id with none or an argument it does not batch."""
+    with seed 7 + i; through the SB3 adapter, every copy done at the 5th step with its
+    terminal observation, truncation flag, metrics and Monitor statistics), a clear error
+    for an id with none or an argument it does not batch."""
     from cir_gym.agents.batched import make_batched_vec_env
     from cir_gym.agents.observation import ObservationLayout
 
@@ -193,8 +202,37 @@ def test_batched_training_env_is_the_registry_s(monkeypatch: pytest.MonkeyPatch)
     assert type(venv.venv.venv) is AdmittanceContactImpedanceVectorEnv
     for i in range(2):
         _close(obs[i], layout.flatten(single.reset(seed=7 + i)[0]), f"reset {i}")
+    for _ in range(5):
+        obs, rew, dones, infos = venv.step(np.zeros((2, 6), dtype=np.float32))
+    assert dones.all() and rew.dtype == np.float32 and obs.shape == (2, layout.size)
+    for info in infos:
+        assert info["TimeLimit.truncated"] and info["episode"]["l"] == 5
+        assert info["terminal_observation"].shape == (layout.size,)
+        assert "force_rms_error" in info["episode_metrics"]
     venv.close()
     with pytest.raises(ValueError, match="render_mode"):
         make_batched_vec_env(CONTACT, {"render_mode": "rgb_array"}, layout, 2, seed=7)
     with pytest.raises(ValueError, match="no native batched env"):
         make_batched_vec_env("cir_gym/RedundantIK-v4", {}, layout, 2, seed=7)
+
+
+def test_batched_evaluation_gives_the_sequential_episodes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """evaluate() with the id in BATCHED_ENVIRONMENTS runs the normalized score's hold-still
+    policy (zeros: the setpoint held) on the batched variant: the sequential EpisodeResults,
+    returns and metrics to TOL; the unknown-stiffness variant."""
+    import cir_gym.evaluation as evaluation
+    from cir_gym.scoring.normalized import hold_still_policy
+
+    monkeypatch.setitem(cir_gym.envs.BATCHED_ENVIRONMENTS, CONTACT, CONTACT_CLASS)
+    monkeypatch.setattr(evaluation, "MAX_BATCH", 2)  # 3 episodes: groups of 2 and 1
+    kw = {"episode_duration": 0.5, "randomize": True}
+    policy = hold_still_policy(AdmittanceContactImpedanceEnv(**kw))
+    assert evaluation._batched_env_class(CONTACT, None, False, kw, None) is (
+        AdmittanceContactImpedanceVectorEnv)
+    fast = evaluation.evaluate(policy, CONTACT, n_episodes=3, seed=40, **kw)
+    slow = evaluation.evaluate(policy, CONTACT, n_episodes=3, seed=40, batched=False, **kw)
+    for f, s in zip(fast.episodes, slow.episodes, strict=True):
+        assert (f.seed, f.length, f.success, f.terminated) == (s.seed, s.length, s.success,
+                                                              s.terminated)
+        _close(f.episode_return, s.episode_return, "return")
+        assert f.metrics == pytest.approx(s.metrics, rel=TOL, abs=TOL)

@@ -7,6 +7,8 @@ policy step moves the pose setpoint (and optionally the stiffness), then runs th
 of :mod:`cir_gym.impedance` at every one of the task's control steps in the policy period.
 Reset, seeds, physics, metrics and success are the task's own (``info["episode_metrics"]`` and
 ``info["is_success"]`` come unchanged from the task's last step); the reward is the variant's.
+:mod:`cir_gym.envs.agent_ready_vector` batches both variants (N copies on the task's batched
+env), with the same methods on (N, ...) arrays.
 """
 
 from __future__ import annotations

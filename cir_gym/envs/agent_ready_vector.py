@@ -46,13 +46,19 @@ from typing import Any, ClassVar
 import numpy as np
 
 from cir_gym.envs.admittance_vector import AdmittanceContactVectorEnv
-from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv, ImpedanceTaskEnv
+from cir_gym.envs.agent_ready import (
+    AdmittanceContactImpedanceEnv,
+    ImpedanceTaskEnv,
+    PegInHoleImpedanceEnv,
+)
+from cir_gym.envs.peg_in_hole_vector import PegInHoleVectorEnv
 from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.impedance import CartesianImpedance
 
 __all__ = [
     "AdmittanceContactImpedanceVectorEnv",
     "ImpedanceVectorEnv",
+    "PegInHoleImpedanceVectorEnv",
 ]
 
 #: the physics-holding attributes of BatchedTaskEnv, taken from the task's batched env
@@ -214,3 +220,12 @@ class AdmittanceContactImpedanceVectorEnv(ImpedanceVectorEnv):
     env_id: ClassVar[str] = "cir_gym/AdmittanceContactImpedance-v0"
     task_vector_class: ClassVar[type[BatchedTaskEnv]] = AdmittanceContactVectorEnv
 
+
+
+class PegInHoleImpedanceVectorEnv(ImpedanceVectorEnv):
+    """``num_envs`` copies of ``cir_gym/PegInHoleImpedance-v0`` on
+    :class:`~cir_gym.envs.peg_in_hole_vector.PegInHoleVectorEnv` (module docstring)."""
+
+    env_class: ClassVar[type[ImpedanceTaskEnv]] = PegInHoleImpedanceEnv
+    env_id: ClassVar[str] = "cir_gym/PegInHoleImpedance-v0"
+    task_vector_class: ClassVar[type[BatchedTaskEnv]] = PegInHoleVectorEnv
