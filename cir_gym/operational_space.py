@@ -82,7 +82,7 @@ def align_quat(quat: ArrayLike, to: ArrayLike) -> np.ndarray:
     q, r = np.asarray(quat, dtype=float), np.asarray(to, dtype=float)
     if q.shape == r.shape == (4,):  # one pose (the envs' hot path): no temporaries
         return -q if quat_dot(q.tolist(), r.tolist()) < 0.0 else q * 1.0
-    sign = np.where(np.sum(q * r, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+    sign = np.where(_SUM(q * r, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
     return q * sign
 
 
