@@ -43,7 +43,7 @@ BOTTOM_TOLERANCE = 5e-4
 ENTRY_DEPTH = 5e-4
 
 
-_NEXT, _PREV = [1, 2, 0], [2, 0, 1]  # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
+_NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])  # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
 
 
 def tip_twist(
@@ -364,6 +364,7 @@ class PegInHoleEnv(RobotEnv):
             "hole_pos": np.full(3, 2.0),
             "hole_quat": np.ones(4),
         }
+        self._obs_low = {key: -b for key, b in self._obs_bounds.items()}
         self.observation_space = spaces.Dict(
             {k: spaces.Box(-b, b, b.shape, dtype=np.float64) for k, b in self._obs_bounds.items()}
         )
@@ -554,11 +555,13 @@ class PegInHoleEnv(RobotEnv):
                     mujoco.mj_setState(m, d, self._period_start, _INTEGRATION)
                     self._physics(tau, played)
                 mujoco.mj_forward(m, d)  # mj_step leaves the kinematics of the step before
-        net = np.linalg.norm(self.sensors.net(period[:played]), axis=-1)
+        peak = float(largest[:played].max()) if played else 0.0
+        net = np.linalg.norm(self.sensors.net(period[:played]), axis=-1) if peak > 0 else ()
         period[played:] = d.sensordata  # stopped early: the sensor feels the stopped state
         self.ft_sensor.advance_many(self.sensors.wrist(period))
-        peak = float(largest[:played].max()) if played else 0.0
-        return diverged, peak, float(net.max()) if played else 0.0, float(net.sum())
+        if peak == 0.0:  # no contact in the period
+            return diverged, 0.0, 0.0, 0.0
+        return diverged, peak, float(net.max()), float(net.sum())
 
     def _physics(self, tau: np.ndarray | None, steps: int) -> bool:
         """The first ``steps`` physics steps of the control period: the torque ``tau`` held
@@ -598,9 +601,10 @@ class PegInHoleEnv(RobotEnv):
         """Two-point contact, wedging and jamming of the peg now (see Episode End), from the
         peg's contacts at the last physics step; ``axial_speed``: the tip's speed along the
         true axis (m/s)."""
-        normal, pressing = self.sensors.peg(self.data.sensordata)
-        if not pressing[1] > 0:  # fewer than two pressing contacts (the slots are sorted by
-            return ContactFlags()  # force, and a contact without normal force has none)
+        sensed = self.data.sensordata
+        if self.sensors.peg_count(sensed) < 2:  # two-point contact needs two contacts
+            return ContactFlags()
+        normal, pressing = self.sensors.peg(sensed)
         axis = self.true_hole_R[:, 2]
         return contact_flags(normal, pressing, axis, depth, axial_speed, self._mu_diameter)
 
@@ -646,8 +650,8 @@ class PegInHoleEnv(RobotEnv):
             "hole_pos": self.hole_pos.copy(),
             "hole_quat": self.hole_quat.copy(),
         }
-        bounds = self._obs_bounds
-        return {key: CLIP(x, -bounds[key], bounds[key]) for key, x in obs.items()}
+        low, high = self._obs_low, self._obs_bounds
+        return {key: CLIP(x, low[key], high[key]) for key, x in obs.items()}
 
     def controller_context(self) -> TaskContext:
         return TaskContext(

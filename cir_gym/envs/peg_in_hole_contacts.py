@@ -93,6 +93,10 @@ class ContactSensors:
         sensor gives the robot's force on the block)."""
         return -sensordata[..., self._net : self._net + 3]
 
+    def peg_count(self, sensordata: np.ndarray) -> np.ndarray:
+        """The number of the peg's contacts with the block (...,) (the sensor's ``found``)."""
+        return sensordata[..., self._peg]
+
     def peg(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The peg's strongest contacts (``slots`` of them, empty slots zero): unit normals
         pushing the peg away from the block (..., slots, 3), world frame, and normal forces

@@ -114,7 +114,7 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
         self._entered[i] = False
         self._tip_z[i] = -t._final_depth
         self._depth[i] = t._final_depth
-        _load_sensor_row(self.ft_sensor, i, t.ft_sensor)
+        self.ft_sensor.load_row(i, t.ft_sensor)
         if self.motion is not None:
             self.motion.reset(t._q0, rows=[i])
 
@@ -287,15 +287,3 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
         info["is_success"] = bool(self._inserted[i])
         return info
 
-
-def _load_sensor_row(batch: WrenchSensor, i: int, sensor: WrenchSensor) -> None:
-    """Row ``i`` of a batched F/T sensor set to the state of a single ``sensor`` (the
-    template's, just reset: its filter, delay line, sample clock, bias, reading and random
-    generator, which is copy i's own and so goes on drawing that copy's noise)."""
-    batch._bias[i] = sensor._bias[0]
-    batch._f[i] = sensor._f[0]
-    D = batch.delay_steps
-    batch._buffer[i, :D] = sensor._buffer[0, :D]
-    batch._count[i] = sensor._count[0]
-    batch._reading[i] = sensor._reading[0]
-    batch._rngs[i] = sensor._rngs[0]
