@@ -99,6 +99,9 @@ class PegInHoleEnv(RobotEnv):
     cancel in it) and ``info["net_contact_force"]`` the largest net force (their vector sum,
     what the wrist feels).
 
+    Batched: :class:`cir_gym.envs.peg_in_hole_vector.PegInHoleVectorEnv` steps N copies of
+    this env on one ``mujoco.batch.Batch``, each copy equal to this env (both interfaces).
+
     ## Action Space
     - ``control="torque"``: ``Box(-1, 1, (7,), float32)``: τ = a ⊙ τ_max with τ_max = (320, 320,
       176, 176, 110, 40, 40) N m; gravity is not compensated by the env.

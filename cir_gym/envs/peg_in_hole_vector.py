@@ -3,23 +3,25 @@
 >>> import cir_gym
 >>> envs = cir_gym.make_vec("cir_gym/PegInHole-v2", num_envs=64)  # doctest: +SKIP
 
-What is batched: the physics of all copies, one ``Batch.step(nstep=1)`` per physics step (the
-control period's physics steps in a Python loop, as the single env's ``_advance``: the
-position interface's torque law and the force-limit stop act at the physics rate); the
-contacts are the scene's MuJoCo contact sensors (``sensordata``, read for all copies at once,
-:class:`~cir_gym.envs.peg_in_hole_contacts.ContactSensors`); the F/T sensor is one batched
+What is batched: the physics of all copies in MuJoCo's threads, as the single env's
+``_advance`` runs it: the torque interface holds each copy's torques for the control period,
+one ``Batch.step(nstep=frame_skip)``; the position interface computes its torque law at every
+physics step, one ``Batch.step(nstep=1)`` each. The contacts are the scene's MuJoCo contact
+sensors, each physics step's values read from MuJoCo's history buffer for all copies at once
+(:class:`~cir_gym.envs.peg_in_hole_contacts.ContactSensors`); the F/T sensor is one batched
 :class:`~cir_gym.ft_sensor.WrenchSensor`; the position interface one
 :class:`~cir_gym.motion_interface.CartesianMotionInterface` on (N, 7) arrays. The task's
 step (insertion, flags, reward, observation) is the single env's arithmetic on (N, ...)
-arrays; each copy has its own hole pose (the block's ``body_pos``/``body_quat`` expanded per
-simulation). Resets, seeding, autoreset and divergence are
-:class:`~cir_gym.envs.vector_base.BatchedTaskEnv`'s; the episode metrics are the template's
-``episode_metrics`` on a copy's history.
+arrays (its ``_reward_terms``, ``_step_info``, :func:`~cir_gym.envs.peg_in_hole.tip_twist`,
+:func:`~cir_gym.envs.peg_in_hole_contacts.contact_flags`); each copy has its own hole pose
+(the block's ``body_pos``/``body_quat`` expanded per simulation). Resets, seeding, autoreset
+and divergence are :class:`~cir_gym.envs.vector_base.BatchedTaskEnv`'s; the episode metrics
+are the template's ``episode_metrics`` on a copy's history.
 
-A copy whose period stops early (a single contact over ``force_limit``, or a divergence) is
-held at its stopped state while the others finish the period (its row is stepped with the
-others and written back, then ``Batch.forward`` as the single env's ``mj_forward``); its F/T
-sensor feels the stopped state for the rest of the period, as the single env's does.
+A copy whose period a single contact stops is set back to the period's start and simulated
+again up to that physics step (the same computation), then ``Batch.forward`` as the single
+env's ``mj_forward``; its F/T sensor feels the stopped state for the rest of the period, as
+the single env's does. A copy that diverges is restored and counts no contact, as there.
 
 Supported: every argument of the single env except ``render_mode``; both control interfaces.
 A wrapper may drive it with (N, 7) torques per control step (``control="torque"``).
