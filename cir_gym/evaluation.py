@@ -8,10 +8,10 @@ and model errors. Metrics come from the environment's ``metric_specs`` and its
 
 Batched evaluation: where ``cir_gym.envs.vector`` has a native batched env for the id and its
 arguments (``VECTOR_ENVS``: JointTracking-v2 and ElasticJointTracking-v3 with the ideal drive,
-CartesianTracking-v1 with exact sensing, ...; see ``cir_gym.envs.vector.native_vector_env``)
+CartesianTracking-v1 with exact sensing, AdmittanceContact-v1, ...; see ``cir_gym.envs.vector.native_vector_env``)
 and the policy gives the same actions for a batch of observations as for each one alone
-(:func:`batches_exactly`: the course controllers, whose ``predict`` runs ``control`` row by
-row), :func:`evaluate` runs up to ``MAX_BATCH`` episodes at once on one
+(:func:`batches_exactly`: the course controllers, whose ``predict`` runs one code for a row
+alone and for a batch, tested bit for bit in ``tests/test_batched_laws.py``), :func:`evaluate` runs up to ``MAX_BATCH`` episodes at once on one
 ``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each copy is the single
 env step for step, to the tolerance its tests state (``tests/test_vector.py``,
 ``tests/test_vector_cartesian.py``: observations equal, rewards and metrics to 1e-12
@@ -370,8 +370,8 @@ def batches_exactly(policy: Any) -> bool:
     gives for each observation alone (bit for bit), so batched episodes are the sequential ones.
 
     A policy says so with an attribute ``batches_exactly`` (bool). Without one: True for a
-    ``baselines.Controller`` (its ``predict`` runs ``control`` on each row with that row's
-    state), False for anything else (a trained agent's torch network rounds a batch of rows
+    ``baselines.Controller`` (a row-vectorised law runs the same code on a row alone and in a
+    batch, the others ``control`` on each row with that row's state), False for anything else (a trained agent's torch network rounds a batch of rows
     differently from one row: actions differ by ~1e-7).
     """
     flag = getattr(policy, "batches_exactly", None)
