@@ -8,18 +8,19 @@ and model errors. Metrics come from the environment's ``metric_specs`` and its
 
 Batched evaluation: where ``cir_gym.envs.vector`` has a native batched env for the id and its
 arguments (``VECTOR_ENVS``: JointTracking-v2 and ElasticJointTracking-v3 with the ideal drive,
-CartesianTracking-v1 with exact sensing, AdmittanceContact-v1, ...; see ``cir_gym.envs.vector.native_vector_env``)
-and the policy gives the same actions for a batch of observations as for each one alone
-(:func:`batches_exactly`: the course controllers, whose ``predict`` runs one code for a row
-alone and for a batch, tested bit for bit in ``tests/test_batched_laws.py``), :func:`evaluate` runs up to ``MAX_BATCH`` episodes at once on one
-``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each copy is the single
+CartesianTracking-v1 with exact sensing, AdmittanceContact-v1, ...; see
+``cir_gym.envs.vector.native_vector_env``) and the policy gives the same actions for a batch of
+observations as for each one alone (:func:`batches_exactly`: the course controllers, whose
+``predict`` runs one code for a row alone and for a batch, tested bit for bit in
+``tests/test_batched_laws.py``), :func:`evaluate` runs up to ``MAX_BATCH`` episodes at once on
+one ``mujoco.batch.Batch`` and one ``predict`` per step for all of them. Each copy is the single
 env step for step, to the tolerance its tests state (``tests/test_vector.py``,
-``tests/test_vector_cartesian.py``: observations equal, rewards and metrics to 1e-12
-relative), so every ``EpisodeResult`` is the sequential path's to that tolerance
+``tests/test_vector_cartesian.py``: observations equal, rewards and metrics to 1e-12 relative),
+so every ``EpisodeResult`` is the sequential path's to that tolerance
 (``tests/test_evaluation.py`` and those files compare them). Everything else — other ids,
-unsupported arguments (the industrial drive, sensor noise, randomization), ``record=True``, a
-given ``env``, trained agents (a torch network rounds a batch differently from one row, in the
-last float32 bit) — runs one episode after the other.
+unsupported arguments (each batched env's ``unsupported`` names them), ``record=True``, a given
+``env``, trained agents (a torch network rounds a batch differently from one row, in the last
+float32 bit) — runs one episode after the other.
 """
 
 from __future__ import annotations
@@ -371,8 +372,9 @@ def batches_exactly(policy: Any) -> bool:
 
     A policy says so with an attribute ``batches_exactly`` (bool). Without one: True for a
     ``baselines.Controller`` (a row-vectorised law runs the same code on a row alone and in a
-    batch, the others ``control`` on each row with that row's state), False for anything else (a trained agent's torch network rounds a batch of rows
-    differently from one row: actions differ by ~1e-7).
+    batch, the others ``control`` on each row with that row's state), False for anything else (a
+    trained agent's torch network rounds a batch of rows differently from one row: actions
+    differ by ~1e-7).
     """
     flag = getattr(policy, "batches_exactly", None)
     if flag is not None:
