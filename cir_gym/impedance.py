@@ -24,6 +24,7 @@ Everything here uses only a nominal model (a :class:`~cir_gym.robot.Robot` built
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -40,6 +41,28 @@ from cir_gym.validation import InvalidArgument
 _VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
 #: v = R[_VEE_ROW, _VEE_COL] − R[_VEE_COL, _VEE_ROW] = [R₃₂ − R₂₃, R₁₃ − R₃₁, R₂₁ − R₁₂]
 _VEE_ROW, _VEE_COL = np.array([2, 0, 1]), np.array([1, 2, 0])
+#: a × b = a[_CROSS_A] b[_CROSS_B] − a[_CROSS_B] b[_CROSS_A] (mju_cross's order)
+_CROSS_A, _CROSS_B = np.array([1, 2, 0]), np.array([2, 0, 1])
+#: the nominal arm's evaluation needs kinematics, B and the bias only
+_UNUSED_STAGES = int(
+    mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    | mujoco.mjtDisableBit.mjDSBL_CONTACT
+    | mujoco.mjtDisableBit.mjDSBL_SENSOR
+    | mujoco.mjtDisableBit.mjDSBL_ACTUATION
+)
+
+
+def _dof_chain(m: mujoco.MjModel, body: int) -> np.ndarray | None:
+    """(nv, 1) mask of the dofs that move ``body`` (mj_jac's ancestor chain), or None when
+    they are all the model's."""
+    while body and not m.body_dofnum[body]:
+        body = int(m.body_parentid[body])
+    chain = np.zeros((m.nv, 1))
+    i = int(m.body_dofadr[body] + m.body_dofnum[body] - 1) if body else -1
+    while i >= 0:
+        chain[i] = 1.0
+        i = int(m.dof_parentid[i])
+    return None if chain.all() else chain
 
 __all__ = [
     "CartesianImpedance",
@@ -165,9 +188,10 @@ class CartesianImpedance:
     answers with the same leading shape.
 
     The nominal model is evaluated for all arms by one ``mujoco.batch.Batch`` (MuJoCo's own
-    computations, row by row: forward kinematics, B(q) from the composite rigid bodies with
-    the armature, g(q) as the bias at q̇ = 0, and the site's Jacobian), and the law is numpy
-    on (..., 6) and (..., n) arrays: one arm is the one-row case of the same code.
+    computations, row by row, to the velocity stage at q̇ = 0: forward kinematics, B(q) from
+    the composite rigid bodies with the armature, g(q) as the bias; the site's Jacobian by
+    ``mj_jac``'s formula on the rows' ``cdof``), and the law is numpy on (..., 6) and (..., n)
+    arrays: one arm is the one-row case of the same code.
 
     Args:
         robot: the nominal model (e.g. :func:`tool_robot`); never the simulator's.
@@ -188,14 +212,19 @@ class CartesianImpedance:
                 f"q_rest must have shape ({n},) or (num_arms, {n}), got {self.q_rest.shape}"
             )
         self.num_arms = 1 if self.q_rest.ndim == 1 else self.q_rest.shape[0]
-        m = robot.model
+        m = copy.deepcopy(robot.model)  # without what B, g and J do not need
+        m.opt.disableflags |= _UNUSED_STAGES
         self._arms = mujoco.batch.Batch(m, nsim=self.num_arms, nthread=1)
         self._qpos = self._arms.bind("qpos")  # (N, nq); q̇ stays 0: qfrc_bias is g(q)
         self._site_xpos = self._arms.bind("site_xpos")
         self._site_xmat = self._arms.bind("site_xmat")
         self._M = self._arms.bind("M")  # B(q) in MuJoCo's sparse rows (N, nM)
         self._bias = self._arms.bind("qfrc_bias")
-        self._body = int(m.site_bodyid[self.site])
+        self._cdof = self._arms.bind("cdof")  # (N, nv, 6): each dof's [ω; v] about the com
+        self._subtree_com = self._arms.bind("subtree_com")
+        body = int(m.site_bodyid[self.site])
+        self._root = int(m.body_rootid[body])
+        self._chain = _dof_chain(m, body)
         # B's lower-triangle entries: M[:, k] is B[row[k], col[k]] (and B[col[k], row[k]])
         self._M_row = np.repeat(np.arange(m.nv), m.M_rownnz)
         self._M_col = m.M_colind.copy()
@@ -217,8 +246,12 @@ class CartesianImpedance:
         self._arms.forward(stage=_VELOCITY_STAGE)  # kinematics, B (crb), bias at q̇ = 0
         self._p = self._site_xpos[:, self.site].copy()  # (N, 3)
         self._R = self._site_xmat[:, self.site].reshape(-1, 3, 3)  # (N, 3, 3)
-        jacp, jacr = self._arms.jac(self._body, self._p)  # (N, 3, nv) each (mj_jacSite)
-        J = np.concatenate((jacp, jacr), axis=1)  # [J_P; J_O] (N, 6, nv)
+        # mj_jac: J_O = ω, J_P = v + ω × (p − c_root) of each dof of the site's chain
+        cdof = self._cdof if self._chain is None else self._cdof * self._chain
+        w, r = cdof[:, :, :3], (self._p - self._subtree_com[:, self._root])[:, None, :]
+        a, b = _CROSS_A, _CROSS_B
+        jacp = cdof[:, :, 3:] + (w[..., a] * r[..., b] - w[..., b] * r[..., a])
+        J = np.concatenate((jacp, w), axis=2).transpose(0, 2, 1).copy()  # [J_P; J_O] (N, 6, nv)
         nv = self.robot.model.nv
         B = np.zeros((q.shape[0], nv, nv))
         B[:, self._M_row, self._M_col] = self._M
