@@ -22,9 +22,16 @@ from cir_gym.envs.agent_ready import (
     STIFFNESS_RANGE,
     AdmittanceContactImpedanceEnv,
     PegInHoleImpedanceEnv,
+    move_setpoint,
 )
 from cir_gym.envs.peg_in_hole import PegInHoleEnv
-from cir_gym.impedance import CartesianImpedance, ImpedanceGains, exp_rotvec, pose_error
+from cir_gym.impedance import (
+    CartesianImpedance,
+    ImpedanceGains,
+    exp_rotvec,
+    log_rotation,
+    pose_error,
+)
 from cir_gym.validation import InvalidArgument
 
 PEG = "cir_gym/PegInHoleImpedance-v0"
@@ -259,6 +266,42 @@ def test_rotation_helpers_invert() -> None:
     R = exp_rotvec(phi)
     assert R @ R.T == pytest.approx(np.eye(3), abs=1e-12)
     assert pose_error(np.zeros(3), R, np.zeros(3), np.eye(3))[3:] == pytest.approx(phi)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.5, 2.0, 3.1, math.pi - 1e-4, math.pi - 1e-8])
+def test_log_rotation_inverts_exp_on_arrays_at_every_angle(angle: float) -> None:
+    """log(exp(φ)) = φ for 20 axes at once ((20, 3) → (20, 3, 3) → (20, 3)), from 0 to within
+    1e-8 of π (where log switches to the quaternion): to 1e-12 rad, except that the
+    conditioning of the axis near π (∝ 1/sin θ) allows 1e-9 rad there."""
+    rng = np.random.default_rng(4)
+    axes = rng.standard_normal((20, 3))
+    phi = angle * axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    R = exp_rotvec(phi)
+    assert R.shape == (20, 3, 3)
+    tol = 1e-9 if angle > 3.0 else 1e-12
+    np.testing.assert_allclose(log_rotation(R), phi, atol=tol)
+    np.testing.assert_allclose(log_rotation(R[3]), phi[3], atol=tol)  # one matrix: (3,)
+
+
+def test_setpoint_moves_are_clamped_row_by_row() -> None:
+    """move_setpoint on N setpoints: each row as if alone, within max_offset (m) and
+    max_angle (rad) of its pose, the unclamped increments applied exactly."""
+    rng = np.random.default_rng(6)
+    N = 5
+    p, R = rng.uniform(-0.5, 0.5, (N, 3)), exp_rotvec(rng.uniform(-1, 1, (N, 3)))
+    p_d = p + 0.004 * rng.standard_normal((N, 3))
+    R_d = exp_rotvec(0.05 * rng.standard_normal((N, 3))) @ R
+    dx = np.r_[0.0, 1e-3, 0.05, 0.0, 0.2].reshape(N, 1) * np.r_[1, 1, 1, 1, 1, 1.0]
+    new_p, new_R = move_setpoint(p_d, R_d, dx, p, R, 0.01, 0.1)
+    for i in range(N):
+        one_p, one_R = move_setpoint(p_d[i], R_d[i], dx[i], p[i], R[i], 0.01, 0.1)
+        np.testing.assert_allclose(new_p[i], one_p, atol=1e-15)
+        np.testing.assert_allclose(new_R[i], one_R, atol=1e-15)
+    offset = np.linalg.norm(new_p - p, axis=1)
+    angle = np.linalg.norm(log_rotation(new_R @ np.swapaxes(R, 1, 2)), axis=1)
+    assert np.all(offset <= 0.01 + 1e-15) and np.all(angle <= 0.1 + 1e-12)
+    assert offset[2] == pytest.approx(0.01) and angle[4] == pytest.approx(0.1)  # clamped
+    np.testing.assert_allclose(new_p[0], p_d[0], atol=1e-15)  # no increment: unchanged
 
 
 def test_gains_reject_bad_values() -> None:
