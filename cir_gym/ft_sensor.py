@@ -312,13 +312,23 @@ class WrenchSensor:
         self.advance_many(wrenches)
         return self.reading.copy()
 
-    def advance_many(self, wrenches: Any) -> None:
+    def advance_many(self, wrenches: Any, rows: Any = None) -> None:
         """:meth:`update_many` without the copy of the reading. ``wrenches``: (K, 6) (any
-        sequence of six-number rows, none for K = 0), or (num_envs, K, 6) for a batch."""
+        sequence of six-number rows, none for K = 0), or (num_envs, K, 6) for a batch; with
+        ``rows`` (a batch's copies: indices or a boolean mask) only those advance, and
+        ``wrenches`` is (len(rows), K, 6)."""
         w = np.asarray(wrenches, dtype=float)
         if w.size == 0:
             return
-        self._run(w.reshape(1, -1, 6) if self.num_envs is None else w.reshape(len(self._f), -1, 6))
+        if rows is None:
+            self._run(w.reshape(len(self._f), -1, 6))
+            return
+        if self.num_envs is None:
+            raise InvalidArgument("rows is for a batched sensor (num_envs given), got rows")
+        index = np.asarray(rows)
+        index = np.flatnonzero(index) if index.dtype == bool else index.reshape(-1)
+        if index.size:
+            self._run(w.reshape(len(index), -1, 6), index)
 
     def _filter_matrices(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
         """(L (K, K), b (K, 1)) with which the filter's outputs over K steps are
@@ -332,9 +342,10 @@ class WrenchSensor:
             self._filters[steps] = (L, (beta ** (k + 1.0))[:, None])
         return self._filters[steps]
 
-    def _run(self, w: np.ndarray) -> None:
-        """Advance every copy K physics steps with its wrenches ``w`` (rows, K, 6): filter,
-        delay line, sampling (see the module docstring).
+    def _run(self, w: np.ndarray, rows: np.ndarray | None = None) -> None:
+        """Advance copies K physics steps with their wrenches ``w`` ((rows, K, 6): every copy,
+        or those of the index array ``rows``): filter, delay line, sampling (see the module
+        docstring).
 
         The filtered values go into a buffer after the delay line's last ``delay_steps``
         values (oldest first). Only the last sample of each copy in the K steps is computed:
@@ -346,23 +357,27 @@ class WrenchSensor:
             grown = np.zeros((len(self._f), D + K, 6))
             grown[:, :D] = self._buffer[:, :D]
             self._buffer = grown
-        history = self._buffer[:, : D + K]  # (rows, D + K, 6): the delay line, then the new
+        these = slice(None) if rows is None else rows
+        history = self._buffer[these, : D + K]  # (rows, D + K, 6): the delay line, then the new
         new = history[:, D:]
         if self._filtering:
             L, b = self._filter_matrices(K)
             np.matmul(L, w, out=new)
-            new += b * self._f[:, None, :]
+            new += b * self._f[these, None, :]
         else:  # no filter: exactly the input
             new[...] = w
-        self._f[:] = new[:, -1]
-        samples, self._count = np.divmod(self._count + K, self.sample_steps)
+        self._f[these] = new[:, -1]
+        samples, count = np.divmod(self._count[these] + K, self.sample_steps)
+        self._count[these] = count
         # the last sample at step j = K − count (1-based) holds the value D steps earlier:
         # history index (D + j − 1) − D = j − 1
         sampled = np.flatnonzero(samples)
         if sampled.size:
-            self._sample(sampled, history[sampled, K - 1 - self._count[sampled]],
-                         samples[sampled])
+            copies = sampled if rows is None else rows[sampled]
+            self._sample(copies, history[sampled, K - 1 - count[sampled]], samples[sampled])
         history[:, :D] = history[:, K:]  # the delay line for the next call
+        if rows is not None:  # history was a copy of those rows
+            self._buffer[rows, : D + K] = history
 
     def _sample(self, rows: np.ndarray, held: np.ndarray, draws: np.ndarray) -> None:
         """Set the readings of ``rows`` from their delayed filtered values ``held``

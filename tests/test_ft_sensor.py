@@ -290,6 +290,15 @@ def test_a_batched_sensors_rows_are_single_sensors(preset: str) -> None:
             k += 1
         expected = np.array([s.reading for s in singles])
         np.testing.assert_allclose(batch.reading, expected, rtol=0, atol=ROUND_OFF)
+    # some rows only (a copy whose period diverged is not advanced): the others as before
+    chunk = signal[:, k : k + 8]
+    batch.advance_many(chunk[[0, 3]], rows=[0, 3])
+    batch.advance_many(chunk[1:2], rows=np.array([False, True, False, False]))
+    for i in (0, 1, 3):
+        singles[i].advance_many(chunk[i])
+    expected = np.array([s.reading for s in singles])
+    np.testing.assert_allclose(batch.reading, expected, rtol=0, atol=ROUND_OFF)
+    np.testing.assert_allclose(batch._filtered, [s._filtered for s in singles], atol=ROUND_OFF)
     assert batch.reading.shape == (N, 6) and batch.bias.shape == (N, 6)
     np.testing.assert_array_equal(batch.bias[2], spec.bias)  # reset without a bias: the spec's
     with pytest.raises(InvalidArgument, match="rng"):

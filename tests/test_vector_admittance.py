@@ -175,18 +175,6 @@ def test_a_copy_that_diverges_stops_as_the_single_env() -> None:
         assert infos["final_info"]["episode_metrics"][name][1] == pytest.approx(value, rel=TOL)
 
 
-def test_a_rollout_stopped_by_mujoco_is_found_at_its_step() -> None:
-    """Batch.rollout stops a copy whose instability warnings rise and repeats its last record:
-    the step found is the first one the next records repeat (the last step if none does)."""
-    from cir_gym.envs.admittance_vector import _stopped_at
-
-    qpos = np.arange(8.0)[:, None] * np.ones((8, 3))
-    qvel = qpos + 0.5
-    assert _stopped_at(qpos, qvel) == 7
-    qpos[4:], qvel[4:] = qpos[3], qvel[3]
-    assert _stopped_at(qpos, qvel) == 3
-
-
 def test_make_vec_and_unsupported_arguments(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(cir_gym.envs.BATCHED_ENVIRONMENTS, ENV, CLASS_PATH)
     native = cir_gym.make_vec(ENV, 2, nthread=1, episode_duration=0.1, randomize=True)

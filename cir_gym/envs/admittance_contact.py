@@ -34,11 +34,7 @@ from cir_gym.envs.admittance_task import (
 )
 from cir_gym.envs.base import MIN_CONTROL_FREQ, RobotEnv
 from cir_gym.envs.base import frame_skip as physics_steps
-from cir_gym.ft_sensor import (
-    WrenchSensor,
-    contact_wrench,
-    tool_gravity_wrench,
-)
+from cir_gym.ft_sensor import WrenchSensor, contact_wrench, tool_gravity_wrench
 from cir_gym.metrics import MetricSpec
 from cir_gym.motion_interface import CartesianMotionInterface
 from cir_gym.numeric import CLIP
@@ -162,9 +158,10 @@ class AdmittanceContactEnv(RobotEnv):
 
     ## Episode End
     Truncated after ``episode_duration`` s. Terminated when the physics diverges
-    (``info["diverged"]``) or, at any physics step, a single contact force on the plate (the
-    tool's or a link's) or the plate's load exceeds ``force_limit`` (a failure,
-    ``info["force_limit_exceeded"]``). ``step`` after the end or before ``reset`` raises.
+    (``info["diverged"]``; that control period counts as not played: no contact) or, at any
+    physics step, a single contact force on the plate (the tool's or a link's) or the plate's
+    load exceeds ``force_limit`` (a failure, ``info["force_limit_exceeded"]``). ``step`` after
+    the end or before ``reset`` raises.
 
     ## Arguments
     | argument | default | meaning |
@@ -324,8 +321,10 @@ class AdmittanceContactEnv(RobotEnv):
         control_freq = check_number(
             "control_freq", control_freq, MIN_CONTROL_FREQ, 1.0 / self.timestep
         )
-        physics_steps(control_freq, self.timestep)  # a whole number of steps, else a clear error
-        model = build_model(self.stiffness, self.damping, self.timestep)
+        # a whole number of physics steps per period (else a clear error), each one recorded
+        model = build_model(
+            self.stiffness, self.damping, self.timestep, physics_steps(control_freq, self.timestep)
+        )
         super().__init__(
             model,
             control_freq=control_freq,
@@ -334,9 +333,9 @@ class AdmittanceContactEnv(RobotEnv):
             width=width,
             height=height,
         )
-        # a control period is `substeps` = frame_skip physics steps, simulated one at a time
-        # (_advance: the position interface's motion controller runs at every physics step,
-        # and the contact forces are read at every one)
+        # a control period is `substeps` = frame_skip physics steps: one physics call at the
+        # torque interface's held torque, one per physics step for the position interface's
+        # motion controller; MuJoCo's sensor history keeps every step's contact forces
         self.substeps = self.frame_skip
         self.robot = Robot(model, JOINTS)  # the simulator's arm
         self.n = self.robot.n
@@ -381,7 +380,7 @@ class AdmittanceContactEnv(RobotEnv):
         }
         steps = self.max_steps
         # the last control period, one entry per physics step
-        self.period_record = np.zeros((self.substeps, model.nsensordata))  # sensordata per step
+        self.period_record = scene.PeriodRecord(model)  # the period's sensordata, step by step
         self.tool_force_steps = np.zeros(self.substeps)  # tool's normal contact force (N)
         self.peak_force_steps = np.zeros(self.substeps)  # largest single contact force (N)
         # per control step of the episode
@@ -440,31 +439,38 @@ class AdmittanceContactEnv(RobotEnv):
         return self._obs(), info
 
     def _advance(self, a: np.ndarray) -> bool:
-        """One control period, one physics step at a time; return True if the physics diverged.
+        """One control period; return True if the physics diverged.
 
-        The torque interface holds τ = a ⊙ τ_max; the position interface's motion controller
-        computes τ at every physics step (clipped to τ_max). Each step's sensordata goes to
-        ``period_record`` (rows of the steps a divergence leaves unplayed stay 0); then the
-        wrist's true wrenches go to the sensor model, and the tool's normal contact force and
+        The torque interface holds τ = a ⊙ τ_max for the period (one ``_simulate`` of
+        ``substeps`` physics steps); the position interface's motion controller computes τ at
+        every physics step (clipped to τ_max; one ``_simulate`` per step). Then the period's
+        sensordata, step by step from MuJoCo's sensor history (:class:`PeriodRecord`), feeds
+        the wrist's true wrenches to the sensor model and the tool's normal contact force and
         the largest single contact force on the plate to ``tool_force_steps`` /
-        ``peak_force_steps`` (:func:`period_forces`)."""
-        d, n, record = self.data, self.substeps, self.period_record
-        record[:] = 0.0
-        tau = a * self.torque_limit if self.interface is None else None
-        played, diverged = n, False
-        self.frame_skip = 1  # RobotEnv._simulate: one physics step per call
+        ``peak_force_steps`` (:func:`period_forces`). A period in which the physics diverged
+        is not played: the state goes back to the last finite one (RobotEnv._simulate) and
+        its forces are 0."""
+        d, n = self.data, self.substeps
+        held = self.interface is None  # the torque interface: τ held for the whole period
+        self.frame_skip = n if held else 1  # physics steps per RobotEnv._simulate call
+        diverged = False
         try:
-            for i in range(n):
-                if self.interface is not None:
+            for i in range(0, n, self.frame_skip):
+                if held:
+                    tau = a * self.torque_limit
+                else:
                     tau = self.interface.torque(d.qpos[self._qa], d.qvel[self._da], (i + 1) / n)
                     tau = np.clip(tau, -self.torque_limit, self.torque_limit)
-                if self._simulate(tau):
-                    played, diverged = i, True
+                diverged = self._simulate(tau)
+                if diverged:
                     break
-                record[i] = d.sensordata
         finally:
             self.frame_skip = n
-        self.sensor.advance_many(record[:played, self._wrench_at])
+        record = self.period_record(d.history)
+        if diverged:
+            record[:] = 0.0
+        else:
+            self.sensor.advance_many(record[:, self._wrench_at])
         self.tool_force_steps, self.peak_force_steps = period_forces(
             record, self._normal, self._tool_at, self._peak_at
         )

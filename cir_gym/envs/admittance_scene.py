@@ -48,6 +48,7 @@ __all__ = [
     "JOINTS",
     "PLATE_TRAVEL",
     "RANDOM_RANGES",
+    "RECORDED_SENSORS",
     "SCENE",
     "SITE",
     "START_Q",
@@ -60,6 +61,7 @@ __all__ = [
     "TOOL_MASS",
     "TOOL_QUAT",
     "TOOL_RADIUS",
+    "PeriodRecord",
     "build_model",
     "draw",
     "draw_surface",
@@ -107,13 +109,20 @@ RANDOM_RANGES = {
     "sensor_bias_force": (-2.0, 2.0),  # N, each axis
     "sensor_bias_torque": (-0.1, 0.1),  # N m, each axis
 }
+#: the sensors read at every physics step: the wrist's wrench, the tool-plate contact force
+#: and the plate's largest single contact (build_model)
+RECORDED_SENSORS = ("ft_force", "ft_torque", "tool_contact", "peak_contact")
 #: the tool-plate contact's normal parameters (the plate's class in the scene file)
 _SOLREF = (0.002, 1.0)
 _SOLIMP = (0.99, 0.99, 0.001, 0.5, 2.0)
 
 
-def build_model(stiffness: float, damping: float, timestep: float = TIMESTEP) -> mujoco.MjModel:
-    """The scene with the plate's spring (N/m) and damper (N s/m), physics step ``timestep`` (s).
+def build_model(
+    stiffness: float, damping: float, timestep: float = TIMESTEP, samples: int = 8
+) -> mujoco.MjModel:
+    """The scene with the plate's spring (N/m) and damper (N s/m), physics step ``timestep`` (s),
+    and a history of the last ``samples`` physics steps (a control period's) for the sensors
+    of :data:`RECORDED_SENSORS` (:class:`PeriodRecord` reads it).
 
     The tool is added to the robot's ``payload`` body (beyond ``ft_site``): the payload's
     inertial is the tool's (:data:`TOOL_MASS`, the centre of mass and inertia of
@@ -167,11 +176,59 @@ def build_model(stiffness: float, damping: float, timestep: float = TIMESTEP) ->
         )
         if ref is not None:
             sensor.reftype, sensor.refname = mujoco.mjtObj.mjOBJ_GEOM, ref
+    for name in RECORDED_SENSORS:  # MuJoCo keeps each step's value (mjData.history)
+        spec.sensor(name).nsample = samples
     joint = spec.joint("surface_slide")
     joint.stiffness = [stiffness, 0.0, 0.0]
     joint.damping = [damping, 0.0, 0.0]
     joint.range = [-PLATE_TRAVEL, 0.05]
     return spec.compile()
+
+
+class PeriodRecord:
+    """A control period's sensordata, physics step by physics step, from MuJoCo's sensor
+    history (``mjData.history``; the model from :func:`build_model`).
+
+    MuJoCo keeps the last ``nsample`` values of each sensor of :data:`RECORDED_SENSORS` in a
+    ring: per sensor, at ``sensor_historyadr``, two header numbers (the second: the ring's
+    cursor, the newest sample's slot), ``nsample`` times, then ``nsample`` values of
+    ``sensor_dim`` numbers. Calling the record on ``history`` ((nhistory,) of one MjData, or
+    (N, nhistory) of a batch's rows) gives the samples oldest first in sensordata's layout,
+    (n, nsensordata) or (N, n, nsensordata) (the columns of other sensors 0): row k is what
+    ``mjData.sensordata`` held after the k-th of the last n physics steps.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        ids = [model.sensor(name).id for name in RECORDED_SENSORS]
+        counts = {int(model.sensor_history[i, 0]) for i in ids}
+        if len(counts) != 1 or 0 in counts:
+            raise InvalidArgument(f"the sensors {RECORDED_SENSORS} need one nsample > 0")
+        self.samples = n = counts.pop()
+        self.nsensordata = model.nsensordata
+        self.columns = np.concatenate([  # sensordata addresses of the recorded sensors
+            np.arange(model.sensor_dim[i]) + model.sensor_adr[i] for i in ids
+        ])
+        # history address of each column's value in ring slot p: (n, columns)
+        slot = np.arange(n)[:, None]
+        self._value_at = np.concatenate([
+            model.sensor_historyadr[i] + 2 + n + slot * model.sensor_dim[i]
+            + np.arange(model.sensor_dim[i])
+            for i in ids
+        ], axis=1)
+        self._cursor_at = int(model.sensor_historyadr[ids[0]]) + 1  # they are sampled together
+
+    def __call__(self, history: np.ndarray) -> np.ndarray:
+        cursor = history[..., self._cursor_at].astype(np.int64)  # () or (N,)
+        slots = (cursor[..., None] + 1 + np.arange(self.samples)) % self.samples  # oldest first
+        index = self._value_at[slots]  # (..., n, columns)
+        record = np.zeros((*np.shape(cursor), self.samples, self.nsensordata))
+        if np.ndim(cursor):
+            record[..., self.columns] = np.take_along_axis(
+                history[:, None, :], index.reshape(len(history), -1)[:, None, :], axis=2
+            ).reshape(index.shape)
+        else:
+            record[:, self.columns] = history[index]
+        return record
 
 
 def wrist_sensor_spec(sensor: str, **overrides: Any) -> SensorSpec:

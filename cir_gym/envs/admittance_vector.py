@@ -9,17 +9,18 @@
 What is batched and how (the single env's ``step`` is the specification; each copy equals it
 to the tolerance tests/test_vector_admittance.py states):
 
-* **Physics.** A control period is ``substeps`` physics steps of every copy, one
-  ``Batch.step`` each (:meth:`BatchedTaskEnv._simulate`: per-copy divergence and restore).
-  The contact forces are MuJoCo contact sensors (the scene's ``tool_contact``: the
-  tool-plate net force; ``peak_contact``: the largest single contact on the plate), so each
-  step's ``sensordata`` row (N, nsensordata) is the whole per-step measurement; the period's
-  record (N, substeps, nsensordata) feeds the batched wrist-sensor model
-  (:class:`~cir_gym.ft_sensor.WrenchSensor` with ``num_envs``) and
-  :func:`~cir_gym.envs.admittance_task.period_forces`, as the single env feeds its own. The
-  torque interface holds τ = a ⊙ τ_max over the period; the position interface's torque law
+* **Physics.** The torque interface holds τ = a ⊙ τ_max over a control period: one
+  ``Batch.step(nstep=substeps)`` for all copies (:meth:`BatchedTaskEnv._simulate`: per-copy
+  divergence and restore); the position interface's torque law
   (:class:`~cir_gym.motion_interface.CartesianMotionInterface` on (N, 7) arrays) runs at
-  every physics step. After the period ``Batch.forward`` (to the velocity stage) makes the
+  every physics step, one ``Batch.step`` each. The contact forces are MuJoCo contact sensors
+  (the scene's ``tool_contact``: the tool-plate net force; ``peak_contact``: the largest
+  single contact on the plate) whose every physics step MuJoCo keeps in its sensor history
+  (``Batch.bind("history")``, read by
+  :class:`~cir_gym.envs.admittance_scene.PeriodRecord`): the period's record (N, substeps,
+  nsensordata) feeds the batched wrist-sensor model (:class:`~cir_gym.ft_sensor.WrenchSensor`
+  with ``num_envs``) and :func:`~cir_gym.envs.admittance_task.period_forces`, as the single
+  env feeds its own. After the period ``Batch.forward`` (to the velocity stage) makes the
   poses and velocities of the reached state current, as the single env's kinematics calls.
 * **Per-episode surfaces.** Every reset draws a surface height, tilt (and with
   ``randomize=True`` the stiffness, damping and sensor bias): the plate's ``jnt_stiffness``,
@@ -47,7 +48,6 @@ import numpy as np
 from cir_gym.envs import admittance_scene as scene
 from cir_gym.envs.admittance_contact import START_Q, AdmittanceContactEnv
 from cir_gym.envs.admittance_task import CONTACT_THRESHOLD, REWARD_TERMS, period_forces
-from cir_gym.envs.base import MAX_JOINT_SPEED
 from cir_gym.envs.vector_base import BatchedTaskEnv
 from cir_gym.ft_sensor import WrenchSensor
 from cir_gym.motion_interface import CartesianMotionInterface
@@ -56,8 +56,6 @@ from cir_gym.numeric import CLIP
 __all__ = ["AdmittanceContactVectorEnv"]
 
 _VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
-#: what a period records of each physics step
-_RECORD = ("sensordata", "qpos", "qvel")
 #: the per-copy model fields an episode's surface sets (AdmittanceContactEnv.reset)
 _SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
 
@@ -98,15 +96,11 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         )
         if self.interface is not None:
             self.interface.reset(np.tile(START_Q, (N, 1)))
-        # a period's records, (N, n, ...) per item of _RECORD, and those of one physics step
-        # (the position interface's torque law runs between them)
-        self._record = {key: np.zeros((N, n, size)) for key, size in
-                        (("sensordata", m.nsensordata), ("qpos", m.nq), ("qvel", m.nv))}
-        self._one_step = {key: np.zeros((N, 1, v.shape[2])) for key, v in self._record.items()}
-        self._start_q = np.zeros((N, m.nq))  # the state a period starts from
-        self._start_qd = np.zeros((N, m.nv))
-        self._last_safe_q = np.zeros((N, m.nq))  # see _advance
-        self._last_safe_qd = np.zeros((N, m.nv))
+        self._history = self.batch.bind("history")  # MuJoCo's sensor history of every copy
+        self.period_record = scene.PeriodRecord(m)
+        self._record = np.zeros((N, n, m.nsensordata))  # the period's sensordata, step by step
+        self._held_q = np.zeros((N, m.nq))  # where a copy diverged mid-period is held
+        self._held_qd = np.zeros((N, m.nv))
         self._first_contact = np.full(N, -1)  # the step of the first contact; -1: none yet
 
     def _start_episode(self, i: int) -> None:
@@ -117,70 +111,45 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         if self.interface is not None:
             self.interface.reset(START_Q, rows=[i])
         self._first_contact[i] = -1
-        self._last_safe_q[i] = self._qpos[i]
-        self._last_safe_qd[i] = self._qvel[i]
 
     # ------------------------------------------------------------------ step
     def _advance(self, a: np.ndarray) -> np.ndarray:
         """One control period of every copy (AdmittanceContactEnv._advance on the rows); return
         the (N,) copies that diverged.
 
-        The torque interface's period is one ``Batch.rollout`` of ``substeps`` physics steps
-        at the held torque; the position interface's, one rollout per physics step with its
-        torque law in between. Each step's sensordata, qpos and qvel go to ``_record``. A
-        copy diverged at step j if MuJoCo raised an instability warning there (the rollout
-        stops that copy: its later records repeat step j's) or if step j left q or q̇
-        non-finite or |q̇| > MAX_JOINT_SPEED (RobotEnv._simulate's rule, at each physics
-        step): it is put back to its state after step j − 1 (the period's start for j = 0)
-        and its records from step j on are zeroed, as the single env stops there. Then the
-        records feed the wrist sensors, and ``Batch.forward`` makes the poses and velocities
-        of the reached state current."""
-        t, n, N = self.template, self.template.substeps, self.num_envs
-        q, qd, record = self._qpos, self._qvel, self._record
-        self._start_q[:] = q
-        self._start_qd[:] = qd
-        played = np.full(N, n)
-        held = self.interface is None
-        for j in range(0, n, n if held else 1):
-            if held:
-                self._ctrl[:] = a * t.torque_limit
-            else:
-                tau = self.interface.torque(q[:, t._qa], qd[:, t._da], (j + 1) / n)
-                self._ctrl[:] = np.clip(tau, -t.torque_limit, t.torque_limit)
-            before = self._warning_counts().copy()
-            out = self.batch.rollout(n if held else 1, record=_RECORD,
-                                     out=record if held else self._one_step)
-            if not held:
-                for key, value in out.items():
-                    record[key][:, j] = value[:, 0]
-            for i in np.flatnonzero(np.any(self._warning_counts() != before, axis=1)):
-                played[i] = min(played[i], j + _stopped_at(out["qpos"][i], out["qvel"][i]))
-        qpos, qvel = record["qpos"], record["qvel"]
-        if np.max(np.abs(qvel)) > MAX_JOINT_SPEED or not np.isfinite(np.sum(qpos)):
-            with np.errstate(all="ignore"):  # NaN fails the comparison
-                bad = ~np.all(np.isfinite(qpos), axis=2) | ~(
-                    np.max(np.abs(qvel), axis=2) <= MAX_JOINT_SPEED
-                )
-            played = np.minimum(played, np.where(bad.any(axis=1), bad.argmax(axis=1), n))
-        stopped = played < n
-        if stopped.any():
-            for i in np.flatnonzero(stopped):  # back to the last finite state before the step
-                j = played[i] - 1
-                start_finite = np.isfinite(self._start_q[i].sum() + self._start_qd[i].sum())
-                q[i], qd[i] = (
-                    (qpos[i, j], qvel[i, j]) if j >= 0
-                    else (self._start_q[i], self._start_qd[i]) if start_finite
-                    else (self._last_safe_q[i], self._last_safe_qd[i])
-                )
-            for value in record.values():
-                value[np.arange(n)[None, :] >= played[:, None]] = 0.0
-        # the state before this period's last step: the last finite state of a period that
-        # starts from a non-finite one (RobotEnv._simulate keeps it for that case)
-        self._last_safe_q[:] = qpos[:, n - 2] if n > 1 else self._start_q
-        self._last_safe_qd[:] = qvel[:, n - 2] if n > 1 else self._start_qd
-        self.sensor.advance_many(record["sensordata"][:, :, t._wrench_at])
+        The torque interface holds τ = a ⊙ τ_max: one ``_simulate`` (``Batch.step``) of
+        ``substeps`` physics steps; the position interface's torque law runs at every physics
+        step, one ``_simulate`` each, and a copy that diverged at one of them is held where
+        ``_simulate`` put it back for the rest of the period, as the single env stops there.
+        Then ``_record`` is the period's sensordata, step by step, from MuJoCo's sensor
+        history (:class:`~cir_gym.envs.admittance_scene.PeriodRecord`; 0 for a diverged
+        copy, whose period is not played), the wrist sensors of the copies that did not
+        diverge take their wrenches, and ``Batch.forward`` makes the poses and velocities of
+        the reached state current."""
+        t, n = self.template, self.template.substeps
+        q, qd = self._qpos, self._qvel
+        if self.interface is None:
+            diverged = self._simulate(a * t.torque_limit)
+        else:
+            diverged = np.zeros(self.num_envs, dtype=bool)
+            for i in range(n):
+                tau = self.interface.torque(q[:, t._qa], qd[:, t._da], (i + 1) / n)
+                new = self._simulate(np.clip(tau, -t.torque_limit, t.torque_limit), 1)
+                new &= ~diverged
+                if new.any():
+                    self._held_q[new], self._held_qd[new] = q[new], qd[new]
+                    diverged |= new
+            if diverged.any():
+                q[diverged], qd[diverged] = self._held_q[diverged], self._held_qd[diverged]
+        self._record = self.period_record(self._history)
+        self._record[diverged] = 0.0
+        wrenches = self._record[:, :, t._wrench_at]
+        if diverged.any():
+            self.sensor.advance_many(wrenches[~diverged], rows=~diverged)
+        else:
+            self.sensor.advance_many(wrenches)
         self.batch.forward(stage=_VELOCITY_STAGE)  # poses and velocities of the reached state
-        return stopped
+        return diverged
 
     def _task_step(
         self, a: np.ndarray, peak: np.ndarray, k: np.ndarray
@@ -189,9 +158,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         if self.interface is not None:
             self.interface.command(a * t.increment_scale, t.dt)
         diverged = self._advance(a)
-        tool, peak_steps = period_forces(
-            self._record["sensordata"], self._normal, t._tool_at, t._peak_at
-        )
+        tool, peak_steps = period_forces(self._record, self._normal, t._tool_at, t._peak_at)
         force = tool.mean(axis=1)
         touch = (tool > CONTACT_THRESHOLD).mean(axis=1)
         largest = peak_steps.max(axis=1)
@@ -285,10 +252,3 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
             "is_success": t.succeeded(metrics, terminated),
         }
 
-
-def _stopped_at(qpos: np.ndarray, qvel: np.ndarray) -> int:
-    """The step (0-based) of a rollout's records (steps, nq) and (steps, nv) at which MuJoCo
-    stopped the simulation for an instability warning: the first record the next ones
-    repeat (the last step if none does)."""
-    same = np.all(qpos[1:] == qpos[:-1], axis=1) & np.all(qvel[1:] == qvel[:-1], axis=1)
-    return int(same.argmax()) if same.any() else len(qpos) - 1
