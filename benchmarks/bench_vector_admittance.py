@@ -10,10 +10,11 @@ Env-steps/s of ``--num-envs`` copies of ``cir_gym/AdmittanceContact-v1`` in
 trials of ``--steps`` steps: in process CPU time with one MuJoCo thread (other jobs' time
 slices on this shared machine are not counted), and in wall-clock time with 2 MuJoCo threads.
 
-The copies are driven in contact: each holds the torque that compensates gravity at the start
-pose and pushes the tip down with 15 N (a constant action per copy), so after ~0.3 s every copy
-presses on its plate; the timed steps start after an untimed warm-up of 250 steps (0.5 s).
-Both sides play the very same episodes (the batched env equals the single env step for step).
+The copies are driven in contact by the course's ``impedance`` controller (as
+``cir_gym.scoring.policies`` resolves it; one batched ``predict`` per step, not timed): the
+timed steps start after an untimed warm-up of 600 steps (1.2 s; the tool touches the plate at
+about 1 s). Both sides play the very same episodes (the batched env equals the single env step
+for step).
 """
 
 from __future__ import annotations
@@ -26,34 +27,36 @@ import gymnasium as gym
 import numpy as np
 
 import cir_gym  # noqa: F401  (registers the environments)
-from cir_gym.envs.admittance_scene import SITE, START_Q, tool_robot
 from cir_gym.envs.admittance_vector import AdmittanceContactVectorEnv
+from cir_gym.scoring.policies import make_policy
 
 ENV_ID = "cir_gym/AdmittanceContact-v1"
-WARMUP = 250
+WARMUP = 600
 
 
-def pressing_action(torque_limit: np.ndarray) -> np.ndarray:
-    """The normalised torque (7,) that holds the start pose against gravity and pushes the tip
-    down with 15 N: (g(q₀) + Jᵀ f) / τ_max, f = (0, 0, −15, 0, 0, 0)."""
-    robot = tool_robot()
-    J = robot.jacobian(robot.site_id(SITE), START_Q)
-    wrench = np.array([0.0, 0.0, -15.0, 0.0, 0.0, 0.0])
-    return np.clip((robot.gravity(START_Q) + J.T @ wrench) / torque_limit, -1.0, 1.0)
-
-
-def timed_loop(envs: gym.vector.VectorEnv, actions: np.ndarray, steps: int,
+def timed_loop(envs: gym.vector.VectorEnv, kwargs: dict, steps: int,
                clock: Callable[[], float]) -> Callable[[], float]:
-    """Seconds per env-step (per copy) of ``steps`` steps, continuing from the last call."""
-    envs.reset(seed=0)
+    """Seconds per env-step (per copy) of ``steps`` steps driven by the impedance controller,
+    continuing from the last call (only ``envs.step`` is timed)."""
+    policy = make_policy(ENV_ID, "impedance", kwargs, {})
+    obs, _ = envs.reset(seed=0)
+    state: list = [None]
+    start = [np.ones(envs.num_envs, dtype=bool)]
+
+    def step() -> float:
+        action, state[0] = policy.predict(obs_now[0], state=state[0], episode_start=start[0])
+        t0 = clock()
+        obs_now[0], _, term, trunc, _ = envs.step(action)
+        elapsed = clock() - t0
+        start[0] = term | trunc
+        return elapsed
+
+    obs_now = [obs]
     for _ in range(WARMUP):
-        envs.step(actions)
+        step()
 
     def loop() -> float:
-        t0 = clock()
-        for _ in range(steps):
-            envs.step(actions)
-        return (clock() - t0) / (steps * envs.num_envs)
+        return sum(step() for _ in range(steps)) / (steps * envs.num_envs)
 
     return loop
 
@@ -83,12 +86,11 @@ def main() -> None:
             [lambda: gym.make(ENV_ID, **kwargs) for _ in range(n)],
             autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
         )
-        a = np.tile(pressing_action(sync.envs[0].unwrapped.torque_limit), (n, 1))
         for label, nthread, clock in (("CPU, 1 thread", 1, time.process_time),
                                       ("wall, 2 threads", 2, time.perf_counter)):
             batched = AdmittanceContactVectorEnv(num_envs=n, nthread=nthread, **kwargs)
-            t_b, t_s = best_pair(timed_loop(batched, a, args.steps, clock),
-                                 timed_loop(sync, a, args.steps, clock), args.repeat)
+            t_b, t_s = best_pair(timed_loop(batched, kwargs, args.steps, clock),
+                                 timed_loop(sync, kwargs, args.steps, clock), args.repeat)
             print(f"| {n} | {label} | {1 / t_b:,.0f} | {1 / t_s:,.0f} | {t_s / t_b:.2f} |",
                   flush=True)
             batched.close()

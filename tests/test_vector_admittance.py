@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import cir_gym
+from cir_gym.envs import admittance_scene as scene
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
 from cir_gym.envs.admittance_vector import AdmittanceContactVectorEnv
 from cir_gym.evaluation import evaluate
@@ -173,6 +174,17 @@ def test_a_copy_that_diverges_stops_as_the_single_env() -> None:
     assert all(np.all(np.isfinite(v)) for v in obs.values())
     for name, value in w_info["episode_metrics"].items():
         assert infos["final_info"]["episode_metrics"][name][1] == pytest.approx(value, rel=TOL)
+
+
+def test_the_tool_quaternion_is_its_bodys() -> None:
+    """The observation's tool_quat is the tcp's body's xquat (w ≥ 0): the tcp site is aligned
+    with that body (site_quat the identity), so it is the site's orientation."""
+    env = AdmittanceContactEnv(episode_duration=0.1)
+    env.reset(seed=0)
+    np.testing.assert_array_equal(env.model.site_quat[env._site], [1.0, 0.0, 0.0, 0.0])
+    obs, *_ = env.step(np.full(7, 0.2))
+    R = env.data.site_xmat[env._site].reshape(3, 3)
+    np.testing.assert_allclose(obs["tool_quat"], scene.quat_of(R), atol=1e-15)
 
 
 def test_make_vec_and_unsupported_arguments(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -343,14 +343,14 @@ class AdmittanceContactEnv(RobotEnv):
         self.torque_limit = self.robot.torque_limit.copy()
         self._site = self.robot.site_id(SITE)
         self._ft_site = self.robot.site_id("ft_site")
+        self._tool_body = int(model.site_bodyid[self._site])  # the tcp's frame is this body's
         self._plate_geom = model.geom("surface_geom").id
         self._mount = model.body("surface_mount").id
         self._mount_pos0 = model.body_pos[self._mount].copy()
         slide = model.joint("surface_slide")
         self._slide_jnt, self._slide_dof = slide.id, int(model.jnt_dofadr[slide.id])
         self._slide_qpos = int(model.jnt_qposadr[slide.id])
-        adr = {s: int(model.sensor_adr[model.sensor(s).id]) for s in
-               ("ft_force", "ft_torque", "tool_contact", "peak_contact")}
+        adr = {s: int(model.sensor_adr[model.sensor(s).id]) for s in scene.RECORDED_SENSORS}
         self._wrench_at = np.r_[adr["ft_force"] : adr["ft_force"] + 3,
                                 adr["ft_torque"] : adr["ft_torque"] + 3]
         self._tool_at = slice(adr["tool_contact"], adr["tool_contact"] + 3)
@@ -585,7 +585,7 @@ class AdmittanceContactEnv(RobotEnv):
         vel = np.zeros(6)  # [ω; v] of the tcp, world frame
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, self._site, vel, 0)
         tool_pos = d.site_xpos[self._site].copy()
-        tool_quat = scene.quat_of(d.site_xmat[self._site].reshape(3, 3))
+        tool_quat = scene.positive_w(d.xquat[self._tool_body])  # the tcp is aligned with it
         if self.interface is not None:
             setpoint_pos, setpoint_R = self.interface.setpoint_pose()
             setpoint_quat = scene.quat_of(setpoint_R)

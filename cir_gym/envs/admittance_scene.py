@@ -65,6 +65,7 @@ __all__ = [
     "build_model",
     "draw",
     "draw_surface",
+    "positive_w",
     "quat_of",
     "surface_force",
     "tilt_rotation",
@@ -216,19 +217,26 @@ class PeriodRecord:
             for i in ids
         ], axis=1)
         self._cursor_at = int(model.sensor_historyadr[ids[0]]) + 1  # they are sampled together
+        self._ahead = 1 + np.arange(n)  # the oldest sample is the one after the cursor
+        self._every_column = np.array_equal(np.sort(self.columns), np.arange(self.nsensordata))
+        self._rows = np.zeros((0, 1, 1), dtype=np.int64)
 
     def __call__(self, history: np.ndarray) -> np.ndarray:
         cursor = history[..., self._cursor_at].astype(np.int64)  # () or (N,)
-        slots = (cursor[..., None] + 1 + np.arange(self.samples)) % self.samples  # oldest first
-        index = self._value_at[slots]  # (..., n, columns)
+        slots = (cursor[..., None] + self._ahead) % self.samples  # ring slots, oldest first
+        index = self._value_at[slots]  # (..., n, columns): history addresses
+        values = history[index] if history.ndim == 1 else history[self._row_of(index), index]
+        if self._every_column:
+            return values
         record = np.zeros((*np.shape(cursor), self.samples, self.nsensordata))
-        if np.ndim(cursor):
-            record[..., self.columns] = np.take_along_axis(
-                history[:, None, :], index.reshape(len(history), -1)[:, None, :], axis=2
-            ).reshape(index.shape)
-        else:
-            record[:, self.columns] = history[index]
+        record[..., self.columns] = values
         return record
+
+    def _row_of(self, index: np.ndarray) -> np.ndarray:
+        """(N, 1, 1) row numbers that pair with ``index`` (N, n, columns) in a fancy index."""
+        if len(self._rows) != len(index):
+            self._rows = np.arange(len(index))[:, None, None]
+        return self._rows
 
 
 def wrist_sensor_spec(sensor: str, **overrides: Any) -> SensorSpec:
@@ -363,6 +371,11 @@ def quat_of(R: np.ndarray) -> np.ndarray:
         mujoco.mju_mat2Quat(quat, mat)
     q[q[:, 0] < 0] *= -1.0
     return q.reshape(*np.shape(R)[:-2], 4)
+
+
+def positive_w(quat: np.ndarray) -> np.ndarray:
+    """The same rotations as the unit quaternions ``quat`` (..., 4) (w, x, y, z), with w ≥ 0."""
+    return np.where(quat[..., :1] < 0, -quat, quat)
 
 
 def draw(

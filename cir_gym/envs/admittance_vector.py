@@ -55,6 +55,15 @@ from cir_gym.numeric import CLIP
 
 __all__ = ["AdmittanceContactVectorEnv"]
 
+
+def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """u × v of rows (N, 3) (np.cross's values, without its generic machinery)."""
+    return np.stack((
+        u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1],
+        u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+        u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
+    ), axis=1)
+
 _VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
 #: the per-copy model fields an episode's surface sets (AdmittanceContactEnv.reset)
 _SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
@@ -84,7 +93,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         t, N, m, n = self.template, self.num_envs, self.template.model, self.template.substeps
         self._model_rows = {name: self.batch.expand(name) for name in _SURFACE_FIELDS}
         self._site_xpos = self.batch.bind("site_xpos")
-        self._site_xmat = self.batch.bind("site_xmat")
+        self._xquat = self.batch.bind("xquat")
         self._cvel = self.batch.bind("cvel")
         self._subtree_com = self.batch.bind("subtree_com")
         self._site_body = int(m.site_bodyid[t._site])
@@ -207,13 +216,13 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
         t, rows = self.template, self._rows
         kk = np.minimum(self._k, t.max_steps)
         tool_pos = self._site_xpos[:, t._site]
-        tool_quat = scene.quat_of(self._site_xmat[:, t._site].reshape(-1, 3, 3))
+        tool_quat = scene.positive_w(self._xquat[:, t._tool_body])
         # the tcp's velocity (mj_objectVelocity, world frame): the body's spatial velocity
         # [ω; v] about its subtree's centre of mass, moved to the site: v + ω × (p − c)
         cvel = self._cvel[:, self._site_body]
         omega = cvel[:, :3]
         lever = tool_pos - self._subtree_com[:, self._site_root]
-        velocity = cvel[:, 3:] + np.cross(omega, lever)
+        velocity = cvel[:, 3:] + cross(omega, lever)
         if self.interface is not None:
             robot, site = self.interface.robot, self.interface.site
             poses = [robot.site_pose(site, q_c) for q_c in self.interface.q_c]
