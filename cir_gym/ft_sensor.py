@@ -367,11 +367,13 @@ class WrenchSensor:
         else:  # no filter: exactly the input
             new[...] = w
         self._f[these] = new[:, -1]
-        samples, count = np.divmod(self._count[these] + K, self.sample_steps)
+        total = self._count[these] + K
+        samples = total // self.sample_steps  # samples in these K steps
+        count = total - samples * self.sample_steps
         self._count[these] = count
         # the last sample at step j = K − count (1-based) holds the value D steps earlier:
         # history index (D + j − 1) − D = j − 1
-        sampled = np.flatnonzero(samples)
+        sampled = samples.nonzero()[0]
         if sampled.size:
             copies = sampled if rows is None else rows[sampled]
             self._sample(copies, history[sampled, K - 1 - count[sampled]], samples[sampled])
