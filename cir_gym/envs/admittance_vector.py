@@ -64,6 +64,7 @@ def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
     ), axis=1)
 
+
 _VELOCITY_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)
 #: the per-copy model fields an episode's surface sets (AdmittanceContactEnv.reset)
 _SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
