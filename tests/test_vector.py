@@ -207,7 +207,9 @@ def test_gymnasium_make_vec_builds_the_batched_env_equal_to_the_single_envs(env_
     assert isinstance(sync, gym.vector.SyncVectorEnv)  # the other modes are Gymnasium's
     sync.close()
     envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **KW)
-    assert _compare_with_gym_make(envs, env_id, 20, **KW) == 2  # both crossed an episode end
+    # both copies crossed an episode end (the agent-ready variants' 0.1-s episodes are 2 policy
+    # steps: they cross several)
+    assert _compare_with_gym_make(envs, env_id, 20, **KW) >= 2
 
 
 def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
