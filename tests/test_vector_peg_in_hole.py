@@ -172,3 +172,33 @@ def test_unsupported_and_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match="NaN"):
         vec.step(np.full((2, 7), np.nan))
     vec.close()
+
+
+def test_the_flags_of_each_copy_are_the_single_envs_in_constructed_contacts() -> None:
+    """The constructed two-point contacts of tests/test_peg_in_hole.py (jammed 10 mm deep,
+    wedged 3 mm deep, one contact lifted) put into the copies of a batch: each copy's flags
+    are the single env's."""
+    import mujoco
+    from test_peg_in_hole import _exact_env, _two_point_pose
+
+    cases = [(0.010, 0.0), (0.003, 0.0), (0.010, 2e-5)]
+    vec = PegInHoleVectorEnv(len(cases), nthread=1, position_uncertainty=0.0,
+                             tilt_uncertainty=0.0, sensor="ideal")
+    vec.reset(seed=0)
+    spec = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+    want, depth, speed = [], [], []
+    for i, (d, shift) in enumerate(cases):
+        env = _exact_env()
+        _two_point_pose(env, d, shift)
+        row = np.zeros(mujoco.mj_stateSize(env.model, spec))
+        mujoco.mj_getState(env.model, env.data, row, spec)
+        vec.batch.state[i] = row
+        depth.append(env._depth())
+        speed.append(float(env.true_hole_R[:, 2] @ env._tip_twist()[:3]))
+        flags = env._contact_flags(depth[-1], speed[-1])
+        want.append((flags.two_point, flags.wedged, flags.jammed))
+    vec.batch.forward()
+    got = vec._contact_flags(np.array(depth), np.array(speed))
+    assert list(zip(got.two_point, got.wedged, got.jammed, strict=True)) == want
+    assert want == [(True, False, True), (True, True, False), (False, False, False)]
+    vec.close()

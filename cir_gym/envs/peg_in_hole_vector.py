@@ -100,6 +100,12 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
             self.motion = CartesianMotionInterface(t.motion.robot, "peg_tip")
             self.motion.reset(np.tile(t._q0, (N, 1)))
         self._bounds = {key: t._obs_bounds[key] for key in t.observation_space.spaces}
+        self._low = {key: -b for key, b in self._bounds.items()}
+        # the nominal hole's pose: the same in every copy and step (within its bounds)
+        hole = {key: np.clip(getattr(t, key), self._low[key], self._bounds[key])
+                for key in ("hole_pos", "hole_quat")}
+        self._hole_pos_obs = np.tile(hole["hole_pos"], (N, 1))
+        self._hole_quat_obs = np.tile(hole["hole_quat"], (N, 1))
 
     def _start_episode(self, i: int) -> None:
         t = self.template
@@ -249,11 +255,19 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
 
     def _contact_flags(self, depth: np.ndarray, axial_speed: np.ndarray) -> ContactFlags:
         """The single env's flags of every copy, from the peg's contact sensor."""
-        t = self.template
-        normal, pressing = t.sensors.peg(self._sensordata)
-        return contact_flags(
-            normal, pressing, self._hole_R[:, :, 2], depth, axial_speed, t._mu_diameter
-        )
+        t, N = self.template, self.num_envs
+        flags = [np.zeros(N, dtype=bool) for _ in range(3)]
+        rows = np.flatnonzero(t.sensors.peg_count(self._sensordata) >= 2)  # two contacts
+        if rows.size:
+            normal, pressing = t.sensors.peg(self._sensordata[rows])
+            found = contact_flags(
+                normal, pressing, self._hole_R[rows, :, 2], depth[rows], axial_speed[rows],
+                t._mu_diameter,
+            )
+            for flag, value in zip(flags, (found.two_point, found.wedged, found.jammed),
+                                   strict=True):
+                flag[rows] = value
+        return ContactFlags(*flags)
 
     def _observe(self, twist: np.ndarray) -> dict[str, np.ndarray]:
         """PegInHoleEnv._obs of every copy; ``twist`` (N, 6) the tips' [v; ω], world frame."""
@@ -267,10 +281,9 @@ class PegInHoleVectorEnv(BatchedTaskEnv):
             "peg_quat": traj.quat_from_matrix(R_h.T @ R_tip @ ALIGNED.T),
             "peg_twist": np.concatenate((twist[:, :3] @ R_h, twist[:, 3:] @ R_h), axis=1),
             "wrench": self.ft_sensor.reading.copy(),
-            "hole_pos": np.tile(t.hole_pos, (N, 1)),
-            "hole_quat": np.tile(t.hole_quat, (N, 1)),
         }
-        return {key: np.clip(x, -self._bounds[key], self._bounds[key]) for key, x in raw.items()}
+        obs = {key: np.clip(x, self._low[key], self._bounds[key]) for key, x in raw.items()}
+        return {**obs, "hole_pos": self._hole_pos_obs.copy(), "hole_quat": self._hole_quat_obs.copy()}
 
     def _episode_end(
         self, i: int, infos: dict[str, Any], terminated: bool, truncated: bool
