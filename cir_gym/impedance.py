@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import mujoco.batch
@@ -212,6 +213,11 @@ class CartesianImpedance:
                 f"q_rest must have shape ({n},) or (num_arms, {n}), got {self.q_rest.shape}"
             )
         self.num_arms = 1 if self.q_rest.ndim == 1 else self.q_rest.shape[0]
+        self._build_arms()
+
+    def _build_arms(self) -> None:
+        """The batch of the nominal arm (one row per arm) and its bound fields."""
+        robot = self.robot
         m = copy.deepcopy(robot.model)  # without what B, g and J do not need
         m.opt.disableflags |= _UNUSED_STAGES
         self._arms = mujoco.batch.Batch(m, nsim=self.num_arms, nthread=1)
@@ -233,6 +239,15 @@ class CartesianImpedance:
         self._whole = np.array_equal(self._dadr, np.arange(m.nv))
         self._q_key: bytes | None = None
         self._p = self._R = self._J = self._B = self._g = np.zeros(0)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the batch (a C object): :meth:`__setstate__` builds it again."""
+        keep = ("robot", "site", "gains", "q_rest", "num_arms")
+        return {name: self.__dict__[name] for name in keep}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._build_arms()
 
     def _evaluate(self, q: np.ndarray) -> None:
         """The nominal model's site pose, Jacobian, B and g at ``q`` (N, n), row by row
