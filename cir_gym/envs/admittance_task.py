@@ -5,7 +5,7 @@ the reward of a step, and the metrics of an episode.
 r = r_force + r_path + r_action_rate + r_force_limit + r_diverged (:data:`REWARD_TERMS`):
 
 - r_force = −(1 − ½ Σ_s exp(−(f − f̄)² / s²)), s ∈ (``force_scale``, ``force_scale``/5) N;
-- r_path = −``path_weight`` (1 − exp(−‖e_t‖² / ``path_scale``²));
+- r_path = −``path_weight`` (1 − exp(−‖e_t‖² / σ²)), σ = ``path_scale``;
 - r_action_rate = −``action_rate_weight`` ‖a_k − a_{k−1}‖² / dim(a);
 - r_force_limit = −``force_limit_penalty`` on the step the force limit stops the episode;
 - r_diverged = −``divergence_penalty`` on the step the physics diverged;
