@@ -175,8 +175,9 @@ def test_the_controllers_fast_rotation_vector_is_operational_space_rotvec_error(
 
 @pytest.mark.slow
 def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
-    """On the same hole pose (seed 1000, 3 mm chamfer): hybrid_force_position reaches 90 % of
-    the depth below 50 N; position_only, stiff to the nominal hole, ends at the force limit."""
+    """On the same hole pose (seed 1000, 3 mm chamfer): hybrid_force_position inserts with every
+    single contact below the 100-N limit (its largest is ~79 N, a wall contact that the net
+    force, ~40 N, hides); position_only, stiff to the nominal hole, ends at the force limit."""
     from cir_gym import baselines
     from cir_gym.evaluation import evaluate
 
@@ -184,7 +185,7 @@ def test_hybrid_inserts_where_position_only_hits_the_force_limit() -> None:
         "hybrid_force_position", "cir_gym/PegInHole-v2", env_kwargs={"chamfer": 0.003}
     )
     ep = evaluate(hybrid, "cir_gym/PegInHole-v2", 1, seed=1000, chamfer=0.003).episodes[0]
-    assert ep.success and ep.metrics["peak_force"] < 50.0
+    assert ep.success and ep.metrics["peak_force"] < 100.0
     stiff = baselines.make("position_only", "cir_gym/PegInHole-v2")
     ep = evaluate(stiff, "cir_gym/PegInHole-v2", 1, seed=1000, chamfer=0.003).episodes[0]
     assert not ep.success and ep.metrics["peak_force"] > 100.0
