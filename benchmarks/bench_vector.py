@@ -357,7 +357,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     warnings.filterwarnings("ignore")
     body = [
-        f"`python benchmarks/bench_vector.py` (mujoco {mujoco.__version__}, gymnasium "
+        f"`python benchmarks/bench_vector.py{''.join(' ' + a for a in argv or sys.argv[1:])}` "
+        f"(mujoco {mujoco.__version__}, gymnasium "
         f"{gym.__version__}; 2 cores shared with other jobs: only ratios measured side by "
         "side mean something; CPU time counts this process only).",
         "",
