@@ -173,21 +173,26 @@ class SeedReport:
 
 
 def seed_report(env_id: str, name: str, env_kwargs: dict[str, Any] | None = None, *,
-                episodes: int = 10, seed: int = 1000, metric: str | None = None) -> SeedReport:
+                episodes: int = 10, seed: int = 1000, metric: str | None = None,
+                batched: bool = False) -> SeedReport:
     """Evaluate every training seed of shipped agent ``name`` on ``episodes`` episodes, scored
     on ``metric`` (default: the environment's primary metric; a leaderboard variant passes its
-    own, :func:`cir_gym.evaluation.variant_primary_metric`)."""
+    own, :func:`cir_gym.evaluation.variant_primary_metric`). ``batched``: each seed's episodes
+    run at once where :func:`cir_gym.evaluation.batchable` allows it (equal to the sequential
+    ones to float rounding amplified by the closed loop, not bit for bit: the leaderboard's
+    tolerance, ``tests/test_batched_agents.py``), else one after the other."""
     import cir_gym
     from cir_gym import agents
-    from cir_gym.evaluation import evaluate
+    from cir_gym.evaluation import batchable, evaluate
 
     primary = metric or cir_gym.ENVIRONMENTS[env_id.split(":")[-1]][0].primary_metric
     train_seeds = agents.seeds(env_id, name)
     scores, success = [], []
     for k in train_seeds:
         policy = agents.load(env_id, name, seed=k)
+        at_once = batched and batchable(policy, env_id, **(env_kwargs or {}))
         result = evaluate(policy, env_id, episodes, seed, policy_name=name,
-                          **(env_kwargs or {}))
+                          batched=True if at_once else None, **(env_kwargs or {}))
         scores.append([ep.metrics.get(primary, np.nan) for ep in result.episodes])
         success.append([float(ep.success) for ep in result.episodes])
     s = np.array(scores, dtype=np.float64)
@@ -201,15 +206,16 @@ def _fmt(x: float) -> str:
 
 def seed_reports(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
                  seed: int = 1000, names: list[str] | None = None,
-                 metric: str | None = None) -> list[SeedReport]:
+                 metric: str | None = None, batched: bool = False) -> list[SeedReport]:
     """:func:`seed_report` of every shipped agent of ``env_id`` trained for the variant's task
-    (``env_kwargs``, :func:`agents.trained_for`), or of ``names``."""
+    (``env_kwargs``, :func:`agents.trained_for`), or of ``names`` (``batched``: as there)."""
     from cir_gym import agents
 
     if names is None:  # every agent trained for this variant's task (agents.trained_for)
         names = [n for n in agents.available(env_id)
                  if agents.trained_for(env_id, n, env_kwargs or {})]
-    return [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed, metric=metric)
+    return [seed_report(env_id, n, env_kwargs, episodes=episodes, seed=seed, metric=metric,
+                        batched=batched)
             for n in names]
 
 
@@ -253,14 +259,14 @@ def seed_markdown(reports: list[SeedReport], anchors: Anchors | None = None) -> 
 
 def seed_table(env_id: str, env_kwargs: dict[str, Any] | None = None, *, episodes: int = 10,
                seed: int = 1000, names: list[str] | None = None, metric: str | None = None,
-               anchors: Anchors | None = None) -> str:
+               anchors: Anchors | None = None, batched: bool = False) -> str:
     """Markdown table: every shipped agent of ``env_id`` trained for the variant's task (or
     ``names``) over its training seeds on one variant (``env_kwargs``):
     :func:`seed_markdown` of :func:`seed_reports` (with the normalized score given the
-    variant's ``anchors``; ``metric`` defaults to theirs)."""
+    variant's ``anchors``; ``metric`` defaults to theirs; ``batched``: as there)."""
     metric = metric or (anchors.metric if anchors is not None else None)
     return seed_markdown(seed_reports(env_id, env_kwargs, episodes=episodes, seed=seed,
-                                      names=names, metric=metric), anchors)
+                                      names=names, metric=metric, batched=batched), anchors)
 
 
 def read_anchors(path: Path, env_id: str, variant: str, episodes: int,

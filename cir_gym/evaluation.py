@@ -20,7 +20,10 @@ so every ``EpisodeResult`` is the sequential path's to that tolerance
 (``tests/test_evaluation.py`` and those files compare them). Everything else — other ids,
 unsupported arguments (each batched env's ``unsupported`` names them), ``record=True``, a given
 ``env``, trained agents (a torch network rounds a batch differently from one row, in the last
-float32 bit) — runs one episode after the other.
+float32 bit) — runs one episode after the other, unless the caller asks for ``batched=True``
+(:func:`batchable` says where it can): then a trained agent's episodes equal the sequential
+ones to the tolerance its caller states, not bit for bit (the leaderboard does so for its agents,
+``cir_gym.scoring.leaderboard.AGENT_BATCH_IDS``, tested in ``tests/test_batched_agents.py``).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ __all__ = [
     "EpisodeResult",
     "EvaluationResult",
     "Policy",
+    "batchable",
     "batches_exactly",
     "check_env_interface",
     "evaluate",
@@ -382,6 +386,16 @@ def batches_exactly(policy: Any) -> bool:
     # a Controller exists only if the baselines are imported
     base = sys.modules.get("cir_gym.baselines.base")
     return base is not None and isinstance(policy, base.Controller)
+
+
+def batchable(policy: Any, env_id: str, **env_kwargs: Any) -> bool:
+    """Whether ``evaluate(policy, env_id, batched=True, **env_kwargs)`` can batch: a native
+    batched env exists for ``env_id`` with ``env_kwargs`` and the policy's
+    ``interface_kwargs`` (:func:`interface_env_kwargs`; e.g. a 100-Hz agent's
+    ``control_freq``). Says nothing about how closely the policy batches
+    (:func:`batches_exactly`)."""
+    kwargs = interface_env_kwargs(policy, env_kwargs)
+    return _batched_env_class(env_id, None, False, kwargs, None) is not None
 
 
 def _batched_env_class(
