@@ -59,7 +59,8 @@ __all__ = [
 ]
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
-ALGORITHMS = ("ppo", "sac", "td3")
+#: SB3's on- and off-policy learners, and sb3-contrib's TQC and CrossQ (the ``zoo`` extra)
+ALGORITHMS = ("ppo", "sac", "td3", "tqc", "crossq")
 
 #: activation names usable in ``policy_kwargs.activation_fn`` → torch.nn class name
 ACTIVATIONS = {
@@ -115,13 +116,21 @@ class HyperparameterError(ValueError):
 
 
 def algorithm_class(algo: str) -> type:
-    """The SB3 class of ``algo`` ("ppo", "sac" or "td3")."""
+    """The SB3 class of ``algo``, one of :data:`ALGORITHMS` ("tqc" and "crossq" from
+    sb3-contrib)."""
+    if algo not in ALGORITHMS:
+        raise HyperparameterError(f"unknown algorithm {algo!r}; available: {list(ALGORITHMS)}")
+    if algo in ("tqc", "crossq"):
+        try:
+            import sb3_contrib
+        except ImportError as exc:
+            raise HyperparameterError(
+                f"{algo} is sb3-contrib's: pip install 'cir-gym[zoo]'"
+            ) from exc
+        return {"tqc": sb3_contrib.TQC, "crossq": sb3_contrib.CrossQ}[algo]
     import stable_baselines3 as sb3
 
-    classes = {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}
-    if algo not in classes:
-        raise HyperparameterError(f"unknown algorithm {algo!r}; available: {list(classes)}")
-    return classes[algo]
+    return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
 
 
 def _yaml_loader() -> type:
@@ -173,7 +182,7 @@ def load_hyperparams(algo: str, env_id: str, *, residual: bool = False,
     """Resolved hyperparameters of ``algo`` for ``env_id`` (plain data, as saved in config.yml).
 
     Args:
-        algo: "ppo", "sac" or "td3".
+        algo: one of :data:`ALGORITHMS`.
         env_id: the environment id (a ``cir_gym:`` module prefix is ignored).
         residual: apply the entry's ``residual`` overrides (and keep ``residual_scale``).
         path: another YAML file (default ``agents/hyperparams/<algo>.yml``).

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import cir_gym
+from cir_gym.agents.hyperparameters import ALGORITHMS
 from cir_gym.envs.base import make_env
 from cir_gym.evaluation import evaluate, interface_env_kwargs
 from cir_gym.scoring.policies import (
@@ -401,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("train", help="train an SB3 agent (needs the train extra)")
     t.add_argument("--env", required=True)
-    t.add_argument("--algo", choices=["sac", "td3", "ppo"], default="ppo")
+    t.add_argument("--algo", choices=ALGORITHMS, default="ppo")
     t.add_argument(
         "--residual",
         metavar="CONTROLLER",

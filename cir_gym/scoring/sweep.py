@@ -82,6 +82,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from cir_gym.agents.hyperparameters import ALGORITHMS
+
 __all__ = [
     "GridError",
     "RayUnavailable",
@@ -386,8 +388,8 @@ def _train_tasks(where: str, block: dict[str, Any]) -> list[dict[str, Any]]:
     algos = block.get("algos", ["ppo"])
     algos = [algos] if isinstance(algos, str) else list(algos)
     for a in algos:
-        if a not in ("ppo", "sac", "td3"):
-            raise GridError(f"{where}: unknown algorithm {a!r}; valid: ppo, sac, td3")
+        if a not in ALGORITHMS:
+            raise GridError(f"{where}: unknown algorithm {a!r}; valid: {', '.join(ALGORITHMS)}")
     residuals = block.get("residual", [None])
     residuals = [residuals] if residuals is None or isinstance(residuals, str) else residuals
     seeds = block.get("seeds", [0])
