@@ -24,7 +24,8 @@ import numpy as np
 __all__ = ["EarlyTermination", "LogErrorBonus", "RewardOffset", "TaskReplay",
            "check_log_error_bonus", "error_norm", "log_error_bonus"]
 
-ERROR_KEYS = ("joint_error", "task_error", "position_error")  # rad or m
+#: the error an episode is shaped on: rad or m (tracking), px (visual servoing, RMS over features)
+ERROR_KEYS = ("joint_error", "task_error", "position_error", "feature_error")
 ORIENTATION_KEY = "orientation_error"
 
 
