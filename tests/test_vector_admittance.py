@@ -9,6 +9,7 @@ from collections.abc import Callable
 import gymnasium as gym
 import numpy as np
 import pytest
+from lockstep import assert_obs, lockstep
 
 import cir_gym
 from cir_gym.envs import admittance_scene as scene
@@ -29,23 +30,6 @@ CLASS_PATH = "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv"
 # for N matrices at once. So observations, rewards and metrics agree to 1e-12 (relative, or
 # absolute near 0); lengths, ends and success exactly.
 TOL = 1e-12
-STEP_INFO = (
-    "contact_force", "contact_steps", "in_contact", "peak_contact_force", "plate_load",
-    "force_error", "path_error", "force_limit_exceeded", "diverged", "reward_force",
-    "reward_path", "reward_action_rate", "reward_force_limit", "reward_diverged",
-)
-
-
-def _assert_obs(got: dict, want: dict, what: str) -> None:
-    assert set(got) == set(want)
-    for key in want:
-        np.testing.assert_allclose(got[key], want[key], rtol=TOL, atol=TOL, err_msg=f"{what} {key}")
-
-
-def _row(obs: dict, i: int) -> dict:
-    return {key: value[i] for key, value in obs.items()}
-
-
 def _lockstep(
     envs: AdmittanceContactVectorEnv,
     kw: dict,
@@ -53,45 +37,10 @@ def _lockstep(
     steps: int,
     actions_for: Callable[[int, dict, np.ndarray], np.ndarray],
 ) -> list[dict]:
-    """Step ``envs`` and one single env per copy (reset with seed + i, then by itself) with the
-    same actions (``actions_for(k, obs, episode_start)`` from the batch's observations); assert
-    each copy equal to its single env at every step and episode end; return the single env's
-    last infos of the episodes that ended."""
+    """Each copy equal to its single env (tests/lockstep.py, to TOL) under ``actions_for``;
+    returns the single env's last infos of the episodes that ended."""
     singles = [AdmittanceContactEnv(**kw) for _ in range(envs.num_envs)]
-    obs, infos = envs.reset(seed=seed)
-    for i, single in enumerate(singles):
-        w_obs, w_info = single.reset(seed=seed + i)
-        _assert_obs(_row(obs, i), w_obs, "reset")
-        assert infos["surface"]["stiffness"][i] == w_info["surface"]["stiffness"]
-    start = np.ones(envs.num_envs, dtype=bool)
-    ends = []
-    for k in range(steps):
-        a = actions_for(k, obs, start)
-        obs, rew, term, trunc, infos = envs.step(a)
-        start = term | trunc
-        for i, single in enumerate(singles):
-            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
-            what = f"step {k} copy {i}"
-            assert rew[i] == pytest.approx(w_rew, rel=TOL, abs=TOL), what
-            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc), what
-            for name in STEP_INFO:
-                assert infos[name][i] == pytest.approx(w_info[name], rel=TOL, abs=TOL), what
-            if w_term or w_trunc:
-                ends.append(w_info)
-                assert infos["_final_obs"][i] and infos["_final_info"][i]
-                _assert_obs(infos["final_obs"][i], w_obs, f"{what} final")
-                final = infos["final_info"]
-                assert bool(final["is_success"][i]) == w_info["is_success"], what
-                for name, value in w_info["episode_metrics"].items():
-                    got = final["episode_metrics"][name][i]
-                    assert got == pytest.approx(value, rel=TOL, abs=TOL), f"{what} {name}"
-                w_obs, w_reset = single.reset()
-                assert infos["_surface"][i]
-                assert infos["surface"]["force_ref"][i] == w_reset["surface"]["force_ref"]
-            else:
-                assert not infos.get("_final_obs", np.zeros(envs.num_envs, bool))[i]
-            _assert_obs(_row(obs, i), w_obs, what)
-    return ends
+    return lockstep(envs, singles, actions_for, seed=seed, steps=steps, tol=TOL).ends
 
 
 @pytest.mark.parametrize("randomize", [False, True])
@@ -170,7 +119,7 @@ def test_a_copy_that_diverges_stops_as_the_single_env() -> None:
     assert w_term and w_info["diverged"]
     assert list(term) == [False, True] and list(infos["diverged"]) == [False, True]
     assert rew[1] == pytest.approx(w_rew, rel=TOL)
-    _assert_obs(infos["final_obs"][1], w_obs, "diverged")
+    assert_obs(infos["final_obs"][1], w_obs, TOL, "diverged")
     assert all(np.all(np.isfinite(v)) for v in obs.values())
     for name, value in w_info["episode_metrics"].items():
         assert infos["final_info"]["episode_metrics"][name][1] == pytest.approx(value, rel=TOL)

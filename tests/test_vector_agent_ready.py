@@ -17,6 +17,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from lockstep import assert_close, lockstep
 
 import cir_gym
 from cir_gym.envs.agent_ready import AdmittanceContactImpedanceEnv, PegInHoleImpedanceEnv
@@ -33,51 +34,13 @@ TOL = 1e-12
 STEPS_PEG = 22  # copy 0 inserts at its 20th policy step
 
 
-def _close(got: Any, want: Any, what: str) -> None:
-    """``got`` equal to ``want`` to TOL (relative, or absolute near 0), numbers or arrays."""
-    got, want = np.asarray(got, float), np.asarray(want, float)
-    np.testing.assert_allclose(got, want, TOL, TOL, err_msg=what)
-
-
-def _assert_obs(got: dict, want: dict, what: str) -> None:
-    assert set(got) == set(want), what
-    for key in want:
-        _close(got[key], want[key], f"{what} {key}")
 
 
 def _lockstep(envs: Any, singles: list, seed: int, actions: np.ndarray) -> list[dict]:
-    """Step ``envs`` and one single variant per copy (reset with seed + i, then by itself)
-    with ``actions`` (steps, N, dim); assert every copy equal to its single variant at every
-    step (observation, reward, ends, step infos) and episode end (final observation, final
-    info, metrics, success); return the single variants' last infos of the ended episodes."""
-    obs, _ = envs.reset(seed=seed)
-    for i, single in enumerate(singles):
-        _assert_obs({k: v[i] for k, v in obs.items()}, single.reset(seed=seed + i)[0], "reset")
-    ends = []
-    for k, a in enumerate(actions):
-        obs, rew, term, trunc, infos = envs.step(a)
-        for i, single in enumerate(singles):
-            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
-            what = f"step {k} copy {i}"
-            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc), what
-            _close(rew[i], w_rew, f"{what} reward")
-            step_keys = set(w_info) - {"episode_metrics", "is_success"}
-            if w_term or w_trunc:
-                ends.append(w_info)
-                final = infos["final_info"]
-                _assert_obs(infos["final_obs"][i], w_obs, f"{what} final")
-                assert set(final) - {"episode_metrics", "is_success"} >= step_keys, what
-                for name in step_keys:
-                    _close(final[name][i], w_info[name], f"{what} final {name}")
-                assert bool(final["is_success"][i]) == w_info["is_success"], what
-                for name, value in w_info["episode_metrics"].items():
-                    _close(final["episode_metrics"][name][i], value, f"{what} {name}")
-                w_obs, _ = single.reset()
-            else:
-                for name in step_keys:
-                    _close(infos[name][i], w_info[name], f"{what} {name}")
-            _assert_obs({key: v[i] for key, v in obs.items()}, w_obs, what)
-    return ends
+    """Each copy equal to its single variant (tests/lockstep.py, to TOL) under ``actions``
+    (steps, N, dim); returns the single variants' last infos of the ended episodes."""
+    return lockstep(envs, singles, lambda k, obs, start: actions[k], seed=seed,
+                    steps=len(actions), tol=TOL).ends
 
 
 def test_each_copy_is_the_single_variant_with_ends_inside_a_policy_step() -> None:
@@ -158,10 +121,10 @@ def test_the_impedance_law_on_n_arms_is_each_arm_alone() -> None:
     for i in range(N):
         one = CartesianImpedance(env.nominal, "tcp", gains, q_rest[i])
         p_i, R_i = one.pose(q[i])
-        _close(p[i], p_i, "p")
-        _close(R[i], R_i, "R")
-        _close(Lam[i], one.task_inertia(q[i]), "Λ")
-        _close(tau[i], one.torque(q[i], qd[i], p_d[i], R_d[i], K_p[i], K_d[i]), "τ")
+        assert_close(p[i], p_i, TOL, "p")
+        assert_close(R[i], R_i, TOL, "R")
+        assert_close(Lam[i], one.task_inertia(q[i]), TOL, "Λ")
+        assert_close(tau[i], one.torque(q[i], qd[i], p_d[i], R_d[i], K_p[i], K_d[i]), TOL, "τ")
     with pytest.raises(ValueError, match="shape"):
         arms.torque(q[0], qd[0], p_d[0], R_d[0])
 
@@ -201,7 +164,7 @@ def test_batched_training_env_is_the_registry_s(monkeypatch: pytest.MonkeyPatch)
     obs = venv.reset()
     assert type(venv.venv.venv) is AdmittanceContactImpedanceVectorEnv
     for i in range(2):
-        _close(obs[i], layout.flatten(single.reset(seed=7 + i)[0]), f"reset {i}")
+        assert_close(obs[i], layout.flatten(single.reset(seed=7 + i)[0]), TOL, f"reset {i}")
     for _ in range(5):
         obs, rew, dones, infos = venv.step(np.zeros((2, 6), dtype=np.float32))
     assert dones.all() and rew.dtype == np.float32 and obs.shape == (2, layout.size)
@@ -234,5 +197,5 @@ def test_batched_evaluation_gives_the_sequential_episodes(monkeypatch: pytest.Mo
     for f, s in zip(fast.episodes, slow.episodes, strict=True):
         assert (f.seed, f.length, f.success, f.terminated) == (s.seed, s.length, s.success,
                                                               s.terminated)
-        _close(f.episode_return, s.episode_return, "return")
+        assert_close(f.episode_return, s.episode_return, TOL, "return")
         assert f.metrics == pytest.approx(s.metrics, rel=TOL, abs=TOL)

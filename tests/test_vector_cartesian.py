@@ -9,6 +9,7 @@ from collections.abc import Callable
 import gymnasium as gym
 import numpy as np
 import pytest
+from lockstep import assert_obs, lockstep, row
 
 import cir_gym
 from cir_gym import baselines
@@ -27,18 +28,11 @@ KW = {"episode_duration": 0.1}  # 50 steps
 # Rewards and metrics to 1e-12 relative: the reward and the metrics reduce over (N, 7) arrays
 # and (7,) rows, whose sums numpy may order differently (SIMD lanes): the last bits.
 TOL = 1e-12
-STEP_INFO = ("position_error", "orientation_error", "following_error_exceeded", "diverged")
 
 
 def _assert_obs(got: dict, want: dict, what: str) -> None:
     """One copy's observation ``got`` (key → row) equal to the single env's ``want``."""
-    assert set(got) == set(want)
-    for key in want:
-        np.testing.assert_array_equal(got[key], want[key], err_msg=f"{what} {key}")
-
-
-def _row(obs: dict, i: int) -> dict:
-    return {key: value[i] for key, value in obs.items()}
+    assert_obs(got, want, 0.0, what)
 
 
 def _lockstep(
@@ -48,42 +42,11 @@ def _lockstep(
     steps: int,
     actions_for: Callable[[int, dict, np.ndarray], np.ndarray],
 ) -> int:
-    """Step ``envs`` and one single env per copy (reset with seed + i, then by itself) with the
-    same actions, ``actions_for(k, obs, episode_start)`` at step k from the batch's
-    observations; assert each copy equal to its single env at every step and episode end;
-    return how many episodes ended."""
+    """Each copy equal to its single env (tests/lockstep.py; observations exactly, the rest to
+    TOL) under ``actions_for``; returns how many episodes ended."""
     singles = [CartesianTrackingEnv(**kw) for _ in range(envs.num_envs)]
-    obs, _ = envs.reset(seed=seed)
-    want = [single.reset(seed=seed + i)[0] for i, single in enumerate(singles)]
-    for i, w_obs in enumerate(want):
-        _assert_obs(_row(obs, i), w_obs, "reset")
-    start = np.ones(envs.num_envs, dtype=bool)
-    ended = 0
-    for k in range(steps):
-        a = actions_for(k, obs, start)
-        obs, rew, term, trunc, infos = envs.step(a)
-        start = term | trunc
-        for i, single in enumerate(singles):
-            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
-            what = f"step {k} copy {i}"
-            assert rew[i] == pytest.approx(w_rew, rel=TOL, abs=TOL), what
-            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc), what
-            for name in STEP_INFO:
-                assert infos[name][i] == pytest.approx(w_info[name], rel=TOL, abs=TOL), what
-            if w_term or w_trunc:
-                ended += 1
-                assert infos["_final_obs"][i] and infos["_final_info"][i]
-                _assert_obs(infos["final_obs"][i], w_obs, f"{what} final")
-                final = infos["final_info"]
-                assert bool(final["is_success"][i]) == w_info["is_success"], what
-                for name, value in w_info["episode_metrics"].items():
-                    got = final["episode_metrics"][name][i]
-                    assert got == pytest.approx(value, rel=TOL, abs=TOL), f"{what} {name}"
-                w_obs, _ = single.reset()
-            else:
-                assert not infos.get("_final_obs", np.zeros(envs.num_envs, bool))[i]
-            _assert_obs(_row(obs, i), w_obs, what)
-    return ended
+    return len(lockstep(envs, singles, actions_for, seed=seed, steps=steps, tol=TOL,
+                        obs_tol=0.0).ends)
 
 
 @pytest.mark.parametrize(
@@ -133,7 +96,7 @@ def test_autoreset_is_same_step_with_final_obs_and_masks():
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
     obs, infos = envs.reset(seed=[4, 9, 5])
     single = CartesianTrackingEnv(**KW)
-    _assert_obs(_row(obs, 1), single.reset(seed=9)[0], "reset with a list of seeds")
+    _assert_obs(row(obs, 1), single.reset(seed=9)[0], "reset with a list of seeds")
     assert infos["_model_error"].all()
     a = np.zeros((3, 7), dtype=np.float32)
     a[1, 1] = 1.0
@@ -150,7 +113,7 @@ def test_autoreset_is_same_step_with_final_obs_and_masks():
     assert infos["final_info"]["following_error_exceeded"][1]
     assert not infos["final_info"]["is_success"][1]
     assert list(infos["_model_error"]) == [False, True, False]
-    _assert_obs(_row(obs, 1), single.reset()[0], "the next episode")  # the same generator
+    _assert_obs(row(obs, 1), single.reset()[0], "the next episode")  # the same generator
     assert envs._k.tolist() == [played, 0, played]
 
 

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from lockstep import assert_close, lockstep, row
 
 import cir_gym  # noqa: F401
 from cir_gym import baselines
@@ -24,54 +25,20 @@ ENV_ID = "cir_gym/PegInHole-v2"
 TOL = 1e-9
 
 
-def _close(got: Any, want: Any, what: str) -> None:
-    np.testing.assert_allclose(
-        np.asarray(got, dtype=float), np.asarray(want, dtype=float), rtol=TOL, atol=TOL,
-        err_msg=what,
-    )
 
 
 def _compare(
     vec: PegInHoleVectorEnv, singles: list[PegInHoleEnv], actions: Any, seed: int, steps: int
 ) -> dict[str, int]:
-    """Step the batch and each single env (reset with seed + i, then reset() after each end)
-    with the same actions (``actions(k, observations of the singles)`` → (N, m)); compare
-    every observation, reward, end, info, final observation and final metrics. Returns
-    counts of episode ends, force-limit stops and steps in contact."""
-    obs_v, _ = vec.reset(seed=seed)
-    obs_s = [env.reset(seed=seed + i)[0] for i, env in enumerate(singles)]
-    for key in obs_v:
-        _close(obs_v[key], np.stack([o[key] for o in obs_s]), f"reset {key}")
-    counts = {"ends": 0, "stops": 0, "contact": 0}
-    for k in range(steps):
-        a = actions(k, obs_s)
-        obs_v, rew_v, term_v, trunc_v, infos = vec.step(a)
-        for i, env in enumerate(singles):
-            obs, rew, term, trunc, info = env.step(a[i])
-            where = f"step {k}, copy {i}"
-            assert (bool(term_v[i]), bool(trunc_v[i])) == (term, trunc), where
-            _close(rew_v[i], rew, f"{where}: reward")
-            counts["contact"] += info["contact_force"] > 0
-            if term or trunc:
-                counts["ends"] += 1
-                counts["stops"] += info["force_limit_exceeded"]
-                final = infos["final_info"]
-                assert bool(final["is_success"][i]) == info["is_success"], where
-                for name, value in info["episode_metrics"].items():
-                    _close(final["episode_metrics"][name][i], value, f"{where}: {name}")
-                for key, value in info.items():
-                    if key not in ("episode_metrics", "is_success"):
-                        _close(final[key][i], value, f"{where}: final info {key}")
-                for key in obs:
-                    _close(infos["final_obs"][i][key], obs[key], f"{where}: final {key}")
-                obs, _ = env.reset()
-            else:
-                for key, value in info.items():
-                    _close(infos[key][i], value, f"{where}: info {key}")
-            for key in obs:
-                _close(obs_v[key][i], obs[key], f"{where}: {key}")
-            obs_s[i] = obs
-    return counts
+    """Each copy equal to its single env (tests/lockstep.py, to TOL) under ``actions(k, the
+    copies' observations)`` → (N, m). Returns counts of episode ends, force-limit stops and
+    steps in contact."""
+    seen = lockstep(vec, singles, lambda k, obs, start: actions(k, [row(obs, i) for i in
+                                                                    range(vec.num_envs)]),
+                    seed=seed, steps=steps, tol=TOL)
+    return {"ends": len(seen.ends),
+            "stops": sum(bool(e["force_limit_exceeded"]) for e in seen.ends),
+            "contact": sum(info["contact_force"] > 0 for step in seen.infos for info in step)}
 
 
 @pytest.mark.parametrize("control", ["torque", "position"])
@@ -154,9 +121,9 @@ def test_batched_evaluation_is_the_sequential_one(monkeypatch: pytest.MonkeyPatc
     for b, s in zip(batched, alone, strict=True):
         same = (b.seed, b.length, b.success, b.diverged)
         assert same == (s.seed, s.length, s.success, s.diverged)
-        _close(b.episode_return, s.episode_return, "return")
+        assert_close(b.episode_return, s.episode_return, TOL, "return")
         for name, value in s.metrics.items():
-            _close(b.metrics[name], value, name)
+            assert_close(b.metrics[name], value, TOL, name)
     assert any(e.metrics["peak_force"] > 0 for e in alone)  # the episodes reach the block
 
 

@@ -1,0 +1,131 @@
+"""A batched env against one single env per copy, in lockstep (imported by tests/test_vector_*.py).
+
+Copy i of ``reset(seed=s)`` must be the single env after ``reset(seed=s + i)`` and, after each of
+its episodes ends, after a plain ``reset()`` (the same generator): :func:`lockstep` steps both
+with the same actions and asserts every observation, reward, end, numeric step info, final
+observation, final info, success and episode metric equal to the stated tolerance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: keys of a final info that are not step infos
+_EPISODE_KEYS = ("episode_metrics", "is_success")
+
+
+@dataclass
+class Lockstep:
+    """What the singles saw: every step's info per copy, and the last infos of ended episodes.
+
+    Attributes:
+        infos: (steps, N) the single envs' step infos.
+        ends: the single envs' last infos of the episodes that ended, in the order they ended.
+        resets: the single envs' reset infos after those ends, in the same order.
+    """
+
+    infos: list[list[dict]] = field(default_factory=list)
+    ends: list[dict] = field(default_factory=list)
+    resets: list[dict] = field(default_factory=list)
+
+
+def _numeric(value: Any) -> bool:
+    return isinstance(value, (bool, int, float, np.number, np.bool_, np.ndarray))
+
+
+def assert_close(got: Any, want: Any, tol: float, what: str) -> None:
+    np.testing.assert_allclose(
+        np.asarray(got, dtype=float), np.asarray(want, dtype=float), rtol=tol, atol=tol,
+        err_msg=what,
+    )
+
+
+def assert_obs(got: dict, want: dict, tol: float, what: str) -> None:
+    assert set(got) == set(want), what
+    for key in want:
+        assert_close(got[key], want[key], tol, f"{what} {key}")
+
+
+def assert_info(batched: dict, i: int, single: dict, tol: float, what: str) -> None:
+    """Copy i's entries of a batched info dict equal to a single env's info: every numeric
+    entry (nested dicts, e.g. a reset's drawn task, entry by entry) that the batch reports."""
+    for key, value in single.items():
+        if key in _EPISODE_KEYS or key not in batched:
+            continue
+        if isinstance(value, dict):
+            assert_info(batched[key], i, value, tol, f"{what} {key}")
+        elif _numeric(value):
+            assert_close(batched[key][i], value, tol, f"{what} {key}")
+
+
+def row(obs: dict, i: int) -> dict:
+    """Copy i's observation of a batched Dict observation."""
+    return {key: value[i] for key, value in obs.items()}
+
+
+def lockstep(
+    envs: Any,
+    singles: list,
+    actions: Callable[[int, dict, np.ndarray], np.ndarray],
+    *,
+    seed: int,
+    steps: int,
+    tol: float,
+    obs_tol: float | None = None,
+) -> Lockstep:
+    """Step ``envs`` and ``singles`` (one per copy) with the same actions for ``steps`` steps.
+
+    Args:
+        envs: the batched env (SAME_STEP autoreset).
+        singles: one single env per copy.
+        actions: ``actions(k, obs, episode_start)`` → (N, m), from the batch's observation at
+            step k and which copies start an episode there.
+        seed: the batch's reset seed (copy i: ``seed + i``).
+        steps: batched steps.
+        tol: relative and absolute tolerance of every comparison.
+        obs_tol: the observations' (default ``tol``; 0: exactly equal).
+
+    Returns:
+        :class:`Lockstep`: what the single envs saw, for the caller's own counts.
+    """
+    seen = Lockstep()
+    obs_tol = tol if obs_tol is None else obs_tol
+    obs, reset_infos = envs.reset(seed=seed)
+    for i, single in enumerate(singles):
+        w_obs, w_reset = single.reset(seed=seed + i)
+        assert_obs(row(obs, i), w_obs, obs_tol, "reset")
+        assert_info(reset_infos, i, w_reset, tol, "reset")
+    start = np.ones(len(singles), dtype=bool)
+    for k in range(steps):
+        a = actions(k, obs, start)
+        obs, rew, term, trunc, infos = envs.step(a)
+        start = term | trunc
+        seen.infos.append([])
+        for i, single in enumerate(singles):
+            w_obs, w_rew, w_term, w_trunc, w_info = single.step(a[i])
+            seen.infos[-1].append(w_info)
+            what = f"step {k} copy {i}"
+            assert (bool(term[i]), bool(trunc[i])) == (w_term, w_trunc), what
+            assert_close(rew[i], w_rew, tol, f"{what} reward")
+            if w_term or w_trunc:
+                seen.ends.append(w_info)
+                assert infos["_final_obs"][i] and infos["_final_info"][i], what
+                assert_obs(infos["final_obs"][i], w_obs, obs_tol, f"{what} final")
+                final = infos["final_info"]
+                assert_info(final, i, w_info, tol, f"{what} final")
+                assert bool(final["is_success"][i]) == w_info["is_success"], what
+                for name, value in w_info["episode_metrics"].items():
+                    got = final["episode_metrics"][name][i]
+                    assert_close(got, value, tol, f"{what} {name}")
+                w_obs, w_reset = single.reset()
+                seen.resets.append(w_reset)
+                assert_info(infos, i, w_reset, tol, f"{what} autoreset")
+            else:
+                assert not infos.get("_final_obs", np.zeros(len(singles), bool))[i], what
+                assert_info(infos, i, w_info, tol, what)
+            assert_obs(row(obs, i), w_obs, obs_tol, what)
+    return seen
