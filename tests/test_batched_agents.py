@@ -2,16 +2,15 @@
 
 The leaderboard runs a shipped agent's episodes at once on the ids of
 ``cir_gym.scoring.leaderboard.AGENT_BATCH_IDS`` (its ranked table and its seed table). A torch
-network rounds a batch of rows differently from one row (~1e-7 in the float32 actions), and
-the closed loop carries that into the metrics: measured on 4 full episodes of every shipped
-agent of JointTracking-v2, ElasticJointTracking-v3 and CartesianTracking-v1, ≤ 3e-6 relative
-for the agents tested here (ppo_100hz on JointTracking: 3.0e-6 in the return, 1.4e-6 in
-rms_error; ppo on CartesianTracking: 4.3e-7), up to 4e-3 in an episode's primary metric and
-return of a tuned residual agent (not tested here: its rounding is amplified by its closed
-loop, a property of that agent, not of the batching). ``RTOL`` = 1e-4 is 30 times the largest difference measured on these agents
-and 10 times below the 3 significant digits the tables print; an episode's length, success
-and divergence must be equal.
-"""
+network rounds a batch of rows differently from one row (~1e-7 in the float32 actions), and the
+closed loop carries that into the metrics: measured on 4 full episodes of every shipped agent of
+JointTracking-v2, ElasticJointTracking-v3 and CartesianTracking-v1, ≤ 3e-6 relative for the agents
+tested here (ppo_100hz on JointTracking: 3.0e-6 in the return, 1.4e-6 in rms_error; ppo on
+CartesianTracking: 4.3e-7), up to 4e-3 in an episode's primary metric and return of a tuned
+residual agent (not tested here: its rounding is amplified by its closed loop, a property of that
+agent, not of the batching). ``RTOL`` = 1e-4 is 30 times the largest difference measured on these
+agents and 10 times below the 3 significant digits the tables print; an episode's length, success
+and divergence must be equal. """
 
 from __future__ import annotations
 
