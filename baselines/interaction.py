@@ -93,6 +93,7 @@ from cir_gym.baselines.base import (
     RowLaw,
     SiteTerms,
     matvec,
+    rows_method,
 )
 
 from cir_gym import operational_space as osp
@@ -273,11 +274,33 @@ class _Interaction(RowLaw):
         s = np.zeros(self.state_size)
         s[_Z] = float(self.normal @ (obs["tool_pos"] - self.surface_point))
         s[_Q0] = obs["q"]
-        self.design(obs["q"])
+        self._design_at(s[_Q0])
         return s
 
     def design(self, q: np.ndarray) -> None:
         """Compute the law's gains from its rules at the start posture ``q``."""
+
+    def _design_at(self, q0: np.ndarray) -> None:
+        """:meth:`design` at the start posture ``q0`` unless the gains are already its."""
+        if not np.array_equal(getattr(self, "_designed_at", None), q0):
+            self.design(q0)
+            self._designed_at = np.array(q0, dtype=float)
+
+    @rows_method
+    def control_batch(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        """:meth:`control_rows` with the gains designed at the rows' start posture (the state's
+        q0): all rows at once when they started at one posture (every AdmittanceContact
+        episode starts at the same one), else row by row, each with its own design."""
+        q0 = state[:, _Q0]
+        if np.all(q0 == q0[0]):
+            self._design_at(q0[0])
+            return self.control_rows(obs, state)
+        out = []
+        for i in range(len(q0)):
+            self._design_at(q0[i])
+            row = {key: value[i : i + 1] for key, value in obs.items()}
+            out.append(self.control_rows(row, state[i : i + 1]))
+        return np.concatenate(out)
 
     # ------------------------------------------------------------------ measurement
     def measure(
