@@ -15,7 +15,8 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
 * ``learning_curve.csv``: timesteps, wall time, mean evaluation return, mean primary metric,
   success rate — one row per evaluation, deterministic actions, on the episodes that
   ``cir_gym.evaluation.evaluate(..., seed=EVAL_SEED)`` runs (the same ones every time);
-* ``meta.json``: steps, wall time, steps/s, whether it finished or was interrupted;
+* ``meta.json``: steps, wall time, CPU time (this process), steps/s, whether it finished or
+  was interrupted;
 * ``checkpoints/`` (model + VecNormalize every ``checkpoint_freq`` steps, and on Ctrl-C) and
   ``tb/`` (TensorBoard). ``resume=True`` continues from the last checkpoint (or from the
   final model of a finished run, to a larger ``timesteps``), with the
@@ -547,6 +548,7 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     meta_path = run_dir / "meta.json"
     meta = json.loads(meta_path.read_text()) if (resume and meta_path.exists()) else {}
     wall_before = float(meta.get("wall_time_s", 0.0))
+    cpu_before = float(meta.get("cpu_time_s", 0.0))
 
     if resume:
         last = _last_checkpoint(run_dir)
@@ -593,7 +595,7 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
                               save_vecnormalize=True, verbose=0)
     remaining = max(0, total - model.num_timesteps)
     steps_before = model.num_timesteps
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     interrupted = False
     previous_term = _term_raises_interrupt()
     try:
@@ -617,6 +619,9 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
         meta = {
             "timesteps": int(model.num_timesteps),
             "wall_time_s": round(wall_before + wall, 1),
+            # this process's CPU time over every session (the batched physics' threads
+            # included; SubprocVecEnv workers are other processes, not counted)
+            "cpu_time_s": round(cpu_before + time.process_time() - cpu0, 1),
             "steps_per_s": round((model.num_timesteps - steps_before) / max(wall, 1e-9), 1),
             "finished": not interrupted and model.num_timesteps >= total,
             "interrupted": interrupted,

@@ -551,6 +551,7 @@ def test_train_writes_model_statistics_config_curve_and_meta(tiny_runs):
     assert {"mean_return", "mean_rms_error", "success_rate"} <= set(rows[0])
     meta = json.loads((run / "meta.json").read_text())
     assert meta["timesteps"] == 256 and meta["finished"] and meta["wall_time_s"] > 0
+    assert 0 < meta["cpu_time_s"] < 10 * meta["wall_time_s"]  # this process's CPU seconds
     assert list((run / "checkpoints").glob("model_*_steps.zip"))
     assert (run / "best" / "best_model.zip").is_file()
     res_config = yaml.safe_load((tiny_runs["residual"] / "config.yml").read_text())
@@ -688,8 +689,10 @@ def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
         train(ENV, "ppo", out=out, env_kwargs=SHORT, hyperparams_path=tiny_runs["hp"],
               progress_bar=False, verbose=0)
     run = train(ENV, "ppo", out=out, resume=True, timesteps=384, progress_bar=False, verbose=0)
+    first = json.loads((tiny_runs["out"] / "JointTracking-v2" / run.name / "meta.json").read_text())
     meta = json.loads((run / "meta.json").read_text())
     assert meta["timesteps"] >= 384 and meta["sessions"] == 2
+    assert meta["cpu_time_s"] > first["cpu_time_s"]  # summed over the sessions
 
 
 def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path):
