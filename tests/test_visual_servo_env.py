@@ -137,3 +137,24 @@ def test_failing_early_is_charged_the_worst_reward_of_the_unplayed_steps(charge:
         assert total <= -(env.max_steps - k) * (1.0 + weight)
     with pytest.raises(ValueError, match="charge_unplayed_steps"):
         gym.make(EYE_IN_HAND, charge_unplayed_steps="yes")
+
+
+@pytest.mark.parametrize("env_id", ["cir_gym/VisualServo-v1", "cir_gym/VisualServoEyeToHand-v1"])
+def test_start_rotation_widens_the_random_start_and_rejects_bad_bounds(env_id):
+    """start_rotation=(tilt, spin) bounds the random start's rotation (the default draws spin
+    within ±1 rad); (0.3, π) reaches the 90°-180° family; a bad bound names the argument."""
+    import gymnasium as gym
+
+    from cir_gym.validation import InvalidArgument
+
+    def spins(**kw):
+        env = gym.make(env_id, **kw)
+        out = [env.reset(seed=s)[1]["start_offset"][5] for s in range(12)]
+        env.close()
+        return np.abs(out)
+
+    assert spins().max() <= 1.0
+    assert spins(start_rotation=(0.3, np.pi)).max() > 1.6  # beyond 90 degrees
+    for bad in [(0.3,), (0.6, 1.0), (0.3, 4.0), "wide"]:
+        with pytest.raises(InvalidArgument, match="start_rotation"):
+            gym.make(env_id, start_rotation=bad)

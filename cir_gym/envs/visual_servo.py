@@ -117,6 +117,7 @@ class VisualServoEnv(VisualServoBase):
     | pixel_noise | 0.1 | std of the projected features' noise (px) |
     | camera_error | (0.0, 0.0, 0.0, 0.0) | true-camera errors unknown to controllers: focal-length scale error (relative, sign random), principal-point offset (px, random direction), hand-eye translation (m) and rotation (rad), random directions per episode |
     | start_offset | None | fixed start pose in the goal frame (tx, ty, tz, rx, ry, rz), or None (random) |
+    | start_rotation | None | the random start's rotation bounds (tilt, spin) in rad: tilt about the goal frame's x and y (≤ 0.5), spin about its z axis (≤ π); None: (0.3, 1.0); (0.3, π) draws the 90°–180° rotation family too |
     | control_freq | 25.0 | control frequency (Hz); ViSP's 40 ms period |
     | episode_duration | 15.0 | s |
     | action_weight | 0.01 | weight of the action-size cost |

@@ -76,7 +76,8 @@ class VisualServoBase(RobotEnv):
     marker_radius: ClassVar[float] = 0.015  # m
     moving_offset: ClassVar[float] = 0.0  # m: the moving frame's origin along flange z
     start_translation: ClassVar[tuple[float, float, float, float]] = (0.12, 0.12, -0.25, 0.05)
-    start_rotation: ClassVar[tuple[float, float]] = (0.3, 1.0)  # rad: tilt, about the axis
+    #: rad: the random start's default rotation bounds (tilt about x and y, spin about the axis)
+    start_rotation_default: ClassVar[tuple[float, float]] = (0.3, 1.0)
     primary_metric: ClassVar[str] = "final_feature_error"
     success_threshold: ClassVar[float] = CONVERGED
     metric_specs: ClassVar[tuple[MetricSpec, ...]] = (
@@ -112,6 +113,7 @@ class VisualServoBase(RobotEnv):
         pixel_noise: float = 0.1,
         camera_error: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0),
         start_offset: tuple[float, ...] | None = None,
+        start_rotation: tuple[float, float] | None = None,
         control_freq: float = 25.0,
         episode_duration: float = 15.0,
         action_weight: float = 0.01,
@@ -136,6 +138,7 @@ class VisualServoBase(RobotEnv):
             "termination_penalty", termination_penalty, 0.0, 1e6
         )
         self.start_offset = self._check_start_offset(start_offset)
+        self.start_rotation = self._check_start_rotation(start_rotation)
         if not isinstance(charge_unplayed_steps, (bool, np.bool_)):
             raise InvalidArgument(
                 f"charge_unplayed_steps must be True or False, got {charge_unplayed_steps!r}"
@@ -217,6 +220,19 @@ class VisualServoBase(RobotEnv):
                 f"rotation ≤ 0.3 rad), each ≥ 0, got {value!r}"
             )
         return arr
+
+    def _check_start_rotation(self, value: Any) -> tuple[float, float]:
+        if value is None:
+            return self.start_rotation_default
+        arr = as_float_array("start_rotation", value)
+        if arr.shape != (2,) or not (0 <= arr[0] <= 0.5 and 0 <= arr[1] <= np.pi):
+            raise InvalidArgument(
+                "start_rotation must be None (the default, "
+                f"{self.start_rotation_default}) or 2 numbers (tilt, spin): the random start's "
+                "rotation bounds about the goal frame's x and y (rad, 0 to 0.5) and about its "
+                f"z axis (rad, 0 to π), got {value!r}"
+            )
+        return float(arr[0]), float(arr[1])
 
     @staticmethod
     def _check_start_offset(value: Any) -> np.ndarray | None:
