@@ -36,9 +36,15 @@ from cir_gym.robot import Robot
 from cir_gym.self_motion import Reference, TaskKinematics
 from cir_gym.validation import InvalidArgument, check_flag, check_number
 
-__all__ = ["TRACE_FIELDS", "RedundantIKBase"]
+__all__ = ["STEP_INFO_KEYS", "TRACE_FIELDS", "RedundantIKBase"]
 
 OBSTACLE_PATH_TRIES = 20  # paths drawn for "obstacle" until an obstacle can be placed
+#: a step's info entries (then "orientation_error" for the pose task), in their order
+STEP_INFO_KEYS = (
+    "reward_tracking", "reward_orientation", "reward_secondary", "reward_velocity",
+    "reward_termination", "task_error", "manipulability", "joint_limit_margin", "clearance",
+    "joint_limit_violation", "collision", "diverged",
+)
 #: what the episode's trace holds per control step (m, rad, task units, rad, m)
 TRACE_FIELDS = ("task_error", "orientation_error", "manipulability", "joint_limit_margin",
                 "clearance")
@@ -373,20 +379,9 @@ class RedundantIKBase(RobotEnv):
             r_term = -(self.termination_penalty + charge)
         reward = r_track + r_orient + r_secondary + r_velocity + r_term
         truncated = self._k >= self.max_steps and not terminated
-        info: dict[str, Any] = {
-            "reward_tracking": r_track,
-            "reward_orientation": r_orient,
-            "reward_secondary": r_secondary,
-            "reward_velocity": r_velocity,
-            "reward_termination": r_term,
-            "task_error": e_pos,
-            "manipulability": w,
-            "joint_limit_margin": margin,
-            "clearance": clear,
-            "joint_limit_violation": violation,
-            "collision": collision,
-            "diverged": False,
-        }
+        info: dict[str, Any] = dict(zip(STEP_INFO_KEYS, (
+            r_track, r_orient, r_secondary, r_velocity, r_term, e_pos, w, margin, clear,
+            violation, collision, False), strict=True))
         if self.task_dim == 6:
             info["orientation_error"] = e_rot
         if terminated:  # scored over the whole lap: the arm stays where it stopped
@@ -394,11 +389,17 @@ class RedundantIKBase(RobotEnv):
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
-            ok = metrics["max_task_error"] < self.success_threshold
-            if self.task_dim == 6:
-                ok = ok and metrics["max_orientation_error"] < 10.0 * self.success_threshold
-            info["is_success"] = bool(not terminated and ok)
+            info["is_success"] = self.is_success(metrics, terminated)
         return self._obs(p, R), reward, terminated, truncated, info
+
+    def is_success(self, metrics: dict[str, float], terminated: bool) -> bool:
+        """An episode with ``metrics`` succeeded: not terminated, the largest position error
+        below ``success_threshold`` (m) and, for the pose task, the largest orientation error
+        below ten times it (rad)."""
+        ok = metrics["max_task_error"] < self.success_threshold
+        if self.task_dim == 6:
+            ok = ok and metrics["max_orientation_error"] < 10.0 * self.success_threshold
+        return bool(not terminated and ok)
 
     def worst_step_reward(self) -> float:
         """The magnitude of the worst reward of one step (each kernel term −1, the secondary
@@ -477,9 +478,15 @@ class RedundantIKBase(RobotEnv):
                 "omega_ref": ref.omega[k],
             }
         obs |= {"q_lower": self.lower, "q_upper": self.upper, "obstacle": self._obstacle}
-        flat = np.concatenate(list(obs.values()))
+        return self.observation_of(list(obs.values()))
+
+    def observation_of(self, parts: list[np.ndarray]) -> dict[str, np.ndarray]:
+        """The observation dict of its parts in the space's order, each (p_j,) or (N, p_j)
+        (rows of N copies): concatenated, clipped to the bounds, and sliced into views of
+        that one buffer."""
+        flat = np.concatenate(parts, axis=-1)
         np.clip(flat, -self._obs_high, self._obs_high, out=flat)
-        return {key: flat[part] for key, part in self._obs_slices.items()}
+        return {key: flat[..., part] for key, part in self._obs_slices.items()}
 
     def controller_context(self) -> TaskContext:
         return TaskContext(
