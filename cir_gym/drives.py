@@ -35,8 +35,8 @@ Defaults are per joint-independent scalars; every effect can be switched off (bi
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -104,27 +104,49 @@ DRIVES: dict[str, DriveModel | None] = {"ideal": None, "industrial": INDUSTRIAL}
 
 
 class DriveState:
-    """One episode of a drive: the previous encoder reading and the commands in flight.
+    """The drive's memory over episodes of one or ``rows`` arms: the previous encoder reading
+    and the commands in flight.
+
+    One code for a single env (``rows=None``: arrays (n,)) and a batch of copies (``rows=N``:
+    arrays (N, n), each row its own episode, reset on its own): :meth:`measure` and
+    :meth:`actuate` are elementwise per row, so a row of the batch is the single drive given
+    that row's numbers.
 
     Args:
         model: the drive.
         n: joints.
+        rows: copies (None: one arm, arrays without the row axis).
     """
 
-    def __init__(self, model: DriveModel, n: int) -> None:
+    def __init__(self, model: DriveModel, n: int, rows: int | None = None) -> None:
         self.model = model
         self.n = n
-        self.q_prev = np.zeros(n)
-        self._queue: deque[np.ndarray] = deque()
+        shape = (n,) if rows is None else (rows, n)
+        self.q_prev = np.zeros(shape)  # the previous encoder reading (rad)
+        # the commands of the last delay_steps + 1 periods, oldest first (N m)
+        self._sent = np.zeros((model.delay_steps + 1, *shape))
+        # () or (rows,): no command sent yet in the row's episode
+        self._fresh = np.ones(shape[:-1], dtype=bool)
 
-    def reset(self, q: np.ndarray, qd: np.ndarray, dt: float) -> None:
-        """Start an episode at (q, q̇): the previous reading is the encoder's at q − q̇ Δt, as if
-        the drive had been measuring the motion before (the first q̇_meas ≈ q̇, not a jump)."""
-        self.q_prev = self.model.quantize(np.asarray(q) - np.asarray(qd) * dt)
-        self._queue.clear()
+    def reset(
+        self, q: np.ndarray, qd: np.ndarray, dt: float, rows: Any = None
+    ) -> None:
+        """Start an episode at (q, q̇) (of ``rows``, an index of the row axis; None: every
+        row): the previous reading is the encoder's at q − q̇ Δt, as if the drive had been
+        measuring the motion before (the first q̇_meas ≈ q̇, not a jump)."""
+        at = ... if rows is None else rows
+        self.q_prev[at] = self.model.quantize(np.asarray(q) - np.asarray(qd) * dt)
+        self._fresh[at] = True
+
+    def load_row(self, row: int, single: DriveState) -> None:
+        """Row ``row`` takes the episode of a single arm's drive ``single`` (rows=None)."""
+        self.q_prev[row] = single.q_prev
+        self._sent[:, row] = single._sent
+        self._fresh[row] = single._fresh
 
     def measure(self, q: np.ndarray, qd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(q_meas, q̇_meas) at a control instant; advances the difference's memory."""
+        """(q_meas, q̇_meas) at a control instant, from q, q̇ (n,) or (rows, n); advances the
+        difference's memory."""
         q_meas = self.model.quantize(q)
         if self.model.velocity_from_differences:
             qd_meas = (q_meas - self.q_prev) / dt
@@ -134,9 +156,13 @@ class DriveState:
         return q_meas, qd_meas
 
     def actuate(self, tau: np.ndarray) -> np.ndarray:
-        """The command applied this period: the one from ``delay_steps`` periods ago (the
-        oldest available at the start of an episode)."""
-        self._queue.append(np.array(tau, dtype=float, copy=True))
-        while len(self._queue) > self.model.delay_steps + 1:
-            self._queue.popleft()
-        return self._queue[0]
+        """The command applied this period, for the command τ (n,) or (rows, n) computed now:
+        the one from ``delay_steps`` periods ago (the oldest of the episode in its first
+        ``delay_steps`` periods, i.e. the first command)."""
+        sent = self._sent
+        sent[:-1] = sent[1:]  # one period older
+        sent[-1] = tau
+        if self._fresh.any():  # a row's first command stands for the ones never sent
+            sent[...] = np.where(self._fresh[..., None], sent[-1], sent)
+            self._fresh[...] = False
+        return sent[0].copy()

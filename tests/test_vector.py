@@ -93,8 +93,8 @@ def test_each_copy_is_the_single_env_with_seed_plus_i(vec_cls, kw):
 
 
 def test_unsupported_and_bad_arguments_are_named():
-    with pytest.raises(InvalidArgument, match="torque_noise"):
-        JointTrackingVectorEnv(num_envs=2, torque_noise=0.1)
+    with pytest.raises(InvalidArgument, match="randomize"):
+        JointTrackingVectorEnv(num_envs=2, randomize=True)
     with pytest.raises(InvalidArgument, match="num_envs"):
         JointTrackingVectorEnv(num_envs=0)
     with pytest.raises(InvalidArgument, match="control_freq"):
@@ -222,11 +222,12 @@ def test_gymnasium_make_vec_builds_the_batched_env_equal_to_the_single_envs(env_
 
 
 def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
-    drive = {**KW, "drive": "industrial"}  # not batched: a SyncVectorEnv of the single env
-    envs = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **drive)
+    # a per-episode model is not batched: a SyncVectorEnv of the single env
+    randomized = {**KW, "randomize": True}
+    envs = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **randomized)
     assert isinstance(envs, gym.vector.SyncVectorEnv)
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
-    assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v2", 5, **drive) == 2
+    assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v2", 5, **randomized) == 2
     native = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **KW)
     assert type(native) is JointTrackingVectorEnv
     other = cir_gym.make_vec("cir_gym/RedundantIK-v4", 2)  # no batched env: sync
@@ -236,12 +237,12 @@ def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
 
 
 def test_make_vec_names_what_it_cannot_batch():
-    with pytest.raises(InvalidArgument, match=r"drive='industrial'.*sync"):
+    with pytest.raises(InvalidArgument, match=r"randomize=True.*sync"):
         gym.make_vec(
             "cir_gym/JointTracking-v2",
             2,
             vectorization_mode="vector_entry_point",
-            drive="industrial",
+            randomize=True,
         )
     with pytest.raises(InvalidArgument, match=r"max_episode_steps=10 would cut this 50-step"):
         make_vec("cir_gym/JointTracking-v2", 2, max_episode_steps=10, **KW)

@@ -35,10 +35,13 @@ What is batched and what is not:
   state is written into the copy's row; episode metrics are the template's ``episode_metrics``
   on the copy's history.
 
-Supported: the default sensing and actuation (no ``drive``, ``torque_noise``,
-``encoder_resolution``; no per-episode ``randomize``: the classes raise InvalidArgument,
-:func:`make_vec` falls back to ``SyncVectorEnv``); every other argument (reference, episode
-length, payload, friction, reward weights, stiffness...) as in the single env.
+Supported: every argument (reference, episode length, payload, friction, reward weights,
+stiffness, the sensing and actuation: ``drive``, ``torque_noise``, ``encoder_resolution``) as in
+the single env, except a per-episode ``randomize`` (each copy would need its own model: the
+classes raise InvalidArgument, :func:`make_vec` falls back to ``SyncVectorEnv``). A ``drive``
+is one :class:`cir_gym.drives.DriveState` over the copies' rows (the single env's, with a row
+axis; a reset copy takes the template's); ``torque_noise`` is drawn from each copy's own
+generator, as the single env draws it from its ``np_random``.
 
 Autoreset is Gymnasium's ``SAME_STEP`` mode: a finished copy is reset in the same ``step``; its
 last observation and info are in ``infos["final_obs"]`` / ``infos["final_info"]`` (masks
@@ -55,6 +58,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+from cir_gym.drives import DriveState
 from cir_gym.envs import BATCHED_ENVIRONMENTS
 from cir_gym.envs.elastic_joint_tracking import ElasticJointTrackingEnv
 from cir_gym.envs.joint_tracking import JointTrackingEnv, held_error
@@ -80,8 +84,8 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
     Args:
         num_envs: number of copies (≥ 1).
         nthread: MuJoCo threads (0: all CPUs).
-        **kwargs: the single env's arguments (see ``env_class``), except ``drive``,
-            ``torque_noise``, ``encoder_resolution``, ``randomize`` and ``render_mode``.
+        **kwargs: the single env's arguments (see ``env_class``), except ``randomize`` and
+            ``render_mode``.
 
     Raises:
         InvalidArgument: ``num_envs`` < 1, an unsupported argument, or one the single env
@@ -90,12 +94,7 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
 
     env_class: ClassVar[type[JointTrackingEnv]] = JointTrackingEnv
     env_id: ClassVar[str] = "cir_gym/JointTracking-v2"
-    fixed_arguments: ClassVar[dict[str, Any]] = {
-        "drive": None,
-        "torque_noise": 0.0,
-        "encoder_resolution": 0.0,
-        "randomize": False,
-    }
+    fixed_arguments: ClassVar[dict[str, Any]] = {"randomize": False}
     template: JointTrackingEnv
     episode_state: ClassVar[tuple[str, ...]] = (
         "_ref",  # q̄, q̄̇, q̄̈ (3, T + 1, n) at every control instant
@@ -114,13 +113,55 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
         t = self.template
         self._q_err = np.zeros((self.num_envs, t.n))  # q̃ = q̄ − q of the last step
         self._bounds = {k: t._obs_bounds[k] for k in t.observation_space.spaces}
+        # the joints' drives (N, n): the template's DriveState with a row per copy
+        self._drive = None if t.drive is None else DriveState(t.drive, t.n, rows=self.num_envs)
+
+    def _start_episode(self, i: int) -> None:
+        if self._drive is not None:  # the template's drive after its reset (and first reading)
+            self._drive.load_row(i, self.template._drive_state)
+
+    def _motor_angle(self, q: np.ndarray) -> np.ndarray:
+        """Motor positions in link units θ (N, n) from the batch's qpos (N, nq) (the joints
+        here), the torque ripple's angle."""
+        return q[:, self.template._qa]
+
+    def _applied_torque(self, tau: np.ndarray) -> np.ndarray:
+        """The torque (N, n) the drives apply for the commanded τ (N, n) (N m), as the single
+        env's step: one period late with the ripple of the present motor angle (a ``drive``),
+        plus ``torque_noise`` · 𝒩(0, 1) from each copy's generator."""
+        t = self.template
+        if self._drive is not None:
+            tau = self._drive.actuate(tau)
+            tau = t.drive.ripple(tau, self._motor_angle(self._qpos), t.gear_ratio)
+        if t.torque_noise > 0:
+            noise = np.stack([rng.standard_normal(t.n) for rng in self._rngs])
+            tau = tau + t.torque_noise * noise
+        return tau
+
+    def _measured(
+        self, q: np.ndarray, qd: np.ndarray, q_meas_prev: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The observation's q, q̇ (N, n) from the joints' q, q̇ (N, n) after a step: the
+        drive's encoder and difference, or the ``encoder_resolution`` quantum's reading and its
+        difference from the reading before the step ``q_meas_prev``, or exact."""
+        t = self.template
+        if self._drive is not None:
+            return self._drive.measure(q, qd, t.dt)
+        if q_meas_prev is not None:
+            q_meas = t._quantize(q)
+            return q_meas, (q_meas - q_meas_prev) / t.dt
+        return q, qd
 
     def _task_step(self, a: np.ndarray, peak: np.ndarray, k: np.ndarray) -> TaskStep:
         t = self.template
-        tau = a * t.torque_limit
-        diverged = self._simulate(tau)
+        tau = a * t.torque_limit  # commanded: the metrics' τ (drive and noise act on it)
+        applied = self._applied_torque(tau)
         q, qd = self._qpos, self._qvel
+        # the encoder's reading before the step, for q̇ by differences
+        q_meas_prev = t._quantize(q[:, t._qa]) if t.encoder_resolution > 0 else None
+        diverged = self._simulate(applied)
         qj, qdj = q[:, t._qa], qd[:, t._da]
+        q_meas, qd_meas = self._measured(qj, qdj, q_meas_prev)
         rows, k1 = self._rows, self._k
         q_err = self._ref[rows, 0, k1] - qj
         self._err[rows, k] = q_err
@@ -139,8 +180,8 @@ class JointTrackingVectorEnv(BatchedTaskEnv):
         self._a_prev[:] = a
         kk = np.minimum(k1, t.max_steps)
         raw_obs = {
-            "q": qj,
-            "qd": qdj,
+            "q": q_meas,
+            "qd": qd_meas,
             "q_ref": self._ref[rows, 0, kk],
             "qd_ref": self._ref[rows, 1, kk],
             "qdd_ref": self._ref[rows, 2, kk],
@@ -186,16 +227,36 @@ class ElasticJointTrackingVectorEnv(JointTrackingVectorEnv):
     ElasticJointTracking inherits JointTracking's ``step`` (actuators on the motor hinges,
     0.5-ms physics: ``frame_skip`` 4, ``charge_unplayed_steps`` on by default); its observation
     adds the motor positions and velocities ``q_motor``, ``qd_motor`` (7,) (rad and rad/s, link
-    units), read here from the batch's rows as the single env reads them. Arguments and
+    units), read here from the batch's rows as the single env reads them (with a ``drive``,
+    through the motor encoders' own DriveState, as the single env's). Arguments and
     limits as :class:`JointTrackingVectorEnv` (``stiffness``, ``stiffness_scale`` supported).
     """
 
     env_class: ClassVar[type[JointTrackingEnv]] = ElasticJointTrackingEnv
     env_id: ClassVar[str] = "cir_gym/ElasticJointTracking-v3"
 
+    def _allocate(self) -> None:
+        super()._allocate()
+        t = self.template
+        # the motors' encoders (a drive's second DriveState, on the motor side)
+        self._motor_drive = (
+            None if t.drive is None else DriveState(t.drive, t.n, rows=self.num_envs)
+        )
+
+    def _start_episode(self, i: int) -> None:
+        super()._start_episode(i)
+        if self._motor_drive is not None:
+            self._motor_drive.load_row(i, self.template._motor_drive)
+
+    def _motor_angle(self, q: np.ndarray) -> np.ndarray:
+        return q[:, self.template._ma]
+
     def _extra_obs(self, q: np.ndarray, qd: np.ndarray) -> dict[str, np.ndarray]:
         t = self.template
-        return {"q_motor": q[:, t._ma], "qd_motor": qd[:, t._md]}
+        theta, theta_d = q[:, t._ma], qd[:, t._md]
+        if self._motor_drive is not None:
+            theta, theta_d = self._motor_drive.measure(theta, theta_d, t.dt)
+        return {"q_motor": theta, "qd_motor": theta_d}
 
 
 class _LazyClasses(Mapping[str, type[BatchedTaskEnv]]):
