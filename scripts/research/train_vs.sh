@@ -14,11 +14,12 @@
 # share of the machine, not one per process; its processes run at nice 19 inside it.
 # Stage 0: the Optuna study (scripts/research/optimize_vs.py) until STUDY_TRIALS trials are
 # complete; its best trial is written to agents/hyperparams/vs/ppo_study.yml, which every PPO
-# run uses (commit that file). Then two queues (one per environment, side by side) that train
+# run uses (commit that file). Then a queue per environment (side by side) that trains
 # their runs one after the other: a finished run (meta.json "finished": true) is skipped, a
 # started one resumes from its last checkpoint (`--resume`), a run directory without a
-# checkpoint (stopped in its first 100k steps) starts over. Order: PPO seed 0 (the first
-# results), the off-policy learner's seed 0, then PPO seeds 1-4 and the off-policy seeds 1-4.
+# checkpoint (stopped in its first 100k steps) starts over. Order: PPO seeds 0-4 (PPO takes
+# ~20x the env steps per CPU second of SAC here), then the off-policy seeds 0-4. VS_ENVS
+# picks the queues (default both envs), VS_PPO_STEPS / VS_SAC_STEPS the budgets.
 # A driver whose PID file names a live process is left alone.
 # CPU time: each training session appends "wall user sys" seconds to <run>.time in
 # $VS_RUNS/logs/ (GNU time), so the budget is stated in CPU hours as well as env steps.
@@ -30,6 +31,7 @@ LOGS="$ROOT/logs"
 PPO_STEPS="${VS_PPO_STEPS:-3000000}"
 SAC_STEPS="${VS_SAC_STEPS:-500000}"
 SEEDS_REST="${VS_SEEDS_REST-1 2 3 4}"
+ENVS="${VS_ENVS:-cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1}"  # one queue each
 PPO_HP="${VS_PPO_HP:-agents/hyperparams/vs/ppo_study.yml}"  # the study's best trial
 STUDY_WORKERS=3     # one process each, sharing the sqlite study
 STUDY_TRIALS=4      # complete trials before the best is adopted (the hand recipe among them)
@@ -52,10 +54,8 @@ study_stage() {
 # one queue's runs: "env_id algo seed timesteps hyperparameter_file"
 queue_runs() {
     local env_id="$1"
-    echo "$env_id ppo 0 $PPO_STEPS $PPO_HP"
-    echo "$env_id sac 0 $SAC_STEPS agents/hyperparams/vs/sac.yml"
-    for k in $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS $PPO_HP"; done
-    for k in $SEEDS_REST; do echo "$env_id sac $k $SAC_STEPS agents/hyperparams/vs/sac.yml"; done
+    for k in 0 $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS $PPO_HP"; done
+    for k in 0 $SEEDS_REST; do echo "$env_id sac $k $SAC_STEPS agents/hyperparams/vs/sac.yml"; done
 }
 
 run_dir() {  # env_id algo seed
@@ -103,8 +103,8 @@ driver() {  # the study if no trial is adopted yet, then both queues side by sid
         study_stage
     fi
     [[ -f "$PPO_HP" ]] || { echo "$(date -u +%FT%TZ) no adopted trial" >> "$LOGS/queue.log"; exit 1; }
-    run_queue cir_gym/VisualServo-v1 &
-    run_queue cir_gym/VisualServoEyeToHand-v1 &
+    local env_id
+    for env_id in $ENVS; do run_queue "$env_id" & done
     wait
 }
 
@@ -117,7 +117,7 @@ status() {
     if alive "$LOGS/driver.pid"; then echo "driver: running, PID $(cat "$LOGS/driver.pid")"
     else echo "driver: not running"; fi
     if [[ -f "$PPO_HP" ]]; then echo "study adopted: $PPO_HP"; else echo "study: not adopted"; fi
-    for env_id in cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1; do
+    for env_id in $ENVS; do
         echo "${env_id#cir_gym/}:"
         while read -r line; do
             # shellcheck disable=SC2086
