@@ -145,7 +145,7 @@ case "${1:-start}" in
         export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
         setsid nohup nice -n 19 bash -c "$(declare -f study_stage queue_runs run_dir finished \
             train_one run_queue driver); ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS=$PPO_STEPS \
-            SAC_STEPS=$SAC_STEPS SEEDS_REST='$SEEDS_REST' PPO_HP='$PPO_HP' \
+            SAC_STEPS=$SAC_STEPS SEEDS_REST='$SEEDS_REST' PPO_HP='$PPO_HP' ENVS='$ENVS' \
             STUDY_WORKERS=$STUDY_WORKERS STUDY_TRIALS=$STUDY_TRIALS STUDY_STEPS=$STUDY_STEPS; \
             driver" > /dev/null 2>&1 &
         echo $! > "$pid_file"
