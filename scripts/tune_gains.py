@@ -1,16 +1,15 @@
 """The controllers get a tuning budget too: an Optuna gain search per leaderboard variant.
 
     python scripts/tune_gains.py [--env cir_gym/JointTracking-v2] [--controller pd_gravity ...]
-                                 [--trials 24] [--train-episodes 3] [--out results/tuning]
+                                 [--trials 24] [--train-episodes N] [--out results/tuning]
 
 An RL agent is tuned (hyperparameters, millions of steps); a controller at the course's default
 gains is not. For every leaderboard variant of the environment (``leaderboard_variants``) and
 every controller asked for, Optuna's TPE sampler (seeded) searches the controller's gains
-within :data:`BOUNDS` to minimise the mean primary metric over *training* episodes (seeds
-``TRAIN_SEED …``, disjoint from the leaderboard's 1000–1009 and the learning curves'
-100000–); a trial whose gains are rejected by the controller (``InvalidGain``) or whose
-episodes diverge scores +inf. The best gains and the defaults are then scored on the
-leaderboard's episodes (10, seeds 1000–1009): the report goes to ``<out>/<Env-vN>.md`` (the
+within the bounds below for the best success rate, then primary metric, on *training*
+episodes (seeds ``TRAIN_SEED …``, disjoint from the leaderboard's 1000–1009 and the learning
+curves' 100000–; see "What a trial scores"). The shipped gains and the defaults are then scored
+on the leaderboard's episodes (10, seeds 1000–1009): the report goes to ``<out>/<Env-vN>.md`` (the
 Optuna study beside it as SQLite), the gains to ``<gains-out>/<Env-vN>.json`` (default ``<out>``;
 ``--gains-out cir_gym/scoring/tuned_gains`` updates the package's, which
 ``tuned:<controller>`` reads).
@@ -31,16 +30,40 @@ does nothing). A gain whose default is None (the law's own rule) is searched onl
 rule gives one number for every joint, which is then its default: the decentralized cascades'
 ω_cv and ω_cp on rigid joints (80 and 16 rad/s), not their per-joint design on elastic ones.
 
-What a trial scores: the variant's own primary metric (``variant_primary_metric``, e.g.
-``min_manipulability`` on RedundantIK's manipulability variant), signed by the metric's
-direction; a trial whose success rate on the training episodes is below the default gains'
-scores +inf, like one that diverges or whose gains the controller rejects: the leaderboard
-ranks on success first, so the search may not buy precision with failed episodes. When the
-default gains fail every training episode, that metric gives the search no slope, or a wrong
-one (PegInHole's insertion time is then the 12-s cap on every trial; RedundantIK's
-manipulability is bought by not tracking the path at all), so such a study maximises the
-episode return instead, the env's own measure of progress on the task (``searched_on`` in the
-results).
+What a trial scores (protocol 2): what the leaderboard ranks on, on the training episodes —
+the success rate first, then the mean of the variant's own primary metric
+(``variant_primary_metric``, e.g. ``min_manipulability`` on RedundantIK's manipulability
+variant) over all the episodes, failed ones included (PegInHole's insertion time charges a
+failure the 12-s horizon), in the metric's direction. Optuna minimises one number, so a trial
+scores ``failures + s(m)``: the count of failed training episodes plus the signed metric ``m``
+mapped into (0, 1) by ``s(m) = 1/2 + atan(m)/π`` (monotone: TPE reads only the order of the
+trials, and one more success outranks any metric). A trial whose every training episode fails
+is ranked among the others like it by a measure of progress instead (:data:`PROGRESS`: the
+peg's ``final_depth`` on PegInHole, else the episode return): a censored metric (the 12-s cap)
+is then the same for every trial, and an uncensored one can have the wrong slope
+(RedundantIK's manipulability is bought by not tracking the path at all). A trial whose
+episodes diverge, or whose gains the controller rejects (``InvalidGain``), scores +inf.
+
+The training episodes (seeds ``TRAIN_SEED …``): 3 (:data:`TRAIN_EPISODES`) where the default
+gains succeed in all of the first three; 10 (:data:`RARE_SUCCESS_TRAIN_EPISODES`, the
+leaderboard's count) where they do not: the ranking then hinges on the success rate, and three
+episodes cannot see a 10–30 % rate (a law inserting 10 % of the time fails all three 73 % of
+the time, and the search would run blind). ``--train-episodes`` fixes the number instead.
+
+What is shipped: the best trial's gains only when they beat the default gains (trial 0) on the
+training episodes by the leaderboard's order, a higher success rate or the same one and a
+strictly better mean primary metric; otherwise the default gains themselves (``kept_default``
+in the row; the report says so). Progress alone (deeper, higher return) does not make gains
+"tuned". The leaderboard's seeds never choose: tuned gains that lose there are reported as
+they score. The training scores of both are in the row (``train_default``, ``train_tuned``).
+
+Protocol 1 (before) searched the metric with every trial below the default gains' training
+success rate at +inf, the return where the default gains failed all 3 training episodes, and
+shipped the best trial whatever it scored against the defaults: on PegInHole's sharp edge the
+default hybrid_force_position fails all 3 (it inserts 1 in 10 on the leaderboard), so the
+search ran on the return, which no trial's insertion moved, and shipped gains that inserted
+0/10. A study records its protocol (study user attributes: ``protocol``, ``train_episodes``,
+``tie_breaker``); a run refuses to resume a study of another protocol (use a fresh ``--out``).
 
 Bounds (documented, physical), all searched log-uniformly; Δt is the env's control period
 (``1/control_freq`` of the variant's arguments):
@@ -85,6 +108,17 @@ from cir_gym.scoring.policies import TUNED_GAINS_DIR
 
 TRAIN_SEED = 0
 LEADERBOARD_SEED, LEADERBOARD_EPISODES = 1000, 10
+#: the search protocol (module docstring), recorded on every study and row: 2 ranks trials by
+#: training success, then the primary metric (1 searched the metric behind a success floor, or
+#: the return)
+PROTOCOL = 2
+#: training episodes where the default gains succeed in every one of them
+TRAIN_EPISODES = 3
+#: training episodes where they do not: the leaderboard's count, so a 10 % rate can show
+RARE_SUCCESS_TRAIN_EPISODES = LEADERBOARD_EPISODES
+#: env (id without its version) → (metric, direction) that ranks trials whose every training
+#: episode fails; any other env: the episode return (higher)
+PROGRESS: dict[str, tuple[str, str]] = {"PegInHole": ("final_depth", "higher")}
 
 #: rate gain → (low, margin): searched in [low, margin/Δt]; see the module docstring
 RATE_BOUNDS: dict[str, tuple[float, float]] = {
@@ -171,25 +205,74 @@ def variant_setting(env_id: str, env_kwargs: dict[str, Any]) -> tuple[float, str
         env.close()
 
 
+def progress_measure(env_id: str) -> tuple[str, str]:
+    """(name, "higher"/"lower") of what ranks trials that fail every training episode on
+    ``env_id`` (:data:`PROGRESS`, else the return)."""
+    name = env_id.split("/")[-1].rsplit("-v", 1)[0]
+    return PROGRESS.get(name, ("return", "higher"))
+
+
 def score(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
           gains: dict[str, float], episodes: int, seed: int) -> dict[str, Any]:
     """The variant's primary metric (mean over the episodes, with its name and direction),
-    success, divergence and saturation rates of the controller with ``gains``."""
+    success, divergence and saturation rates, the return and the env's progress measure
+    (:func:`progress_measure`, its mean) of the controller with ``gains``."""
     metric = variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant)
     policy = baselines.make(controller, env_id, env_kwargs=env_kwargs, **gains)
     result = evaluate(policy, env_id, episodes, seed, **env_kwargs)
     out = {"metric": metric, "better": result.spec(metric).better,
            "value": result.summary[metric]["mean"], "return": result.summary["return"]["mean"],
            "success": result.success_rate,
-           "divergence": result.divergence_rate}
+           "divergence": result.divergence_rate, "episodes": episodes}
+    progress = progress_measure(env_id)[0]
+    if progress in result.summary:
+        out[progress] = result.summary[progress]["mean"]
     if "saturation" in result.summary:
         out["saturation"] = result.summary["saturation"]["mean"]
     return out
 
 
+def _signed(value: float, better: str) -> float:
+    """``value`` signed so that lower is better."""
+    return value if better == "lower" else -value
+
+
+def rank_key(train: dict[str, Any]) -> tuple[float, float]:
+    """The leaderboard's order of a :func:`score`: the highest success rate first, then the
+    best mean primary metric (lower key is better; NaN last)."""
+    value = _signed(train["value"], train["better"])
+    return -train["success"], value if np.isfinite(value) else math.inf
+
+
+def trial_value(train: dict[str, Any], progress: tuple[str, str]) -> float:
+    """What a trial scores (minimised): failed training episodes + s(signed primary metric),
+    s(m) = 1/2 + atan(m)/π in (0, 1); when every episode failed, s(signed ``progress``)
+    instead (``progress``: (name in ``train``, direction)). +inf if an episode diverged or the
+    ranked number is not finite. Orders trials as :func:`rank_key` does wherever one succeeds."""
+    episodes = train["episodes"]
+    failures = round((1.0 - train["success"]) * episodes)
+    if train["divergence"] > 0:
+        return math.inf
+    if failures < episodes:
+        m = _signed(train["value"], train["better"])
+    else:
+        m = _signed(train.get(progress[0], math.nan), progress[1])
+    if not np.isfinite(m):
+        return math.inf
+    return failures + 0.5 + math.atan(m) / math.pi
+
+
+def study_protocol(train_episodes: int, progress: tuple[str, str]) -> dict[str, Any]:
+    """The study user attributes a resumed study must share with this run."""
+    return {"protocol": PROTOCOL, "train_episodes": train_episodes, "train_seed": TRAIN_SEED,
+            "tie_breaker": progress[0]}
+
+
 def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any], *,
-         trials: int, train_episodes: int, out: Path, sampler_seed: int = 0) -> dict[str, Any]:
-    """One Optuna study: best gains on the training seeds; returns the study summary."""
+         trials: int, train_episodes: int | None, out: Path,
+         sampler_seed: int = 0) -> dict[str, Any]:
+    """One Optuna study on the training seeds (module docstring: what a trial scores, how many
+    training episodes when ``train_episodes`` is None, what is shipped); returns the row."""
     import optuna
 
     dt, objective_name = variant_setting(env_id, env_kwargs)
@@ -198,6 +281,7 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
         raise ValueError(f"{controller} has no searchable gain on {env_id} (scripts/tune_gains.py"
                          f" searches {sorted(RATE_BOUNDS) + sorted(FIXED_BOUNDS)} and SEARCHED)")
     space = {g: bounds(g, v, dt) for g, v in defaults.items()}
+    progress = progress_measure(env_id)
     name = f"{env_id.split('/')[-1]}-{variant.replace(' ', '_')}-{controller}"
     storage = f"sqlite:///{out / 'studies.db'}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -208,14 +292,18 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
                                 load_if_exists=True)
     # the course's gains are trial 0 (clamped into the bounds if they lie outside)
     start = {g: min(max(v, space[g][0]), space[g][1]) for g, v in defaults.items()}
+    recorded = {k: study.user_attrs.get(k) for k in study_protocol(0, progress)}
+    if study.trials and recorded["protocol"] != PROTOCOL:
+        raise ValueError(_mismatch(name, out, recorded, PROTOCOL))
+    episodes = study_episodes(study, train_episodes, lambda n: score(
+        controller, env_id, variant, env_kwargs, start, n, TRAIN_SEED))
+    protocol = study_protocol(episodes, progress)
+    if study.trials and recorded != protocol:
+        raise ValueError(_mismatch(name, out, recorded, protocol))
+    for k, v in protocol.items():
+        study.set_user_attr(k, v)
     if default_trial(study, start) is None:
         study.enqueue_trial(start)
-    # set by the default gains' trial: the success rate no trial may fall below, and the
-    # metric searched on (the variant's, or the return when the defaults never succeed)
-    floor: dict[str, Any] = {}
-    first = default_trial(study, start)
-    if first is not None:
-        set_floor(floor, first.user_attrs["train"])
 
     def objective(trial: Any) -> float:
         gains: dict[str, float] = {}
@@ -225,28 +313,61 @@ def tune(controller: str, env_id: str, variant: str, env_kwargs: dict[str, Any],
                 high = min(high, gains[BELOW[g]] * (1.0 - 1e-9))
             gains[g] = trial.suggest_float(g, low, high, log=True)
         try:
-            s = score(controller, env_id, variant, env_kwargs, gains, train_episodes,
-                      TRAIN_SEED)
+            s = score(controller, env_id, variant, env_kwargs, gains, episodes, TRAIN_SEED)
         except baselines.InvalidGain:
             return math.inf
-        if not floor:
-            set_floor(floor, s)
         trial.set_user_attr("train", s)
-        value, better = ((s["value"], s["better"]) if floor["on"] == s["metric"]
-                         else (s["return"], "higher"))
-        if s["divergence"] > 0 or not np.isfinite(value) or s["success"] < floor["success"]:
-            return math.inf
-        return value if better == "lower" else -value
+        return trial_value(s, progress)
 
     study.optimize(objective, n_trials=max(trials - len(completed(study)), 0))
     done = completed(study)
     first = default_trial(study, start)
-    return {"study": name, "trials": len(done), "train_episodes": train_episodes,
-            "train_seed": TRAIN_SEED, "best_train": study.best_value,
+    chosen = shipped_trial(done, first)
+    return {"study": name, "protocol": PROTOCOL, "trials": len(done),
+            "train_episodes": episodes, "train_seed": TRAIN_SEED,
+            "best_train": chosen.value,
             "default_train": first.value if first is not None else math.nan,
-            "tuned": study.best_params, "default": defaults, "bounds": space,
-            "searched_on": floor.get("on"),
+            "train_default": first.user_attrs["train"] if first is not None else None,
+            "train_tuned": chosen.user_attrs.get("train"),
+            "kept_default": chosen is first,
+            "tuned": {g: chosen.params[g] for g in defaults}, "default": defaults,
+            "bounds": space,
+            "searched_on": variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant),
+            "tie_breaker": progress[0],
             "seconds": round(sum(t.duration.total_seconds() for t in done), 1)}
+
+
+def _mismatch(name: str, out: Path, recorded: dict[str, Any], asked: Any) -> str:
+    """The error of a study that cannot be resumed under this run's protocol."""
+    return (f"study {name!r} in {out / 'studies.db'} was run under {recorded}, this run's "
+            f"protocol is {asked}: resume it with the script and --train-episodes it was run "
+            "with, or give a fresh --out")
+
+
+def study_episodes(study: Any, asked: int | None, probe: Any) -> int:
+    """The training episodes of ``study``: ``asked`` if given, else those it recorded (a
+    resumed study), else :data:`TRAIN_EPISODES` if the default gains succeed in every one of
+    that many (``probe(n)``: their :func:`score` on n training episodes), else
+    :data:`RARE_SUCCESS_TRAIN_EPISODES`."""
+    if asked is not None:
+        return asked
+    if study.trials and study.user_attrs.get("train_episodes") is not None:
+        return int(study.user_attrs["train_episodes"])
+    return (TRAIN_EPISODES if probe(TRAIN_EPISODES)["success"] == 1.0
+            else RARE_SUCCESS_TRAIN_EPISODES)
+
+
+def shipped_trial(done: list[Any], first: Any) -> Any:
+    """The trial whose gains are shipped: the best (lowest value, earliest of equals) if it
+    beats the default gains' trial ``first`` on the training episodes by :func:`rank_key`,
+    else ``first`` (the defaults); the best if there is no default trial to compare with."""
+    best = min(done, key=lambda t: (t.value, t.number))
+    if first is None:
+        return best
+    if (best is first or not np.isfinite(best.value) or "train" not in best.user_attrs
+            or rank_key(best.user_attrs["train"]) >= rank_key(first.user_attrs["train"])):
+        return first
+    return best
 
 
 def completed(study: Any) -> list[Any]:
@@ -262,12 +383,6 @@ def default_trial(study: Any, start: dict[str, float]) -> Any:
         if t.params == start and "train" in t.user_attrs:
             return t
     return None
-
-
-def set_floor(floor: dict[str, Any], train: dict[str, Any]) -> None:
-    """What the default gains' training score sets for every trial (see :func:`tune`)."""
-    floor.update(success=train["success"],
-                 on=train["metric"] if train["success"] > 0 else "return")
 
 
 def merge_rows(path: Path, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -288,7 +403,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="repeatable (default: every controller of the env with a searchable "
                         "gain)")
     p.add_argument("--trials", type=int, default=24)
-    p.add_argument("--train-episodes", type=int, default=3)
+    p.add_argument("--train-episodes", type=int, default=None,
+                   help=f"training episodes of every study (default: {TRAIN_EPISODES} where the "
+                        f"default gains succeed in all {TRAIN_EPISODES}, else "
+                        f"{RARE_SUCCESS_TRAIN_EPISODES})")
     p.add_argument("--episodes", type=int, default=LEADERBOARD_EPISODES,
                    help="leaderboard episodes for the side-by-side scores")
     p.add_argument("--variant", action="append", help="restrict to these variants")
@@ -300,6 +418,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="environment argument added to every variant (e.g. a short "
                         "episode_duration for a smoke run; results then differ)")
     args = p.parse_args(argv)
+    for flag, n in (("--trials", args.trials), ("--train-episodes", args.train_episodes),
+                    ("--episodes", args.episodes)):
+        if n is not None and n < 1:
+            p.error(f"{flag} must be >= 1, got {n}")
     extra = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -332,7 +454,8 @@ def main(argv: list[str] | None = None) -> int:
                      train_episodes=args.train_episodes, out=out)
             r.update(variant=variant, env_kwargs=kwargs, controller=c)
             known = earlier.get((variant, c), {})
-            if (known.get("tuned") == r["tuned"] and known.get("default") == r["default"]
+            if (all(known.get(k) == r[k] for k in ("tuned", "default", "protocol",
+                                                     "train_episodes"))
                     and "leaderboard_tuned" in known):  # a resumed run: scored already
                 r["leaderboard_default"] = known["leaderboard_default"]
                 r["leaderboard_tuned"] = known["leaderboard_tuned"]
@@ -363,31 +486,55 @@ def _ratio(default: dict[str, Any], tuned: dict[str, Any]) -> str:
     return f"{a / b:.1f}×"
 
 
+def _training(r: dict[str, Any]) -> str:
+    """A row's training scores, default → shipped: 'successes/episodes, mean metric'."""
+    d, t = r.get("train_default"), r.get("train_tuned")
+    if not d or not t:
+        return "—"
+
+    def one(s: dict[str, Any]) -> str:
+        return f"{round(s['success'] * s['episodes'])}/{s['episodes']}, {s['value']:.3g}"
+
+    return f"{one(d)} → {one(t)}" + (" (defaults kept)" if r.get("kept_default") else "")
+
+
 def report(env_id: str, results: list[dict[str, Any]], args: argparse.Namespace,
            extra: dict[str, float]) -> str:
     """The side-by-side table (markdown) of default and tuned gains on the leaderboard seeds."""
+    episodes = (f"--train-episodes {args.train_episodes}" if args.train_episodes else "")
     lines = [
         f"# Controller gains tuned with Optuna: {env_id}",
         "",
         f"Generated by `python scripts/tune_gains.py --env {env_id}"
         + "".join(f" --set {k}={v:g}" for k, v in extra.items())
         + "".join(f" --controller {c}" for c in args.controller or [])
-        + f" --trials {args.trials} --train-episodes {args.train_episodes} --out {args.out}`"
-        " (TPE, seeded; "
-        f"{args.trials} trials of {args.train_episodes} training episodes, seeds "
-        f"{TRAIN_SEED}–{TRAIN_SEED + args.train_episodes - 1}; the default gains are trial 0; a "
-        "trial below their success rate scores +inf). Scored on the leaderboard's "
+        + "".join(f" --variant '{v}'" for v in args.variant or [])
+        + f" --trials {args.trials} {episodes}".rstrip() + f" --out {args.out}`"
+        f" (protocol {PROTOCOL}, scripts/tune_gains.py: TPE, seeded, {args.trials} trials; the "
+        "default gains are trial 0. Training episodes from seed "
+        f"{TRAIN_SEED}: "
+        + (f"{args.train_episodes}" if args.train_episodes else
+           f"{TRAIN_EPISODES} where the default gains succeed in all {TRAIN_EPISODES}, else "
+           f"{RARE_SUCCESS_TRAIN_EPISODES}")
+        + ". A trial ranks by its training success rate, then the mean of the variant's "
+        "primary metric over all its episodes (the leaderboard's order); a trial that fails "
+        "every training episode ranks by progress instead (PegInHole: final_depth; else the "
+        "return); divergence or rejected gains: last. The tuned gains are the best trial's "
+        "only if it beats the defaults on the training episodes in that order (success, then "
+        "metric), else the defaults themselves ('defaults kept'); the leaderboard's seeds "
+        "never choose.) Scored on the leaderboard's "
         f"{args.episodes} episodes (seeds {LEADERBOARD_SEED}–"
         f"{LEADERBOARD_SEED + args.episodes - 1}), on each variant's primary metric. Bounds "
         "(log-uniform; scripts/tune_gains.py says why): rate gains in [1, 0.3/Δt] (the servo "
         "gain λ: [0.05, 0.3/Δt], CLIK's K: [1, 1/Δt]; a cascade's ω_cp below its trial's "
         "ω_cv), ζ in [0.3, 3], any other gain a decade either side of its default; each row "
-        "lists its own. Where the default gains fail every training "
-        "episode the search maximised the return (the metric column says so).",
+        "lists its own. A row of protocol 1 (no training column) searched the return where "
+        "the default gains failed every training episode (the metric column says so).",
         "",
         "| variant | controller | metric | default gains | value | success | tuned gains "
-        "| value | success | saturation (default → tuned) | factor | bounds |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| value | success | saturation (default → tuned) | factor | training: successes, "
+        "metric (default → tuned) | bounds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         d, t = r["leaderboard_default"], r["leaderboard_tuned"]
@@ -400,7 +547,7 @@ def report(env_id: str, results: list[dict[str, Any]], args: argparse.Namespace,
             f"{d['success']:.0%} | {fmt(f'{k} {v:.3g}' for k, v in r['tuned'].items())} | "
             f"{t['value']:.3g} | {t['success']:.0%} | "
             + (f"{d['saturation']:.2g} → {t['saturation']:.2g}" if "saturation" in d else "—")
-            + f" | {_ratio(d, t)} | "
+            + f" | {_ratio(d, t)} | {_training(r)} | "
             + fmt(f"{k} [{lo:.3g}, {hi:.3g}]" for k, (lo, hi) in r["bounds"].items()) + " |")
     return "\n".join(lines) + "\n"
 

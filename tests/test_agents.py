@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -1042,118 +1041,6 @@ def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
     target = ship(run, dest=tmp_path / "t" / "ppo" / "seed_2")
     assert (target / "model.zip").is_file()
     assert yaml.safe_load((target / "config.yml").read_text())["seed"] == 2
-
-
-def test_tune_gains_smoke(tmp_path):
-    from scripts.tune_gains import main
-
-    assert main(["--controller", "pd_gravity", "--trials", "2", "--train-episodes", "1",
-                 "--episodes", "1", "--variant", "exact model", "--set", "episode_duration=0.1",
-                 "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "JointTracking-v2.json").read_text())
-    assert data[0]["default"] == {"omega": 10.0, "zeta": 1.0}
-    assert 1.0 <= data[0]["tuned"]["omega"] <= 150.0
-    assert data[0]["best_train"] <= data[0]["default_train"]  # trial 0 is the default
-    assert (tmp_path / "studies.db").is_file()
-
-
-def test_tune_gains_searches_the_servo_gain_within_the_camera_rate_bound():
-    """Visual servoing's λ is tunable, bounded by λ Δt ≤ 0.3 at the 25-Hz camera rate; the
-    joint-space laws' ω within ω Δt ≤ 0.3 at 500 Hz (150 rad/s)."""
-    from scripts.tune_gains import bounds, tunable_gains
-
-    vs = "cir_gym/VisualServo-v1"
-    assert tunable_gains("ibvs", vs) == {"gain": 0.5} == tunable_gains("pbvs", vs)
-    assert bounds("gain", 0.5, 0.04)[1] * 0.04 == pytest.approx(0.3)
-    assert tunable_gains("computed_torque", ENV) == {"omega_n": 20.0, "zeta": 1.0}
-    assert bounds("omega_n", 20.0, 0.002) == pytest.approx((1.0, 150.0))
-
-
-def test_tune_gains_search_space_follows_the_law_and_the_variant():
-    """CLIK's K is bounded by dead-beat, KΔt ≤ 1 (200 1/s on the planar arm's 200 Hz, 100 on
-    the iiwa's 100 Hz); a null-space gain is searched only on its own objective's variant; the
-    interaction laws search their force-loop gains, a gain without a physical bound a decade
-    either side of the course's value; a gain whose default is the law's rule (None) is
-    searched from the value the rule gives when it is one number for every joint (the
-    cascades' ω_cv = 80, ω_cp = ω_cv / 5 on rigid joints), not where the rule designs each
-    joint (ω_cv = 0.7 ω_z on elastic joints)."""
-    from scripts.tune_gains import bounds, tunable_gains, variant_setting
-
-    rik, rik7 = "cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5"
-    assert variant_setting(rik, {"objective": "obstacle"}) == (pytest.approx(0.005), "obstacle")
-    assert bounds("K", 50.0, variant_setting(rik7, {})[0]) == pytest.approx((1.0, 100.0))
-    assert bounds("K", 50.0, 0.005) == pytest.approx((1.0, 200.0))
-    assert tunable_gains("clik_nullspace", rik, "obstacle") == {"K": 50.0, "k0_obstacle": 5.0}
-    assert tunable_gains("clik_nullspace", rik, "joint_limits") == {"K": 50.0,
-                                                                    "k0_joint_limits": 10.0}
-    assert tunable_gains("clik", rik, "obstacle") == {"K": 50.0}
-    assert tunable_gains("pseudo_inverse", rik, "obstacle") == {}
-    ac = "cir_gym/AdmittanceContact-v1"
-    assert tunable_gains("admittance", ac) == {"crossover": 20.0, "motion_omega": 40.0}
-    assert tunable_gains("explicit_force", ac) == {"crossover_ratio": 0.5, "zeta": 1.0}
-    assert bounds("crossover_ratio", 0.5, 0.002) == pytest.approx((0.05, 5.0))
-    assert tunable_gains("p_pi_cascade", ENV) == {}  # the rule's value needs the env's arguments
-    assert tunable_gains("p_pi_cascade", ENV, None, {}) == {"omega_cv": 80.0, "omega_cp": 16.0}
-    assert tunable_gains("p_pi_cascade", "cir_gym/ElasticJointTracking-v3", None, {}) == {}
-    assert bounds("omega_cv", 80.0, 0.002) == pytest.approx((1.0, 150.0))
-    assert set(tunable_gains("adaptive", ENV)) == {"lam", "kd", "gamma"}
-    assert bounds("gamma", 100.0, 0.002) == pytest.approx((10.0, 1000.0))
-    assert bounds("lam", 10.0, 0.002) == pytest.approx((1.0, 150.0))
-    assert set(tunable_gains("hybrid_force_position", "cir_gym/PegInHole-v2")) == {
-        "omega_n", "zeta", "crossover_ratio", "d_f", "speed"}
-
-
-def test_tune_gains_keeps_the_cascades_position_loop_below_its_speed_loop(tmp_path):
-    """The cascades' ω_cp is sampled below the ω_cv of its own trial (the law rejects
-    ω_cp ≥ ω_cv), trial 0 is the course's rule (80, 16 rad/s), and the rule's value is what
-    the law builds without the gains: trial 0 scores what the default controller scores."""
-    import optuna
-
-    from scripts.tune_gains import TRAIN_SEED, score, tune
-
-    row = tune("p_pi_cascade", ENV, "exact model", {"episode_duration": 0.5}, trials=4,
-               train_episodes=1, out=tmp_path)
-    assert row["default"] == {"omega_cv": 80.0, "omega_cp": 16.0}
-    study = optuna.load_study(study_name=row["study"], storage=f"sqlite:///{tmp_path}/studies.db")
-    assert study.trials[0].params == row["default"]
-    for t in study.trials:
-        assert t.params["omega_cp"] < t.params["omega_cv"] <= 150.0
-    rule = score("p_pi_cascade", ENV, "exact model", {"episode_duration": 0.5}, {}, 1, TRAIN_SEED)
-    assert study.trials[0].user_attrs["train"]["value"] == rule["value"]
-
-
-def test_tune_gains_ranks_on_the_variants_metric_and_keeps_the_success_rate(tmp_path):
-    """On RedundantIK's manipulability variant a trial scores −min_manipulability (higher is
-    better there); a trial below the default gains' success rate, or diverging, scores +inf.
-    Where the default gains never succeed (the Jacobian transpose misses the 1-mm bar) the
-    study maximises the return instead: manipulability is bought by not tracking."""
-    import optuna
-
-    from scripts.tune_gains import main
-
-    assert main(["--env", "cir_gym/RedundantIK-v4", "--controller", "clik_nullspace",
-                 "--controller", "jacobian_transpose", "--trials", "4", "--train-episodes",
-                 "1", "--episodes", "1", "--variant", "manipulability",
-                 "--out", str(tmp_path)]) == 0
-    rows = json.loads((tmp_path / "RedundantIK-v4.json").read_text())
-    assert rows[0]["default"] == {"K": 50.0, "k0_manipulability": 20.0}
-    assert rows[0]["bounds"]["K"] == pytest.approx([1.0, 200.0])
-    assert rows[0]["leaderboard_tuned"]["metric"] == "min_manipulability"
-    assert [r["searched_on"] for r in rows] == ["min_manipulability", "return"]
-    for row in rows:
-        assert row["best_train"] <= row["default_train"]
-        study = optuna.load_study(study_name=row["study"],
-                                  storage=f"sqlite:///{tmp_path}/studies.db")
-        floor = study.trials[0].user_attrs["train"]["success"]
-        assert (floor > 0) == (row["searched_on"] == "min_manipulability")
-        for t in study.trials:
-            train = t.user_attrs["train"]
-            feasible = train["success"] >= floor and train["divergence"] == 0
-            on = "value" if row["searched_on"] == "min_manipulability" else "return"
-            assert t.value == (-train[on] if feasible else math.inf)
-    md = (tmp_path / "RedundantIK-v4.md").read_text()
-    assert "| manipulability | clik_nullspace | min_manipulability |" in md
-    assert "| manipulability | jacobian_transpose | min_manipulability (searched on return) |" in md
 
 
 def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
