@@ -69,16 +69,18 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import mujoco
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain
+from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw, matvec
 from cir_gym.baselines.interaction import Admittance, AdmittanceGains
 
+from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
-from cir_gym.ft_sensor import contact_wrench
+from cir_gym.ft_sensor import GRAVITY
 from cir_gym.operational_space import (
     dynamically_consistent_inverse,
     null_space_projector,
+    rotvec_from_quat,
+    skew,
     task_inertia,
 )
 from cir_gym.robot import ModelError, Robot, apply_model_error
@@ -103,36 +105,32 @@ __all__ = [
 #: Orientation of the tip frame in the hole frame when the peg is aligned with the bore.
 ALIGNED = np.diag([-1.0, 1.0, -1.0])
 
+#: The law's quantities at rows of observations (see :meth:`HybridForcePosition.frames`).
+Frames = dict[str, np.ndarray]
+
+
+def _transpose(A: np.ndarray) -> np.ndarray:
+    """Aᵀ of (rows of) matrices (..., m, k) → (..., k, m)."""
+    return np.swapaxes(A, -1, -2)
+
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector θ r (3,) of a rotation matrix, θ ∈ [0, π] (MuJoCo's C routines: the
-    shorter rotation, as :func:`cir_gym.operational_space.rotvec_from_quat`, ~20× cheaper)."""
-    quat, phi = np.empty(4), np.empty(3)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).ravel())
-    mujoco.mju_quat2Vel(phi, quat, 1.0)
-    return phi
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b for a (3,) and b (3,) or (3, n) (columns): numpy's formula term by term (the same
-    floating-point result as ``np.cross``, without its axis handling, ~10× cheaper here)."""
-    return np.array(
-        (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-    )
+    """Rotation vector θ r (..., 3) of rotation matrices (..., 3, 3), θ ∈ [0, π] (the shorter
+    rotation, as :func:`cir_gym.operational_space.rotvec_from_quat` of its quaternion)."""
+    return rotvec_from_quat(traj.quat_from_matrix(R))
 
 
 def _block_diag2(R: np.ndarray) -> np.ndarray:
-    """diag(R, R) (6, 6) of a (3, 3) rotation (the twist/wrench rotation)."""
-    R6 = np.zeros((6, 6))
-    R6[:3, :3] = R
-    R6[3:, 3:] = R
+    """diag(R, R) (..., 6, 6) of rotations (..., 3, 3) (the twist/wrench rotation)."""
+    R6 = np.zeros((*R.shape[:-2], 6, 6))
+    R6[..., :3, :3] = R
+    R6[..., 3:, 3:] = R
     return R6
 
 
-def _matrix(quat: np.ndarray) -> np.ndarray:
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, np.asarray(quat, dtype=float))
-    return R.reshape(3, 3)
+def _take(frames: Frames, rows: np.ndarray) -> Frames:
+    """The ``rows`` (a mask or indices) of every quantity of ``frames``."""
+    return {key: value[rows] for key, value in frames.items()}
 
 
 def selection_matrix(search: bool = False, face: bool = False) -> np.ndarray:
@@ -168,87 +166,10 @@ def _check_positive(owner: str, **values: float) -> None:
             )
 
 
-class _TipController(Controller):
-    """Shared kinematics: the peg tip of the nominal arm (flange + tool offset) in the hole frame.
-
-    The nominal robot carries the peg as the file's ``payload`` (its centre of mass lies 5 cm
-    beyond the flange, as the peg's does), so g(q) includes the peg's weight.
-    """
-
-    tasks: ClassVar[tuple[str, ...]] = ("PegInHole",)
-
-    def __init__(
-        self,
-        context: TaskContext,
-        gains: Any = None,
-        *,
-        robot: Robot | None = None,
-        **overrides: Any,
-    ) -> None:
-        _require_torque(self.name, context)
-        super().__init__(context, gains, **overrides)
-        extras = context.extras
-        self.robot = robot if robot is not None else context.nominal_robot()
-        self.tool_mass = float(extras.get("tool_mass", 0.0))
-        if robot is None and self.tool_mass > 0:
-            apply_model_error(self.robot.model, ModelError(payload_mass=self.tool_mass))
-            self.robot.invalidate()
-        self.tip_offset = float(extras.get("tip_offset", 0.0))
-        self.tool_com = np.array(extras.get("tool_com", np.zeros(3)), dtype=float)  # sensor frame
-        self.site = self.robot.site_id(context.site or "flange")
-        self.q_home: np.ndarray | None = None
-
-    def tip(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Tip position (3,), rotation (3, 3) and geometric Jacobian (6, n), world frame."""
-        return self.tip_and_flange(q)[1:]
-
-    def tip_and_flange(self, q: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Flange position (3,), then :meth:`tip`'s tip position, rotation and Jacobian."""
-        p, R = self.robot.site_pose(self.site, q)
-        J = self.robot.jacobian(self.site, q)
-        r = R[:, 2] * self.tip_offset
-        J_tip = J.copy()
-        J_tip[:3] -= _cross(r, J[3:])  # v_tip = v_f + ω × r = v_f − r × ω
-        return p, p + r, R, J_tip
-
-    def task_wrench_torque(
-        self,
-        q: np.ndarray,
-        qd: np.ndarray,
-        h_world: np.ndarray,
-        J: np.ndarray,
-        Lambda: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """τ = g(q) + Jᵀ h + N_dynᵀ (posture PD toward the start posture)."""
-        B = self.robot.inertia(q)
-        J_bar = dynamically_consistent_inverse(J, B, Lambda)
-        N = null_space_projector(J, J_bar)
-        q_home = self.q_home if self.q_home is not None else q
-        tau0 = self.gains.posture_stiffness * (q_home - q) - self.gains.posture_damping * qd
-        return self.robot.gravity(q) + J.T @ h_world + N.T @ tau0
-
-    @staticmethod
-    def hole_frame(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        return obs["hole_pos"], _matrix(obs["hole_quat"])
-
-    def measured_wrench_at_tip(
-        self,
-        obs: dict[str, np.ndarray],
-        q: np.ndarray,
-        p_tip: np.ndarray,
-        flange: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> np.ndarray:
-        """γ̂ (6,), world frame, moments about the tip: the peg's push on the environment.
-        ``flange``: its pose (p, R) at ``q`` if already computed."""
-        p_f, R_f = flange if flange is not None else self.robot.site_pose(self.site, q)
-        h = contact_wrench(obs["wrench"], R_f, tool_mass=self.tool_mass, tool_com=self.tool_com)
-        f, mu_sensor = h[:3], h[3:]
-        return np.concatenate((f, mu_sensor + _cross(p_f - p_tip, f)))
-
-
-#: State of :class:`HybridForcePosition` (one float64 row, viewed with named fields): time since
+#: State of :class:`HybridForcePosition` (float64 rows, viewed with named fields): time since
 #: the start (s), the axial reference z̄ in the hole frame (m), and the force loop's integral
-#: term u_I (6,) in the hole frame (N, N m).
+#: term u_I (6,) in the hole frame (N, N m); then the posture target ``q0`` (n,) (rad, the
+#: posture at the episode's start) of every tip controller (:func:`_with_posture`).
 HYBRID_STATE = np.dtype([("t", "f8"), ("z_ref", "f8"), ("force_integral", "f8", (6,))])
 #: :data:`HYBRID_STATE` plus the spiral search: mode (0 approach/insert, 1 search, 2 found),
 #: spiral angle θ (rad), spiral centre (2,) and contact height z_c (m), hole frame.
@@ -259,15 +180,21 @@ SPIRAL_STATE = np.dtype([
     ("centre", "f8", (2,)),
     ("z_contact", "f8"),
 ])
-#: State of :class:`PositionOnly`: the axial reference z̄ (m).
+#: State of :class:`PositionOnly`: the axial reference z̄ (m), then the posture target.
 POSITION_STATE = np.dtype([("z_ref", "f8")])
 APPROACH, SEARCH, FOUND = 0, 1, 2
 
 
-def _fields(state: np.ndarray, layout: np.dtype) -> np.void:
-    """The state row (layout.itemsize / 8,) float64 seen with the named fields of ``layout``
-    (writes go to the row)."""
-    return state.view(layout)[0]
+def _with_posture(layout: np.dtype, n: int) -> np.dtype:
+    """``layout`` followed by the posture target ``q0`` (n,) (rad)."""
+    return np.dtype([*layout.descr, ("q0", "f8", (n,))])
+
+
+def _fields(state: np.ndarray, layout: np.dtype) -> np.ndarray:
+    """State rows (..., size) float64 seen with the named fields of ``layout`` (views: writes
+    go to the rows); a layout shorter than a row names the row's leading part. One row (size,)
+    gives one record (``np.void``), rows (N, size) a structured array (N,)."""
+    return state[..., : layout.itemsize // 8].view(layout)[..., 0]
 
 
 @dataclass(frozen=True)
@@ -324,132 +251,235 @@ class HybridForcePositionGains:
         _check_positive("hybrid_force_position", **self.__dict__)
 
 
-class HybridForcePosition(_TipController):
-    """Hybrid force/position control with the selection matrix Σ (see the module docstring).
 
-    State: :data:`HYBRID_STATE` (time, axial reference, the force loop's integral).
+class _TipController(RowLaw):
+    """Shared kinematics: the peg tip of the nominal arm (flange + tool offset) in the hole frame.
+
+    The nominal robot carries the peg as the file's ``payload`` (its centre of mass lies 5 cm
+    beyond the flange, as the peg's does), so g(q) includes the peg's weight. Every law is
+    written once on rows of observations (values (N, ...), state (N, size)): the model calls
+    row by row (:meth:`Controller.model_rows`), the arithmetic on all rows; one observation is
+    a row of one. The state is the law's fields (``law_state``) and the posture target q₀.
     """
 
-    name: ClassVar[str] = "hybrid_force_position"
-    Gains: ClassVar[type] = HybridForcePositionGains
-    layout: ClassVar[np.dtype] = HYBRID_STATE
+    tasks: ClassVar[tuple[str, ...]] = ("PegInHole",)
+    #: the law's own state fields (the posture target q₀ follows them)
+    law_state: ClassVar[np.dtype] = np.dtype([])
+
+    def __init__(
+        self,
+        context: TaskContext,
+        gains: Any = None,
+        *,
+        robot: Robot | None = None,
+        **overrides: Any,
+    ) -> None:
+        _require_torque(self.name, context)
+        super().__init__(context, gains, **overrides)
+        extras = context.extras
+        self.robot = robot if robot is not None else context.nominal_robot()
+        self.tool_mass = float(extras.get("tool_mass", 0.0))
+        if robot is None and self.tool_mass > 0:
+            apply_model_error(self.robot.model, ModelError(payload_mass=self.tool_mass))
+            self.robot.invalidate()
+        self.tip_offset = float(extras.get("tip_offset", 0.0))
+        self.tool_com = np.array(extras.get("tool_com", np.zeros(3)), dtype=float)  # sensor frame
+        self.site = self.robot.site_id(context.site or "flange")
+        self.layout = _with_posture(self.law_state, self.robot.n)
 
     @property
     def state_size(self) -> int:
         return self.layout.itemsize // 8
 
-    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        self.q_home = np.asarray(obs["q"], dtype=float).copy()
+    def initial_state(self, obs: Observation) -> np.ndarray:
+        """The law's fields at zero, z̄ (when the law has one) at the tip's height, q₀ = q."""
         state = np.zeros(self.state_size)
-        _fields(state, self.layout)["z_ref"] = float(obs["peg_pos"][2])
+        fields = _fields(state, self.layout)
+        if "z_ref" in self.layout.names:
+            fields["z_ref"] = obs["peg_pos"][2]
+        fields["q0"] = obs["q"]
         return state
 
-    def _frames(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
+    def tip_terms(self, obs: Observation, q0: np.ndarray) -> Frames:
+        """The nominal arm at rows of measured states, at the peg tip, world frame: ``q``,
+        ``qd`` and the posture target ``q0`` (N, n); ``p_flange``, ``p_tip`` (N, 3) (m);
+        ``R_tip`` (N, 3, 3) (the flange's rotation, tip → world); ``J`` (N, 6, n) the tip's
+        geometric Jacobian; ``inertia`` B̂(q) (N, n, n) (kg m²); ``gravity`` ĝ(q) (N, n) (N m)."""
         q, qd = obs["q"], obs["qd"]
-        p_h, R_h = self.hole_frame(obs)
-        p_f, p_tip, R_tip, J = self.tip_and_flange(q)
-        twist = J @ qd
-        gamma = self.measured_wrench_at_tip(obs, q, p_tip, (p_f, R_tip))
-        R6 = _block_diag2(R_h)
-        Lambda_world = task_inertia(J, self.robot.inertia(q))
-        Lambda = R6.T @ Lambda_world @ R6
-        x = R_h.T @ (p_tip - p_h)
-        R_rel = R_h.T @ R_tip
-        phi = _rotvec(ALIGNED @ R_rel.T)  # log(R̄ Rᵀ) in the hole frame, R̄ = ALIGNED
+        rows = self.model_rows()
+        flange = rows.site_terms(self.site, q, qd, inertia=True, rotations=(self.site,))
+        R = flange.rotations[:, 0]
+        r = R[..., :, 2] * self.tip_offset  # flange → tip (N, 3)
+        J = flange.J.copy()
+        J[:, :3] -= skew(r) @ flange.J[:, 3:]  # v_tip = v_f + ω × r = v_f − S(r) ω
         return {
             "q": q,
             "qd": qd,
-            "R_h": R_h,
+            "q0": q0,
+            "p_flange": flange.x,
+            "p_tip": flange.x + r,
+            "R_tip": R,
             "J": J,
-            "x": x,
-            "phi": phi,
-            "Lambda": Lambda,
+            "inertia": flange.inertia,
+            "gravity": rows.gravity(q),
+        }
+
+    def task_wrench_torque(
+        self, arm: Frames, h_world: np.ndarray, Lambda: np.ndarray | None = None
+    ) -> np.ndarray:
+        """τ = ĝ(q) + Jᵀ h + N_dynᵀ τ₀ (N, n) (N m): the tip wrench h (N, 6) (world frame), and
+        the posture PD τ₀ = K_p,0 (q₀ − q) − K_d,0 q̇ in the null space of the dynamically
+        consistent inverse J̄ = B̂⁻¹ Jᵀ Λ (``Lambda``: the tip's world-frame Λ if known).
+        ``arm``: :meth:`tip_terms`."""
+        g = self.gains
+        J, B = arm["J"], arm["inertia"]
+        J_bar = dynamically_consistent_inverse(J, B, Lambda)
+        N = null_space_projector(J, J_bar)
+        tau0 = g.posture_stiffness * (arm["q0"] - arm["q"]) - g.posture_damping * arm["qd"]
+        return arm["gravity"] + matvec(_transpose(J), h_world) + matvec(_transpose(N), tau0)
+
+    @staticmethod
+    def hole_frame(obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal hole's position (..., 3) (m) and rotation hole → world (..., 3, 3)."""
+        return obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
+
+    def measured_wrench_at_tip(self, obs: Observation, arm: Frames) -> np.ndarray:
+        """γ̂ (N, 6), world frame, moments about the tip: the peg's push on the environment.
+
+        :func:`cir_gym.ft_sensor.contact_wrench` with the rotation taken first: the reading w
+        rotated to the world minus the static peg's reading there, R (w − w_tool) = R w −
+        [s; (R c) × s] with s = −m g the force that holds the peg (c its centre of mass,
+        sensor frame); the moment then moved from the sensor to the tip."""
+        R, w = arm["R_tip"], obs["wrench"]
+        support = -self.tool_mass * GRAVITY
+        f = matvec(R, w[..., :3]) - support
+        mu_sensor = matvec(R, w[..., 3:]) - np.cross(matvec(R, self.tool_com), support)
+        return np.concatenate(
+            (f, mu_sensor + np.cross(arm["p_flange"] - arm["p_tip"], f)), axis=-1
+        )
+
+
+class HybridForcePosition(_TipController):
+    """Hybrid force/position control with the selection matrix Σ (see the module docstring).
+
+    State: :data:`HYBRID_STATE` (time, axial reference, the force loop's integral) and the
+    posture target q₀.
+    """
+
+    name: ClassVar[str] = "hybrid_force_position"
+    Gains: ClassVar[type] = HybridForcePositionGains
+    law_state: ClassVar[np.dtype] = HYBRID_STATE
+
+    def frames(self, obs: Observation, q0: np.ndarray) -> Frames:
+        """:meth:`tip_terms` plus, in the nominal hole frame (rotation R_h): the tip's position
+        ``x`` (N, 3) (m), its orientation error ``phi`` = log(R̄ R_relᵀ) (N, 3) (rad) from the
+        aligned R̄, its twist ``v`` (N, 6), the measured wrench ``gamma`` γ̂ (N, 6) and the
+        tip's task inertia ``Lambda`` Λ_h = R6ᵀ Λ R6 (N, 6, 6); ``R6`` = diag(R_h, R_h) and
+        the world-frame ``Lambda_world`` Λ."""
+        arm = self.tip_terms(obs, q0)
+        p_h, R_h = self.hole_frame(obs)
+        R6 = _block_diag2(R_h)
+        R6_T = _transpose(R6)
+        Lambda_world = task_inertia(arm["J"], arm["inertia"])
+        R_rel = _transpose(R_h) @ arm["R_tip"]  # the tip's orientation in the hole frame
+        return {
+            **arm,
+            "R6": R6,
+            "x": matvec(_transpose(R_h), arm["p_tip"] - p_h),
+            "phi": _rotvec(ALIGNED @ _transpose(R_rel)),
+            "v": matvec(R6_T, matvec(arm["J"], arm["qd"])),
+            "gamma": matvec(R6_T, self.measured_wrench_at_tip(obs, arm)),
+            "Lambda": R6_T @ Lambda_world @ R6,
             "Lambda_world": Lambda_world,
-            "v": np.concatenate((R_h.T @ twist[:3], R_h.T @ twist[3:])),
-            "gamma": np.concatenate((R_h.T @ gamma[:3], R_h.T @ gamma[3:])),
         }
 
     def force_gains(self, Lambda: np.ndarray) -> np.ndarray:
-        """K_I (6,) (1/s): crossover_ratio · sqrt(k̂_i / Λ_ii) per direction of the hole frame,
-        k̂ = stiffness on the forces and stiffness · r_peg² on the moments."""
+        """K_I (..., 6) (1/s): crossover_ratio · sqrt(k̂_i / Λ_ii) per direction of the hole
+        frame, k̂ = stiffness on the forces and stiffness · r_peg² on the moments, for task
+        inertias Λ (..., 6, 6)."""
         g = self.gains
         r = float(self.context.extras.get("peg_radius", 0.005))
         k = np.r_[np.full(3, g.stiffness), np.full(3, g.stiffness * r * r)]
-        return g.crossover_ratio * np.sqrt(k / np.diag(Lambda))
+        return g.crossover_ratio * np.sqrt(k / np.diagonal(Lambda, axis1=-2, axis2=-1))
 
     def force_loop(
-        self, f: dict[str, Any], fields: np.void, sigma: np.ndarray, gamma_ref: np.ndarray
+        self, f: Frames, fields: np.ndarray, sigma: np.ndarray, gamma_ref: np.ndarray
     ) -> np.ndarray:
-        """The integral force law on the force-controlled directions: u_I ← u_I + Δt K_I Σ (γ̄ − γ̂),
-        bounded by the integral limits, zero off Σ; returns γ̄ + u_I (6,) (N, N m)."""
+        """The integral force law on the force-controlled directions,
+        u_I ← Σ (u_I + Δt K_I Σ (γ̄ − γ̂)), bounded by the integral limits (zero off Σ);
+        returns γ̄ + u_I (..., 6) (N, N m). ``fields``: the state's named fields (u_I is
+        updated in them); ``sigma`` Σ (..., 6, 6); ``f``: ``Lambda`` and ``gamma``."""
         g = self.gains
-        s = np.diag(sigma)
         limit = np.r_[np.full(3, g.integral_limit), np.full(3, g.integral_limit_moment)]
         u = fields["force_integral"]
-        u += self.dt * s * self.force_gains(f["Lambda"]) * (gamma_ref - f["gamma"])
-        u *= s  # the motion-controlled directions carry no force integral
-        np.clip(u, -limit, limit, out=u)
+        error = gamma_ref - f["gamma"]
+        u += self.dt * matvec(sigma, self.force_gains(f["Lambda"]) * error)
+        u[...] = np.clip(matvec(sigma, u), -limit, limit)  # no integral off Σ
         return gamma_ref + u
 
     def hybrid_wrench(
         self,
-        f: dict[str, Any],
+        f: Frames,
         x_ref: np.ndarray,
         sigma: np.ndarray,
         h_force: np.ndarray,
-        omega_n: float | None = None,
-        decouple: bool = True,
+        omega_n: float | np.ndarray | None = None,
+        decouple: bool | np.ndarray = True,
     ) -> np.ndarray:
-        """h_c (6,) in the hole frame: Σ (h_force − D_F ẋ + K_tilt φ) + (I − Σ) motion law (at
-        ``omega_n``); ``h_force`` the force loop's command (:meth:`force_loop`).
+        """h_c (N, 6) in the hole frame: Σ (h_force − D_F ẋ + K_tilt φ) + (I − Σ) motion law (at
+        ``omega_n``); ``h_force`` the force loop's command (:meth:`force_loop`), ``x_ref``
+        (N, 3) the motion reference (m), ``sigma`` Σ (N, 6, 6) or (6, 6).
 
-        ``decouple``: the motion wrench is Λ (I − Σ) a, whose components on the force-controlled
-        directions cancel the inertial coupling in free space; ``False`` keeps only its motion
-        components, (I − Σ) Λ (I − Σ) a: in the bore those components would push the peg
-        sideways and tilt it against the walls (the inconsistency the selection matrix
-        filters, in the notes' words) and jam it.
+        ``decouple`` (per row): the motion wrench is Λ (I − Σ) a, whose components on the
+        force-controlled directions cancel the inertial coupling in free space; ``False`` keeps
+        only its motion components, (I − Σ) Λ (I − Σ) a: in the bore those components would
+        push the peg sideways and tilt it against the walls (the inconsistency the selection
+        matrix filters, in the notes' words) and jam it.
         """
         g = self.gains
-        w = g.omega_n if omega_n is None else omega_n
-        v = f["v"]
-        h_force = h_force.copy()
-        h_force[:3] -= g.d_f * v[:3]
-        h_force[3:] -= g.d_f_rot * v[3:]
-        h_force[3:] += g.k_tilt * f["phi"]  # a weak spring toward the nominal axis (compliance)
-        e = np.concatenate((x_ref - f["x"], f["phi"]))
-        a_motion = w**2 * e - 2 * g.zeta * w * v
-        L = f["Lambda"]
-        a_max = g.push_force / L[2, 2]  # the axial command presses with at most push_force
-        a_motion[2] = np.clip(a_motion[2], -a_max, a_max)
-        s = np.diag(sigma)
-        h_motion = L @ ((1.0 - s) * a_motion)
-        return s * h_force + (h_motion if decouple else (1.0 - s) * h_motion)
+        w = np.asarray(g.omega_n if omega_n is None else omega_n)[..., None]
+        v, phi, L = f["v"], f["phi"], f["Lambda"]
+        # Σ: the force command with the accommodation damping D_F and a weak spring toward
+        # the nominal axis (compliance)
+        damping = np.r_[np.full(3, g.d_f), np.full(3, g.d_f_rot)]
+        h_f = h_force - damping * v
+        h_f[..., 3:] += g.k_tilt * phi
+        # I − Σ: the motion law a = K_P x̃ − K_D ẋ, K_P = ω_n², K_D = 2 ζ ω_n
+        e = np.concatenate((x_ref - f["x"], phi), axis=-1)
+        a = w**2 * e - 2 * g.zeta * w * v
+        a_max = g.push_force / L[..., 2, 2]  # the axial command presses with at most push_force
+        a[..., 2] = np.clip(a[..., 2], -a_max, a_max)
+        motion = np.eye(6) - sigma
+        h_motion = matvec(L, matvec(motion, a))
+        h_motion = np.where(np.asarray(decouple)[..., None], h_motion, matvec(motion, h_motion))
+        return matvec(sigma, h_f) + h_motion
 
-    def torque(self, f: dict[str, Any], h_hole: np.ndarray) -> np.ndarray:
-        R_h = f["R_h"]
-        h_world = np.concatenate((R_h @ h_hole[:3], R_h @ h_hole[3:]))
-        return self.task_wrench_torque(f["q"], f["qd"], h_world, f["J"], f["Lambda_world"])
+    def torque(self, f: Frames, h_hole: np.ndarray) -> np.ndarray:
+        """Joint torques (N, n) of the tip wrench h_hole (N, 6) in the hole frame."""
+        return self.task_wrench_torque(f, matvec(f["R6"], h_hole), f["Lambda_world"])
 
-    def advance_reference(self, fields: np.void, z: float) -> None:
-        """z̄ ← z̄ − v Δt (v̄, or the guard speed near the top face), at most 5 mm ahead of z."""
+    def advance_reference(self, fields: np.ndarray, z: np.ndarray) -> None:
+        """z̄ ← z̄ − v Δt (v̄, or the guard speed near the top face), at most 5 mm ahead of the
+        tip's height z (N,)."""
         g = self.gains
-        v = g.guard_speed if abs(z) < g.guard_height else g.speed
-        fields["z_ref"] = max(fields["z_ref"] - v * self.dt, z - 0.005)
+        v = np.where(np.abs(z) < g.guard_height, g.guard_speed, g.speed)
+        fields["z_ref"] = np.maximum(fields["z_ref"] - v * self.dt, z - 0.005)
 
-    def insert(self, f: dict[str, Any], fields: np.void) -> np.ndarray:
+    def insert(self, f: Frames, fields: np.ndarray) -> np.ndarray:
         """The approach and the insertion: Σ_face above the bore, Σ in it, γ̄ = 0."""
         x = f["x"]
-        self.advance_reference(fields, float(x[2]))
-        x_ref = np.array([x[0], x[1], fields["z_ref"]])
-        in_bore = x[2] < -self.gains.guard_height
-        sigma = selection_matrix(face=not in_bore)
+        self.advance_reference(fields, x[:, 2])
+        x_ref = np.stack((x[:, 0], x[:, 1], fields["z_ref"]), axis=-1)
+        in_bore = x[:, 2] < -self.gains.guard_height
+        sigma = np.where(in_bore[:, None, None], selection_matrix(), selection_matrix(face=True))
         h_force = self.force_loop(f, fields, sigma, np.zeros(6))
-        return self.torque(f, self.hybrid_wrench(f, x_ref, sigma, h_force, decouple=not in_bore))
+        return self.torque(f, self.hybrid_wrench(f, x_ref, sigma, h_force, decouple=~in_bore))
 
-    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         fields = _fields(state, self.layout)
         fields["t"] += self.dt
-        return self.insert(self._frames(obs), fields)
+        return self.insert(self.frames(obs, fields["q0"]), fields)
+
 
 
 @dataclass(frozen=True)
@@ -476,43 +506,66 @@ class HybridSpiralGains(HybridForcePositionGains):
     omega_search: float = 80.0
 
 
+
 class HybridSpiral(HybridForcePosition):
     """hybrid_force_position plus a spiral search on the block (see the module docstring).
 
-    State: :data:`SPIRAL_STATE`.
+    State: :data:`SPIRAL_STATE` and the posture target q₀.
     """
 
     name: ClassVar[str] = "hybrid_spiral"
     Gains: ClassVar[type] = HybridSpiralGains
-    layout: ClassVar[np.dtype] = SPIRAL_STATE
+    law_state: ClassVar[np.dtype] = SPIRAL_STATE
 
-    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+    def update_mode(self, f: Frames, fields: np.ndarray) -> None:
+        """The search's phases, row by row: APPROACH → SEARCH when the peg pushes on the block
+        (the axial force above ``contact_force``) no deeper than ``drop``; SEARCH → FOUND when
+        the tip drops ``drop`` below the contact height (it is in the hole). Each new phase
+        starts its force loop from zero."""
         g = self.gains
-        fields = _fields(state, self.layout)
-        f = self._frames(obs)
-        x = f["x"]
-        fields["t"] += self.dt
-        pushing = -f["gamma"][2] > g.contact_force  # the peg pushes the block along −z
-        if fields["mode"] == APPROACH and pushing and x[2] > -g.drop:
-            fields["mode"] = SEARCH  # on the block beside the hole
-            fields["theta"], fields["centre"], fields["z_contact"] = 0.0, x[:2], x[2]
-            fields["force_integral"] = 0.0
-        if fields["mode"] == SEARCH and x[2] < fields["z_contact"] - g.drop:
-            fields["mode"] = FOUND  # dropped: the tip is in the hole
-            fields["z_ref"] = x[2]
-            fields["force_integral"] = 0.0
-        if fields["mode"] != SEARCH:
-            return self.insert(f, fields)
-        r = g.pitch * fields["theta"] / (2 * np.pi)
-        fields["theta"] += g.search_speed * self.dt / max(r, g.pitch / 2)
+        x, mode = f["x"], fields["mode"]
+        pushing = -f["gamma"][:, 2] > g.contact_force  # the peg pushes the block along −z
+        touch = (mode == APPROACH) & pushing & (x[:, 2] > -g.drop)
+        mode[touch] = SEARCH  # on the block beside the hole
+        fields["theta"][touch] = 0.0
+        fields["centre"][touch] = x[touch, :2]
+        fields["z_contact"][touch] = x[touch, 2]
+        fields["force_integral"][touch] = 0.0
+        dropped = (mode == SEARCH) & (x[:, 2] < fields["z_contact"] - g.drop)
+        mode[dropped] = FOUND  # the tip is in the hole
+        fields["z_ref"][dropped] = x[dropped, 2]
+        fields["force_integral"][dropped] = 0.0
+
+    def search(self, f: Frames, fields: np.ndarray) -> np.ndarray:
+        """The spiral search: Σ_search, the tip along r = p θ / 2π around the contact point
+        at ``omega_search``, pressing with γ̄_z = −``search_force`` (the force loop's γ̄_z + u_I,z
+        with the damping −D_F ż)."""
+        g = self.gains
         theta = fields["theta"]
         r = g.pitch * theta / (2 * np.pi)
-        target = fields["centre"] + r * np.array([np.cos(theta), np.sin(theta)])
-        sigma = selection_matrix(True)
-        h_force = self.force_loop(f, fields, sigma, np.array([0, 0, -g.search_force, 0, 0, 0.0]))
-        x_ref = np.array([target[0], target[1], x[2]])
-        # the axial push is the force loop's γ̄_z + u_I,z with the damping −D_F ż
+        theta += g.search_speed * self.dt / np.maximum(r, g.pitch / 2)  # at search_speed
+        r = g.pitch * theta / (2 * np.pi)
+        target = fields["centre"] + r[:, None] * np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+        x_ref = np.concatenate((target, f["x"][:, 2:]), axis=-1)
+        sigma = selection_matrix(search=True)
+        push = np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0])
+        h_force = self.force_loop(f, fields, sigma, push)
         return self.torque(f, self.hybrid_wrench(f, x_ref, sigma, h_force, g.omega_search))
+
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        fields = _fields(state, self.layout)
+        fields["t"] += self.dt
+        f = self.frames(obs, fields["q0"])
+        self.update_mode(f, fields)
+        searching = fields["mode"] == SEARCH
+        tau = np.empty((len(searching), self.robot.n))
+        for rows, law in ((~searching, self.insert), (searching, self.search)):
+            if rows.any():  # each phase's law on its rows, with their state rows
+                state_rows = state[rows]
+                tau[rows] = law(_take(f, rows), _fields(state_rows, self.layout))
+                state[rows] = state_rows
+        return tau
+
 
 
 @dataclass(frozen=True)
@@ -538,6 +591,7 @@ class PositionOnlyGains:
         _check_positive("position_only", **self.__dict__)
 
 
+
 class PositionOnly(_TipController):
     """Stiff Cartesian position control down the nominal hole axis, no force feedback, no search.
 
@@ -549,36 +603,33 @@ class PositionOnly(_TipController):
     results/peg_in_hole/laws.md). It is the foil that shows why force control exists, not a
     competitor.
 
-    State: :data:`POSITION_STATE`.
+    State: :data:`POSITION_STATE` and the posture target q₀.
     """
 
     name: ClassVar[str] = "position_only"
     Gains: ClassVar[type] = PositionOnlyGains
+    law_state: ClassVar[np.dtype] = POSITION_STATE
 
-    @property
-    def state_size(self) -> int:
-        return POSITION_STATE.itemsize // 8
-
-    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        self.q_home = np.asarray(obs["q"], dtype=float).copy()
-        return np.array([float(obs["peg_pos"][2])])
-
-    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         g = self.gains
-        fields = _fields(state, POSITION_STATE)
-        q, qd = obs["q"], obs["qd"]
+        fields = _fields(state, self.layout)
+        arm = self.tip_terms(obs, fields["q0"])
         p_h, R_h = self.hole_frame(obs)
-        p_tip, R_tip, J = self.tip(q)
         goal = -float(self.context.extras.get("goal_depth", 0.0225))
-        fields["z_ref"] = max(fields["z_ref"] - g.speed * self.dt, goal)
-        x_ref = p_h + R_h @ np.array([0.0, 0.0, fields["z_ref"]])
+        fields["z_ref"] = np.maximum(fields["z_ref"] - g.speed * self.dt, goal)
+        x_ref = p_h + R_h[..., :, 2] * fields["z_ref"][:, None]  # on the nominal axis
         R_ref = R_h @ ALIGNED
-        phi = _rotvec(R_ref @ R_tip.T)
-        twist = J @ qd
+        phi = _rotvec(R_ref @ _transpose(arm["R_tip"]))  # log(R̄ Rᵀ)
+        twist = matvec(arm["J"], arm["qd"])
         h = np.concatenate(
-            (g.k_p * (x_ref - p_tip) - g.k_d * twist[:3], g.k_p_rot * phi - g.k_d_rot * twist[3:])
+            (
+                g.k_p * (x_ref - arm["p_tip"]) - g.k_d * twist[:, :3],
+                g.k_p_rot * phi - g.k_d_rot * twist[:, 3:],
+            ),
+            axis=-1,
         )
-        return self.task_wrench_torque(q, qd, h, J)
+        return self.task_wrench_torque(arm, h)
+
 
 
 @dataclass(frozen=True)
@@ -600,6 +651,7 @@ class AdmittanceGainsPeg(AdmittanceGains):
         _check_positive("admittance", insertion_force=self.insertion_force)
 
 
+
 class PegAdmittance(Admittance):
     """AdmittanceContact's ``admittance`` law (:class:`baselines.interaction.Admittance`,
     imported, not copied) applied to PegInHole through an adapter.
@@ -615,10 +667,11 @@ class PegAdmittance(Admittance):
     radial clearance is never found (the peg presses f̄ on the face until the time limit),
     which is what the selection matrix of hybrid control adds (lateral force control).
 
-    The observation is translated per step (:meth:`translate`): tool pose and twist of the
-    peg tip in the world from the nominal hole frame; the nominal arm's ``tcp`` site is moved to
-    the peg tip (``tip_offset`` beyond the flange) so the law's Jacobians are the tip's.
-    Torque interface only (PegInHole's observation has no motion-controller setpoint).
+    The observation is translated per step (:meth:`translate`, on all rows at once): tool
+    pose and twist of the peg tip in the world from the nominal hole frame; the nominal arm's
+    ``tcp`` site is moved to the peg tip (``tip_offset`` beyond the flange) so the law's
+    Jacobians are the tip's. Torque interface only (PegInHole's observation has no
+    motion-controller setpoint).
     """
 
     name = "admittance"
@@ -639,14 +692,12 @@ class PegAdmittance(Admittance):
             raise InvalidGain(f"{self.name} (PegInHole adapter) needs a PegInHole context")
         hole_pos = np.array(ex["hole_position"], dtype=float)
         R_h = np.eye(3)  # the nominal hole frame is aligned with the world (env: hole_quat)
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, (R_h @ ALIGNED).ravel())
         extras = {
             **ex,
             "tool_com": np.array(ex["tool_com"], dtype=float),
             "surface_point": hole_pos,
             "surface_normal": R_h[:, 2].copy(),
-            "tool_quat": quat,
+            "tool_quat": traj.quat_from_matrix(R_h @ ALIGNED),
             "stiffness_range": (1e3, 1e7),
         }
         translated = dataclasses.replace(context, site="tcp", extras=extras)
@@ -659,38 +710,37 @@ class PegAdmittance(Admittance):
             tcp, flange = m.site("tcp").id, m.site("flange").id
             if m.site_bodyid[tcp] != m.site_bodyid[flange]:
                 raise ValueError("the nominal arm's tcp and flange sites are on different bodies")
-            R_f = _matrix(m.site_quat[flange])
+            R_f = traj.matrix_from_quat(m.site_quat[flange])
             m.site_pos[tcp] = m.site_pos[flange] + R_f @ np.array([0.0, 0.0, ex["tip_offset"]])
             m.site_quat[tcp] = m.site_quat[flange]
             robot.invalidate()
         super().__init__(translated, gains, robot=robot, **overrides)
         self.hole_pos, self.R_h = hole_pos, R_h
 
-    def translate(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """AdmittanceContact's observation keys from PegInHole's (world frame, SI)."""
-        p_h, R_h = obs["hole_pos"], _matrix(obs["hole_quat"])
-        R_tip = R_h @ _matrix(obs["peg_quat"]) @ ALIGNED
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R_tip).ravel())
+    def translate(self, obs: Observation) -> Observation:
+        """AdmittanceContact's observation keys from PegInHole's (world frame, SI), for one
+        observation or rows."""
+        p_h, R_h = obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
+        R_tip = R_h @ traj.matrix_from_quat(obs["peg_quat"]) @ ALIGNED
         twist = obs["peg_twist"]
         return {
             "q": obs["q"],
             "qd": obs["qd"],
             "wrench": obs["wrench"],
-            "tool_pos": p_h + R_h @ obs["peg_pos"],
-            "tool_quat": quat,
-            "tool_vel": R_h @ twist[:3],
-            "tool_angvel": R_h @ twist[3:],
-            "tool_pos_ref": p_h.copy(),
-            "tool_vel_ref": np.zeros(3),
-            "f_ref": np.array([self.gains.insertion_force]),
+            "tool_pos": p_h + matvec(R_h, obs["peg_pos"]),
+            "tool_quat": traj.quat_from_matrix(R_tip),
+            "tool_vel": matvec(R_h, twist[..., :3]),
+            "tool_angvel": matvec(R_h, twist[..., 3:]),
+            "tool_pos_ref": np.array(p_h, dtype=float),
+            "tool_vel_ref": np.zeros(np.shape(p_h)),
+            "f_ref": np.full((*np.shape(p_h)[:-1], 1), self.gains.insertion_force),
         }
 
-    def initial_state(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def initial_state(self, obs: Observation) -> np.ndarray:
         return super().initial_state(self.translate(obs))
 
-    def control(self, obs: dict[str, np.ndarray], state: np.ndarray) -> np.ndarray:
-        return super().control(self.translate(obs), state)
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return super().control_rows(self.translate(obs), state)
 
 
 #: Controllers whose law is registered for another task and applies to PegInHole through an

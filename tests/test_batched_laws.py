@@ -250,9 +250,9 @@ def test_interaction_osc_torque_is_the_course_law(contact_run) -> None:
 
 
 def test_an_adapter_that_redefines_control_is_served_row_by_row() -> None:
-    """A RowLaw subclass that translates one observation in ``control`` (PegInHole's
-    admittance adapter) is not vectorised (predict must call its control per row); one that
-    writes control_rows is."""
+    """A RowLaw subclass that translates one observation in ``control`` is not vectorised
+    (predict must call its control per row); one that writes control_rows is (PegInHole's
+    admittance adapter translates rows in its control_rows)."""
     from cir_gym.baselines.hybrid import PegAdmittance
     from cir_gym.baselines.interaction import Admittance
 
@@ -268,4 +268,120 @@ def test_an_adapter_that_redefines_control_is_served_row_by_row() -> None:
             return super().control_rows(obs, state)
 
     assert Admittance.vectorized and Rows.vectorized
-    assert not Translating.vectorized and not PegAdmittance.vectorized
+    assert not Translating.vectorized
+    assert PegAdmittance.vectorized
+
+
+# ---------------------------------------------------------------------- PegInHole laws
+PEG = "cir_gym/PegInHole-v2"
+#: (law, env arguments): the start 2 mm above the nominal hole, so that a few hundred steps
+#: reach every phase (approach, the first contact, the spiral search, the drop into the hole,
+#: the bore); position_only's episodes end at the force limit and restart within the run
+PEG_RUNS = {
+    "hybrid_force_position": {"start_height": 0.002, "chamfer": 0.001},
+    "hybrid_spiral": {"start_height": 0.002},
+    "position_only": {"start_height": 0.002},
+    "admittance": {"start_height": 0.002},
+}
+PEG_COPIES, PEG_STEPS = 8, 800
+
+
+def _peg_phases(policy, state: np.ndarray, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """A label per row (N,) of the law's phase: the spiral's mode; hybrid_force_position's
+    Σ (0 above the bore, 1 in it); admittance's contact latch; position_only's 0."""
+    from cir_gym.baselines.hybrid import SEARCH, _fields
+
+    if policy.name == "hybrid_spiral":
+        return _fields(state, policy.layout)["mode"].astype(int)
+    if policy.name == "hybrid_force_position":
+        return (obs["peg_pos"][:, 2] < -policy.gains.guard_height).astype(int)
+    if policy.name == "admittance":
+        return (state[:, 7] != 0.0).astype(int)  # the interaction laws' contact latch
+    assert SEARCH == 1
+    return np.zeros(len(state), dtype=int)
+
+
+@pytest.fixture(scope="module", params=list(PEG_RUNS))
+def peg_run(request):
+    """A law driving ``PEG_COPIES`` copies of the batched PegInHole for ``PEG_STEPS`` steps
+    (seeds 1000-1007: each copy its own true hole pose), its batched predict checked at every
+    step against each row predicted alone from its own state (bit for bit: actions and new
+    states). Returns (policy, observations (T, N, ...), states before each step (T, N, size),
+    starts (T, N), phases (T + 1, N))."""
+    from cir_gym.envs.peg_in_hole_vector import PegInHoleVectorEnv
+
+    name = request.param
+    kwargs = PEG_RUNS[name]
+    env = PegInHoleVectorEnv(num_envs=PEG_COPIES, **kwargs)
+    policy = baselines.make(name, PEG, env_kwargs=kwargs)
+    assert policy.vectorized
+    obs, _ = env.reset(seed=1000)
+    state, start = np.zeros((PEG_COPIES, policy.state_size)), np.ones(PEG_COPIES, dtype=bool)
+    seen = {"obs": [], "state": [], "start": [], "phase": []}
+    for _ in range(PEG_STEPS):
+        seen["obs"].append({k: v.copy() for k, v in obs.items()})
+        seen["state"].append(state.copy())
+        seen["start"].append(start.copy())
+        action, new_state = policy.predict(obs, state, start)
+        for i in range(PEG_COPIES):
+            one, one_state = policy.predict(_row(obs, i), state[i : i + 1].copy(),
+                                            start[i : i + 1])
+            np.testing.assert_array_equal(action[i], one)
+            np.testing.assert_array_equal(new_state[i], one_state[0])
+        seen["phase"].append(_peg_phases(policy, new_state, obs))
+        state = new_state
+        obs, _, terminated, truncated, _ = env.step(action)
+        start = terminated | truncated
+    env.close()
+    stacked = {k: np.stack([o[k] for o in seen["obs"]]) for k in seen["obs"][0]}
+    return (policy, stacked, np.stack(seen["state"]), np.stack(seen["start"]),
+            np.stack(seen["phase"]))
+
+
+def test_peg_in_hole_runs_reach_every_phase(peg_run) -> None:
+    """The batched runs above (each step bit for bit against the rows alone) go through the
+    phases their law has: the spiral's approach, search and found (and a row changing
+    phase); hybrid_force_position's Σ_face and Σ in the bore; admittance's free approach and
+    contact; position_only's restarts after the force limit."""
+    policy, _, _, starts, phases = peg_run
+    want = {"hybrid_spiral": {0, 1, 2}, "hybrid_force_position": {0, 1}, "admittance": {0, 1},
+            "position_only": {0}}[policy.name]
+    assert set(np.unique(phases)) == want
+    if len(want) > 1:
+        assert (phases[1:] != phases[:-1]).any()  # a row changes phase within a step
+    if policy.name == "position_only":
+        assert starts[1:].any()  # an episode ended and its copy restarted
+
+
+def test_peg_in_hole_rows_of_any_phase_and_hole_pose_equal_each_row_alone(peg_run) -> None:
+    """One batch of rows from different steps and copies (every phase of the law, rows
+    restarting their episode) with each row's nominal hole moved and turned by a different
+    amount (the laws read the hole frame from the observation): each row's action and new
+    state are those of the row alone, bit for bit (the same reasons as the laws above)."""
+    policy, obs, states, starts, phases = peg_run
+    rng = np.random.default_rng(4)
+    steps, copies = np.meshgrid(np.arange(PEG_STEPS), np.arange(PEG_COPIES), indexing="ij")
+    label = phases * 2 + starts  # pick rows of every phase, starting or not
+    changed = np.zeros_like(label, dtype=bool)
+    changed[1:] = phases[1:] != phases[:-1]  # rows whose step changes their phase
+    pick = np.concatenate([rng.choice(np.flatnonzero(label.ravel() == v), 6)
+                           for v in np.unique(label)]
+                          + [np.flatnonzero(changed.ravel())[:6]])
+    pick = rng.permutation(np.concatenate((pick, rng.choice(label.size, 24))))
+    k, i = steps.ravel()[pick], copies.ravel()[pick]
+    rows = {key: value[k, i].copy() for key, value in obs.items()}
+    n = len(pick)
+    rows["hole_pos"] += rng.normal(0.0, 0.002, (n, 3))
+    tilt = rng.normal(0.0, 0.03, (n, 3))  # rad
+    turn = np.array([osp.rotvec_from_quat(q) for q in rows["hole_quat"]]) + tilt
+    angle = np.linalg.norm(turn, axis=1, keepdims=True)
+    rows["hole_quat"] = np.concatenate(
+        (np.cos(angle / 2), np.sin(angle / 2) * turn / np.maximum(angle, 1e-12)), axis=1)
+    state = states[k, i]
+    actions, new_state = policy.predict(rows, state.copy(), starts[k, i])
+    assert len(np.unique(_peg_phases(policy, new_state, rows))) == len(np.unique(phases))
+    for j in range(n):
+        one, one_state = policy.predict(_row(rows, j), state[j : j + 1].copy(),
+                                        starts[k[j], i[j] : i[j] + 1])
+        np.testing.assert_array_equal(actions[j], one)
+        np.testing.assert_array_equal(new_state[j], one_state[0])
