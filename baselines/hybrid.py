@@ -66,20 +66,20 @@ on the block and its spring presses K_P × 22.5 mm = 112 N into the face.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import mujoco
 import numpy as np
 from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw, matvec
 from cir_gym.baselines.interaction import Admittance, AdmittanceGains
 
-from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
 from cir_gym.ft_sensor import GRAVITY
 from cir_gym.operational_space import (
     dynamically_consistent_inverse,
     null_space_projector,
-    rotvec_from_quat,
     skew,
     task_inertia,
 )
@@ -116,8 +116,43 @@ def _transpose(A: np.ndarray) -> np.ndarray:
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector θ r (..., 3) of rotation matrices (..., 3, 3), θ ∈ [0, π] (the shorter
-    rotation, as :func:`cir_gym.operational_space.rotvec_from_quat` of its quaternion)."""
-    return rotvec_from_quat(traj.quat_from_matrix(R))
+    rotation, as :func:`cir_gym.operational_space.rotvec_error`): MuJoCo's C routines, one
+    matrix after the other (for the few rows of a batch far cheaper than numpy's array
+    temporaries, and a row's result does not depend on the others)."""
+    R = np.ascontiguousarray(R, dtype=float)
+    phi, quat = np.empty(R.shape[:-1]), np.empty(4)
+    for R_i, phi_i in zip(R.reshape(-1, 9), phi.reshape(-1, 3), strict=True):
+        mujoco.mju_mat2Quat(quat, R_i)
+        mujoco.mju_quat2Vel(phi_i, quat, 1.0)
+    return phi
+
+
+def _matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) (w, x, y, z): MuJoCo's
+    ``mju_quat2Mat``, one quaternion after the other (as :func:`_rotvec`)."""
+    quat = np.ascontiguousarray(quat, dtype=float)
+    R = np.empty((*quat.shape[:-1], 3, 3))
+    for q_i, R_i in zip(quat.reshape(-1, 4), R.reshape(-1, 9), strict=True):
+        mujoco.mju_quat2Mat(R_i, q_i)
+    return R
+
+
+def _quaternion(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) (w, x, y, z) of rotation matrices (..., 3, 3): MuJoCo's
+    ``mju_mat2Quat``, one matrix after the other (as :func:`_rotvec`)."""
+    R = np.ascontiguousarray(R, dtype=float)
+    quat = np.empty((*R.shape[:-2], 4))
+    for R_i, q_i in zip(R.reshape(-1, 9), quat.reshape(-1, 4), strict=True):
+        mujoco.mju_mat2Quat(q_i, R_i)
+    return quat
+
+
+_NEXT, _PREV = [1, 2, 0], [2, 0, 1]  # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b (..., 3) of vectors (..., 3) (broadcasts), without ``np.cross``'s axis handling."""
+    return a[..., _NEXT] * b[..., _PREV] - a[..., _PREV] * b[..., _NEXT]
 
 
 def _block_diag2(R: np.ndarray) -> np.ndarray:
@@ -341,7 +376,7 @@ class _TipController(RowLaw):
     @staticmethod
     def hole_frame(obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """The nominal hole's position (..., 3) (m) and rotation hole → world (..., 3, 3)."""
-        return obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
+        return obs["hole_pos"], _matrix(obs["hole_quat"])
 
     def measured_wrench_at_tip(self, obs: Observation, arm: Frames) -> np.ndarray:
         """γ̂ (N, 6), world frame, moments about the tip: the peg's push on the environment.
@@ -353,9 +388,9 @@ class _TipController(RowLaw):
         R, w = arm["R_tip"], obs["wrench"]
         support = -self.tool_mass * GRAVITY
         f = matvec(R, w[..., :3]) - support
-        mu_sensor = matvec(R, w[..., 3:]) - np.cross(matvec(R, self.tool_com), support)
+        mu_sensor = matvec(R, w[..., 3:]) - _cross(matvec(R, self.tool_com), support)
         return np.concatenate(
-            (f, mu_sensor + np.cross(arm["p_flange"] - arm["p_tip"], f)), axis=-1
+            (f, mu_sensor + _cross(arm["p_flange"] - arm["p_tip"], f)), axis=-1
         )
 
 
@@ -369,6 +404,23 @@ class HybridForcePosition(_TipController):
     name: ClassVar[str] = "hybrid_force_position"
     Gains: ClassVar[type] = HybridForcePositionGains
     law_state: ClassVar[np.dtype] = HYBRID_STATE
+
+    @functools.cached_property
+    def contact_stiffness(self) -> np.ndarray:
+        """k̂ (6,): the contact stiffness on the forces (N/m), k̂ r_peg² on the moments (N m/rad)."""
+        k, r = self.gains.stiffness, float(self.context.extras.get("peg_radius", 0.005))
+        return np.r_[np.full(3, k), np.full(3, k * r * r)]
+
+    @functools.cached_property
+    def integral_bound(self) -> np.ndarray:
+        """The bounds of the force loop's integral u_I (6,) (N, N m)."""
+        g = self.gains
+        return np.r_[np.full(3, g.integral_limit), np.full(3, g.integral_limit_moment)]
+
+    @functools.cached_property
+    def accommodation(self) -> np.ndarray:
+        """D_F (6,): the accommodation damping (N s/m, N m s/rad)."""
+        return np.r_[np.full(3, self.gains.d_f), np.full(3, self.gains.d_f_rot)]
 
     def frames(self, obs: Observation, q0: np.ndarray) -> Frames:
         """:meth:`tip_terms` plus, in the nominal hole frame (rotation R_h): the tip's position
@@ -397,10 +449,8 @@ class HybridForcePosition(_TipController):
         """K_I (..., 6) (1/s): crossover_ratio · sqrt(k̂_i / Λ_ii) per direction of the hole
         frame, k̂ = stiffness on the forces and stiffness · r_peg² on the moments, for task
         inertias Λ (..., 6, 6)."""
-        g = self.gains
-        r = float(self.context.extras.get("peg_radius", 0.005))
-        k = np.r_[np.full(3, g.stiffness), np.full(3, g.stiffness * r * r)]
-        return g.crossover_ratio * np.sqrt(k / np.diagonal(Lambda, axis1=-2, axis2=-1))
+        Lambda_ii = np.diagonal(Lambda, axis1=-2, axis2=-1)
+        return self.gains.crossover_ratio * np.sqrt(self.contact_stiffness / Lambda_ii)
 
     def force_loop(
         self, f: Frames, fields: np.ndarray, sigma: np.ndarray, gamma_ref: np.ndarray
@@ -409,8 +459,7 @@ class HybridForcePosition(_TipController):
         u_I ← Σ (u_I + Δt K_I Σ (γ̄ − γ̂)), bounded by the integral limits (zero off Σ);
         returns γ̄ + u_I (..., 6) (N, N m). ``fields``: the state's named fields (u_I is
         updated in them); ``sigma`` Σ (..., 6, 6); ``f``: ``Lambda`` and ``gamma``."""
-        g = self.gains
-        limit = np.r_[np.full(3, g.integral_limit), np.full(3, g.integral_limit_moment)]
+        limit = self.integral_bound
         u = fields["force_integral"]
         error = gamma_ref - f["gamma"]
         u += self.dt * matvec(sigma, self.force_gains(f["Lambda"]) * error)
@@ -441,8 +490,7 @@ class HybridForcePosition(_TipController):
         v, phi, L = f["v"], f["phi"], f["Lambda"]
         # Σ: the force command with the accommodation damping D_F and a weak spring toward
         # the nominal axis (compliance)
-        damping = np.r_[np.full(3, g.d_f), np.full(3, g.d_f_rot)]
-        h_f = h_force - damping * v
+        h_f = h_force - self.accommodation * v
         h_f[..., 3:] += g.k_tilt * phi
         # I − Σ: the motion law a = K_P x̃ − K_D ẋ, K_P = ω_n², K_D = 2 ζ ω_n
         e = np.concatenate((x_ref - f["x"], phi), axis=-1)
@@ -697,7 +745,7 @@ class PegAdmittance(Admittance):
             "tool_com": np.array(ex["tool_com"], dtype=float),
             "surface_point": hole_pos,
             "surface_normal": R_h[:, 2].copy(),
-            "tool_quat": traj.quat_from_matrix(R_h @ ALIGNED),
+            "tool_quat": _quaternion(R_h @ ALIGNED),
             "stiffness_range": (1e3, 1e7),
         }
         translated = dataclasses.replace(context, site="tcp", extras=extras)
@@ -710,7 +758,7 @@ class PegAdmittance(Admittance):
             tcp, flange = m.site("tcp").id, m.site("flange").id
             if m.site_bodyid[tcp] != m.site_bodyid[flange]:
                 raise ValueError("the nominal arm's tcp and flange sites are on different bodies")
-            R_f = traj.matrix_from_quat(m.site_quat[flange])
+            R_f = _matrix(m.site_quat[flange])
             m.site_pos[tcp] = m.site_pos[flange] + R_f @ np.array([0.0, 0.0, ex["tip_offset"]])
             m.site_quat[tcp] = m.site_quat[flange]
             robot.invalidate()
@@ -720,15 +768,15 @@ class PegAdmittance(Admittance):
     def translate(self, obs: Observation) -> Observation:
         """AdmittanceContact's observation keys from PegInHole's (world frame, SI), for one
         observation or rows."""
-        p_h, R_h = obs["hole_pos"], traj.matrix_from_quat(obs["hole_quat"])
-        R_tip = R_h @ traj.matrix_from_quat(obs["peg_quat"]) @ ALIGNED
+        p_h, R_h = obs["hole_pos"], _matrix(obs["hole_quat"])
+        R_tip = R_h @ _matrix(obs["peg_quat"]) @ ALIGNED
         twist = obs["peg_twist"]
         return {
             "q": obs["q"],
             "qd": obs["qd"],
             "wrench": obs["wrench"],
             "tool_pos": p_h + matvec(R_h, obs["peg_pos"]),
-            "tool_quat": traj.quat_from_matrix(R_tip),
+            "tool_quat": _quaternion(R_tip),
             "tool_vel": matvec(R_h, twist[..., :3]),
             "tool_angvel": matvec(R_h, twist[..., 3:]),
             "tool_pos_ref": np.array(p_h, dtype=float),
