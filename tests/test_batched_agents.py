@@ -90,16 +90,15 @@ def test_seed_report_batched_to_tolerance(monkeypatch):
 
 
 def test_agent_without_a_batched_env_runs_sequentially(monkeypatch):
-    """The industrial drive has no native batched env: the leaderboard's agent job runs it one
-    episode after the other, and evaluate(batched=True) would refuse it."""
+    """A randomized model has no native batched env (each copy would need its own MjModel): the
+    leaderboard's agent job runs it one episode after the other, and evaluate(batched=True)
+    would refuse it."""
     env_id, agent = "cir_gym/JointTracking-v2", "agent:ppo_100hz@JointTracking-v1"
     policy = make_policy(env_id, agent, {}, {})
     assert batchable(policy, env_id)
-    assert not batchable(policy, env_id, drive="industrial")
-    with pytest.raises(ValueError, match="drive"):
-        evaluate(policy, env_id, 1, SEED, batched=True, drive="industrial",
-                 episode_duration=0.1)
+    assert not batchable(policy, env_id, randomize=True)
+    with pytest.raises(ValueError, match="randomize"):
+        evaluate(policy, env_id, 1, SEED, batched=True, randomize=True, episode_duration=0.1)
     batches = CountBatches(monkeypatch)
-    run_job((env_id, "industrial drive", {"drive": "industrial", "episode_duration": 0.1},
-             agent), 1, SEED)
+    run_job((env_id, "exact model", {"randomize": True, "episode_duration": 0.1}, agent), 1, SEED)
     assert batches.calls == 0

@@ -408,10 +408,10 @@ def test_batched_evaluation_of_episodes_that_end_at_different_steps():
 
 def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
     policy = baselines.make("computed_torque", ENV)
-    for kwargs in ({**SHORT, "drive": "industrial"}, {**SHORT, "max_episode_steps": 50}):
+    for kwargs in ({**SHORT, "randomize": True}, {**SHORT, "max_episode_steps": 50}):
         assert len(evaluate(policy, ENV, 2, **kwargs).episodes) == 2  # the sequential path
-    with pytest.raises(ValueError, match="drive='industrial'"):
-        evaluate(policy, ENV, 2, batched=True, drive="industrial", **SHORT)
+    with pytest.raises(ValueError, match="randomize=True"):
+        evaluate(policy, ENV, 2, batched=True, randomize=True, **SHORT)
     with pytest.raises(ValueError, match="record=True"):
         evaluate(policy, ENV, 2, batched=True, record=True, **SHORT)
     clik = baselines.make("clik", "cir_gym/RedundantIK-v4")

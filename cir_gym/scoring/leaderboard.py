@@ -43,14 +43,16 @@ from cir_gym.scoring.tables import SCORE_MEANING, ranked_table, rl_summary, scor
 #: the policy name of a variant's hold-still run (the normalized score's 0)
 HOLD_STILL = HoldStill.name
 #: ids on which the shipped agents' episodes run batched (``evaluate(..., batched=True)``, where
-#: :func:`cir_gym.evaluation.batchable` allows it: not the industrial drive), in the ranked tables
+#: :func:`cir_gym.evaluation.batchable` allows it: not a ``randomize`` model), in the ranked tables
 #: and the seed tables alike. A torch network rounds a batch of rows differently from one row
 #: (~1e-7 in the actions); the closed loop carries that into the metrics, measured on 4–8 episodes
 #: of every shipped agent: ≤ 3e-6 relative for most; for the tuned residual agents, in some
 #: episodes, up to 4e-3 in the primary metric (CartesianTracking's position_rms; 2e-4
-#: JointTracking's rms_error) and 3e-3 in the return, 5e-4 in an 8-episode mean, and more in a
-#: final error (one sample of a trajectory, a few 1e-5 rad); never a changed length or success
-#: (``tests/test_batched_agents.py`` holds two agents to a stated tolerance). The rounding depends
+#: JointTracking's rms_error; 7e-3 on its industrial drive, whose 20-bit encoder quantises the
+#: difference into a whole count, 2e-3 in a seed's mean there) and 3e-3 in the return, 5e-4 in
+#: an 8-episode mean elsewhere, and more in a final error (one sample of a trajectory, a few
+#: 1e-5 rad); never a changed length or success (``tests/test_batched_agents.py`` holds two
+#: agents to a stated tolerance). The rounding depends
 #: on the batch's size, so an agent's episode can differ by as much between runs of another
 #: ``--episodes``; a run is deterministic. Evaluating the network row by row would be exact but
 #: costs most of the gain (measured, 8 episodes of JointTracking's residual agent: 8.1 s CPU
