@@ -162,6 +162,11 @@ FIGURE_SECONDS = 0.8
 VIDEO_SECONDS = 20.0
 #: a seed table's cost against its agents' seeds run as leaderboard jobs (its bootstrap CIs)
 SEED_TABLE_FACTOR = 1.5
+#: CPU seconds a seed table spends per training seed whatever the episodes (loading the agent,
+#: building its env): fitted on CartesianTracking's and JointTracking's tables run at 3 and 12
+#: episodes (0.7–1.2 s); kept out of the per-episode timing so a run of another --episodes is
+#: estimated right (at 3 episodes it was half of the per-episode figure)
+SEED_LOAD_SECONDS = 1.0
 TIMINGS = "timings.json"
 #: the fewest episodes per policy behind a number worth quoting (the summary says so below)
 HEADLINE_EPISODES = 30
@@ -273,7 +278,7 @@ def seed_table_cost(env_id: str, variant: str, env_kwargs: dict[str, Any], episo
     run's where ``<out>/timings.json`` has it, else every seed of every agent as a job."""
     per_episode = (timings or {}).get("seed_table", {}).get(f"{_name(env_id)} {variant}")
     if per_episode is not None:
-        return episodes * float(per_episode)
+        return SEED_LOAD_SECONDS * _seed_count(env_id, env_kwargs) + episodes * float(per_episode)
     return sum(
         SEED_TABLE_FACTOR * len(_seeds(env_id, n))
         * job_cost((env_id, variant, env_kwargs, f"agent:{n}"), episodes, timings)
@@ -399,7 +404,8 @@ def run_leaderboard(
             bar.update(seed_cost[what] if kind == "seeds" else cost[what], label)
     bar.close()
     out.mkdir(parents=True, exist_ok=True)
-    _save_timings(out, timings, jobs, seconds, seed_seconds, episodes)
+    loads = {(e, v): _seed_count(e, kw) for e, v, kw in seed_jobs}
+    _save_timings(out, timings, jobs, seconds, seed_seconds, loads, episodes)
     holds = {(e, v): results.pop((e, v, p)) for (e, v, p) in list(results) if p == HOLD_STILL}
     anchors, no_score = score_anchors(results, holds, env_ids)
     write_anchors(out / ANCHORS_FILE, anchors, episodes, seed)
@@ -560,6 +566,11 @@ def _multi_seed_agents(env_id: str, env_kwargs: dict[str, Any]) -> list[str]:
             if len(ag.seeds(env_id, n)) >= 2 and ag.trained_for(env_id, n, env_kwargs)]
 
 
+def _seed_count(env_id: str, env_kwargs: dict[str, Any]) -> int:
+    """How many trained agents (training seeds) a variant's seed table loads."""
+    return sum(len(_seeds(env_id, n)) for n in _multi_seed_agents(env_id, env_kwargs))
+
+
 def _seeds(env_id: str, name: str) -> list[int]:
     from cir_gym.scoring.policies import agents_module
 
@@ -580,10 +591,12 @@ def _by_variant(
 
 def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
                   seconds: dict[tuple[str, str, str], float],
-                  seed_seconds: dict[tuple[str, str], float], episodes: int) -> None:
-    """Merge this run's wall time per episode of each (environment, policy) (the mean over
-    its variants, building the policy left out) and of each seed table into
-    ``out/timings.json``: the next run's estimate (:func:`job_cost`)."""
+                  seed_seconds: dict[tuple[str, str], float],
+                  loads: dict[tuple[str, str], int], episodes: int) -> None:
+    """Merge this run's CPU time per episode of each (environment, policy) (the mean over
+    its variants, building the policy left out) and of each seed table (loading its
+    ``loads[(env, variant)]`` agents left out) into ``out/timings.json``: the next run's
+    estimate (:func:`job_cost`, :func:`seed_table_cost`)."""
     per: dict[str, list[float]] = {}
     for env_id, variant, _, policy in jobs:
         sec = seconds.get((env_id, variant, policy))
@@ -595,7 +608,8 @@ def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
     episode = {**timings.get("episode", {}),
                **{k: round(float(np.mean(v)), 4) for k, v in per.items()}}
     seeds = {**timings.get("seed_table", {}),
-             **{f"{_name(e)} {v}": round(sec / episodes, 4)
+             **{f"{_name(e)} {v}": round(
+                 max(0.0, sec - SEED_LOAD_SECONDS * loads.get((e, v), 0)) / episodes, 4)
                 for (e, v), sec in seed_seconds.items()}}
     (out / TIMINGS).write_text(
         json.dumps({"episode": episode, "seed_table": seeds}, indent=1, sort_keys=True) + "\n"
