@@ -19,21 +19,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation
+from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw, matvec, rows_method
 
 from cir_gym.context import TaskContext
 from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,
-    joint_limit_margin,
-    joint_limit_objective_gradient,
-    manipulability,
-    null_vector,
     orientation_error,
     quat_orientation_error,
-    walk_self_motion,
 )
 from cir_gym.robot import Robot
+from cir_gym.self_motion import RowKinematics, RowPoses
 
 __all__ = [
     "CLIK",
@@ -69,48 +65,78 @@ def _positive(name: str, value: float) -> None:
 
 
 # ---------------------------------------------------------------------- linear algebra
+# Every function takes one matrix (m, n) or rows of them (N, m, n) (numpy's stacked linear
+# algebra: one LAPACK call per row's matrices, so a row gives the same numbers alone or in a
+# batch); the laws run on rows (``RowLaw``), one observation being a row of one.
+def _t(A: np.ndarray) -> np.ndarray:
+    """Aᵀ of a matrix or of each of rows of matrices."""
+    return np.swapaxes(A, -1, -2)
+
+
 def pseudo_inverse(J: np.ndarray) -> np.ndarray:
-    """Right pseudo-inverse J† = Jᵀ(J Jᵀ)⁻¹ (n, m) of a full-row-rank J (m, n).
+    """Right pseudo-inverse J† = Jᵀ(J Jᵀ)⁻¹ (n, m) of a full-row-rank J (m, n) (or of each of
+    rows (N, m, n)).
 
     Raises:
-        SingularJacobian: σ_min(J) < ``SINGULAR_TOLERANCE`` (J Jᵀ not invertible).
+        SingularJacobian: σ_min(J) < ``SINGULAR_TOLERANCE`` (J Jᵀ not invertible), in any row.
     """
     sigma = np.linalg.svd(J, compute_uv=False)
-    if sigma[-1] < SINGULAR_TOLERANCE:
+    smallest = float(np.min(sigma[..., -1]))
+    if smallest < SINGULAR_TOLERANCE:
         raise SingularJacobian(
-            f"the Jacobian is singular (smallest singular value {sigma[-1]:.2e}); "
+            f"the Jacobian is singular (smallest singular value {smallest:.2e}); "
             f"use clik_dls near singular configurations"
         )
-    return np.linalg.solve(J @ J.T, J).T
+    return _t(np.linalg.solve(J @ _t(J), J))
 
 
 def weighted_pseudo_inverse(J: np.ndarray, w_inv: np.ndarray) -> np.ndarray:
-    """J_W† = W⁻¹Jᵀ(J W⁻¹ Jᵀ)⁻¹ (n, m) for a diagonal weight, ``w_inv`` = diag(W⁻¹) (n,)."""
-    sigma = np.linalg.svd(J * np.sqrt(w_inv), compute_uv=False)
-    if sigma[-1] < SINGULAR_TOLERANCE:
-        raise SingularJacobian(f"J W^-1/2 is singular (smallest singular value {sigma[-1]:.2e})")
-    JW = J * w_inv  # J W⁻¹ (m, n)
-    return np.linalg.solve(JW @ J.T, JW).T
+    """J_W† = W⁻¹Jᵀ(J W⁻¹ Jᵀ)⁻¹ (n, m) for a diagonal weight, ``w_inv`` = diag(W⁻¹) (n,) (rows:
+    J (N, m, n), ``w_inv`` (N, n))."""
+    w = np.asarray(w_inv)[..., None, :]
+    sigma = np.linalg.svd(J * np.sqrt(w), compute_uv=False)
+    smallest = float(np.min(sigma[..., -1]))
+    if smallest < SINGULAR_TOLERANCE:
+        raise SingularJacobian(f"J W^-1/2 is singular (smallest singular value {smallest:.2e})")
+    JW = J * w  # J W⁻¹ (m, n)
+    return _t(np.linalg.solve(JW @ _t(J), JW))
 
 
-def damped_pseudo_inverse(J: np.ndarray, damping: float) -> np.ndarray:
-    """Damped least squares J* = Jᵀ(J Jᵀ + k² I)⁻¹ (n, m), k = ``damping`` ≥ 0.
+def damped_pseudo_inverse(J: np.ndarray, damping: float | np.ndarray) -> np.ndarray:
+    """Damped least squares J* = Jᵀ(J Jᵀ + k² I)⁻¹ (n, m), k = ``damping`` ≥ 0 (rows: J
+    (N, m, n), k (N,) or a number).
 
     ‖J* v‖ ≤ ‖v‖ / (2k) for k > 0: bounded at any configuration.
     """
-    m = J.shape[0]
-    return np.linalg.solve(J @ J.T + damping**2 * np.eye(m), J).T
+    m = J.shape[-2]
+    k2 = np.asarray(damping, dtype=float)[..., None, None] ** 2
+    return _t(np.linalg.solve(J @ _t(J) + k2 * np.eye(m), J))
 
 
-def variable_damping(sigma_min: float, damping: float, region: float) -> float:
-    """k(σ) = k_max sqrt(1 − (σ/ε)²) inside the singular region σ < ε, else 0.
+def variable_damping(sigma_min: float | np.ndarray, damping: float, region: float
+                     ) -> float | np.ndarray:
+    """k(σ) = k_max sqrt(1 − (σ/ε)²) inside the singular region σ < ε, else 0 (a number, or
+    (N,) for rows of σ_min).
 
     (Maciejewski & Klein's damping: exact least squares away from singularities, the full
     damping k_max at σ = 0, continuous in between.)
     """
-    if sigma_min >= region:
-        return 0.0
-    return damping * float(np.sqrt(1.0 - (sigma_min / region) ** 2))
+    sigma = np.asarray(sigma_min, dtype=float)
+    inside = np.sqrt(np.maximum(1.0 - (sigma / region) ** 2, 0.0))
+    k = np.where(sigma >= region, 0.0, damping * inside)
+    return float(k) if k.ndim == 0 else k
+
+
+def null_space_scales(qd_task: np.ndarray, qd_null: np.ndarray, qd_max: np.ndarray
+                      ) -> np.ndarray:
+    """:func:`null_space_scale` of rows (N, n): s (N,), all joints at once (a minimum, so
+    the order does not matter)."""
+    scaled = (np.abs(qd_task + qd_null) > qd_max) & (qd_null != 0.0)  # joints that limit s
+    blocked = np.any(scaled & (np.abs(qd_task) >= qd_max), axis=1)  # q̇_task alone exceeds
+    bound = np.where(qd_null > 0, qd_max, -qd_max) - qd_task
+    ratio = np.divide(bound, qd_null, out=np.full(qd_task.shape, np.inf), where=scaled)
+    s = np.minimum(ratio.min(axis=1), 1.0)
+    return np.where(blocked, 0.0, np.maximum(s, 0.0))
 
 
 def null_space_scale(qd_task: np.ndarray, qd_null: np.ndarray, qd_max: np.ndarray) -> float:
@@ -121,14 +147,7 @@ def null_space_scale(qd_task: np.ndarray, qd_null: np.ndarray, qd_max: np.ndarra
     task (the saturation-in-the-null-space idea of Flacco, De Luca and Khatib, ICRA 2012, in its
     simplest form). If q̇_task alone exceeds a limit, s = 0 and the env clips as before.
     """
-    s = 1.0
-    for a, b, m in zip(qd_task, qd_null, qd_max, strict=True):
-        if abs(a + b) <= m or b == 0.0:
-            continue
-        if abs(a) >= m:
-            return 0.0
-        s = min(s, ((m if b > 0 else -m) - a) / b)
-    return max(s, 0.0)
+    return float(null_space_scales(qd_task[None], qd_null[None], qd_max)[0])
 
 
 def saturate_joint_limits(J: np.ndarray, v: np.ndarray, qd: np.ndarray, qd_lower: np.ndarray,
@@ -156,14 +175,51 @@ def saturate_joint_limits(J: np.ndarray, v: np.ndarray, qd: np.ndarray, qd_lower
     return qd
 
 
+def saturate_rows(J: np.ndarray, v: np.ndarray, qd: np.ndarray, qd_lower: np.ndarray,
+                  qd_upper: np.ndarray) -> np.ndarray:
+    """:func:`saturate_joint_limits` of rows (N, ...) (qd (N, n) updated in place): only the
+    rows with a joint out of its bounds are re-solved, one by one."""
+    out = np.flatnonzero(np.any((qd < qd_lower) | (qd > qd_upper), axis=1))
+    for i in out:
+        qd[i] = saturate_joint_limits(J[i], v[i], qd[i], qd_lower[i], qd_upper[i])
+    return qd
+
+
 def null_space_projector(J: np.ndarray, J_pinv: np.ndarray) -> np.ndarray:
-    """I − J† J (n, n): J (I − J†J) q̇₀ = 0 for every q̇₀ (internal motion)."""
-    return np.eye(J.shape[1]) - J_pinv @ J
+    """I − J† J (n, n) (or rows): J (I − J†J) q̇₀ = 0 for every q̇₀ (internal motion)."""
+    return np.eye(J.shape[-1]) - J_pinv @ J
+
+
+def manipulabilities(J: np.ndarray) -> np.ndarray:
+    """Yoshikawa's w = sqrt(det(J Jᵀ)) (N,) of rows of task Jacobians (N, m, n)."""
+    return np.sqrt(np.maximum(np.linalg.det(J @ _t(J)), 0.0))
+
+
+def null_vectors(J: np.ndarray) -> np.ndarray:
+    """Unit vectors (N, n) spanning ker J of rows (N, m, n) with dim ker J = 1 (the last right
+    singular vector, :func:`cir_gym.redundancy.null_vector`)."""
+    return np.linalg.svd(J)[2][:, -1]
+
+
+def joint_limit_gradients(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """∂w/∂q (N, n) of the joint-limit objective at rows (N, n)
+    (:func:`cir_gym.redundancy.joint_limit_objective_gradient` of each row)."""
+    r = upper - lower
+    return -(q - 0.5 * (lower + upper)) / (q.shape[-1] * r * r)
+
+
+def joint_limit_margins(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """min_i min(q_i − q_im, q_iM − q_i) (N,) rad of rows (N, n)."""
+    return np.minimum((q - lower).min(axis=-1), (upper - q).min(axis=-1))
 
 
 # ---------------------------------------------------------------------- base
-class _KinematicController(Controller):
-    """Shared task plumbing: task Jacobian, task error and reference velocity from ``obs``.
+class _KinematicController(RowLaw):
+    """Shared task plumbing on rows: the nominal robot's kinematics at rows of q (MuJoCo's
+    batched kinematics, :class:`cir_gym.self_motion.RowKinematics`), task Jacobians, task
+    errors and reference velocities from ``obs``. The laws are written once on rows
+    (:meth:`control_rows`); one observation is a row of one, so a row's command is the same
+    alone or in a batch.
 
     Args:
         context: the environment's :class:`TaskContext` (site, task dimension, objective).
@@ -186,6 +242,13 @@ class _KinematicController(Controller):
         self.objective = str(context.extras.get("objective", "manipulability"))
         if self.objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
+        self.capsules = LinkCapsules(self.robot.model)
+        self._eye = np.eye(self.n)
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state.pop("_kinematics", None)  # a mujoco.batch.Batch: made again at first use
+        return state
 
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
         """SB3's protocol; a NaN/inf in any observation entry raises ValueError (broken sensor)."""
@@ -194,22 +257,42 @@ class _KinematicController(Controller):
                 raise ValueError(f"{self.name}: observation {key!r} is not finite: {value}")
         return super().predict(observation, state, episode_start, deterministic)
 
-    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
-        """Geometric task Jacobian (m, n): [J_P; J_O] (6-D) or the first two rows of J_P."""
-        J = self.robot.jacobian(self.site_id, q)
-        return J[:2] if self.task_dim == 2 else J
+    def kinematics(self, q: np.ndarray) -> RowPoses:
+        """The nominal robot's site pose, Jacobians and capsule poses at rows q (N, n)."""
+        cached = self.__dict__.get("_kinematics")
+        if cached is None or cached[0] is not self.robot:
+            rows = RowKinematics(self.robot.model, self.robot, self.site_id,
+                                 self.capsules.geom_ids)
+            cached = self._kinematics = (self.robot, rows)
+        return cached[1].evaluate(q)
 
+    def task_jacobians(self, q: np.ndarray) -> np.ndarray:
+        """Geometric task Jacobians (N, m, n) at rows q (N, n): [J_P; J_O] or J_P's first two
+        rows."""
+        rows = self.kinematics(q)
+        if self.task_dim == 6:
+            return np.concatenate((rows.jacp, rows.jacr), axis=1)
+        return rows.jacp[:, :2]
+
+    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """Geometric task Jacobian (m, n) at one q (n,)."""
+        return self.task_jacobians(np.asarray(q, dtype=float)[None])[0]
+
+    @rows_method
     def task_error(self, obs: Observation) -> np.ndarray:
-        """e (m,) = [x̄ − x; θr of R̄ Rᵀ] (m, rad)."""
+        """e (N, m) = [x̄ − x; θr of R̄ Rᵀ] (m, rad)."""
         e = obs["x_ref"] - obs["x"]
         if self.task_dim == 6:
-            e = np.concatenate((e, quat_orientation_error(obs["quat_ref"], obs["quat"])))
+            rot = [quat_orientation_error(r, q) for r, q in zip(obs["quat_ref"], obs["quat"],
+                                                                strict=True)]
+            e = np.concatenate((e, np.reshape(rot, (-1, 3))), axis=1)
         return e
 
+    @rows_method
     def reference_velocity(self, obs: Observation) -> np.ndarray:
-        """x̄̇ (m,) = [ṗ̄; ω̄] (m/s, rad/s)."""
+        """x̄̇ (N, m) = [ṗ̄; ω̄] (m/s, rad/s)."""
         if self.task_dim == 6:
-            return np.concatenate((obs["xd_ref"], obs["omega_ref"]))
+            return np.concatenate((obs["xd_ref"], obs["omega_ref"]), axis=1)
         return obs["xd_ref"]
 
 
@@ -235,9 +318,9 @@ class JacobianTranspose(_KinematicController):
     name = "jacobian_transpose"
     Gains = JacobianTransposeGains
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        J = self.task_jacobian(obs["q"])
-        return J.T @ (self.gains.K * self.task_error(obs))
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        J = self.task_jacobians(obs["q"])
+        return matvec(_t(J), self.gains.K * self.task_error(obs))
 
 
 # ---------------------------------------------------------------------- pseudo-inverse
@@ -255,8 +338,8 @@ class PseudoInverse(_KinematicController):
     name = "pseudo_inverse"
     Gains = PseudoInverseGains
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        return pseudo_inverse(self.task_jacobian(obs["q"])) @ self.reference_velocity(obs)
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return matvec(pseudo_inverse(self.task_jacobians(obs["q"])), self.reference_velocity(obs))
 
 
 # ---------------------------------------------------------------------- CLIK
@@ -280,12 +363,13 @@ class CLIK(_KinematicController):
     name = "clik"
     Gains = CLIKGains
 
+    @rows_method
     def task_velocity(self, obs: Observation) -> np.ndarray:
-        """v = x̄̇ + K e (m,)."""
+        """v = x̄̇ + K e (N, m)."""
         return self.reference_velocity(obs) + self.gains.K * self.task_error(obs)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        return pseudo_inverse(self.task_jacobian(obs["q"])) @ self.task_velocity(obs)
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        return matvec(pseudo_inverse(self.task_jacobians(obs["q"])), self.task_velocity(obs))
 
 
 # ---------------------------------------------------------------------- damped least squares
@@ -320,12 +404,12 @@ class DampedLeastSquaresCLIK(CLIK):
     last_damping: float = 0.0
     last_sigma_min: float = np.inf
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        J = self.task_jacobian(obs["q"])
-        sigma = float(np.linalg.svd(J, compute_uv=False)[-1])
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        J = self.task_jacobians(obs["q"])
+        sigma = np.linalg.svd(J, compute_uv=False)[:, -1]
         k = variable_damping(sigma, self.gains.damping, self.gains.region)
-        self.last_sigma_min, self.last_damping = sigma, k
-        return damped_pseudo_inverse(J, k) @ self.task_velocity(obs)
+        self.last_sigma_min, self.last_damping = float(sigma[-1]), float(k[-1])
+        return matvec(damped_pseudo_inverse(J, k), self.task_velocity(obs))
 
 
 # ---------------------------------------------------------------------- weighted
@@ -349,10 +433,10 @@ class WeightedCLIK(CLIK):
     name = "clik_weighted"
     Gains = WeightedCLIKGains
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        w_inv = (obs["q_upper"] - obs["q_lower"]) ** 2  # diag(W⁻¹) (n,)
-        J = self.task_jacobian(obs["q"])
-        return weighted_pseudo_inverse(J, w_inv) @ self.task_velocity(obs)
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        w_inv = (obs["q_upper"] - obs["q_lower"]) ** 2  # diag(W⁻¹) (N, n)
+        J = self.task_jacobians(obs["q"])
+        return matvec(weighted_pseudo_inverse(J, w_inv), self.task_velocity(obs))
 
 
 # ---------------------------------------------------------------------- null space
@@ -445,33 +529,42 @@ class NullSpaceCLIK(CLIK):
     name = "clik_nullspace"
     Gains = NullSpaceCLIKGains
 
-    def __init__(self, context: TaskContext, gains=None, *, robot: Robot | None = None,
-                 **overrides) -> None:
-        super().__init__(context, gains, robot=robot, **overrides)
-        self.capsules = LinkCapsules(self.robot.model)
-        self._eye = np.eye(self.n)
-
     # ------------------------------------------------------------------ objectives
     def manipulability(self, q: np.ndarray) -> float:
-        return manipulability(self.task_jacobian(q))
+        """w = sqrt(det J Jᵀ) of the nominal robot at one q (n,)."""
+        return float(manipulabilities(self.task_jacobians(np.asarray(q, dtype=float)[None]))[0])
 
     def clearance(self, q: np.ndarray, obstacle: np.ndarray) -> float:
-        """Clearance (m) of the nominal robot's capsules to the observed obstacle."""
-        self.robot.site_pose(self.site_id, q)  # forward kinematics of the nominal robot
-        centre = np.zeros(3)
-        centre[: self.pos_dim] = obstacle[: self.pos_dim]
-        return self.capsules.clearance(self.robot.data, centre, float(obstacle[-1]))
+        """Clearance (m) of the nominal robot's capsules at one q (n,) to the observed
+        obstacle."""
+        return float(self.clearances(np.asarray(q, dtype=float)[None],
+                                     np.asarray(obstacle, dtype=float)[None])[0])
 
-    def _central_difference(self, f, q: np.ndarray) -> np.ndarray:
-        h = self.gains.fd_step
-        grad = np.empty(self.n)
-        for i in range(self.n):
-            dq = h * self._eye[i]
-            grad[i] = (f(q + dq) - f(q - dq)) / (2 * h)
-        return grad
+    def clearances(self, q: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
+        """Clearances (N,) m of the nominal robot's capsules at rows q (N, n) to the observed
+        obstacles (N, p + 1) (centre, radius)."""
+        rows = self.kinematics(q)
+        centre = np.zeros((len(q), 1, 3))
+        centre[:, 0, : self.pos_dim] = obstacle[:, : self.pos_dim]
+        a, b = self.capsules.ends(rows.geom_xpos, rows.geom_xmat)
+        return self.capsules.segment_clearance(a, b, centre, obstacle[:, -1])
 
+    def _central_difference(self, f, q: np.ndarray, *args: np.ndarray) -> np.ndarray:
+        """∇f (N, n) of a function of rows f(q (M, n), *args (M, ...)) → (M,) at rows q (N, n):
+        (f(q + h e_i) − f(q − h e_i)) / 2h, every row and joint in one call of f."""
+        h, (N, n) = self.gains.fd_step, q.shape
+        dq = h * self._eye  # (n, n)
+        points = np.concatenate((q[:, None] + dq, q[:, None] - dq), axis=1)  # (N, 2n, n)
+        values = f(points.reshape(-1, n), *(np.repeat(a, 2 * n, axis=0) for a in args))
+        values = values.reshape(N, 2, n)
+        return (values[:, 0] - values[:, 1]) / (2 * h)
+
+    def _manipulabilities(self, q: np.ndarray) -> np.ndarray:
+        return manipulabilities(self.task_jacobians(q))
+
+    @rows_method
     def limit_barrier(self, obs: Observation) -> np.ndarray:
-        """k0_limit_barrier Σ (m_act − m_i)₊ / m_i away from each near limit (n,), rad/s.
+        """k0_limit_barrier Σ (m_act − m_i)₊ / m_i away from each near limit (N, n), rad/s.
 
         Active in every objective: a joint-limit violation ends the episode whatever the
         secondary task (pushing away from an obstacle drove 7/30 planar episodes into a limit).
@@ -482,27 +575,30 @@ class NullSpaceCLIK(CLIK):
                 - np.maximum(g.limit_activation - m_up, 0.0) / np.maximum(m_up, 1e-3))
         return g.k0_limit_barrier * push
 
+    @rows_method
     def objective_gradient(self, obs: Observation) -> np.ndarray:
-        """k₀ ∇w (n,), the preferred joint velocity q̇₀ (rad/s), plus the joint-limit barrier."""
+        """k₀ ∇w (N, n), the preferred joint velocity q̇₀ (rad/s), plus the joint-limit
+        barrier."""
         return self._objective_gradient(obs) + self.limit_barrier(obs)
 
     def _objective_gradient(self, obs: Observation) -> np.ndarray:
         q, g = obs["q"], self.gains
         if self.objective == "manipulability":
-            grad = self._central_difference(self.manipulability, q)
-            return g.k0_manipulability * grad / max(self.manipulability(q), 1e-9)
+            grad = self._central_difference(self._manipulabilities, q)
+            return g.k0_manipulability * grad / np.maximum(self._manipulabilities(q), 1e-9)[:, None]
         if self.objective == "joint_limits":
-            return g.k0_joint_limits * joint_limit_objective_gradient(
-                q, obs["q_lower"], obs["q_upper"])
+            return g.k0_joint_limits * joint_limit_gradients(q, obs["q_lower"], obs["q_upper"])
+        out = np.zeros(q.shape)
         obstacle = obs["obstacle"]
-        if obstacle[-1] <= 0:
-            return np.zeros(self.n)  # no obstacle this episode
-        d = self.clearance(q, obstacle)
-        if d >= g.activation_distance:
-            return np.zeros(self.n)
-        push = (g.activation_distance - d) / max(d, 1e-3)  # grows without bound as d → 0
-        grad = self._central_difference(lambda x: self.clearance(x, obstacle), q)
-        return g.k0_obstacle * push * grad
+        near = np.flatnonzero(obstacle[:, -1] > 0)  # rows with an obstacle this episode
+        if near.size:
+            d = self.clearances(q[near], obstacle[near])
+            near, d = near[d < g.activation_distance], d[d < g.activation_distance]
+        if near.size:
+            push = (g.activation_distance - d) / np.maximum(d, 1e-3)  # unbounded as d → 0
+            grad = self._central_difference(self.clearances, q[near], obstacle[near])
+            out[near] = g.k0_obstacle * push[:, None] * grad
+        return out
 
     @property
     def state_size(self) -> int:
@@ -510,88 +606,104 @@ class NullSpaceCLIK(CLIK):
 
     def self_motion_search(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
                            ) -> tuple[float, np.ndarray]:
-        """Arc length s* (rad) to the most manipulable posture of the self-motion through q,
-        and the null vector v (n,) whose direction is s > 0.
+        """:meth:`self_motion_searches` of one q (n,): (s*, v (n,))."""
+        s, v = self.self_motion_searches(*(np.asarray(x, dtype=float)[None]
+                                           for x in (q, lower, upper)))
+        return float(s[0]), v[0]
 
-        The walk holds q's own task pose (one Newton step back to it after each step) and
-        goes on through postures closer than ``search_margin`` to a limit only while it moves
-        away from that limit; such postures are not targets. s* = 0 when q is a target and no
-        posture beats it by ``SEARCH_HYSTERESIS``.
+    def self_motion_searches(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray]:
+        """Arc lengths s* (N,) rad to the most manipulable posture of the self-motion through
+        each row of q (N, n), and the null vectors v (N, n) whose direction is s > 0.
+
+        Each row's walk (:func:`cir_gym.redundancy.walk_self_motion`, all rows at once) holds
+        its q's task pose (one Newton step back to it after each step) and goes on through
+        postures closer than ``search_margin`` to a limit only while it moves away from that
+        limit; such postures are not targets. s* = 0 when q is a target and no posture beats
+        it by ``SEARCH_HYSTERESIS``.
         """
         g = self.gains
-        p0, R0 = self.robot.site_pose(self.site_id, q)
+        home = self.kinematics(q)
+        J0 = self._jacobians_of(home)
+        margin0 = joint_limit_margins(q, lower, upper)
+        w_here = np.where(margin0 >= g.search_margin, manipulabilities(J0), -np.inf)
+        best, s_best = w_here.copy(), np.zeros(len(q))
+        v0 = null_vectors(J0)
+        for sign in (1.0, -1.0):
+            x, J, margin, prev = q.copy(), J0.copy(), margin0.copy(), sign * v0
+            walking = np.arange(len(q))
+            for i in range(1, int(g.search_arc / g.search_step) + 1):
+                if not walking.size:
+                    break
+                v = null_vectors(J[walking])
+                prev[walking] = np.where((v * prev[walking]).sum(axis=1)[:, None] >= 0, v, -v)
+                x_next = self._restore_pose(x[walking] + g.search_step * prev[walking],
+                                            home, walking)
+                m_next = joint_limit_margins(x_next, lower[walking], upper[walking])
+                go = ~(m_next < np.minimum(g.search_margin, margin[walking]))
+                walking, x_next, m_next = walking[go], x_next[go], m_next[go]
+                x[walking], margin[walking] = x_next, m_next
+                J[walking] = self.task_jacobians(x_next)
+                w = manipulabilities(J[walking])
+                better = (m_next >= g.search_margin) & (w > best[walking])
+                best[walking[better]] = w[better]
+                s_best[walking[better]] = sign * i * g.search_step
+        s_best[np.isfinite(w_here) & (best < (1 + SEARCH_HYSTERESIS) * w_here)] = 0.0
+        return s_best, v0
 
-        def restore_pose(x: np.ndarray) -> np.ndarray:
-            p, R = self.robot.site_pose(self.site_id, x)
-            e = (p0 - p)[: self.pos_dim]
-            if self.task_dim == 6:
-                e = np.concatenate((e, orientation_error(R0, R)))
-            return x + pseudo_inverse(jacobian(x)) @ e
+    def _jacobians_of(self, rows: RowPoses) -> np.ndarray:
+        if self.task_dim == 6:
+            return np.concatenate((rows.jacp, rows.jacr), axis=1)
+        return rows.jacp[:, :2]
 
-        # J and the limit margin of a posture, computed once per search: the walk takes J at
-        # each posture it reaches (for the null vector) and the margin of each in its stop
-        # test, and the search asks for both again (the same bytes give the same numbers)
-        jacobians: dict[bytes, np.ndarray] = {}
-        margins: dict[bytes, float] = {}
-
-        def jacobian(x: np.ndarray) -> np.ndarray:
-            key = x.tobytes()
-            J = jacobians.get(key)
-            if J is None:
-                J = jacobians[key] = self.task_jacobian(x)
-            return J
-
-        def margin(x: np.ndarray) -> float:
-            key = x.tobytes()
-            m = margins.get(key)
-            if m is None:
-                m = margins[key] = joint_limit_margin(x, lower, upper)
-            return m
-
-        def stop(x: np.ndarray, x_next: np.ndarray) -> bool:
-            return margin(x_next) < min(g.search_margin, margin(x))
-
-        w_here = manipulability(jacobian(q)) if margin(q) >= g.search_margin else -np.inf
-        best, s_best = w_here, 0.0
-        for s, x in walk_self_motion(q, jacobian, restore_pose, stop,
-                                     g.search_arc, g.search_step):
-            if margin(x) >= g.search_margin and (w := manipulability(jacobian(x))) > best:
-                best, s_best = w, s
-        if np.isfinite(w_here) and best < (1 + SEARCH_HYSTERESIS) * w_here:
-            s_best = 0.0
-        return s_best, null_vector(jacobian(q))
+    def _restore_pose(self, x: np.ndarray, home: RowPoses, which: np.ndarray) -> np.ndarray:
+        """One Newton step x + J†(x)(k(q) − k(x)) of rows x (M, n) back to the task poses of
+        the rows ``which`` (M,) of ``home``."""
+        rows = self.kinematics(x)
+        e = (home.p[which] - rows.p)[:, : self.pos_dim]
+        if self.task_dim == 6:
+            rot = [orientation_error(R0.reshape(3, 3), R.reshape(3, 3))
+                   for R0, R in zip(home.R[which], rows.R, strict=True)]
+            e = np.concatenate((e, np.reshape(rot, (-1, 3))), axis=1)
+        return x + matvec(pseudo_inverse(self._jacobians_of(rows)), e)
 
     def preferred_velocity(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        """q̇₀ (n,), rad/s: the objective's gradient, or the pull k_search s* v towards the
+        """q̇₀ (N, n), rad/s: the objective's gradient, or the pull k_search s* v towards the
         self-motion search's target; plus the joint-limit barrier."""
         g = self.gains
         if self.objective != "manipulability" or g.search_arc == 0:
             return self.objective_gradient(obs)
         q = obs["q"]
-        if state[0] <= 0:
-            state[1], state[2:] = self.self_motion_search(q, obs["q_lower"], obs["q_upper"])
-            state[0] = g.search_period
-        state[0] -= 1
-        v = null_vector(self.task_jacobian(q))
-        state[2:] = v if v @ state[2:] >= 0 else -v  # the same direction as the search's
-        if state[1] == 0:
-            return self.objective_gradient(obs)
-        return g.k_search * state[1] * state[2:] + self.limit_barrier(obs)
+        due = np.flatnonzero(state[:, 0] <= 0)
+        if due.size:
+            state[due, 1], state[due, 2:] = self.self_motion_searches(
+                q[due], obs["q_lower"][due], obs["q_upper"][due])
+            state[due, 0] = g.search_period
+        state[:, 0] -= 1
+        v = null_vectors(self.task_jacobians(q))
+        # the same direction as the search's
+        state[:, 2:] = np.where((v * state[:, 2:]).sum(axis=1)[:, None] >= 0, v, -v)
+        qd0 = g.k_search * state[:, 1:2] * state[:, 2:] + self.limit_barrier(obs)
+        local = state[:, 1] == 0
+        if local.any():
+            qd0[local] = self.objective_gradient({k: v[local] for k, v in obs.items()})
+        return qd0
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         qd0 = self.preferred_velocity(obs, state)
-        J = self.task_jacobian(obs["q"])
+        J = self.task_jacobians(obs["q"])
         J_pinv = pseudo_inverse(J)
-        qd_task = J_pinv @ self.task_velocity(obs)
-        qd_null = null_space_projector(J, J_pinv) @ qd0
+        v = self.task_velocity(obs)
+        qd_task = matvec(J_pinv, v)
+        qd_null = matvec(null_space_projector(J, J_pinv), qd0)
         if self.objective != "obstacle":  # a collision ends the episode: the barrier may win
-            qd_null = null_space_scale(qd_task, qd_null, self.context.action_scale) * qd_null
+            scale = null_space_scales(qd_task, qd_null, self.context.action_scale)
+            qd_null = scale[:, None] * qd_null
         # the joint limits are hard: a joint that would end the step within LIMIT_GUARD of one
         # is held short of it and the task re-solved with the others
         q, dt = obs["q"], self.context.dt
-        return saturate_joint_limits(J, self.task_velocity(obs), qd_task + qd_null,
-                                     (obs["q_lower"] + LIMIT_GUARD - q) / dt,
-                                     (obs["q_upper"] - LIMIT_GUARD - q) / dt)
+        return saturate_rows(J, v, qd_task + qd_null, (obs["q_lower"] + LIMIT_GUARD - q) / dt,
+                             (obs["q_upper"] - LIMIT_GUARD - q) / dt)
 
 
 # ---------------------------------------------------------------------- textbook null space
@@ -644,25 +756,27 @@ class ProjectedGradientCLIK(NullSpaceCLIK):
     def state_size(self) -> int:
         return 0
 
+    @rows_method
     def objective_gradient(self, obs: Observation) -> np.ndarray:
-        """q̇₀ = k₀ ∇w (n,), rad/s."""
+        """q̇₀ = k₀ ∇w (N, n), rad/s."""
         q, g = obs["q"], self.gains
         if self.objective == "manipulability":
-            return g.k0_manipulability * self._central_difference(self.manipulability, q)
+            return g.k0_manipulability * self._central_difference(self._manipulabilities, q)
         if self.objective == "joint_limits":
-            return g.k0_joint_limits * joint_limit_objective_gradient(
-                q, obs["q_lower"], obs["q_upper"])
+            return g.k0_joint_limits * joint_limit_gradients(q, obs["q_lower"], obs["q_upper"])
+        out = np.zeros(q.shape)
         obstacle = obs["obstacle"]
-        if obstacle[-1] <= 0:
-            return np.zeros(self.n)  # no obstacle
-        return g.k0_obstacle * self._central_difference(
-            lambda x: self.clearance(x, obstacle), q)
+        near = np.flatnonzero(obstacle[:, -1] > 0)  # rows with an obstacle
+        if near.size:
+            out[near] = g.k0_obstacle * self._central_difference(
+                self.clearances, q[near], obstacle[near])
+        return out
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
-        J = self.task_jacobian(obs["q"])
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+        J = self.task_jacobians(obs["q"])
         J_pinv = pseudo_inverse(J)
-        return (J_pinv @ self.task_velocity(obs)
-                + null_space_projector(J, J_pinv) @ self.objective_gradient(obs))
+        return (matvec(J_pinv, self.task_velocity(obs))
+                + matvec(null_space_projector(J, J_pinv), self.objective_gradient(obs)))
 
 
 # ---------------------------------------------------------------------- augmented Jacobian
@@ -711,17 +825,25 @@ class AugmentedJacobianCLIK(CLIK):
     def initial_state(self, obs: Observation) -> np.ndarray:
         return np.array([float(self.c @ obs["q"]), np.inf])
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         q = obs["q"]
-        J_aug = np.vstack((self.task_jacobian(q), self.c))
-        v_aug = np.append(self.task_velocity(obs), self.gains.K * (state[0] - self.c @ q))
-        sigma = float(np.linalg.svd(J_aug, compute_uv=False)[-1])
-        state[1] = self.last_sigma_min = sigma
-        if sigma < self.gains.region:
-            self.singular_steps += 1
-            k = variable_damping(sigma, self.gains.damping, self.gains.region)
-            return damped_pseudo_inverse(J_aug, k) @ v_aug
-        return np.linalg.solve(J_aug, v_aug)
+        J = self.task_jacobians(q)
+        J_aug = np.concatenate((J, np.broadcast_to(self.c, (len(q), 1, self.n))), axis=1)
+        y = (q * self.c).sum(axis=1)  # cᵀq (N,)
+        hold = self.gains.K * (state[:, 0] - y)  # K (y₀ − cᵀq) (N,)
+        v_aug = np.concatenate((self.task_velocity(obs), hold[:, None]), axis=1)
+        sigma = np.linalg.svd(J_aug, compute_uv=False)[:, -1]
+        state[:, 1] = sigma
+        self.last_sigma_min = float(sigma[-1])
+        singular = sigma < self.gains.region
+        qd = np.empty_like(q)
+        if singular.any():
+            self.singular_steps += int(singular.sum())
+            k = variable_damping(sigma[singular], self.gains.damping, self.gains.region)
+            qd[singular] = matvec(damped_pseudo_inverse(J_aug[singular], k), v_aug[singular])
+        if not singular.all():
+            qd[~singular] = np.linalg.solve(J_aug[~singular], v_aug[~singular][..., None])[..., 0]
+        return qd
 
 
 KINEMATIC_CONTROLLERS: tuple[type[Controller], ...] = (
