@@ -71,6 +71,8 @@ BATCHED_ENVIRONMENTS: dict[str, str] = {
     "cir_gym/CartesianTracking-v1": "cir_gym.envs.cartesian_vector:CartesianTrackingVectorEnv",
     "cir_gym/AdmittanceContact-v1": "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv",
     "cir_gym/PegInHole-v2": "cir_gym.envs.peg_in_hole_vector:PegInHoleVectorEnv",
+    "cir_gym/RedundantIK-v4": "cir_gym.envs.redundant_ik_vector:RedundantIKVectorEnv",
+    "cir_gym/RedundantIK7-v5": "cir_gym.envs.redundant_ik_vector:RedundantIK7VectorEnv",
     "cir_gym/AdmittanceContactImpedance-v0": (
         "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
     ),
