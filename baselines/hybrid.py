@@ -61,6 +61,11 @@ and inserts.
 (τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback, no search): the reason force control
 exists. It fails by construction: with the hole off by more than the radial clearance it lands
 on the block and its spring presses K_P × 22.5 mm = 112 N into the face.
+
+Every law is written once on rows of observations (:class:`~cir_gym.baselines.base.RowLaw`):
+Σ, the guarded reference and the spiral's phases are per-row masks, the model calls run row by
+row, and one observation is a row of one, so a batch gives each row's command alone
+(tests/test_batched_laws.py). The state holds the posture target q₀ of the null-space term.
 """
 
 from __future__ import annotations
