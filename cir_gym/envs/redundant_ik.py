@@ -51,6 +51,9 @@ class RedundantIKEnv(RedundantIKBase):
     computed analytically: the distance from the obstacle's centre to each link capsule's
     segment minus the capsule and obstacle radii (negative when they intersect).
 
+    Batched: :class:`cir_gym.envs.redundant_ik_vector.RedundantIKVectorEnv` steps N copies of this env
+    (their kinematics in one ``mujoco.batch.Batch`` call), each copy equal to this env.
+
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: q̇ = a ⊙ q̇_max with q̇_max = (2, 2, 2) rad/s. Finite values
     outside [-1, 1] are clipped (so commands beyond the velocity limits are saturated); NaN/inf
@@ -232,6 +235,9 @@ class RedundantIK7Env(RedundantIKBase):
     ``RedundantIK-v4``; the obstacle is a sphere on the sweep of links 3–5 (around the
     elbow), and the clearance is computed analytically (centre to capsule segments, minus the
     radii).
+
+    Batched: :class:`cir_gym.envs.redundant_ik_vector.RedundantIK7VectorEnv` steps N copies of this env
+    (their kinematics in one ``mujoco.batch.Batch`` call), each copy equal to this env.
 
     ## Action Space
     ``Box(-1, 1, (7,), float32)``: q̇ = a ⊙ q̇_max with q̇_max = (85, 85, 100, 75, 130, 135, 135)
