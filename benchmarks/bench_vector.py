@@ -1,50 +1,75 @@
-"""Batched envs, the batched evaluator, a 100-seed leaderboard estimate and PPO throughput.
+"""Batched envs (free and in contact), the batched evaluator, a 100-seed leaderboard estimate
+and RL training throughput on the batched contact envs.
 
-    python benchmarks/bench_vector.py [--num-envs 16 64] [--envs ID ...] [--episodes 100]
-                                      [--seq-episodes 10] [--other-episodes 1]
-                                      [--ppo-steps 16384] [--skip ...] [--out results/benchmarks.md]
+    python benchmarks/bench_vector.py [--num-envs 16 64] [--envs ID ...] [--steps 200]
+                                      [--repeat 5] [--episodes 100] [--seq-episodes 10]
+                                      [--other-episodes 1] [--rl-steps 2048] [--rl-warmup 256]
+                                      [--skip ...] [--out results/benchmarks.md]
 
 Four parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
 replaced; the other sections belong to other scripts):
 
 1. ``throughput``: env-steps/s of each ``--num-envs`` count of copies of every id of
    ``cir_gym.envs.vector.VECTOR_ENVS`` (or ``--envs``) in its native batched env, of the same
-   model's raw ``mujoco.batch.Batch.step`` and of Gymnasium's ``SyncVectorEnv`` of the single
-   env; zero actions, ``max_following_error=None`` where the env has it (resets are not what
-   this times). The loops are timed alternately, best of ``--repeat``: in process CPU time
-   with one MuJoCo thread (other jobs' time slices on this shared machine are not counted),
-   and in wall-clock time the batched env with 2 threads against the SyncVectorEnv (both
-   inflated by the machine's load).
-2. ``evaluator``: ``cir_gym.evaluation.evaluate`` on every JointTracking-v2 and
-   ElasticJointTracking-v3 leaderboard (variant, policy) pair, as ``scripts/leaderboard.py``
-   runs them (seed 1000 on): batched on ``--episodes`` seeds where it batches (controllers,
-   ideal drive), sequential on ``--seq-episodes`` seeds, scaled linearly to ``--episodes``
-   (each episode is one independent rollout of the same length: the scaling is the
-   measurement's only assumption). The batched run's first ``--seq-episodes`` EpisodeResults
-   are checked equal to the sequential ones.
+   model's raw ``mujoco.batch.Batch`` and of Gymnasium's ``SyncVectorEnv`` of the single env
+   (SAME_STEP autoreset, as ``cir_gym.make_vec``'s fallback). Two tables:
+
+   * zero actions, ``max_following_error=None`` where the env has it (resets are not what
+     this times; the torque tasks' copies then never touch a surface);
+   * in contact, the contact envs of ``CONTACT_DRIVES``: after an untimed warm-up the copies
+     press on their surface, driven by the course controller (AdmittanceContact-v1:
+     ``impedance``; PegInHole-v2: ``hybrid_force_position``; as ``cir_gym.scoring.policies``
+     resolves them, predicted in the loop on all copies at once, outside the timed
+     ``step``) or, for the agent-ready variants (which have no course controller), by a
+     constant action moving the setpoint down. Episodes end and restart as they come, the
+     same on every side (each batched env equals its single env copy for copy). The table
+     gives how many copies touch (MuJoCo contacts) when the timing starts.
+
+   RedundantIK-v4 / RedundantIK7-v5 have no ``mj_step``: their batch runs kinematics
+   (``Batch.forward`` to the position stage and ``Batch.jac`` at the site per step), and that
+   is their "raw" column. The loops are timed alternately, best of ``--repeat`` trials of
+   ``--steps`` vector steps (``--steps`` / 8 for SyncVectorEnv), ``env.step`` alone: in
+   process CPU time with one MuJoCo thread (other jobs' time slices on this shared machine
+   are not counted), and in wall-clock time the batched env with 2 threads against the
+   SyncVectorEnv (both inflated by the machine's load).
+2. ``evaluator``: ``cir_gym.evaluation.evaluate`` on every leaderboard (variant, policy) pair
+   of the batched envs, as ``scripts/leaderboard.py`` runs them (seed 1000 on): batched on
+   ``--episodes`` seeds where it batches, sequential on ``--seq-episodes`` seeds, scaled
+   linearly to ``--episodes`` (each episode is one independent rollout of the same length:
+   the scaling is the measurement's only assumption). The batched run's first
+   ``--seq-episodes`` EpisodeResults are checked equal to the sequential ones.
 3. ``leaderboard``: every other environment's pairs, ``--other-episodes`` episodes each
    (sequential: they have no batched env), scaled to ``--episodes``; with part 2 this gives
    the CPU time of a full leaderboard at ``--episodes`` seeds per variant, and that time over
    2 workers (the leaderboard's process pool on 2 cores, perfectly balanced: a lower bound on
    its wall time). Not counted: the leaderboard's figures and its page's videos.
-4. ``ppo``: PPO training throughput (env-steps/s over ``--ppo-steps`` steps of ``learn``,
-   rollouts and updates) with agents/hyperparams/ppo.yml's JointTracking-v2 entry (n_steps
-   512 per env for 16 envs, batch 1024, 10 epochs, γ 0.98, λ 1, [128, 128] tanh,
-   log σ −2, VecNormalize on observations and rewards; one torch thread) on a DummyVecEnv
-   of 16 single envs against ``sb3_vec_env`` of the batched env with 16 copies and with 64
-   (n_steps 128: the same 8192-step rollout). Both sides use SB3's MultiInputPolicy on the raw
-   Dict observation (the shipped agents' flattening wrapper is left out on both).
+4. ``rl``: SB3 PPO and SAC training throughput (env-steps per CPU second of ``learn``:
+   rollouts and updates; one torch thread, one MuJoCo thread) on ``RL_ENVS``, the agent-ready
+   contact variants: the batched env with 16 copies through ``vec_env: batched``'s adapter
+   (``agents.batched.make_batched_vec_env``) against a DummyVecEnv of 16 single envs and
+   against one env (a DummyVecEnv of 1), each single env wrapped as ``agents.train``
+   wraps it (TaskObservation, Monitor). MlpPolicy on the flat observation of
+   ``cir_gym.agents.observation.TaskObservation``. PPO: agents/hyperparams/contact/ppo.yml
+   (2048-step rollouts: n_steps 128 × 16 envs, 2048 × 1 env; batch 256, 10 epochs, [64, 64]
+   tanh, VecNormalize of observations and rewards). SAC: SB3's defaults (train_freq 1,
+   gradient_steps 1: one gradient step of batch 256 per vector step, i.e. per 16 transitions
+   with 16 envs and per transition with 1; learning_starts 100; buffer 10⁶) with the same
+   [64, 64] nets (ReLU, SB3's SAC default) and VecNormalize of observations, as
+   agents/hyperparams/sac.yml. Each run: an untimed ``learn`` of ``--rl-warmup`` env steps
+   (PPO: rounded up to one rollout and its update; SAC: past learning_starts), then a timed
+   ``learn`` of ``--rl-steps`` more (PPO: whole rollouts).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import mujoco
@@ -53,14 +78,49 @@ import numpy as np
 from _sections import write_section  # sibling module: the scripts run as files
 
 import cir_gym
-from cir_gym.envs.base import constructor_arguments, make_env
-from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
+from cir_gym.envs.base import constructor_arguments
+from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env
 from cir_gym.evaluation import evaluate
 
 SECTION = "## Vector env"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
 SEED = 1000  # scripts/leaderboard.py's
-PARTS = ("throughput", "evaluator", "leaderboard", "ppo")
+PARTS = ("throughput", "evaluator", "leaderboard", "rl")
+
+#: ids without dynamics: a step integrates q̇ and runs the kinematics of every copy
+KINEMATIC_ENVS = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
+_POSITION_STAGE = int(mujoco.mjtStage.mjSTAGE_POS)
+
+
+class ContactDrive(NamedTuple):
+    """How the copies of a contact env are brought onto their surface and kept there.
+
+    Attributes:
+        controller: the course controller (``cir_gym.scoring.policies`` name) predicted on all
+            copies at every step, or None: a constant action, the setpoint moved down by
+            ``press`` × its largest increment per policy step (the agent-ready variants).
+        press: that fraction, in [0, 1] (without a controller).
+        warmup: untimed env steps before the timing starts (the time to contact: each id's
+            comment, in seconds of simulated time).
+    """
+
+    controller: str | None
+    press: float
+    warmup: int
+
+
+#: contact env id → how its copies are driven in contact (the in-contact table)
+CONTACT_DRIVES: dict[str, ContactDrive] = {
+    # 500 Hz; 1.2 s: the tool rests on the plate from ~0.8 s
+    "cir_gym/AdmittanceContact-v1": ContactDrive("impedance", 0.0, 600),
+    # 500 Hz; 2 s: the peg rests on the block from ~1.6 s
+    "cir_gym/PegInHole-v2": ContactDrive("hybrid_force_position", 0.0, 1000),
+    # 20 Hz; 1 s: every tool on the plate from 1 s (half the increment: ~50 N once clamped)
+    "cir_gym/AdmittanceContactImpedance-v0": ContactDrive(None, 0.5, 20),
+    # 20 Hz; 3 s: 0.2 of the increment (half of it terminates 3 of 5 episodes at 0.7 s);
+    # most pegs on the block from 2-4 s
+    "cir_gym/PegInHoleImpedance-v0": ContactDrive(None, 0.2, 60),
+}
 
 
 def _cpu() -> float:
@@ -68,82 +128,246 @@ def _cpu() -> float:
 
 
 # ---------------------------------------------------------------------- 1. throughput
-def _per_env_step(
-    step: Callable[[], Any], n: int, num_envs: int, clock: Callable[[], float] = _cpu
-) -> Callable[[], float]:
-    """A trial: ``n`` calls of ``step``, returning seconds per env-step (per copy)."""
+def _env_kwargs(env_id: str) -> dict[str, Any]:
+    """``max_following_error=None`` where the env has it (no ends from following errors)."""
+    cls = VECTOR_ENVS[env_id]
+    if "max_following_error" in constructor_arguments(cls.env_class):
+        return {"max_following_error": None}
+    return {}
 
-    def run() -> float:
-        t0 = clock()
-        for _ in range(n):
-            step()
-        return (clock() - t0) / (n * num_envs)
 
-    return run
+def _sync_vector_env(env_id: str, num_envs: int, kwargs: dict[str, Any]) -> gym.vector.VectorEnv:
+    """Gymnasium's SyncVectorEnv of ``num_envs`` single envs, SAME_STEP autoreset (as the
+    batched envs and ``cir_gym.make_vec``'s fallback)."""
+    return gym.make_vec(
+        env_id,
+        num_envs=num_envs,
+        vectorization_mode="sync",
+        vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+        **kwargs,
+    )
+
+
+def _action_source(
+    env_id: str, envs: gym.vector.VectorEnv, drive: ContactDrive | None
+) -> Callable[[dict, np.ndarray], np.ndarray]:
+    """``(obs, episode_start) ↦ actions (N, dim)`` for ``envs``: zeros without a drive, else
+    the drive's controller (its own recurrent state) or its constant pressing action."""
+    actions = np.zeros(envs.action_space.shape, dtype=np.float32)
+    if drive is None:
+        return lambda obs, start: actions
+    if drive.controller is None:
+        actions[:, 2] = -drive.press  # the z increment of the setpoint (m, scaled to [-1, 1])
+        return lambda obs, start: actions
+    from cir_gym.scoring.policies import make_policy
+
+    policy = make_policy(env_id, drive.controller, {}, {})
+    state: list[Any] = [None]
+
+    def act(obs: dict, start: np.ndarray) -> np.ndarray:
+        action, state[0] = policy.predict(obs, state=state[0], episode_start=start)
+        return action
+
+    return act
+
+
+class DrivenEnvs:
+    """A vector env stepped from its current observation by an action source; only
+    ``envs.step`` is timed.
+
+    Args:
+        envs: a Gymnasium vector env (batched or SyncVectorEnv), reset here with seed 0.
+        act: ``(obs, episode_start) ↦ actions`` (:func:`_action_source`), not timed.
+    """
+
+    def __init__(self, envs: gym.vector.VectorEnv, act: Callable[[dict, np.ndarray], np.ndarray]):
+        self.envs = envs
+        self.act = act
+        self.obs, _ = envs.reset(seed=0)
+        self.start = np.ones(envs.num_envs, dtype=bool)
+
+    def advance(self, steps: int, clock: Callable[[], float] = _cpu) -> float:
+        """Seconds of ``envs.step`` over ``steps`` vector steps (the actions not counted)."""
+        spent = 0.0
+        for _ in range(steps):
+            action = self.act(self.obs, self.start)
+            t0 = clock()
+            self.obs, _, terminated, truncated, _ = self.envs.step(action)
+            spent += clock() - t0
+            self.start = terminated | truncated
+        return spent
+
+    def run(self, steps: int, clock: Callable[[], float] = _cpu) -> float:
+        """Seconds of ``envs.step`` per env-step (per copy) over ``steps`` ≥ 1 vector steps."""
+        return self.advance(steps, clock) / (steps * self.envs.num_envs)
+
+
+def _raw_trial(env_id: str, vec: Any, steps: int) -> Callable[[], float]:
+    """A trial of the batched env's bare ``mujoco.batch.Batch`` (1 thread) from ``vec``'s
+    current state (its last controls held): seconds per env-step (CPU) of ``steps`` calls of
+    ``Batch.step(nstep=frame_skip)``, or for ``KINEMATIC_ENVS`` of ``Batch.forward`` to the
+    position stage and ``Batch.jac`` at the end-effector site."""
+    t = vec.template
+    raw = mujoco.batch.Batch(t.model, nsim=vec.num_envs, nthread=1)
+    if env_id in KINEMATIC_ENVS:
+        site = t.kin.site_id
+        body = int(t.model.site_bodyid[site])
+        site_xpos = raw.bind("site_xpos")
+
+        def call() -> None:
+            raw.forward(stage=_POSITION_STAGE)
+            raw.jac(body, site_xpos[:, site])
+    else:
+
+        def call() -> None:
+            raw.step(nstep=t.frame_skip)
+
+    def trial() -> float:
+        raw.state[:] = vec.batch.state
+        t0 = _cpu()
+        for _ in range(steps):
+            call()
+        return (_cpu() - t0) / (steps * vec.num_envs)
+
+    return trial
+
+
+def _copies_touching(vec: Any) -> int:
+    """Copies of a batched env with at least one MuJoCo contact at their current state."""
+    touching = 0
+    for i in range(vec.num_envs):
+        data = vec.batch.get_data(i)
+        mujoco.mj_forward(vec.batch.get_model(i), data)
+        touching += data.ncon > 0
+    return touching
+
+
+def _best_rates(trials: dict[str, Callable[[], float]], repeat: int) -> dict[str, float]:
+    """Env-steps/s per trial name: the trials run alternately ``repeat`` times, best kept."""
+    best = dict.fromkeys(trials, math.inf)
+    for _ in range(repeat):
+        for key, run in trials.items():
+            best[key] = min(best[key], run())
+    return {key: 1.0 / sec for key, sec in best.items()}
+
+
+def _measure(
+    env_id: str, num_envs: int, steps: int, repeat: int, drive: ContactDrive | None
+) -> tuple[dict[str, float], int]:
+    """(env-steps/s of the five loops, copies touching at the start of the timing) of
+    ``num_envs`` copies of ``env_id`` driven by ``drive`` (None: zero actions)."""
+    kw = _env_kwargs(env_id)
+    cls = VECTOR_ENVS[env_id]
+    made = {
+        "vec": cls(num_envs, nthread=1, **kw),
+        "vec2": cls(num_envs, nthread=2, **kw),
+        "sync": _sync_vector_env(env_id, num_envs, kw),
+    }
+    driven = {k: DrivenEnvs(e, _action_source(env_id, e, drive)) for k, e in made.items()}
+    for d in driven.values():
+        d.advance(drive.warmup if drive else 0)
+    touching = _copies_touching(made["vec"])
+    n_sync = max(1, steps // 8)
+    wall = time.perf_counter
+    rates = _best_rates(
+        {
+            "vec": lambda: driven["vec"].run(steps),
+            "raw": _raw_trial(env_id, made["vec"], steps),
+            "sync": lambda: driven["sync"].run(n_sync),
+            "wall2": lambda: driven["vec2"].run(steps, wall),
+            "sync_wall": lambda: driven["sync"].run(n_sync, wall),
+        },
+        repeat,
+    )
+    for e in made.values():
+        e.close()
+    print(
+        f"  {env_id} x{num_envs}{' in contact' if drive else ''}: "
+        + ", ".join(f"{k} {v:,.0f}/s" for k, v in rates.items()),
+        flush=True,
+    )
+    return rates, touching
+
+
+def _rate_cells(rate: dict[str, float]) -> str:
+    """The table's rate and ratio cells (Sync, batched, ratio, raw, ratio, wall ×3)."""
+    return (
+        f"{rate['sync']:,.0f} | {rate['vec']:,.0f} | {rate['vec'] / rate['sync']:.1f} | "
+        f"{rate['raw']:,.0f} | {rate['vec'] / rate['raw']:.2f} | {rate['sync_wall']:,.0f} | "
+        f"{rate['wall2']:,.0f} | {rate['wall2'] / rate['sync_wall']:.1f}"
+    )
+
+
+_RATE_HEADER = (
+    "SyncVectorEnv (CPU) | batched, 1 thread (CPU) | batched / Sync | raw batch (CPU) "
+    "| batched / raw | SyncVectorEnv (wall) | batched, 2 threads (wall) "
+    "| batched 2 threads / Sync (wall) |"
+)
+_RATE_RULE = "---:|---:|---:|---:|---:|---:|---:|---:|"
 
 
 def bench_throughput(
     counts: list[int], steps: int, repeat: int, env_ids: list[str] | None = None
 ) -> list[str]:
-    """Rows of env-steps/s per (env, copies): the batched env (1 thread CPU, 2 threads wall)
-    vs its raw batch physics and vs SyncVectorEnv (CPU and wall)."""
+    """Rows of env-steps/s per (env, copies) with zero actions: the batched env (1 thread
+    CPU, 2 threads wall) vs its raw batch and vs SyncVectorEnv (CPU and wall)."""
     rows = [
-        "Zero actions, `max_following_error=None` where the env has it; best of the trials, "
-        "the loops timed alternately. CPU: process time, 1 MuJoCo thread. Wall: the batched "
-        "env with 2 threads against the SyncVectorEnv, in the same run (the machine's load "
-        "inflates both).",
+        "Zero actions, `max_following_error=None` where the env has it. Raw batch: "
+        "`Batch.step(nstep=frame_skip)`; RedundantIK-v4 / RedundantIK7-v5 have no `mj_step` "
+        "(their batch runs kinematics: `Batch.forward` to the position stage and `Batch.jac` "
+        "at the site per step, their raw column). The raw batch starts each trial from the "
+        "batched env's state and never ends an episode: where the env ends them in the trials "
+        "(PegInHole-v2 at zero torque: the peg drops onto the block and every copy "
+        "terminates about every 20 steps) it steps contact states the env does not, and is "
+        "no floor.",
         "",
-        "| env | copies | SyncVectorEnv (CPU) | batched, 1 thread (CPU) | batched / Sync "
-        "| raw Batch.step (CPU) | batched / raw | SyncVectorEnv (wall) | batched, 2 threads "
-        "(wall) | batched 2 threads / Sync (wall) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        f"| env | copies | {_RATE_HEADER}",
+        f"|---|---:|{_RATE_RULE}",
     ]
     for env_id in env_ids or list(VECTOR_ENVS):
-        cls = VECTOR_ENVS[env_id]
-        kw = (
-            {"max_following_error": None}
-            if "max_following_error" in constructor_arguments(cls.env_class)
-            else {}
-        )
         for num_envs in counts:
-            vec = cls(num_envs, nthread=1, **kw)
-            vec2 = cls(num_envs, nthread=2, **kw)
-            sync = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="sync", **kw)
-            for env in (vec, vec2, sync):
-                env.reset(seed=0)
-            raw = mujoco.batch.Batch(vec.template.model, nsim=num_envs, nthread=1)
-            raw.state[:] = vec.batch.state
-            skip = vec.template.frame_skip
-            zeros = np.zeros(vec.action_space.shape, dtype=np.float32)
-            n_sync = max(1, steps // 8)
-            loops = {
-                "vec": _per_env_step(lambda v=vec, z=zeros: v.step(z), steps, num_envs),
-                "raw": _per_env_step(lambda r=raw, s=skip: r.step(nstep=s), steps, num_envs),
-                "sync": _per_env_step(lambda v=sync, z=zeros: v.step(z), n_sync, num_envs),
-                "wall2": _per_env_step(
-                    lambda v=vec2, z=zeros: v.step(z), steps, num_envs, time.perf_counter
-                ),
-                "sync_wall": _per_env_step(
-                    lambda v=sync, z=zeros: v.step(z), n_sync, num_envs, time.perf_counter
-                ),
-            }
-            best = {k: float("inf") for k in loops}
-            for _ in range(repeat):
-                for key, run in loops.items():
-                    best[key] = min(best[key], run())
-            rate = {k: 1.0 / v for k, v in best.items()}
-            print(
-                f"  {env_id} x{num_envs}: " + ", ".join(f"{k} {v:,.0f}/s" for k, v in rate.items()),
-                flush=True,
-            )
+            rate, _ = _measure(env_id, num_envs, steps, repeat, None)
+            rows.append(f"| {env_id} | {num_envs} | {_rate_cells(rate)} |")
+    return rows
+
+
+def _drive_label(drive: ContactDrive) -> str:
+    """How the copies are driven, for the table."""
+    how = (
+        f"`{drive.controller}`"
+        if drive.controller
+        else f"setpoint down {drive.press:g} × max increment"
+    )
+    return f"{how}, {drive.warmup} steps warm-up"
+
+
+def bench_in_contact(
+    counts: list[int], steps: int, repeat: int, env_ids: list[str] | None = None
+) -> list[str]:
+    """Rows of env-steps/s per (contact env, copies) in contact (``CONTACT_DRIVES``), the
+    same loops as :func:`bench_throughput`'s."""
+    rows = [
+        "In contact: the copies driven onto their surface (course controller predicted in the "
+        "loop, not timed; the agent-ready variants, which have no course controller, by a "
+        "constant pressing action) after an untimed warm-up; touching: copies with a MuJoCo "
+        "contact when the timing starts. Raw batch: from the batched env's state, its last "
+        "torques held over the whole step (the agent-ready variants' impedance loop updates "
+        "them every 2 ms of their 50-ms step: held, they press harder, so raw is no floor "
+        "there).",
+        "",
+        f"| env | copies | driven by | touching | {_RATE_HEADER}",
+        f"|---|---:|---|---:|{_RATE_RULE}",
+    ]
+    for env_id in env_ids or list(VECTOR_ENVS):
+        drive = CONTACT_DRIVES.get(env_id)
+        if drive is None:
+            continue
+        for num_envs in counts:
+            rate, touching = _measure(env_id, num_envs, steps, repeat, drive)
             rows.append(
-                f"| {env_id} | {num_envs} | {rate['sync']:,.0f} | {rate['vec']:,.0f} | "
-                f"{rate['vec'] / rate['sync']:.1f} | {rate['raw']:,.0f} | "
-                f"{rate['vec'] / rate['raw']:.2f} | {rate['sync_wall']:,.0f} | "
-                f"{rate['wall2']:,.0f} | {rate['wall2'] / rate['sync_wall']:.1f} |"
+                f"| {env_id} | {num_envs} | {_drive_label(drive)} | {touching}/{num_envs} | "
+                f"{_rate_cells(rate)} |"
             )
-            for env in (vec, vec2, sync):
-                env.close()
     return rows
 
 
@@ -255,81 +479,153 @@ def bench_other_envs(episodes: int, other_episodes: int) -> tuple[list[str], flo
     return rows, sum(per_env.values())
 
 
-# ---------------------------------------------------------------------- 4. PPO
-def _ppo_hyperparams(n_envs: int) -> dict[str, Any]:
-    """ppo.yml's JointTracking-v2 entry, n_steps scaled to keep its 8192-step rollout."""
-    import torch
-
-    return {
-        "n_steps": 8192 // n_envs,
-        "batch_size": 1024,
-        "n_epochs": 10,
-        "gamma": 0.98,
-        "gae_lambda": 1.0,
-        "learning_rate": 3.0e-4,
-        "clip_range": 0.2,
-        "ent_coef": 0.0,
-        "vf_coef": 0.5,
-        "max_grad_norm": 0.5,
-        "policy_kwargs": {
-            "net_arch": [128, 128],
-            "activation_fn": torch.nn.Tanh,
-            "log_std_init": -2.0,
-        },
-    }
+# ---------------------------------------------------------------------- 4. RL training
+#: the agent-ready contact variants trained with vec_env: batched (agents/hyperparams/contact)
+RL_ENVS = ("cir_gym/PegInHoleImpedance-v0", "cir_gym/AdmittanceContactImpedance-v0")
+CONTACT_PPO = Path(__file__).parents[1] / "agents" / "hyperparams" / "contact" / "ppo.yml"
+ROLLOUT = 2048  # PPO env steps per rollout: ppo.yml's n_steps 128 × n_envs 16
+RL_COPIES = 16
 
 
-def bench_ppo(steps: int) -> list[str]:
-    """PPO env-steps/s (wall and CPU) on DummyVecEnv(16) vs the batched env (16, 64)."""
-    import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+def _observation_layout(env_id: str, hp: dict[str, Any]) -> Any:
+    """The flat observation (TaskObservation's layout) of ``env_id`` under ``hp``."""
+    from cir_gym.agents.hyperparameters import observation_options
+    from cir_gym.agents.observation import ObservationLayout
 
-    from cir_gym.envs.vector import JointTrackingVectorEnv
+    probe = gym.make(env_id)
+    layout = ObservationLayout.from_space(probe.observation_space, **observation_options(hp))
+    layout.bind(probe)
+    probe.close()
+    return layout
 
-    torch.set_num_threads(1)
-    env_id = "cir_gym/JointTracking-v2"
+
+def _rl_vec_envs(env_id: str, layout: Any) -> list[tuple[str, int, Callable[[], Any]]]:
+    """(label, n_envs, ``() ↦ SB3 VecEnv``) of the three sides, seeded 0."""
+    from cir_gym.agents.batched import make_batched_vec_env
+    from cir_gym.agents.train import EnvFactory
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    factory = EnvFactory(env_id, {}, layout)
 
     def dummy(n: int) -> Any:
-        return DummyVecEnv([lambda: make_env(env_id) for _ in range(n)])
-
-    def batched(n: int) -> Any:
-        return sb3_vec_env(JointTrackingVectorEnv(n, nthread=1))
-
-    sides = [
-        ("SB3 DummyVecEnv of 16 single envs", dummy, 16),
-        ("sb3_vec_env(JointTrackingVectorEnv(16))", batched, 16),
-        ("sb3_vec_env(JointTrackingVectorEnv(64))", batched, 64),
-    ]
-    rates = []
-    for label, make, n in sides:
-        venv = VecNormalize(make(n), norm_obs=True, norm_reward=True, gamma=0.98)
+        venv = DummyVecEnv([factory] * n)
         venv.seed(0)
-        model = PPO(
-            "MultiInputPolicy", venv, seed=0, device="cpu", verbose=0, **_ppo_hyperparams(n)
-        )
-        t0, c0 = time.perf_counter(), _cpu()
-        model.learn(total_timesteps=steps)
-        wall, cpu = time.perf_counter() - t0, _cpu() - c0
-        done = model.num_timesteps
-        rates.append((label, n, done / wall, done / cpu, done))
-        print(
-            f"  {label}: {done / wall:,.0f} steps/s wall, {done / cpu:,.0f} per CPU s", flush=True
-        )
-        venv.close()
-    base_cpu = rates[0][3]
+        return venv
+
+    return [
+        (
+            f"batched, {RL_COPIES} copies",
+            RL_COPIES,
+            lambda: make_batched_vec_env(env_id, {}, layout, RL_COPIES, 0),
+        ),
+        (f"DummyVecEnv of {RL_COPIES}", RL_COPIES, lambda: dummy(RL_COPIES)),
+        ("1 env", 1, lambda: dummy(1)),
+    ]
+
+
+def _rl_model(algo: str, venv: Any, n_envs: int, hp: dict[str, Any]) -> Any:
+    """The SB3 model of ``algo`` ("ppo": ``hp``, contact/ppo.yml's entry, with n_steps
+    keeping its ROLLOUT; "sac": SB3's defaults and [64, 64] nets) on ``venv`` wrapped in
+    VecNormalize."""
+    import torch
+    from cir_gym.agents.hyperparameters import TRAINING_KEYS, resolve_policy_kwargs
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if algo == "ppo":
+        kwargs = {k: v for k, v in hp.items() if k not in TRAINING_KEYS}
+        kwargs["n_steps"] = ROLLOUT // n_envs
+        policy_kwargs = resolve_policy_kwargs(hp["policy_kwargs"])
+        venv = VecNormalize(venv, gamma=kwargs["gamma"], **hp["normalize"])
+        cls = PPO
+    elif algo == "sac":
+        kwargs = {}
+        policy_kwargs = {"net_arch": [64, 64], "activation_fn": torch.nn.ReLU}
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
+        cls = SAC
+    else:
+        raise ValueError(f"algo must be 'ppo' or 'sac', got {algo!r}")
+    return cls(
+        "MlpPolicy", venv, seed=0, device="cpu", verbose=0, policy_kwargs=policy_kwargs, **kwargs
+    )
+
+
+def _gradient_steps(model: Any) -> int:
+    """Gradient steps taken so far (PPO: epochs × minibatches per rollout)."""
+    from stable_baselines3 import PPO
+
+    if isinstance(model, PPO):
+        rollout = model.n_steps * model.n_envs
+        return model._n_updates * math.ceil(rollout / model.batch_size)
+    return model._n_updates
+
+
+class LearnTiming(NamedTuple):
+    """One timed ``learn``: ``env_steps`` transitions and ``gradient_steps`` in ``cpu_s``
+    seconds of process CPU time and ``wall_s`` of wall-clock time."""
+
+    env_steps: int
+    gradient_steps: int
+    cpu_s: float
+    wall_s: float
+
+
+def _timed_learn(model: Any, warmup: int, steps: int) -> LearnTiming:
+    """An untimed ``learn(warmup)``, then ``learn(steps)`` timed (continuing it)."""
+    model.learn(total_timesteps=warmup)
+    n0, g0 = model.num_timesteps, _gradient_steps(model)
+    c0, w0 = _cpu(), time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    return LearnTiming(
+        model.num_timesteps - n0, _gradient_steps(model) - g0, _cpu() - c0, time.perf_counter() - w0
+    )
+
+
+def bench_rl(steps: int, warmup: int) -> list[str]:
+    """PPO and SAC env-steps per CPU second on each of ``RL_ENVS``: the batched env (16
+    copies, ``vec_env: batched``'s adapter) vs DummyVecEnv of 16 single envs vs 1 env."""
+    import torch
+    from cir_gym.agents.hyperparameters import load_hyperparams
+
+    torch.set_num_threads(1)
     rows = [
-        f"PPO `learn` for {rates[0][4]:,} steps per side (rollouts of 8192 steps and their 10 "
-        "epochs of updates; one torch thread, one MuJoCo thread), run one after the other:",
+        f"`learn` after an untimed warm-up of {warmup} env steps (PPO: rounded up to one "
+        f"{ROLLOUT}-step rollout and its update; SAC: past learning_starts 100), timed over "
+        f"{steps} more (PPO: whole {ROLLOUT}-step rollouts with their 10 epochs of "
+        "minibatches of 256); one torch thread, one MuJoCo thread; the sides one after the "
+        "other. PPO: agents/hyperparams/contact/ppo.yml ([64, 64] tanh, n_steps 128 × 16 "
+        f"envs, {ROLLOUT} × 1 env). SAC: SB3's defaults, train_freq 1 and gradient_steps 1 "
+        "(one gradient step of batch 256 per *vector* step: per 16 transitions with 16 "
+        "envs, per transition with 1 env), [64, 64] ReLU, VecNormalize of observations. "
+        "Batched: `agents.batched.make_batched_vec_env` (what `vec_env: batched` trains on); "
+        "DummyVecEnv and 1 env: `agents.train.EnvFactory` (TaskObservation, Monitor).",
         "",
-        "| vec env | n_envs × n_steps | env-steps/s (wall) | env-steps per CPU s | vs Dummy "
-        "(CPU) |",
-        "|---|---|---:|---:|---:|",
+        "| env | algorithm | vec env | env steps timed | gradient steps | env-steps per "
+        "CPU s | vs 1 env | vs DummyVecEnv | env-steps/s (wall) |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
-    rows += [
-        f"| {label} | {n} × {8192 // n} | {wall:,.0f} | {cpu:,.0f} | {cpu / base_cpu:.2f} |"
-        for label, n, wall, cpu, _ in rates
-    ]
+    for env_id in RL_ENVS:
+        hp = load_hyperparams("ppo", env_id, path=CONTACT_PPO)
+        sides = _rl_vec_envs(env_id, _observation_layout(env_id, hp))
+        for algo in ("ppo", "sac"):
+            timings = {}
+            for label, n, make in sides:
+                model = _rl_model(algo, make(), n, hp)
+                timings[label] = t = _timed_learn(model, warmup, steps)
+                model.get_env().close()
+                print(
+                    f"  {env_id} {algo} {label}: {t.env_steps / t.cpu_s:,.1f} per CPU s, "
+                    f"{t.env_steps / t.wall_s:,.1f}/s wall",
+                    flush=True,
+                )
+            rate = {k: t.env_steps / t.cpu_s for k, t in timings.items()}
+            one, dummy = rate["1 env"], rate[f"DummyVecEnv of {RL_COPIES}"]
+            rows += [
+                f"| {env_id.split('/')[-1]} | {algo.upper()} | {label} | {t.env_steps:,} | "
+                f"{t.gradient_steps:,} | {rate[label]:,.0f} | {rate[label] / one:.1f} | "
+                f"{rate[label] / dummy:.1f} | {t.env_steps / t.wall_s:,.0f} |"
+                for label, t in timings.items()
+            ]
     return rows
 
 
@@ -351,10 +647,14 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="seeds timed per job of the envs without a batched env",
     )
-    p.add_argument("--ppo-steps", type=int, default=16384, help="PPO steps per side")
+    p.add_argument("--rl-steps", type=int, default=ROLLOUT, help="env steps timed per RL run")
+    p.add_argument("--rl-warmup", type=int, default=256, help="untimed env steps before them")
     p.add_argument("--skip", nargs="*", default=[], choices=PARTS, help="parts to leave out")
     p.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = p.parse_args(argv)
+    unknown = sorted(set(args.envs or ()) - set(VECTOR_ENVS))
+    if unknown:
+        p.error(f"--envs: no batched env for {unknown}; allowed: {sorted(VECTOR_ENVS)}")
     warnings.filterwarnings("ignore")
     body = [
         f"`python benchmarks/bench_vector.py{''.join(' ' + a for a in argv or sys.argv[1:])}` "
@@ -369,7 +669,14 @@ def main(argv: list[str] | None = None) -> int:
         body += [
             "### Batched env throughput",
             "",
+            "Env-steps/s (per copy; the agent-ready variants: policy steps). Best of the "
+            "trials, the loops timed alternately, `env.step` alone. CPU: process time, 1 "
+            "MuJoCo thread. Wall: the batched env with 2 threads against the SyncVectorEnv "
+            "(SAME_STEP autoreset), in the same run (the machine's load inflates both).",
+            "",
             *bench_throughput(args.num_envs, args.steps, args.repeat, args.envs),
+            "",
+            *bench_in_contact(args.num_envs, args.steps, args.repeat, args.envs),
             "",
         ]
     if "evaluator" not in args.skip:
@@ -405,9 +712,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"Target: 10 min.",
                 "",
             ]
-    if "ppo" not in args.skip:
-        print("ppo:", flush=True)
-        body += ["### PPO training throughput", "", *bench_ppo(args.ppo_steps), ""]
+    if "rl" not in args.skip:
+        print("rl:", flush=True)
+        body += [
+            "### RL training throughput on the batched contact envs",
+            "",
+            *bench_rl(args.rl_steps, args.rl_warmup),
+            "",
+        ]
     text = "\n".join(body)
     print()
     print(text)
