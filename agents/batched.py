@@ -5,8 +5,9 @@ an agent's VecEnv.
 step all ``n_envs`` training copies on the env id's native batched env (the registry's
 :func:`~cir_gym.envs.vector.native_vector_env`: every id of ``cir_gym.envs.
 BATCHED_ENVIRONMENTS`` whose batched class takes the entry's ``env_kwargs``), its physics one
-``mujoco.batch.Batch`` (JointTracking-v2: ~64 k env-steps/s for 64 copies, measured in
-results/benchmarks.md, against ~3 k for a ``DummyVecEnv`` of single envs). Each copy is the
+``mujoco.batch.Batch`` (JointTracking-v2: ~54 k env-steps per CPU second for 64 copies against
+~9 k for Gymnasium's ``SyncVectorEnv`` of single envs; PPO on the agent-ready contact variants
+~5x the env steps of a ``DummyVecEnv``: results/benchmarks.md, "## Vector env"). Each copy is the
 single env step for step (each batched env's own test), so an agent trained here is
 evaluated, shipped and loaded exactly as one trained on ``DummyVecEnv``; evaluations during
 training still run the single env.
