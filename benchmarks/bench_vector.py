@@ -431,7 +431,7 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
                 cells = f"{t_fast:.1f} | {t_seq / t_fast:.1f} | {same}"
             else:
                 t_fast = t_seq
-                why = "drive" if native_vector_env(env_id, kwargs) is None else "agent"
+                why = "not batchable" if native_vector_env(env_id, kwargs) is None else "agent"
                 cells = f"– (sequential: {why}) | 1.0 | –"
             total_now += t_fast
             total_seq += t_seq
@@ -440,7 +440,7 @@ def bench_evaluator(episodes: int, seq_episodes: int) -> tuple[list[str], float,
                 if can
                 else "agents (sequential)"
                 if name.startswith("agent:")
-                else "industrial-drive controllers (sequential)"
+                else "controllers without a batched env (sequential)"
             )
             acc = by_kind.setdefault(kind, [0.0, 0.0, 0])
             acc[0], acc[1], acc[2] = acc[0] + t_seq, acc[1] + t_fast, acc[2] + 1

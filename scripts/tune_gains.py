@@ -57,13 +57,9 @@ in the row; the report says so). Progress alone (deeper, higher return) does not
 "tuned". The leaderboard's seeds never choose: tuned gains that lose there are reported as
 they score. The training scores of both are in the row (``train_default``, ``train_tuned``).
 
-Protocol 1 (before) searched the metric with every trial below the default gains' training
-success rate at +inf, the return where the default gains failed all 3 training episodes, and
-shipped the best trial whatever it scored against the defaults: on PegInHole's sharp edge the
-default hybrid_force_position fails all 3 (it inserts 1 in 10 on the leaderboard), so the
-search ran on the return, which no trial's insertion moved, and shipped gains that inserted
-0/10. A study records its protocol (study user attributes: ``protocol``, ``train_episodes``,
-``tie_breaker``); a run refuses to resume a study of another protocol (use a fresh ``--out``).
+This is protocol 2 (CHANGELOG.md says how protocol 1 differed). A study records its protocol
+(study user attributes: ``protocol``, ``train_episodes``, ``tie_breaker``); a run refuses to
+resume a study of another protocol (use a fresh ``--out``).
 
 Bounds (documented, physical), all searched log-uniformly; Δt is the env's control period
 (``1/control_freq`` of the variant's arguments):

@@ -100,5 +100,6 @@ def test_agent_without_a_batched_env_runs_sequentially(monkeypatch):
     with pytest.raises(ValueError, match="randomize"):
         evaluate(policy, env_id, 1, SEED, batched=True, randomize=True, episode_duration=0.1)
     batches = CountBatches(monkeypatch)
-    run_job((env_id, "exact model", {"randomize": True, "episode_duration": 0.1}, agent), 1, SEED)
+    run_job((env_id, "randomized model", {"randomize": True, "episode_duration": 0.1}, agent), 1,
+            SEED)
     assert batches.calls == 0

@@ -26,4 +26,3 @@ def test_seed_table_timing_separates_the_agents_load_from_the_episodes(tmp_path:
     # the same table at 30 episodes: the load once, the episodes ten times
     estimate = lb.seed_table_cost(ENV, VARIANT, {}, 30, timings)
     assert estimate == pytest.approx(lb.SEED_LOAD_SECONDS * loads + 30 * per_episode)
-    assert estimate < 10 * spent

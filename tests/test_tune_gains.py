@@ -137,7 +137,7 @@ def test_training_episodes_follow_the_default_gains_success():
 
 def test_a_failing_peg_search_keeps_the_defaults_and_ranks_by_depth(tmp_path):
     """PegInHole cut to 0.05 s (no trial can insert): every trial is ranked by its mean
-    final_depth (10^0 failures + s(−depth)), none beats the defaults on what the leaderboard
+    final_depth (the failures' count + s(−depth)), none beats the defaults on what the leaderboard
     ranks, so the defaults are shipped as the tuned gains."""
     peg = "cir_gym/PegInHole-v2"
     row = tune_gains.tune("hybrid_force_position", peg, "sharp edge",

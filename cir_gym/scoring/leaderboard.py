@@ -165,7 +165,7 @@ SEED_TABLE_FACTOR = 1.5
 #: CPU seconds a seed table spends per training seed whatever the episodes (loading the agent,
 #: building its env): fitted on CartesianTracking's and JointTracking's tables run at 3 and 12
 #: episodes (0.7–1.2 s); kept out of the per-episode timing so a run of another --episodes is
-#: estimated right (at 3 episodes it was half of the per-episode figure)
+#: estimated right
 SEED_LOAD_SECONDS = 1.0
 TIMINGS = "timings.json"
 #: the fewest episodes per policy behind a number worth quoting (the summary says so below)

@@ -19,7 +19,8 @@
 # started one resumes from its last checkpoint (`--resume`), a run directory without a
 # checkpoint (stopped in its first 100k steps) starts over. Order: PPO seeds 0-4 (PPO takes
 # ~20x the env steps per CPU second of SAC here), then the off-policy seeds 0-4. VS_ENVS
-# picks the queues (default both envs), VS_PPO_STEPS / VS_SAC_STEPS the budgets.
+# picks the queues (default both envs); VS_PPO_STEPS (default: each env's own, ppo_budget)
+# and VS_SAC_STEPS the budgets.
 # A driver whose PID file names a live process is left alone.
 # CPU time: each training session appends "wall user sys" seconds to <run>.time in
 # $VS_RUNS/logs/ (GNU time), so the budget is stated in CPU hours as well as env steps.
@@ -28,7 +29,7 @@ cd "$(dirname "$0")/../.."
 ROOT="${VS_RUNS:-/work/main/runs/rl}"
 LOGS="$ROOT/logs"
 # the plan; the VS_* variables override it (a smoke test of this script: tiny budgets)
-PPO_STEPS="${VS_PPO_STEPS:-3000000}"
+PPO_STEPS="${VS_PPO_STEPS:-}"  # empty: each env's own budget (ppo_budget)
 SAC_STEPS="${VS_SAC_STEPS:-500000}"
 SEEDS_REST="${VS_SEEDS_REST-1 2 3 4}"
 ENVS="${VS_ENVS:-cir_gym/VisualServo-v1 cir_gym/VisualServoEyeToHand-v1}"  # one queue each
@@ -51,10 +52,17 @@ study_stage() {
     python scripts/research/optimize_vs.py best --write "$PPO_HP" >> "$LOGS/queue.log" 2>&1
 }
 
+# PPO env steps per run: eye-to-hand 1 M (its seed 0 succeeded from 0.3 M on), eye-in-hand 3 M
+ppo_budget() {  # env_id
+    if [[ -n "$PPO_STEPS" ]]; then echo "$PPO_STEPS"
+    elif [[ "$1" == *EyeToHand* ]]; then echo 1000000
+    else echo 3000000; fi
+}
+
 # one queue's runs: "env_id algo seed timesteps hyperparameter_file"
 queue_runs() {
     local env_id="$1"
-    for k in 0 $SEEDS_REST; do echo "$env_id ppo $k $PPO_STEPS $PPO_HP"; done
+    for k in 0 $SEEDS_REST; do echo "$env_id ppo $k $(ppo_budget "$env_id") $PPO_HP"; done
     for k in 0 $SEEDS_REST; do echo "$env_id sac $k $SAC_STEPS agents/hyperparams/vs/sac.yml"; done
 }
 
@@ -143,8 +151,8 @@ case "${1:-start}" in
         if alive "$pid_file"; then echo "already running (PID $(cat "$pid_file"))"; exit 0; fi
         . .venv/bin/activate
         export MUJOCO_GL="${MUJOCO_GL:-egl}" OMP_NUM_THREADS=1
-        setsid nohup nice -n 19 bash -c "$(declare -f study_stage queue_runs run_dir finished \
-            train_one run_queue driver); ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS=$PPO_STEPS \
+        setsid nohup nice -n 19 bash -c "$(declare -f study_stage ppo_budget queue_runs run_dir finished \
+            train_one run_queue driver); ROOT='$ROOT' LOGS='$LOGS' PPO_STEPS='$PPO_STEPS' \
             SAC_STEPS=$SAC_STEPS SEEDS_REST='$SEEDS_REST' PPO_HP='$PPO_HP' ENVS='$ENVS' \
             STUDY_WORKERS=$STUDY_WORKERS STUDY_TRIALS=$STUDY_TRIALS STUDY_STEPS=$STUDY_STEPS; \
             driver" > /dev/null 2>&1 &
