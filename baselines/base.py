@@ -37,6 +37,7 @@ __all__ = [
     "check_gain_type",
     "matvec",
     "rows_method",
+    "transpose",
 ]
 
 Observation = dict[str, np.ndarray]
@@ -243,6 +244,11 @@ def matvec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
     """A v (N, m) for rows of matrices (N, m, k) and vectors (N, k): one BLAS call per row,
     the same for any N (so a row's product does not depend on the others)."""
     return (A @ v[..., None])[..., 0]
+
+
+def transpose(A: np.ndarray) -> np.ndarray:
+    """Aᵀ (..., k, m) of a matrix or of rows of matrices (..., m, k) (a view)."""
+    return np.swapaxes(A, -1, -2)
 
 
 class RowDynamics:

@@ -77,11 +77,18 @@ from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw, matvec
+from cir_gym.baselines.base import (
+    Controller,
+    InvalidGain,
+    Observation,
+    RowLaw,
+    matvec,
+    transpose,
+)
 from cir_gym.baselines.interaction import Admittance, AdmittanceGains
 
 from cir_gym.context import TaskContext
-from cir_gym.ft_sensor import GRAVITY
+from cir_gym.ft_sensor import contact_wrench
 from cir_gym.operational_space import (
     dynamically_consistent_inverse,
     null_space_projector,
@@ -112,11 +119,6 @@ ALIGNED = np.diag([-1.0, 1.0, -1.0])
 
 #: The law's quantities at rows of observations (see :meth:`HybridForcePosition.frames`).
 Frames = dict[str, np.ndarray]
-
-
-def _transpose(A: np.ndarray) -> np.ndarray:
-    """Aᵀ of (rows of) matrices (..., m, k) → (..., k, m)."""
-    return np.swapaxes(A, -1, -2)
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -291,7 +293,6 @@ class HybridForcePositionGains:
         _check_positive("hybrid_force_position", **self.__dict__)
 
 
-
 class _TipController(RowLaw):
     """Shared kinematics: the peg tip of the nominal arm (flange + tool offset) in the hole frame.
 
@@ -376,7 +377,7 @@ class _TipController(RowLaw):
         J_bar = dynamically_consistent_inverse(J, B, Lambda)
         N = null_space_projector(J, J_bar)
         tau0 = g.posture_stiffness * (arm["q0"] - arm["q"]) - g.posture_damping * arm["qd"]
-        return arm["gravity"] + matvec(_transpose(J), h_world) + matvec(_transpose(N), tau0)
+        return arm["gravity"] + matvec(transpose(J), h_world) + matvec(transpose(N), tau0)
 
     @staticmethod
     def hole_frame(obs: Observation) -> tuple[np.ndarray, np.ndarray]:
@@ -386,17 +387,14 @@ class _TipController(RowLaw):
     def measured_wrench_at_tip(self, obs: Observation, arm: Frames) -> np.ndarray:
         """γ̂ (N, 6), world frame, moments about the tip: the peg's push on the environment.
 
-        :func:`cir_gym.ft_sensor.contact_wrench` with the rotation taken first: the reading w
-        rotated to the world minus the static peg's reading there, R (w − w_tool) = R w −
-        [s; (R c) × s] with s = −m g the force that holds the peg (c its centre of mass,
-        sensor frame); the moment then moved from the sensor to the tip."""
-        R, w = arm["R_tip"], obs["wrench"]
-        support = -self.tool_mass * GRAVITY
-        f = matvec(R, w[..., :3]) - support
-        mu_sensor = matvec(R, w[..., 3:]) - _cross(matvec(R, self.tool_com), support)
-        return np.concatenate(
-            (f, mu_sensor + _cross(arm["p_flange"] - arm["p_tip"], f)), axis=-1
-        )
+        :func:`cir_gym.ft_sensor.contact_wrench` of the readings w (the static peg's reading
+        removed, rotated to the world by the flange's R; moments about the sensor), the
+        moment then moved from the sensor to the tip: μ_tip = μ + (p_flange − p_tip) × f."""
+        h = contact_wrench(obs["wrench"], arm["R_tip"], tool_mass=self.tool_mass,
+                           tool_com=self.tool_com)
+        f = h[..., :3]
+        return np.concatenate((f, h[..., 3:] + _cross(arm["p_flange"] - arm["p_tip"], f)),
+                              axis=-1)
 
 
 class HybridForcePosition(_TipController):
@@ -436,14 +434,14 @@ class HybridForcePosition(_TipController):
         arm = self.tip_terms(obs, q0)
         p_h, R_h = self.hole_frame(obs)
         R6 = _block_diag2(R_h)
-        R6_T = _transpose(R6)
+        R6_T = transpose(R6)
         Lambda_world = task_inertia(arm["J"], arm["inertia"])
-        R_rel = _transpose(R_h) @ arm["R_tip"]  # the tip's orientation in the hole frame
+        R_rel = transpose(R_h) @ arm["R_tip"]  # the tip's orientation in the hole frame
         return {
             **arm,
             "R6": R6,
-            "x": matvec(_transpose(R_h), arm["p_tip"] - p_h),
-            "phi": _rotvec(ALIGNED @ _transpose(R_rel)),
+            "x": matvec(transpose(R_h), arm["p_tip"] - p_h),
+            "phi": _rotvec(ALIGNED @ transpose(R_rel)),
             "v": matvec(R6_T, matvec(arm["J"], arm["qd"])),
             "gamma": matvec(R6_T, self.measured_wrench_at_tip(obs, arm)),
             "Lambda": R6_T @ Lambda_world @ R6,
@@ -534,7 +532,6 @@ class HybridForcePosition(_TipController):
         return self.insert(self.frames(obs, fields["q0"]), fields)
 
 
-
 @dataclass(frozen=True)
 class HybridSpiralGains(HybridForcePositionGains):
     """Gains of :class:`HybridSpiral`: those of hybrid_force_position, plus
@@ -557,7 +554,6 @@ class HybridSpiralGains(HybridForcePositionGains):
     pitch: float = 0.0005
     search_speed: float = 0.005
     omega_search: float = 80.0
-
 
 
 class HybridSpiral(HybridForcePosition):
@@ -620,7 +616,6 @@ class HybridSpiral(HybridForcePosition):
         return tau
 
 
-
 @dataclass(frozen=True)
 class PositionOnlyGains:
     """Gains of :class:`PositionOnly` (hole frame, at the tip).
@@ -642,7 +637,6 @@ class PositionOnlyGains:
 
     def __post_init__(self) -> None:
         _check_positive("position_only", **self.__dict__)
-
 
 
 class PositionOnly(_TipController):
@@ -672,7 +666,7 @@ class PositionOnly(_TipController):
         fields["z_ref"] = np.maximum(fields["z_ref"] - g.speed * self.dt, goal)
         x_ref = p_h + R_h[..., :, 2] * fields["z_ref"][:, None]  # on the nominal axis
         R_ref = R_h @ ALIGNED
-        phi = _rotvec(R_ref @ _transpose(arm["R_tip"]))  # log(R̄ Rᵀ)
+        phi = _rotvec(R_ref @ transpose(arm["R_tip"]))  # log(R̄ Rᵀ)
         twist = matvec(arm["J"], arm["qd"])
         h = np.concatenate(
             (
@@ -682,7 +676,6 @@ class PositionOnly(_TipController):
             axis=-1,
         )
         return self.task_wrench_torque(arm, h)
-
 
 
 @dataclass(frozen=True)
@@ -702,7 +695,6 @@ class AdmittanceGainsPeg(AdmittanceGains):
     def __post_init__(self) -> None:
         super().__post_init__()
         _check_positive("admittance", insertion_force=self.insertion_force)
-
 
 
 class PegAdmittance(Admittance):

@@ -400,13 +400,14 @@ class WrenchSensor:
 def tool_gravity_wrench(
     mass: float, com: np.ndarray, R_ws: np.ndarray, gravity: np.ndarray = GRAVITY
 ) -> np.ndarray:
-    """The reading (6,) a static tool gives: the supporting force and torque, sensor frame.
+    """The reading a static tool gives: the supporting force and torque, sensor frame.
 
     ``f = −m R_wsᵀ g`` and ``μ = c × f`` with ``c`` (3,) the tool's centre of mass in the sensor
-    frame (m) and ``R_ws`` (3, 3) the sensor-to-world rotation.
+    frame (m) and ``R_ws`` the sensor-to-world rotation: (3, 3) gives one wrench (6,), rows of
+    rotations (..., 3, 3) a wrench each (..., 6).
     """
-    f = -mass * (R_ws.T @ np.asarray(gravity, dtype=float))
-    return np.concatenate((f, np.cross(np.asarray(com, dtype=float), f)))
+    f = -mass * (np.swapaxes(R_ws, -1, -2) @ np.asarray(gravity, dtype=float))
+    return np.concatenate((f, np.cross(np.asarray(com, dtype=float), f)), axis=-1)
 
 
 def contact_wrench(
@@ -418,14 +419,18 @@ def contact_wrench(
     bias: np.ndarray | None = None,
     gravity: np.ndarray = GRAVITY,
 ) -> np.ndarray:
-    """The wrench the tool exerts on the environment, ``h = [f; μ]`` (6,) in the WORLD frame.
+    """The wrench the tool exerts on the environment, ``h = [f; μ]`` in the WORLD frame.
 
     ``reading − bias − tool_gravity_wrench`` in the sensor frame, rotated to the world (the
     torque stays about the sensor origin). Quasi-static: the tool's inertial forces are
     neglected. ``bias`` is the controller's estimate (from re-biasing in free space), zero if
-    None.
+    None. Shapes: one reading (6,) with its rotation (3, 3) gives (6,); rows of readings
+    (..., 6) with rotations (..., 3, 3) (and biases (..., 6) or (6,)) give (..., 6), each row
+    the same numbers as alone.
     """
+    R_ws = np.asarray(R_ws, dtype=float)
     h = np.asarray(reading, dtype=float) - tool_gravity_wrench(tool_mass, tool_com, R_ws, gravity)
     if bias is not None:
         h = h - bias
-    return np.concatenate((R_ws @ h[:3], R_ws @ h[3:]))
+    return np.concatenate(((R_ws @ h[..., :3, None])[..., 0], (R_ws @ h[..., 3:, None])[..., 0]),
+                          axis=-1)
