@@ -19,14 +19,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw, matvec, rows_method
+from cir_gym.baselines.base import (
+    Controller,
+    InvalidGain,
+    Observation,
+    RowLaw,
+    matvec,
+    rows_method,
+    transpose,
+)
 
 from cir_gym.context import TaskContext
 from cir_gym.redundancy import (
     OBJECTIVES,
     LinkCapsules,
+    joint_limit_margin,
+    joint_limit_objective_gradient,
+    manipulability,
+    null_vector,
     orientation_error,
     quat_orientation_error,
+    walk_self_motions,
 )
 from cir_gym.robot import Robot
 from cir_gym.self_motion import RowKinematics, RowPoses
@@ -68,11 +81,6 @@ def _positive(name: str, value: float) -> None:
 # Every function takes one matrix (m, n) or rows of them (N, m, n) (numpy's stacked linear
 # algebra: one LAPACK call per row's matrices, so a row gives the same numbers alone or in a
 # batch); the laws run on rows (``RowLaw``), one observation being a row of one.
-def _t(A: np.ndarray) -> np.ndarray:
-    """Aᵀ of a matrix or of each of rows of matrices."""
-    return np.swapaxes(A, -1, -2)
-
-
 def pseudo_inverse(J: np.ndarray) -> np.ndarray:
     """Right pseudo-inverse J† = Jᵀ(J Jᵀ)⁻¹ (n, m) of a full-row-rank J (m, n) (or of each of
     rows (N, m, n)).
@@ -87,7 +95,7 @@ def pseudo_inverse(J: np.ndarray) -> np.ndarray:
             f"the Jacobian is singular (smallest singular value {smallest:.2e}); "
             f"use clik_dls near singular configurations"
         )
-    return _t(np.linalg.solve(J @ _t(J), J))
+    return transpose(np.linalg.solve(J @ transpose(J), J))
 
 
 def weighted_pseudo_inverse(J: np.ndarray, w_inv: np.ndarray) -> np.ndarray:
@@ -99,7 +107,7 @@ def weighted_pseudo_inverse(J: np.ndarray, w_inv: np.ndarray) -> np.ndarray:
     if smallest < SINGULAR_TOLERANCE:
         raise SingularJacobian(f"J W^-1/2 is singular (smallest singular value {smallest:.2e})")
     JW = J * w  # J W⁻¹ (m, n)
-    return _t(np.linalg.solve(JW @ _t(J), JW))
+    return transpose(np.linalg.solve(JW @ transpose(J), JW))
 
 
 def damped_pseudo_inverse(J: np.ndarray, damping: float | np.ndarray) -> np.ndarray:
@@ -110,7 +118,7 @@ def damped_pseudo_inverse(J: np.ndarray, damping: float | np.ndarray) -> np.ndar
     """
     m = J.shape[-2]
     k2 = np.asarray(damping, dtype=float)[..., None, None] ** 2
-    return _t(np.linalg.solve(J @ _t(J) + k2 * np.eye(m), J))
+    return transpose(np.linalg.solve(J @ transpose(J) + k2 * np.eye(m), J))
 
 
 def variable_damping(sigma_min: float | np.ndarray, damping: float, region: float
@@ -190,29 +198,6 @@ def null_space_projector(J: np.ndarray, J_pinv: np.ndarray) -> np.ndarray:
     return np.eye(J.shape[-1]) - J_pinv @ J
 
 
-def manipulabilities(J: np.ndarray) -> np.ndarray:
-    """Yoshikawa's w = sqrt(det(J Jᵀ)) (N,) of rows of task Jacobians (N, m, n)."""
-    return np.sqrt(np.maximum(np.linalg.det(J @ _t(J)), 0.0))
-
-
-def null_vectors(J: np.ndarray) -> np.ndarray:
-    """Unit vectors (N, n) spanning ker J of rows (N, m, n) with dim ker J = 1 (the last right
-    singular vector, :func:`cir_gym.redundancy.null_vector`)."""
-    return np.linalg.svd(J)[2][:, -1]
-
-
-def joint_limit_gradients(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """∂w/∂q (N, n) of the joint-limit objective at rows (N, n)
-    (:func:`cir_gym.redundancy.joint_limit_objective_gradient` of each row)."""
-    r = upper - lower
-    return -(q - 0.5 * (lower + upper)) / (q.shape[-1] * r * r)
-
-
-def joint_limit_margins(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """min_i min(q_i − q_im, q_iM − q_i) (N,) rad of rows (N, n)."""
-    return np.minimum((q - lower).min(axis=-1), (upper - q).min(axis=-1))
-
-
 # ---------------------------------------------------------------------- base
 class _KinematicController(RowLaw):
     """Shared task plumbing on rows: the nominal robot's kinematics at rows of q (MuJoCo's
@@ -267,9 +252,13 @@ class _KinematicController(RowLaw):
         return cached[1].evaluate(q)
 
     def task_jacobians(self, q: np.ndarray) -> np.ndarray:
-        """Geometric task Jacobians (N, m, n) at rows q (N, n): [J_P; J_O] or J_P's first two
-        rows."""
-        rows = self.kinematics(q)
+        """Geometric task Jacobians (N, m, n) at rows q (N, n) (:meth:`jacobians_of` their
+        :meth:`kinematics`)."""
+        return self.jacobians_of(self.kinematics(q))
+
+    def jacobians_of(self, rows: RowPoses) -> np.ndarray:
+        """Geometric task Jacobians (N, m, n) of evaluated kinematics: [J_P; J_O] or J_P's
+        first two rows."""
         if self.task_dim == 6:
             return np.concatenate((rows.jacp, rows.jacr), axis=1)
         return rows.jacp[:, :2]
@@ -320,7 +309,7 @@ class JacobianTranspose(_KinematicController):
 
     def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         J = self.task_jacobians(obs["q"])
-        return matvec(_t(J), self.gains.K * self.task_error(obs))
+        return matvec(transpose(J), self.gains.K * self.task_error(obs))
 
 
 # ---------------------------------------------------------------------- pseudo-inverse
@@ -395,7 +384,8 @@ class DampedLeastSquaresCLIK(CLIK):
     """CLIK with damped least squares: q̇ = J*(x̄̇ + K e), J* = Jᵀ(J Jᵀ + k² I)⁻¹, k variable.
 
     Attributes:
-        last_damping: k (m) of the last call; last_sigma_min: σ_min(J) of the last call.
+        last_damping: k (m) of the last row of the last call (of its batch; the only row
+            when one observation was predicted); last_sigma_min: σ_min(J) of that row.
     """
 
     name = "clik_dls"
@@ -532,7 +522,7 @@ class NullSpaceCLIK(CLIK):
     # ------------------------------------------------------------------ objectives
     def manipulability(self, q: np.ndarray) -> float:
         """w = sqrt(det J Jᵀ) of the nominal robot at one q (n,)."""
-        return float(manipulabilities(self.task_jacobians(np.asarray(q, dtype=float)[None]))[0])
+        return float(manipulability(self.task_jacobians(np.asarray(q, dtype=float)[None]))[0])
 
     def clearance(self, q: np.ndarray, obstacle: np.ndarray) -> float:
         """Clearance (m) of the nominal robot's capsules at one q (n,) to the observed
@@ -560,7 +550,7 @@ class NullSpaceCLIK(CLIK):
         return (values[:, 0] - values[:, 1]) / (2 * h)
 
     def _manipulabilities(self, q: np.ndarray) -> np.ndarray:
-        return manipulabilities(self.task_jacobians(q))
+        return manipulability(self.task_jacobians(q))
 
     @rows_method
     def limit_barrier(self, obs: Observation) -> np.ndarray:
@@ -587,7 +577,8 @@ class NullSpaceCLIK(CLIK):
             grad = self._central_difference(self._manipulabilities, q)
             return g.k0_manipulability * grad / np.maximum(self._manipulabilities(q), 1e-9)[:, None]
         if self.objective == "joint_limits":
-            return g.k0_joint_limits * joint_limit_gradients(q, obs["q_lower"], obs["q_upper"])
+            return g.k0_joint_limits * joint_limit_objective_gradient(
+                q, obs["q_lower"], obs["q_upper"])
         out = np.zeros(q.shape)
         obstacle = obs["obstacle"]
         near = np.flatnonzero(obstacle[:, -1] > 0)  # rows with an obstacle this episode
@@ -616,7 +607,7 @@ class NullSpaceCLIK(CLIK):
         """Arc lengths s* (N,) rad to the most manipulable posture of the self-motion through
         each row of q (N, n), and the null vectors v (N, n) whose direction is s > 0.
 
-        Each row's walk (:func:`cir_gym.redundancy.walk_self_motion`, all rows at once) holds
+        Each row's walk (:func:`cir_gym.redundancy.walk_self_motions`, all rows at once) holds
         its q's task pose (one Newton step back to it after each step) and goes on through
         postures closer than ``search_margin`` to a limit only while it moves away from that
         limit; such postures are not targets. s* = 0 when q is a target and no posture beats
@@ -624,37 +615,28 @@ class NullSpaceCLIK(CLIK):
         """
         g = self.gains
         home = self.kinematics(q)
-        J0 = self._jacobians_of(home)
-        margin0 = joint_limit_margins(q, lower, upper)
-        w_here = np.where(margin0 >= g.search_margin, manipulabilities(J0), -np.inf)
+        J0 = self.jacobians_of(home)
+        w_here = np.where(joint_limit_margin(q, lower, upper) >= g.search_margin,
+                          manipulability(J0), -np.inf)
         best, s_best = w_here.copy(), np.zeros(len(q))
-        v0 = null_vectors(J0)
-        for sign in (1.0, -1.0):
-            x, J, margin, prev = q.copy(), J0.copy(), margin0.copy(), sign * v0
-            walking = np.arange(len(q))
-            for i in range(1, int(g.search_arc / g.search_step) + 1):
-                if not walking.size:
-                    break
-                v = null_vectors(J[walking])
-                prev[walking] = np.where((v * prev[walking]).sum(axis=1)[:, None] >= 0, v, -v)
-                x_next = self._restore_pose(x[walking] + g.search_step * prev[walking],
-                                            home, walking)
-                m_next = joint_limit_margins(x_next, lower[walking], upper[walking])
-                go = ~(m_next < np.minimum(g.search_margin, margin[walking]))
-                walking, x_next, m_next = walking[go], x_next[go], m_next[go]
-                x[walking], margin[walking] = x_next, m_next
-                J[walking] = self.task_jacobians(x_next)
-                w = manipulabilities(J[walking])
-                better = (m_next >= g.search_margin) & (w > best[walking])
-                best[walking[better]] = w[better]
-                s_best[walking[better]] = sign * i * g.search_step
-        s_best[np.isfinite(w_here) & (best < (1 + SEARCH_HYSTERESIS) * w_here)] = 0.0
-        return s_best, v0
 
-    def _jacobians_of(self, rows: RowPoses) -> np.ndarray:
-        if self.task_dim == 6:
-            return np.concatenate((rows.jacp, rows.jacr), axis=1)
-        return rows.jacp[:, :2]
+        def margin(rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+            return joint_limit_margin(x, lower[rows], upper[rows])
+
+        def stop(rows: np.ndarray, x: np.ndarray, x_next: np.ndarray) -> np.ndarray:
+            """x_next within search_margin of a limit, and nearer to it than x."""
+            return margin(rows, x_next) < np.minimum(g.search_margin, margin(rows, x))
+
+        for s, rows, x, J in walk_self_motions(
+            q, self.task_jacobians, lambda x, rows: self._restore_pose(x, home, rows), stop,
+            g.search_arc, g.search_step,
+        ):
+            w = manipulability(J)
+            better = (margin(rows, x) >= g.search_margin) & (w > best[rows])
+            best[rows[better]] = w[better]
+            s_best[rows[better]] = s
+        s_best[np.isfinite(w_here) & (best < (1 + SEARCH_HYSTERESIS) * w_here)] = 0.0
+        return s_best, null_vector(J0)
 
     def _restore_pose(self, x: np.ndarray, home: RowPoses, which: np.ndarray) -> np.ndarray:
         """One Newton step x + J†(x)(k(q) − k(x)) of rows x (M, n) back to the task poses of
@@ -665,7 +647,7 @@ class NullSpaceCLIK(CLIK):
             rot = [orientation_error(R0.reshape(3, 3), R.reshape(3, 3))
                    for R0, R in zip(home.R[which], rows.R, strict=True)]
             e = np.concatenate((e, np.reshape(rot, (-1, 3))), axis=1)
-        return x + matvec(pseudo_inverse(self._jacobians_of(rows)), e)
+        return x + matvec(pseudo_inverse(self.jacobians_of(rows)), e)
 
     def preferred_velocity(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         """q̇₀ (N, n), rad/s: the objective's gradient, or the pull k_search s* v towards the
@@ -680,7 +662,7 @@ class NullSpaceCLIK(CLIK):
                 q[due], obs["q_lower"][due], obs["q_upper"][due])
             state[due, 0] = g.search_period
         state[:, 0] -= 1
-        v = null_vectors(self.task_jacobians(q))
+        v = null_vector(self.task_jacobians(q))
         # the same direction as the search's
         state[:, 2:] = np.where((v * state[:, 2:]).sum(axis=1)[:, None] >= 0, v, -v)
         qd0 = g.k_search * state[:, 1:2] * state[:, 2:] + self.limit_barrier(obs)
@@ -763,7 +745,8 @@ class ProjectedGradientCLIK(NullSpaceCLIK):
         if self.objective == "manipulability":
             return g.k0_manipulability * self._central_difference(self._manipulabilities, q)
         if self.objective == "joint_limits":
-            return g.k0_joint_limits * joint_limit_gradients(q, obs["q_lower"], obs["q_upper"])
+            return g.k0_joint_limits * joint_limit_objective_gradient(
+                q, obs["q_lower"], obs["q_upper"])
         out = np.zeros(q.shape)
         obstacle = obs["obstacle"]
         near = np.flatnonzero(obstacle[:, -1] > 0)  # rows with an obstacle
@@ -803,9 +786,10 @@ class AugmentedJacobianCLIK(CLIK):
     (the end effector's orientation, making the arm non-redundant); on the iiwa c = e₃, the
     redundant joint 3 locked. J_aug is square, so its inverse adds *algorithmic*
     singularities where J has full rank but cᵀ is a combination of J's rows (e.g. the
-    planar wrist point stretched). σ_min(J_aug) is reported in ``state[1]`` and
-    ``last_sigma_min``; below ``region`` the inverse is damped (never NaN, the task degrades)
-    and ``singular_steps`` counts such steps.
+    planar wrist point stretched). σ_min(J_aug) is reported in ``state[1]`` of each row and
+    in ``last_sigma_min`` (the last row of the last call's batch; the only row when one
+    observation was predicted); below ``region`` the inverse is damped (never NaN, the task
+    degrades) and ``singular_steps`` counts such steps (of every row).
     """
 
     name = "clik_augmented"

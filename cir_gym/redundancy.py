@@ -13,8 +13,7 @@ draws references and scores episodes, the controllers choose q̇.
 from __future__ import annotations
 
 import functools
-import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import mujoco
 import numpy as np
@@ -35,6 +34,7 @@ __all__ = [
     "point_segment_distance",
     "quat_orientation_error",
     "walk_self_motion",
+    "walk_self_motions",
     "witness_path",
 ]
 
@@ -43,13 +43,23 @@ LAP_WINDOW = 8  # neighbouring self-motion nodes a witness may move to in one sa
 
 
 # ---------------------------------------------------------------------- kinematic measures
-def manipulability(J: np.ndarray) -> float:
-    """Yoshikawa's manipulability w = sqrt(det(J Jᵀ)) of a task Jacobian J (m, n)."""
-    return math.sqrt(max(float(np.linalg.det(J @ J.T)), 0.0))
+# Stacked inputs: a Jacobian (m, n) or rows of them (..., m, n), a joint vector (n,) or rows
+# (..., n) (with the limits (n,) or rows like q); numpy's stacked linear algebra does each
+# row's matrices alone, so a row gives the same numbers alone or in a batch. A measure of one
+# J or q is a float.
+def _number(x: np.ndarray) -> float | np.ndarray:
+    """A float for a 0-d result (one J or q), else the array."""
+    return float(x) if np.ndim(x) == 0 else x
+
+
+def manipulability(J: np.ndarray) -> float | np.ndarray:
+    """Yoshikawa's manipulability w = sqrt(det(J Jᵀ)) (...) of task Jacobians J (..., m, n)."""
+    return _number(np.sqrt(np.maximum(np.linalg.det(J @ np.swapaxes(J, -1, -2)), 0.0)))
 
 
 def joint_limit_objective(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
-    """w(q) = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))², q̄ the range midpoint; in [−1/8, 0]."""
+    """w(q) = −(1/2n) Σ ((q_i − q̄_i)/(q_iM − q_im))², q̄ the range midpoint; in [−1/8, 0]
+    (one q (n,))."""
     u = (q - 0.5 * (lower + upper)) / (upper - lower)
     return float(-0.5 * (u @ u) / q.size)
 
@@ -57,20 +67,61 @@ def joint_limit_objective(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -
 def joint_limit_objective_gradient(
     q: np.ndarray, lower: np.ndarray, upper: np.ndarray
 ) -> np.ndarray:
-    """∂w/∂q (n,) of :func:`joint_limit_objective`: −(q_i − q̄_i) / (n (q_iM − q_im)²)."""
+    """∂w/∂q (..., n) of :func:`joint_limit_objective` at q (..., n):
+    −(q_i − q̄_i) / (n (q_iM − q_im)²)."""
     r = upper - lower
-    return -(q - 0.5 * (lower + upper)) / (q.size * r * r)
+    return -(q - 0.5 * (lower + upper)) / (q.shape[-1] * r * r)
 
 
-def joint_limit_margin(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
-    """min_i min(q_i − q_im, q_iM − q_i) (rad): distance to the nearest joint limit."""
-    return float(min((q - lower).min(), (upper - q).min()))
+def joint_limit_margin(
+    q: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> float | np.ndarray:
+    """min_i min(q_i − q_im, q_iM − q_i) (...) rad of q (..., n): the distance to the nearest
+    joint limit."""
+    return _number(np.minimum((q - lower).min(axis=-1), (upper - q).min(axis=-1)))
 
 
 def null_vector(J: np.ndarray) -> np.ndarray:
-    """Unit vector (n,) spanning ker J (m, n) when dim ker J = 1: the last right singular
-    vector (its sign is arbitrary)."""
-    return np.linalg.svd(J)[2][-1]
+    """Unit vectors (..., n) spanning ker J of Jacobians (..., m, n) with dim ker J = 1: the
+    last right singular vector (its sign is arbitrary)."""
+    return np.linalg.svd(J)[2][..., -1, :]
+
+
+def walk_self_motions(
+    q: np.ndarray,
+    jacobians: Callable[[np.ndarray], np.ndarray],
+    project: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    stop: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    arc: float,
+    step: float,
+) -> Iterator[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
+    """The self-motions through the rows of ``q`` (N, n), all rows at once.
+
+    Walks each way (s > 0 first) along the unit null vector v of J (:func:`null_vector`: dim
+    ker J = 1 on both robots; its sign kept continuous along the walk), taking
+    x ← project(x + step v, rows) (``project`` restores the rows' task poses, e.g. by Newton
+    steps), until ``stop(rows, x, x_next)`` (M,) or |s| would exceed ``arc`` (rad). After
+    each step yields (s, rows (M,), x (M, n), J (M, m, n)): the signed arc length s (rad),
+    the rows still walking (indices into q), their new points and ``jacobians`` there (the
+    next step's null vectors come from those J). Rows are walked alone: a row's points are
+    the same in any batch. ``jacobians``: rows (M, n) → (M, m, n); ``q`` is never yielded.
+    """
+    J0 = jacobians(q)
+    v0 = null_vector(J0)
+    for sign in (1.0, -1.0):
+        x, J, prev = q.copy(), J0.copy(), sign * v0
+        walking = np.arange(len(q))
+        for i in range(1, int(arc / step) + 1):
+            v = null_vector(J[walking])
+            prev[walking] = np.where((v * prev[walking]).sum(axis=-1)[:, None] >= 0, v, -v)
+            x_next = project(x[walking] + step * prev[walking], walking)
+            go = ~stop(walking, x[walking], x_next)
+            walking, x_next = walking[go], x_next[go]
+            if not walking.size:
+                break
+            x[walking] = x_next
+            J[walking] = J_next = jacobians(x_next)
+            yield sign * i * step, walking, x_next, J_next
 
 
 def walk_self_motion(
@@ -81,26 +132,23 @@ def walk_self_motion(
     arc: float,
     step: float,
 ) -> list[tuple[float, np.ndarray]]:
-    """Points (s, q_s) of the self-motion through ``q``: s (rad) the signed arc length.
+    """Points (s, q_s) of the self-motion through one ``q`` (n,): s (rad) the signed arc
+    length, s > 0 first, then s < 0.
 
-    Walks each way (s > 0 first) along the unit null vector v of J(q) (the last right singular
-    vector: dim ker J = 1 on both robots; its sign kept continuous along the walk), taking
-    q ← project(q + step v) (``project`` restores the task pose, e.g. by Newton steps),
-    until ``stop(q_previous, q)`` or |s| would exceed ``arc``. ``q`` itself is not included.
+    :func:`walk_self_motions` of one row: ``jacobian`` (n,) → (m, n), ``project`` (n,) → (n,)
+    and ``stop(q_previous, q) → bool`` take one configuration. ``q`` itself is not included.
     """
-    v0 = null_vector(jacobian(q))
-    points = []
-    for sign in (1.0, -1.0):
-        x, prev = q.copy(), sign * v0
-        for i in range(1, int(arc / step) + 1):
-            v = null_vector(jacobian(x))
-            prev = v if v @ prev >= 0 else -v
-            x_next = project(x + step * prev)
-            if stop(x, x_next):
-                break
-            x = x_next
-            points.append((sign * i * step, x.copy()))
-    return points
+    return [
+        (s, x[0].copy())
+        for s, _, x, _ in walk_self_motions(
+            np.asarray(q, dtype=float)[None],
+            lambda x: jacobian(x[0])[None],
+            lambda x, _: project(x[0])[None],
+            lambda _, x, x_next: np.array([bool(stop(x[0], x_next[0]))]),
+            arc,
+            step,
+        )
+    ]
 
 
 def lap_moves(
