@@ -289,15 +289,15 @@ PEG_COPIES, PEG_STEPS = 8, 800
 def _peg_phases(policy, state: np.ndarray, obs: dict[str, np.ndarray]) -> np.ndarray:
     """A label per row (N,) of the law's phase: the spiral's mode; hybrid_force_position's
     Σ (0 above the bore, 1 in it); admittance's contact latch; position_only's 0."""
-    from cir_gym.baselines.hybrid import SEARCH, _fields
+    from cir_gym.baselines.hybrid import _fields
+    from cir_gym.baselines.interaction import _CONTACT
 
     if policy.name == "hybrid_spiral":
         return _fields(state, policy.layout)["mode"].astype(int)
     if policy.name == "hybrid_force_position":
         return (obs["peg_pos"][:, 2] < -policy.gains.guard_height).astype(int)
     if policy.name == "admittance":
-        return (state[:, 7] != 0.0).astype(int)  # the interaction laws' contact latch
-    assert SEARCH == 1
+        return (state[:, _CONTACT] != 0.0).astype(int)  # the interaction laws' contact latch
     return np.zeros(len(state), dtype=int)
 
 

@@ -160,7 +160,7 @@ class _RedundantIKBatch(BatchedTaskEnv):
             return np.exp(-w / t.arm.manipulability_scale)
         if t.objective == "joint_limits":  # −8 w_jl(q) = (4/n) Σ ((q − q̄)/(q_M − q_m))²
             u = (q - 0.5 * (self.lower + self.upper)) / (self.upper - self.lower)
-            return -8.0 * (-0.5 * np.einsum("ij,ij->i", u, u) / t.n)
+            return 4.0 * np.einsum("ij,ij->i", u, u) / t.n
         return np.exp(-np.maximum(clear, 0.0) / 0.05)
 
     def _observe(self, p: np.ndarray, R: np.ndarray) -> dict[str, np.ndarray]:
