@@ -455,6 +455,8 @@ class _DivergesAt:
 DIVERGING = [
     ("cir_gym/JointTracking-v2", "pd_gravity", "rms_error",
      lambda u: u._following_error_limit**2 / u.n),  # ‖q̃‖ = L over n joints
+    ("cir_gym/ElasticJointTracking-v3", "pd_gravity", "rms_error",
+     lambda u: u._following_error_limit**2 / u.n),  # the link error, as JointTracking's
     ("cir_gym/CartesianTracking-v1", "os_pd_gravity", "position_rms",
      lambda u: u._limits[0] ** 2),
 ]
