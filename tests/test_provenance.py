@@ -1,0 +1,167 @@
+"""Provenance of the shipped agents (issue 41): each seed in ``agents/trained/`` is trained again
+by one committed command that its ``config.yml`` records as ``retrain``, on the env id it is
+listed under today, with the hyperparameters, arguments, seed and steps it was trained with;
+no agent is relabelled across env versions or carried nowhere, and no shipped run stopped short.
+
+The retrain command is run through the command line up to the point where ``agents.train``
+has written the run's ``config.yml`` (its ``_run``, the training itself, replaced), so what is
+compared with the shipped record is the configuration the trainer would train on.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from cir_gym.agents import EARLIER_VERSIONS, env_dir_name
+
+import cir_gym
+from cir_gym import agents
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAINED = agents.TRAINED_DIR
+SEED_DIRS = sorted(p.parent for p in TRAINED.rglob("config.yml"))
+#: older env folder -> the registered id its agents are listed under (``<name>@<Env-vK>``)
+CARRIED_TO = {old: new for new, olds in EARLIER_VERSIONS.items() for old in olds}
+#: recorded hyperparameters a retrain need not reproduce: ``n_timesteps`` is the entry's default
+#: budget, which ``--timesteps`` overrides; ``env_wrapper``'s effect, the observation, is
+#: compared whole (absent and ``TaskObservation`` without options give the same one)
+NOT_COMPARED = ("n_timesteps", "env_wrapper")
+
+
+def _id(seed_dir: Path) -> str:
+    return seed_dir.relative_to(TRAINED).as_posix()
+
+
+def _record(seed_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(config.yml, meta.json) of one shipped seed."""
+    config = yaml.safe_load((seed_dir / "config.yml").read_text())
+    meta = json.loads((seed_dir / "meta.json").read_text())
+    return config, meta
+
+
+def _listed_under(folder: str) -> str | None:
+    """The registered id whose agents list ``agents/trained/<folder>``: itself, or the newer
+    version that carries it (EARLIER_VERSIONS); None when no registered id lists it."""
+    if f"cir_gym/{folder}" in cir_gym.ENVIRONMENTS:
+        return f"cir_gym/{folder}"
+    return f"cir_gym/{CARRIED_TO[folder]}" if folder in CARRIED_TO else None
+
+
+def _retrain_args(seed_dir: Path) -> Any:
+    """The recorded ``retrain`` command, parsed by ``cir-gym``'s own parser."""
+    from cir_gym.cli import build_parser
+
+    config, _ = _record(seed_dir)
+    command = config.get("retrain")
+    assert isinstance(command, str), f"{_id(seed_dir)}: config.yml records no retrain command"
+    argv = shlex.split(command)
+    assert argv[:2] == ["cir-gym", "train"], command
+    return build_parser().parse_args(argv[1:])
+
+
+def _compared(hp: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in hp.items() if k not in NOT_COMPARED}
+
+
+def test_the_agents_are_found():
+    assert len(SEED_DIRS) >= 2
+    assert all((d / "model.zip").is_file() and (d / "meta.json").is_file() for d in SEED_DIRS)
+
+
+@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
+def test_an_agent_is_listed_under_a_registered_id_and_was_trained_where_it_is_filed(seed_dir):
+    """The folder is the env the agent was trained on (config.yml's env_id, and the --env of
+    the historical command where it is a ``cir-gym train`` line), and a registered id lists
+    it: no relabelled agent, none carried nowhere."""
+    folder = seed_dir.relative_to(TRAINED).parts[0]
+    config, _ = _record(seed_dir)
+    assert env_dir_name(config["env_id"]) == folder
+    argv = shlex.split(str(config.get("command") or ""))
+    if "train" in argv and "--env" in argv:
+        assert env_dir_name(argv[argv.index("--env") + 1]) == folder, config["command"]
+    assert _listed_under(folder) is not None, f"no registered id lists {folder}'s agents"
+
+
+@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
+def test_no_shipped_run_stopped_short(seed_dir):
+    config, meta = _record(seed_dir)
+    assert meta["finished"] and not meta["interrupted"], meta
+    assert meta["timesteps"] >= config["n_timesteps"], (meta["timesteps"], config["n_timesteps"])
+
+
+@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
+def test_the_retrain_command_builds_the_recorded_run(seed_dir, tmp_path, monkeypatch):
+    """``retrain`` trains on the id the agent is listed under, with the recorded seed, the
+    steps meta.json counts, a committed hyperparameter file, and builds the configuration
+    config.yml records: hyperparameters, environment arguments, residual controller, scale
+    and gains, observation layout."""
+    pytest.importorskip("stable_baselines3")
+    from cir_gym.agents import train as trainer
+
+    from cir_gym.cli import main
+
+    config, meta = _record(seed_dir)
+    folder, agent = seed_dir.relative_to(TRAINED).parts[:2]
+    args = _retrain_args(seed_dir)
+    assert args.env == _listed_under(folder) and args.env in cir_gym.ENVIRONMENTS
+    assert args.algo == config["algo"]
+    assert args.seed == config["seed"] == int(seed_dir.name.removeprefix("seed_"))
+    assert args.timesteps == meta["timesteps"]
+    assert args.name == f"{agent}/{seed_dir.name}"
+    hp_file = ROOT / args.hyperparams
+    assert hp_file.is_file() and hp_file.resolve().is_relative_to(ROOT / "agents/hyperparams")
+
+    built: dict[str, Any] = {}
+
+    def no_training(run_dir: Path, cfg: dict[str, Any], **_: Any) -> Path:
+        built.update(cfg)
+        return run_dir
+
+    monkeypatch.setattr(trainer, "_run", no_training)
+    monkeypatch.chdir(ROOT)
+    assert main([*shlex.split(config["retrain"])[1:], "--out", str(tmp_path)]) == 0
+    assert built["env_id"] == args.env
+    assert built["n_timesteps"] == meta["timesteps"]
+    assert built["seed"] == config["seed"]
+    assert built["env_kwargs"] == (config.get("env_kwargs") or {})
+    assert built["residual"] == config.get("residual")
+    assert built["observation"] == config["observation"]
+    assert _compared(built["hyperparams"]) == _compared(config["hyperparams"])
+    if built["hyperparams"].get("vec_env") == "batched":
+        from cir_gym.envs.vector import native_vector_env
+
+        assert native_vector_env(args.env, built["env_kwargs"]) is not None
+
+
+def test_the_retrain_grid_runs_every_seed_it_can_express(monkeypatch):
+    """agents/retrain.yml (``cir-gym sweep``) holds the same runs as the ``retrain`` lines:
+    every seed except those of a residual on tuned gains (a grid's training block has no key
+    for a controller's gains), and nothing else."""
+    from cir_gym.scoring.policies import split_settings
+    from cir_gym.scoring.sweep import expand, load_grid
+
+    monkeypatch.chdir(ROOT)  # the grid's hyperparams_path is relative to the repository
+    tasks = expand(load_grid(ROOT / "agents/retrain.yml"))
+    got = {
+        (t["env_id"], t["run_name"]): (t["algo"], t["residual"], t["train_seed"], t["timesteps"],
+                                       t["hyperparams_path"], t["env_kwargs"], t["hyperparams"])
+        for t in tasks
+        if t["kind"] == "train"
+    }
+    expected = {}
+    for seed_dir in SEED_DIRS:
+        config, _ = _record(seed_dir)
+        if (config.get("residual") or {}).get("controller_kwargs"):
+            continue
+        args = _retrain_args(seed_dir)
+        env_kwargs, _ = split_settings(args.env, args.residual or "", args.set or [])
+        expected[(args.env, args.name)] = (
+            args.algo, args.residual, args.seed, args.timesteps,
+            str((ROOT / args.hyperparams).resolve()), env_kwargs, {})
+    assert len(got) == len(tasks)
+    assert got == expected
