@@ -1,8 +1,10 @@
 """Peg-in-hole under hole-pose uncertainty: hybrid force/position control against position only.
 
-    python scripts/eval_peg_in_hole.py --stage main --episodes 100 --out results/peg_in_hole/
-    python scripts/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
-    python scripts/eval_peg_in_hole.py --agent agents/trained/PegInHole-v2/ppo_position \\
+    python scripts/research/eval_peg_in_hole.py --stage laws --law-episodes 30
+    python scripts/research/eval_peg_in_hole.py --stage main --episodes 100 \\
+        --out results/peg_in_hole/
+    python scripts/research/eval_peg_in_hole.py --stage sweeps --sweep-episodes 10
+    python scripts/research/eval_peg_in_hole.py --agent agents/trained/PegInHole-v2/ppo_position \\
         --agent agents/trained/PegInHole-v2/residual_ppo_hybrid_force_position \\
         --controller hybrid_force_position --episodes 100 --resume
 
@@ -14,6 +16,9 @@ baselines.hybrid.PegAdmittance) on ``--sweep-episodes`` seeds; then a 3 mm chamf
 (hybrid_force_position, position_only on ``--sweep-episodes``). ``sweeps``: success rate
 and peak force of hybrid_spiral and position_only against the clearance and against the pose
 uncertainty on ``--sweep-episodes`` seeds (figures ``vs_clearance.png``, ``vs_uncertainty.png``).
+``laws``: every law of :data:`LAWS` (the hybrid laws with and without their force loop) on
+``--law-episodes`` held-out seeds from :data:`LAW_SEED`, into ``laws.json``, ``laws.md`` and
+``contact_forces.png`` (``laws-report``: the same two from the stored ``laws.json``).
 Each stage replaces its own part of ``<out>/results.json``; ``<out>/peg_in_hole.md`` is rebuilt
 from all of it, with the wall time of every run and the CPU cost of one control step.
 """
@@ -24,6 +29,7 @@ import argparse
 import contextlib
 import fcntl
 import json
+import math
 import os
 import tempfile
 import time
@@ -376,16 +382,18 @@ def compare_laws(
     n: int, out: Path, which: list[int] | None = None, first_seed: int | None = None
 ) -> str:
     """The laws of :data:`LAWS` (or the entries ``which``) on ``n`` held-out seeds from
-    ``first_seed`` (default :data:`LAW_SEED`; through cir_gym.evaluation.evaluate); each run's
-    row is stored in ``<out>/laws.json`` as it finishes (replacing the row of the same law
-    and first seed), and ``<out>/laws.md`` and the single-contact force figure
-    ``<out>/contact_forces.png`` are rebuilt from every stored row, a law's runs on different
-    seeds joined (:func:`join_runs`); returns the markdown."""
+    ``first_seed`` (default :data:`LAW_SEED`; through cir_gym.evaluation.evaluate, one env
+    at a time); each run's row, with its wall and CPU (process) time, is stored in
+    ``<out>/laws.json`` as it finishes (replacing the row of the same law and first seed, and
+    dropping rows measured on another env version), and ``<out>/laws.md`` and the
+    single-contact force figure ``<out>/contact_forces.png`` are rebuilt from every stored
+    row, a law's runs on different seeds joined (:func:`join_runs`); returns the markdown."""
     seed = LAW_SEED if first_seed is None else first_seed
+    text = ""
     for index in which if which is not None else range(len(LAWS)):
         label, name, gains = LAWS[index]
         policy = make_policy(name, gains)
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         result = evaluate(policy, ENV_ID, n, seed=seed, batched=False)
         eps = result.episodes
         row = {
@@ -395,18 +403,21 @@ def compare_laws(
             "env_id": ENV_ID,
             "seeds": [ep.seed for ep in eps],
             "wall_time_s": time.perf_counter() - t0,
+            "cpu_time_s": time.process_time() - cpu0,
             **{key: [ep.metrics[key] for ep in eps] for key in eps[0].metrics},
             "success": [bool(ep.success) for ep in eps],
             "force_limit": [bool(ep.terminated and not ep.success and not ep.diverged)
                             for ep in eps],
         }
-        print(label, f"{np.mean(row['success']):.2f}", flush=True)
+        print(label, f"{np.mean(row['success']):.2f}", f"{row['cpu_time_s']:.0f} s CPU",
+              flush=True)
         with locked(out):
             path = out / "laws.json"
             stored = json.loads(path.read_text()) if path.exists() else []
-            runs = [r for r in stored if (r["label"], r["seeds"][0]) != (label, seed)] + [row]
-            _replace(path, json.dumps(runs, indent=1))
-            rows = join_runs(runs)
+            runs = [r for r in stored
+                    if _env_of(r) == ENV_ID and (r["label"], r["seeds"][0]) != (label, seed)]
+            _replace(path, json.dumps([*runs, row], indent=1))
+            rows = join_runs([*runs, row])
             text = laws_markdown(rows)
             _replace(out / "laws.md", text)
             contact_force_figure(rows, out / "contact_forces.png")
@@ -414,11 +425,11 @@ def compare_laws(
 
 
 def join_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per law (in :data:`LAWS`' order): its runs' per-episode lists joined in seed
-    order, wall times added."""
-    order = [entry[0] for entry in LAWS]
+    """One row per law (in :data:`LAWS`' order) from the runs measured on :data:`ENV_ID`:
+    its runs' per-episode lists joined in seed order, wall and CPU times added."""
+    runs = [r for r in runs if _env_of(r) == ENV_ID]
     rows = []
-    for label in order:
+    for label, _, _ in LAWS:
         parts = sorted((r for r in runs if r["label"] == label), key=lambda r: r["seeds"][0])
         if not parts:
             continue
@@ -426,54 +437,109 @@ def join_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for key, value in parts[0].items():
             if isinstance(value, list):
                 row[key] = [v for part in parts for v in part[key]]
-        row["wall_time_s"] = sum(part["wall_time_s"] for part in parts)
+        for key in ("wall_time_s", "cpu_time_s"):
+            row[key] = sum(part.get(key, math.nan) for part in parts)
         rows.append(row)
     return rows
 
 
+def _interval(values: Any, scale: float = 1.0, digits: int = 1) -> str:
+    """Mean [low, high] of :func:`mean_ci` as text."""
+    m, lo, hi = mean_ci(np.asarray(values, dtype=float) * scale)
+    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _percent(count: int, n: int) -> str:
+    """Percentage [low, high] of ``count`` of ``n`` (Wilson interval) as text."""
+    p, lo, hi = wilson(count, n)
+    return f"{100 * p:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+
+
 def laws_markdown(rows: list[dict[str, Any]]) -> str:
-    """laws.md: each law's success, insertion time, forces and jamming, mean [95 % CI]."""
+    """laws.md: each law's success, insertion time, forces, jamming and cost, mean [95 % CI],
+    then the hybrid laws with their force loop against the same law without it."""
     n = len(rows[0]["seeds"])
     seeds = rows[0]["seeds"]
-
-    def ci(values: Any, scale: float = 1.0, digits: int = 1) -> str:
-        m, lo, hi = mean_ci(np.asarray(values) * scale)
-        return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
-
     lines = [
-        f"# {ENV_ID.split('/')[-1]}: the laws on equal terms",
+        f"# {_env_names(rows)}: the laws on equal terms, with and without the force loop",
         "",
         f"{n} held-out seeds ({seeds[0]}-{seeds[-1]}: no gain was chosen on them), the default "
         "task (0.5 mm clearance, hole within ±2 mm and 2°, sharp edge, ATI Gamma sensor), "
         "every law at its default gains with the same knowledge (the nominal hole pose, the "
         "sensed wrench, the nominal arm and peg). `python scripts/research/eval_peg_in_hole.py "
-        f"--stage laws --law-episodes {n}` (cir_gym.evaluation.evaluate). Mean [95 % CI] "
-        "(success: Wilson interval; the rest: Student's t). Forces at physics-step resolution "
-        "(0.5 ms): the largest *single* robot-block contact force, which the 100-N limit reads, "
-        "and the largest *net* force (their vector sum, what the wrist feels).",
+        f"--stage laws --law-episodes {n}` (cir_gym.evaluation.evaluate, one env at a time). "
+        "Mean [95 % CI] (success: Wilson interval; the rest: Student's t). Forces at "
+        "physics-step resolution (0.5 ms): the largest *single* robot-block contact force, "
+        "which the 100-N limit reads, and the largest *net* force (their vector sum, what the "
+        "wrist feels). \"no force loop\": the same law with `crossover_ratio=0` (K_I = 0: the "
+        "wrist's wrench only detects the contact and the drop, the law before the force loop). "
+        "CPU: process time of the run on a shared 2-core machine.",
         "",
         "| law | success | success, single contact ≤ 50 N | force limit hit | insertion time, "
         "inserted (s) | largest single contact (N) | largest net force (N) | episodes jammed "
-        "| time jammed (s) | wall time |",
+        "| time jammed (s) | wall / CPU time |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ok = np.array(r["success"])
-        p, lo, hi = wilson(int(ok.sum()), len(ok))
-        lim = wilson(int(np.sum(r["force_limit"])), len(ok))
-        jam = wilson(int(np.sum(np.array(r["jammed_time"]) > 0)), len(ok))
         times = np.array(r["insertion_time"])[ok]
-        gentle = wilson(int(np.sum(ok & (np.array(r["peak_force"]) <= 50.0))), len(ok))
+        gentle = int(np.sum(ok & (np.array(r["peak_force"]) <= 50.0)))
+        jammed = int(np.sum(np.array(r["jammed_time"]) > 0))
         lines.append(
-            f"| {r['label']} | {100 * p:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] | "
-            f"{100 * gentle[0]:.0f} % [{100 * gentle[1]:.0f}, {100 * gentle[2]:.0f}] | "
-            f"{100 * lim[0]:.0f} % [{100 * lim[1]:.0f}, {100 * lim[2]:.0f}] | "
-            f"{ci(times, digits=2) if len(times) else '–'} ({len(times)}) | "
-            f"{ci(r['peak_force'])} | {ci(r['peak_net_force'])} | "
-            f"{100 * jam[0]:.0f} % [{100 * jam[1]:.0f}, {100 * jam[2]:.0f}] | "
-            f"{ci(r['jammed_time'], digits=2)} | {r['wall_time_s']:.0f} s |"
+            f"| {r['label']} | {_percent(int(ok.sum()), len(ok))} | {_percent(gentle, len(ok))} | "
+            f"{_percent(int(np.sum(r['force_limit'])), len(ok))} | "
+            f"{_interval(times, digits=2) if len(times) else '–'} ({len(times)}) | "
+            f"{_interval(r['peak_force'])} | {_interval(r['peak_net_force'])} | "
+            f"{_percent(jammed, len(ok))} | {_interval(r['jammed_time'], digits=2)} | "
+            f"{r['wall_time_s']:.0f} / {r.get('cpu_time_s', math.nan):.0f} s |"
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + force_loop_lines(rows)) + "\n"
+
+
+def force_loop_pairs(rows: list[dict[str, Any]]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+    """(with, without) the force loop: each law's default row and its ``crossover_ratio=0``
+    row, when both ran on the same seeds."""
+    by_label = {r["label"]: r for r in rows}
+    pairs = []
+    for label, name, gains in LAWS:
+        if gains != {"crossover_ratio": 0.0}:
+            continue
+        on = next((by_label.get(lab) for lab, nm, g in LAWS if nm == name and not g), None)
+        off = by_label.get(label)
+        if on is not None and off is not None and on["seeds"] == off["seeds"]:
+            pairs.append((on, off))
+    return pairs
+
+
+def force_loop_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The force loop's effect, seed by seed: inserted with / without it and on which seeds
+    only one did, the paired difference of the largest single contact (Student's t on the
+    per-seed differences), force-limit stops and jammed episodes."""
+    pairs = force_loop_pairs(rows)
+    if not pairs:
+        return []
+    lines = [
+        "",
+        "## What the force loop changes (the same seeds, with − without)",
+        "",
+        "| law | inserted with / without | inserted only with / only without | largest single "
+        "contact, with − without (N) | force limit hit with / without | episodes jammed "
+        "with / without |",
+        "|---|---|---|---|---|---|",
+    ]
+    for on, off in pairs:
+        ok_on, ok_off = np.array(on["success"]), np.array(off["success"])
+        n = len(ok_on)
+        diff = np.array(on["peak_force"]) - np.array(off["peak_force"])
+        jam_on = int(np.sum(np.array(on["jammed_time"]) > 0))
+        jam_off = int(np.sum(np.array(off["jammed_time"]) > 0))
+        lines.append(
+            f"| {on['controller']} | {ok_on.sum()}/{n} / {ok_off.sum()}/{n} | "
+            f"{np.sum(ok_on & ~ok_off)} / {np.sum(ok_off & ~ok_on)} | {_interval(diff)} | "
+            f"{int(np.sum(on['force_limit']))} / {int(np.sum(off['force_limit']))} | "
+            f"{jam_on} / {jam_off} |"
+        )
+    return lines
 
 
 def contact_force_figure(rows: list[dict[str, Any]], path: Path) -> None:
@@ -495,7 +561,7 @@ def contact_force_figure(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_xticks(range(len(rows)), [r["label"].split(" (")[0].replace(", ", ",\n")
                                      for r in rows], fontsize=7)
     ax.set_ylabel("peak force over the episode (N)")
-    ax.set_title(f"{ENV_ID.split('/')[-1]}: contact forces at physics-step resolution, "
+    ax.set_title(f"{_env_names(rows)}: contact forces at physics-step resolution, "
                  f"{len(rows[0]['seeds'])} held-out seeds")
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -515,8 +581,8 @@ def summarise_sweep(directory: Path) -> str:
     lines = [
         f"# {directory.name}: success and peak force per gain set",
         "",
-        f"Written by `python scripts/eval_peg_in_hole.py --summarise-sweep {directory}` from the "
-        "sweep's table (`cir-gym sweep`; the grid in `sweep.json`).",
+        "Written by `python scripts/research/eval_peg_in_hole.py --summarise-sweep "
+        f"{directory}` from the sweep's table (`cir-gym sweep`; the grid in `sweep.json`).",
         "",
         "| controller | gains | episodes (seeds) | success | success with peak ≤ 50 N "
         "| peak force median / worst (N) |",
@@ -583,8 +649,8 @@ def _markdown(results: dict[str, Any]) -> str:
         "",
         f"Seeds {SEED}, {SEED + 1}, … (seed i draws the same true hole pose for every "
         f"controller; up to {SEED + seeds - 1}); produced by "
-        "scripts/eval_peg_in_hole.py (``--stage main``). admittance is AdmittanceContact's "
-        "law through baselines.hybrid.PegAdmittance.",
+        "scripts/research/eval_peg_in_hole.py (``--stage main``). admittance is "
+        "AdmittanceContact's law through baselines.hybrid.PegAdmittance.",
         "",
         HEADER,
         *map(row, main_runs),
@@ -745,9 +811,9 @@ def agents_table(rows: list[dict[str, Any]]) -> str:
     head = [
         f"# {_env_names(rows)}: controllers and trained agents on the same seeds",
         "",
-        "Written by `python scripts/eval_peg_in_hole.py --agent DIR ... --controller NAME ...` "
-        "from `agents.json`. Default task (0.5 mm clearance, hole pose ±2 mm / ±2°, sharp "
-        "edge, 100 N force limit, 12 s); seed i draws the same true hole pose for every row. "
+        "Written by `python scripts/research/eval_peg_in_hole.py --agent DIR ... --controller "
+        "NAME ...` from `agents.json`. Default task (0.5 mm clearance, hole pose ±2 mm / ±2°, "
+        "sharp edge, 100 N force limit, 12 s); seed i draws the same true hole pose for every row. "
         "Each agent acts through the interface it was trained on (env arguments column).",
     ]
     return "\n".join(head + lines) + "\n"
