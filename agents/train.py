@@ -8,8 +8,10 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
 
 * ``config.yml``: env id and kwargs, algorithm, resolved hyperparameters, seed, observation
   layout, residual controller and scale, versions (torch, SB3, gymnasium, mujoco, cir_gym), and
-  ``command``: the ``cir-gym train ...`` command line that trains the same run again
-  (:func:`train_command`, rebuilt from the arguments however ``train`` was called);
+  ``retrain``: the ``cir-gym train ...`` command line that trains the same run again
+  (:func:`train_command`, rebuilt from the arguments however ``train`` was called, the
+  hyperparameter file named even when it is the default; issue 41: every shipped agent
+  records one). Runs from before it record the same line as ``command``;
 * ``model.zip`` + ``vecnormalize.pkl`` + ``normalization.npz``: the final model and its frozen
   observation statistics (``best/`` holds the same for the best evaluation);
 * ``learning_curve.csv``: timesteps, wall time, mean evaluation return, mean primary metric,
@@ -26,7 +28,8 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
   resumed step (SB3's progress counts all steps): from ``start · (1 − k / n)`` at step k of n
   down to 0.
 
-:func:`ship` copies a run's files into ``agents/trained/`` for :func:`agents.load`.
+:func:`ship` copies a run's files into ``agents/trained/`` for :func:`agents.load`, with its
+``retrain`` line.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ import yaml
 from cir_gym.agents import TRAINED_DIR, env_dir_name
 from cir_gym.agents.batched import make_batched_vec_env
 from cir_gym.agents.hyperparameters import (
+    HYPERPARAMS_DIR,
     TRAINING_KEYS,
     HyperparameterError,
     algorithm_class,
@@ -82,11 +86,16 @@ from stable_baselines3.common.vec_env import (
 
 import cir_gym
 
-__all__ = ["EnvFactory", "LearningCurveCallback", "ship", "train", "train_command"]
+__all__ = ["EnvFactory", "LearningCurveCallback", "retrain_command", "ship", "train",
+           "train_command"]
 
 EVAL_SEED = 100_000  # evaluation episodes during training: seeds EVAL_SEED, EVAL_SEED + 1, …
 SHIPPED_FILES = ("model.zip", "vecnormalize.pkl", "normalization.npz", "config.yml",
                  "learning_curve.csv", "meta.json")
+#: config.yml keys of the ``cir-gym train`` line that trains a run again: ``retrain``, and
+#: ``command``, the same line in runs from before ``retrain`` (a shipped agent's ``command``
+#: is the historical record, not always such a line)
+RETRAIN_KEYS = ("retrain", "command")
 
 
 class EnvFactory:
@@ -336,7 +345,7 @@ def train_command(
     hyperparams_path: str | Path | None = None,
 ) -> str:
     """The ``cir-gym train`` command line (shell-quoted) that runs :func:`train` with these
-    arguments: what ``config.yml`` records as ``command``. Environment arguments and the
+    arguments: what ``config.yml`` records as ``retrain``. Environment arguments and the
     residual controller's gains are both ``--set key=value`` (the command line tells them
     apart by name); the hyperparameter file and ``--out`` are relative to the working
     directory when below it."""
@@ -426,14 +435,16 @@ def train(
                              f"not {algo} on {key}")
         if timesteps is not None and int(timesteps) != config["n_timesteps"]:
             config["n_timesteps"] = int(timesteps)
-            if config.get("command"):  # the command that trains this run to its new length
-                config["command"] = _with_timesteps(config["command"], int(timesteps))
+            for k in RETRAIN_KEYS:  # the command that trains this run to its new length
+                if config.get(k):
+                    config[k] = _with_timesteps(config[k], int(timesteps))
             config_path.write_text(yaml.safe_dump(config, sort_keys=False))
     else:
         if config_path.exists():
             raise ValueError(f"{run_dir} already holds a run; pass resume=True (--resume) or "
                              f"another name (--name)")
-        hp = load_hyperparams(algo, key, residual=residual is not None, path=hyperparams_path)
+        hp_file = Path(hyperparams_path or HYPERPARAMS_DIR / f"{algo}.yml")
+        hp = load_hyperparams(algo, key, residual=residual is not None, path=hp_file)
         if residual_scale is not None:
             if residual is None:
                 raise ValueError("residual_scale needs residual=<controller>")
@@ -481,11 +492,11 @@ def train(
             "observation": layout.to_dict(),
             "primary_metric": cir_gym.ENVIRONMENTS[key][0].primary_metric,
             "versions": versions(),
-            "command": train_command(
+            "retrain": train_command(
                 key, algo, timesteps=n_timesteps, seed=int(seed), name=name, out=out,
                 residual=residual, env_kwargs=env_kwargs, n_envs=n_envs,
                 residual_scale=residual_scale, residual_gains=residual_gains,
-                hyperparams_path=hyperparams_path),
+                hyperparams_path=hp_file),
         }
         text = yaml.safe_dump(_plain(config), sort_keys=False)
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -643,14 +654,37 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
     return run_dir
 
 
+def retrain_command(config: dict[str, Any]) -> str | None:
+    """The ``cir-gym train`` line a run's ``config.yml`` records to train it again: its
+    ``retrain``, or in a run from before that key its ``command`` when that is such a line;
+    None when it records none."""
+    for key in RETRAIN_KEYS:
+        command = config.get(key)
+        if isinstance(command, str) and shlex.split(command)[:2] == ["cir-gym", "train"]:
+            return command
+    return None
+
+
 def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None = None) -> Path:
     """Copy a run's model ("final" or "best"), statistics, config, curve and meta into
     ``agents/trained/<EnvName-vN>/<name>/`` (or ``dest``); return that directory.
 
     A run named ``<name>/seed_<k>`` (``train(..., seed=k, name="ppo/seed_k")``) goes to
-    ``agents/trained/<EnvName-vN>/<name>/seed_<k>/``: one seed of a multi-seed agent."""
+    ``agents/trained/<EnvName-vN>/<name>/seed_<k>/``: one seed of a multi-seed agent. The
+    shipped ``config.yml`` records the run's ``retrain`` line (:func:`retrain_command`; an
+    older run's ``command`` is recorded as ``retrain``).
+
+    Raises:
+        ValueError: ``which`` is not "final" or "best"; the run records no ``cir-gym train``
+            line that trains it again (issue 41: no agent ships without one).
+    """
     run_dir = Path(run_dir)
     config = yaml.safe_load((run_dir / "config.yml").read_text())
+    retrain = retrain_command(config)
+    if retrain is None:
+        raise ValueError(f"{run_dir / 'config.yml'} records no 'cir-gym train' line that "
+                         f"trains the run again ('retrain'); train it with agents.train.train "
+                         f"or cir-gym train to ship it")
     name = run_dir.name
     if re.fullmatch(r"seed_\d+", name):
         name = f"{run_dir.parent.name}/{name}"
@@ -667,6 +701,9 @@ def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None =
             shutil.copy2(src / f, target / f)
     for f in ("config.yml", "learning_curve.csv", "meta.json"):
         shutil.copy2(run_dir / f, target / f)
+    if config.get("retrain") != retrain:  # a run from before 'retrain': its 'command' is it
+        config["retrain"] = retrain
+        (target / "config.yml").write_text(yaml.safe_dump(config, sort_keys=False))
     meta = json.loads((target / "meta.json").read_text())
     meta["shipped_model"] = which
     (target / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")

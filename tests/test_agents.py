@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shlex
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -786,10 +787,14 @@ def test_cli_train_2000_steps_end_to_end(tmp_path):
     assert code == 0
     meta = json.loads((run / "meta.json").read_text())
     assert meta["timesteps"] >= 6000 and meta["sessions"] == 2 and meta["finished"]
-    command = yaml.safe_load((run / "config.yml").read_text())["command"]
+    command = yaml.safe_load((run / "config.yml").read_text())["retrain"]
     assert command.startswith("cir-gym train --env cir_gym/JointTracking-v2 --algo ppo "
-                              "--timesteps 6000 --seed 0 --n-envs 2 ")
+                              "--timesteps 6000 --seed 0 --n-envs 2 --hyperparams ")
     assert command.endswith("--name ppo --set episode_duration=0.2")
+    from cir_gym.agents.hyperparameters import HYPERPARAMS_DIR
+
+    argv = shlex.split(command)  # the default hyperparameter file, named
+    assert Path(argv[argv.index("--hyperparams") + 1]).resolve() == HYPERPARAMS_DIR / "ppo.yml"
 
 
 def test_cli_train_help_lists_every_option(capsys):
@@ -805,12 +810,10 @@ def test_cli_train_help_lists_every_option(capsys):
 
 
 def test_config_records_the_command_that_trains_the_run_again(tiny_runs, tmp_path):
-    """train() called from Python records a `cir-gym train` command line (not sys.argv: a
-    `python -c` or a script path says nothing): run through the command line into another
-    folder, it trains the same run: the same configuration, the same learning curve returns
+    """train() called from Python records as `retrain` a `cir-gym train` command line (not
+    sys.argv: a `python -c` or a script path says nothing): run through the command line into
+    another folder, it trains the same run: the same configuration, the same learning curve returns
     and the same weights (PPO on CPU, one thread, the same seed: deterministic)."""
-    import shlex
-
     import torch
     from cir_gym.agents.train import train, train_command
 
@@ -821,7 +824,7 @@ def test_config_records_the_command_that_trains_the_run_again(tiny_runs, tmp_pat
                 env_kwargs={**SHORT, "payload_mass": 3.0}, hyperparams_path=tiny_runs["hp"],
                 progress_bar=False, verbose=0)
     config = yaml.safe_load((run / "config.yml").read_text())
-    argv = shlex.split(config["command"])
+    argv = shlex.split(config["retrain"])
     assert argv[:2] == ["cir-gym", "train"]
     assert "--residual-scale" in argv and "omega_n=40.0" in argv and "payload_mass=3.0" in argv
     argv[argv.index("--out") + 1] = str(tmp_path / "b")
@@ -829,7 +832,7 @@ def test_config_records_the_command_that_trains_the_run_again(tiny_runs, tmp_pat
     again = tmp_path / "b" / "JointTracking-v2" / "r"
     config_b = yaml.safe_load((again / "config.yml").read_text())
     for c in (config, config_b):
-        c.pop("command")
+        c.pop("retrain")
     assert config_b == config
     curve = [r["mean_return"] for r in csv.DictReader((run / "learning_curve.csv").open())]
     assert [r["mean_return"] for r in csv.DictReader(

@@ -73,12 +73,11 @@ def test_the_agents_are_found():
     assert all((d / "model.zip").is_file() and (d / "meta.json").is_file() for d in SEED_DIRS)
 
 
-@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
-def test_an_agent_is_listed_under_a_registered_id_and_was_trained_where_it_is_filed(seed_dir):
+def check_filed(seed_dir: Path, trained: Path = TRAINED) -> None:
     """The folder is the env the agent was trained on (config.yml's env_id, and the --env of
     the historical command where it is a ``cir-gym train`` line), and a registered id lists
     it: no relabelled agent, none carried nowhere."""
-    folder = seed_dir.relative_to(TRAINED).parts[0]
+    folder = seed_dir.relative_to(trained).parts[0]
     config, _ = _record(seed_dir)
     assert env_dir_name(config["env_id"]) == folder
     argv = shlex.split(str(config.get("command") or ""))
@@ -87,11 +86,64 @@ def test_an_agent_is_listed_under_a_registered_id_and_was_trained_where_it_is_fi
     assert _listed_under(folder) is not None, f"no registered id lists {folder}'s agents"
 
 
-@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
-def test_no_shipped_run_stopped_short(seed_dir):
+def check_finished(seed_dir: Path) -> None:
+    """The run finished its budget: not interrupted, not stopped short."""
     config, meta = _record(seed_dir)
     assert meta["finished"] and not meta["interrupted"], meta
     assert meta["timesteps"] >= config["n_timesteps"], (meta["timesteps"], config["n_timesteps"])
+
+
+def check_retrain(seed_dir: Path, out: Path, monkeypatch: pytest.MonkeyPatch,
+                  trained: Path = TRAINED) -> None:
+    """``retrain`` trains on the id the agent is listed under, with the recorded seed, a budget
+    whose last rollout ends at the steps meta.json counts, a committed hyperparameter file, and
+    builds the configuration config.yml records: hyperparameters, environment arguments,
+    residual controller, scale and gains, observation layout."""
+    from cir_gym.agents import train as trainer
+
+    from cir_gym.cli import main
+
+    config, meta = _record(seed_dir)
+    folder, agent = seed_dir.relative_to(trained).parts[:2]
+    args = _retrain_args(seed_dir)
+    assert args.env == _listed_under(folder) and args.env in cir_gym.ENVIRONMENTS
+    assert args.algo == config["algo"]
+    assert args.seed == config["seed"] == int(seed_dir.name.removeprefix("seed_"))
+    assert args.timesteps <= meta["timesteps"] < args.timesteps + _rollout(config)
+    assert args.name == f"{agent}/{seed_dir.name}"
+    hp_file = ROOT / args.hyperparams
+    assert hp_file.is_file() and hp_file.resolve().is_relative_to(ROOT / "agents/hyperparams")
+
+    built: dict[str, Any] = {}
+
+    def no_training(run_dir: Path, cfg: dict[str, Any], **_: Any) -> Path:
+        built.update(cfg)
+        return run_dir
+
+    monkeypatch.setattr(trainer, "_run", no_training)
+    monkeypatch.chdir(ROOT)
+    assert main([*shlex.split(config["retrain"])[1:], "--out", str(out)]) == 0
+    assert built["env_id"] == args.env
+    assert built["n_timesteps"] == args.timesteps
+    assert built["seed"] == config["seed"]
+    assert built["env_kwargs"] == (config.get("env_kwargs") or {})
+    assert built["residual"] == config.get("residual")
+    assert built["observation"] == config["observation"]
+    assert _compared(built["hyperparams"]) == _compared(config["hyperparams"])
+    if built["hyperparams"].get("vec_env") == "batched":
+        from cir_gym.envs.vector import native_vector_env
+
+        assert native_vector_env(args.env, built["env_kwargs"]) is not None
+
+
+@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
+def test_an_agent_is_listed_under_a_registered_id_and_was_trained_where_it_is_filed(seed_dir):
+    check_filed(seed_dir)
+
+
+@pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
+def test_no_shipped_run_stopped_short(seed_dir):
+    check_finished(seed_dir)
 
 
 #: agents whose seeds trained different numbers of steps, each with the reason it is shipped so
@@ -123,46 +175,64 @@ def test_the_seeds_of_an_agent_share_one_budget():
 
 @pytest.mark.parametrize("seed_dir", SEED_DIRS, ids=_id)
 def test_the_retrain_command_builds_the_recorded_run(seed_dir, tmp_path, monkeypatch):
-    """``retrain`` trains on the id the agent is listed under, with the recorded seed, the
-    steps meta.json counts, a committed hyperparameter file, and builds the configuration
-    config.yml records: hyperparameters, environment arguments, residual controller, scale
-    and gains, observation layout."""
+    pytest.importorskip("stable_baselines3")
+    check_retrain(seed_dir, tmp_path, monkeypatch)
+
+
+def test_a_new_run_shipped_passes_these_checks(tmp_path, monkeypatch):
+    """A run started by ``cir-gym train`` (its training replaced by what a finished run leaves:
+    a model, its curve and meta.json at the steps its last rollout ends on) and shipped by
+    ``agents.train.ship`` records a ``retrain`` line that passes every check above."""
     pytest.importorskip("stable_baselines3")
     from cir_gym.agents import train as trainer
 
     from cir_gym.cli import main
 
-    config, meta = _record(seed_dir)
-    folder, agent = seed_dir.relative_to(TRAINED).parts[:2]
-    args = _retrain_args(seed_dir)
-    assert args.env == _listed_under(folder) and args.env in cir_gym.ENVIRONMENTS
-    assert args.algo == config["algo"]
-    assert args.seed == config["seed"] == int(seed_dir.name.removeprefix("seed_"))
-    assert args.timesteps == meta["timesteps"]
-    assert args.name == f"{agent}/{seed_dir.name}"
-    hp_file = ROOT / args.hyperparams
-    assert hp_file.is_file() and hp_file.resolve().is_relative_to(ROOT / "agents/hyperparams")
-
-    built: dict[str, Any] = {}
-
-    def no_training(run_dir: Path, cfg: dict[str, Any], **_: Any) -> Path:
-        built.update(cfg)
+    def finished(run_dir: Path, cfg: dict[str, Any], **_: Any) -> Path:
+        rollouts = -(-cfg["n_timesteps"] // _rollout(cfg))  # ceil: SB3 ends on a rollout
+        (run_dir / "model.zip").write_bytes(b"weights")
+        (run_dir / "learning_curve.csv").write_text("timesteps,mean_return\n")
+        (run_dir / "meta.json").write_text(json.dumps(
+            {"timesteps": rollouts * _rollout(cfg), "finished": True, "interrupted": False}))
         return run_dir
 
-    monkeypatch.setattr(trainer, "_run", no_training)
+    monkeypatch.setattr(trainer, "_run", finished)
     monkeypatch.chdir(ROOT)
-    assert main([*shlex.split(config["retrain"])[1:], "--out", str(tmp_path)]) == 0
-    assert built["env_id"] == args.env
-    assert built["n_timesteps"] == meta["timesteps"]
-    assert built["seed"] == config["seed"]
-    assert built["env_kwargs"] == (config.get("env_kwargs") or {})
-    assert built["residual"] == config.get("residual")
-    assert built["observation"] == config["observation"]
-    assert _compared(built["hyperparams"]) == _compared(config["hyperparams"])
-    if built["hyperparams"].get("vec_env") == "batched":
-        from cir_gym.envs.vector import native_vector_env
+    argv = ["train", "--env", "cir_gym/JointTracking-v2", "--algo", "ppo", "--timesteps", "5000",
+            "--seed", "1", "--residual", "computed_torque", "--set", "payload_mass=3.0",
+            "--set", "omega_n=40.0", "--out", str(tmp_path / "runs"), "--name", "fresh/seed_1"]
+    assert main(argv) == 0
+    run = tmp_path / "runs" / "JointTracking-v2" / "fresh" / "seed_1"
+    trained = tmp_path / "trained"
+    shipped = trainer.ship(run, dest=trained / "JointTracking-v2" / "fresh" / "seed_1")
+    config, meta = _record(shipped)
+    assert config["retrain"].startswith("cir-gym train ") and "command" not in config
+    assert "--hyperparams agents/hyperparams/ppo.yml" in config["retrain"]  # the default, named
+    assert meta["timesteps"] > 5000  # 2 rollouts of 4,096 steps: the budget is not the count
+    check_filed(shipped, trained)
+    check_finished(shipped)
+    check_retrain(shipped, tmp_path / "again", monkeypatch, trained)
 
-        assert native_vector_env(args.env, built["env_kwargs"]) is not None
+
+def test_ship_refuses_a_run_without_a_retrain_line_and_takes_an_older_runs_command(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from cir_gym.agents.train import retrain_command, ship
+
+    run = tmp_path / "JointTracking-v2" / "old"
+    run.mkdir(parents=True)
+    for f in ("model.zip", "learning_curve.csv"):
+        (run / f).write_text("x")
+    (run / "meta.json").write_text(json.dumps({"timesteps": 8192}))
+    line = "cir-gym train --env cir_gym/JointTracking-v2 --algo ppo --timesteps 8192 --seed 0"
+    for command in ("python -c 'from cir_gym.agents.train import train; train(...)'", None):
+        (run / "config.yml").write_text(yaml.safe_dump({"env_id": "cir_gym/JointTracking-v2",
+                                                        "command": command}))
+        with pytest.raises(ValueError, match="retrain"):
+            ship(run, dest=tmp_path / "t")
+    (run / "config.yml").write_text(yaml.safe_dump({"env_id": "cir_gym/JointTracking-v2",
+                                                    "command": line}))
+    shipped, _ = _record(ship(run, dest=tmp_path / "t"))
+    assert shipped["retrain"] == line == retrain_command(shipped)
 
 
 def test_the_retrain_grid_runs_every_seed_it_can_express(monkeypatch):
