@@ -1,10 +1,14 @@
 """Stable-Baselines3 agents: training, residual RL, and the shipped trained models.
 
 >>> from cir_gym import agents
->>> agents.available("cir_gym/JointTracking-v2")          # doctest: +SKIP
-['ppo_100hz', 'ppo_100hz_industrial', 'ppo_batched', 'residual_ppo_computed_torque']
->>> policy = agents.load("cir_gym/JointTracking-v2", "ppo_100hz")  # doctest: +SKIP
->>> action, state = policy.predict(obs)                      # doctest: +SKIP
+>>> for name in agents.available("cir_gym/JointTracking-v2"):  # doctest: +SKIP
+...     print(name)  # trained on JointTracking-v1, listed on v2 (EARLIER_VERSIONS)
+ppo_100hz@JointTracking-v1
+ppo_100hz_industrial@JointTracking-v1
+residual_ppo_computed_torque@JointTracking-v1
+residual_ppo_tuned_computed_torque@JointTracking-v1
+>>> policy = agents.load("cir_gym/JointTracking-v2", "ppo_100hz@JointTracking-v1")  # doctest: +SKIP
+>>> action, state = policy.predict(obs)  # doctest: +SKIP
 
 Shipped agents live in ``agents/trained/<EnvName-vN>/<agent-name>/``: either one agent
 (``config.yml``, ``model.zip``, ...) or, trained over several seeds, one such directory per

@@ -1084,7 +1084,9 @@ def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
     from scripts.research.eval_residual_base import main as residual_base
 
     out = tmp_path / "r.md"
-    assert residual_base(["--seed-agent", "1", "--episodes", "1", "--out", str(out)]) == 0
+    assert residual_base(["--env", "cir_gym/AdmittanceContact-v1", "--agent",
+                          "residual_ppo_admittance", "--seed-agent", "1", "--episodes", "1",
+                          "--out", str(out)]) == 0
     rows = {r.split("|")[1].strip(): [float(c) for c in r.split("|")[2:5]]
             for r in out.read_text().splitlines()
             if r.startswith("| ") and not r.startswith("| variant")}

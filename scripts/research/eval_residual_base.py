@@ -1,7 +1,11 @@
 """A residual agent against its own base controller and against the variant's controller.
 
-    python scripts/research/eval_residual_base.py --env cir_gym/AdmittanceContact-v1 \
-        --agent residual_ppo_admittance [--seed-agent 1] [--episodes 3] [--seed 1000] [--out FILE]
+    python scripts/research/eval_residual_base.py --env cir_gym/JointTracking-v2 \
+        --agent residual_ppo_computed_torque@JointTracking-v1 [--seed-agent 1] [--episodes 3] \
+        [--seed 1000] [--out FILE]
+
+``--env`` and ``--agent`` are required: ``--agent`` is a shipped residual agent of ``--env``
+(:func:`residual_agents`; an unknown name's error lists them).
 
 A residual agent carries its base controller as :func:`agents.load` builds it, from the context
 of the env it was trained on. On every leaderboard variant of ``--env`` this scores, on the same
@@ -19,6 +23,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import yaml
 
 import cir_gym
 from cir_gym import agents, baselines
@@ -35,19 +40,34 @@ class _ZeroResidual:
         return np.zeros(self.shape, dtype=np.float32), None
 
 
+def residual_agents(env_id: str) -> list[str]:
+    """Names of the shipped agents of ``env_id`` (:func:`agents.available`) that are residual
+    agents: their config.yml records a base controller."""
+    def is_residual(name: str) -> bool:
+        config = yaml.safe_load((agents.agent_dir(env_id, name) / "config.yml").read_text())
+        return bool((config.get("residual") or {}).get("controller"))
+
+    return [n for n in agents.available(env_id) if is_residual(n)]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="cir_gym/AdmittanceContact-v1")
-    p.add_argument("--agent", default="residual_ppo_admittance")
+    p.add_argument("--env", required=True, help="a registered id, e.g. cir_gym/JointTracking-v2")
+    p.add_argument("--agent", required=True,
+                   help="a shipped residual agent of --env, e.g. "
+                        "residual_ppo_computed_torque@JointTracking-v1")
     p.add_argument("--seed-agent", type=int, default=None, help="training seed (default: first)")
     p.add_argument("--episodes", type=int, default=3)
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
     key = args.env.split(":")[-1]
+    if key not in cir_gym.ENVIRONMENTS:
+        p.error(f"--env {args.env!r} is not registered; valid: {sorted(cir_gym.ENVIRONMENTS)}")
+    if args.agent not in (names := residual_agents(key)):
+        p.error(f"--agent {args.agent!r} is not a shipped residual agent of {key}; "
+                f"its residual agents: {names or 'none'}")
     agent = agents.load(key, args.agent, seed=args.seed_agent)
-    if agent.controller is None:
-        p.error(f"{args.agent} is not a residual agent")
     base = agents.load(key, args.agent, seed=args.seed_agent)
     base.policy = _ZeroResidual(gym.make(key).action_space.shape)
     name = agent.controller.name
