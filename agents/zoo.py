@@ -136,6 +136,8 @@ def export_zoo(env_id: str, name: str, folder: str | Path, *, seed: int | None =
         ValueError: an unknown agent, one that does not run on ``env_id``, an existing
             experiment folder, or a layout rl-zoo3's wrappers cannot rebuild.
     """
+    from cir_gym.agents.train import retrain_command
+
     from cir_gym import agents
 
     key = env_id.split(":")[-1]
@@ -172,7 +174,7 @@ def export_zoo(env_id: str, name: str, folder: str | Path, *, seed: int | None =
         "cir_gym_agent": name,
         "trained_on": str(agent.config["env_id"]),
         "source": str(source),
-        "command": agent.config.get("command"),
+        "retrain": retrain_command(agent.config),
     }
     (stats / "args.yml").write_text(yaml.safe_dump(args, sort_keys=False))
     return run

@@ -59,6 +59,7 @@ def test_the_exported_agent_plays_the_episode_agents_load_plays(tmp_path: Path, 
     assert run == tmp_path / "ppo" / "cir_gym-JointTracking-v2_1"
     args = yaml.safe_load((run / zoo_env_name(ENV) / "args.yml").read_text())
     assert args["cir_gym_agent"] == name and args["env"] == ENV
+    assert args["retrain"].startswith("cir-gym train --env cir_gym/JointTracking-v2 ")
     env_kwargs = {**args["env_kwargs"], "episode_duration": 0.4}
     zoo = _zoo_episode(run, env_kwargs)
     ours = evaluate(agents.load(ENV, name), ENV, 1, SEED, **env_kwargs).episodes[0]
