@@ -1,4 +1,4 @@
-"""VisualServo(-EyeToHand)-v0 as environments: the episode's rules, misuse, pickling."""
+"""VisualServo(-EyeToHand)-v1 as environments: the episode's rules, misuse, pickling."""
 
 from __future__ import annotations
 
