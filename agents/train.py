@@ -10,8 +10,8 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
   layout, residual controller and scale, versions (torch, SB3, gymnasium, mujoco, cir_gym), and
   ``retrain``: the ``cir-gym train ...`` command line that trains the same run again
   (:func:`train_command`, rebuilt from the arguments however ``train`` was called, the
-  hyperparameter file named even when it is the default; issue 41: every shipped agent
-  records one). Runs from before it record the same line as ``command``;
+  hyperparameter file named even when it is the default; every shipped agent records
+  one). Runs from before it record the same line as ``command``;
 * ``model.zip`` + ``vecnormalize.pkl`` + ``normalization.npz``: the final model and its frozen
   observation statistics (``best/`` holds the same for the best evaluation);
 * ``learning_curve.csv``: timesteps, wall time, mean evaluation return, mean primary metric,
@@ -676,7 +676,7 @@ def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None =
 
     Raises:
         ValueError: ``which`` is not "final" or "best"; the run records no ``cir-gym train``
-            line that trains it again (issue 41: no agent ships without one).
+            line that trains it again (no agent ships without one).
     """
     run_dir = Path(run_dir)
     config = yaml.safe_load((run_dir / "config.yml").read_text())
