@@ -501,6 +501,11 @@ class ImpedanceGains(_CommonGains):
     def __post_init__(self) -> None:
         super().__post_init__()
         _positive(self, "mass", "normal_stiffness", "tangential_stiffness", "zeta")
+        if self.ramp_time != 0.0:
+            raise InvalidGain(
+                f"ramp_time must be 0 for impedance, got {self.ramp_time!r}: it has no force "
+                "reference to shape (its setpoint sink is static); the force laws take ramp_time"
+            )
 
 
 class Impedance(_Interaction):

@@ -352,6 +352,14 @@ def test_step_before_reset_or_after_the_end_raises() -> None:
         env.step(np.zeros(6))
 
 
+def test_impedance_refuses_a_ramp_it_has_no_force_reference_for() -> None:
+    """ramp_time shapes a force reference; impedance has none (its setpoint sink is static), so
+    a ramp given to it is refused by name instead of being ignored."""
+    with pytest.raises(InvalidGain, match="ramp_time must be 0 for impedance"):
+        baselines.make("impedance", ENV_ID, ramp_time=0.3)
+    assert baselines.make("impedance", ENV_ID, ramp_time=0.0).gains.ramp_time == 0.0
+
+
 def test_the_force_laws_take_f_ref_as_a_step_unless_every_one_is_given_the_ramp() -> None:
     """The course's form (default): f_r = f̄ from the first contact, for every force law.
     With ramp_time, every law tracks the same quintic from the contact force to f̄ (ends at
