@@ -280,6 +280,7 @@ PEG = "cir_gym/PegInHole-v2"
 PEG_RUNS = {
     "hybrid_force_position": {"start_height": 0.002, "chamfer": 0.001},
     "hybrid_spiral": {"start_height": 0.002},
+    "position_spiral": {"start_height": 0.002},
     "position_only": {"start_height": 0.002},
     "admittance": {"start_height": 0.002},
 }
@@ -292,7 +293,7 @@ def _peg_phases(policy, state: np.ndarray, obs: dict[str, np.ndarray]) -> np.nda
     from cir_gym.baselines.hybrid import _fields
     from cir_gym.baselines.interaction import _CONTACT
 
-    if policy.name == "hybrid_spiral":
+    if policy.name in ("hybrid_spiral", "position_spiral"):
         return _fields(state, policy.layout)["mode"].astype(int)
     if policy.name == "hybrid_force_position":
         return (obs["peg_pos"][:, 2] < -policy.gains.guard_height).astype(int)
@@ -344,7 +345,8 @@ def test_peg_in_hole_runs_reach_every_phase(peg_run) -> None:
     phase); hybrid_force_position's Σ_face and Σ in the bore; admittance's free approach and
     contact; position_only's restarts after the force limit."""
     policy, _, _, starts, phases = peg_run
-    want = {"hybrid_spiral": {0, 1, 2}, "hybrid_force_position": {0, 1}, "admittance": {0, 1},
+    want = {"hybrid_spiral": {0, 1, 2}, "position_spiral": {0, 1, 2},
+            "hybrid_force_position": {0, 1}, "admittance": {0, 1},
             "position_only": {0}}[policy.name]
     assert set(np.unique(phases)) == want
     if len(want) > 1:
