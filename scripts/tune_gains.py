@@ -145,6 +145,7 @@ SEARCHED: dict[str, tuple[str, ...]] = {
     "parallel_force_position": ("crossover", "proportional"),
     "hybrid_force_position": ("omega_n", "zeta", "crossover_ratio", "d_f", "speed"),
     "hybrid_spiral": ("omega_n", "zeta", "crossover_ratio", "d_f", "speed"),
+    "position_spiral": ("omega_n", "zeta", "d_f", "speed"),
     "position_only": ("k_p", "k_d", "speed"),
     "adaptive": ("lam", "kd", "gamma"),
 }
