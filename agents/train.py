@@ -29,7 +29,8 @@ A run directory ``<out>/<EnvName-vN>/<name>/`` receives:
   down to 0.
 
 :func:`ship` copies a run's files into ``agents/trained/`` for :func:`agents.load`, with its
-``retrain`` line.
+``retrain`` line: its final model, its best evaluation, or a checkpoint chosen by a stated
+rule (recorded as ``selection``, with the command that chooses it again from a retrained run).
 """
 
 from __future__ import annotations
@@ -200,11 +201,19 @@ def write_curve_row(path: Path, primary: str, row: dict[str, Any]) -> None:
 def save_normalization(vecnorm: VecNormalize | None, directory: Path) -> None:
     """``vecnormalize.pkl`` (SB3) and ``normalization.npz`` (plain arrays, loaded safely)."""
     directory.mkdir(parents=True, exist_ok=True)
+    if vecnorm is not None:
+        vecnorm.save(str(directory / "vecnormalize.pkl"))
+    write_normalization(vecnorm, directory)
+
+
+def write_normalization(vecnorm: VecNormalize | None, directory: Path) -> None:
+    """``normalization.npz``: VecNormalize's observation statistics as plain arrays (mean and
+    variance, shape (n_obs,); clip and epsilon), what :func:`agents.load` reads without
+    unpickling; ``norm_obs`` False (empty arrays) for a run without normalisation."""
     if vecnorm is None:
         np.savez(directory / "normalization.npz", norm_obs=False, obs_mean=np.zeros(0),
                  obs_var=np.zeros(0), clip_obs=np.inf, epsilon=0.0)
         return
-    vecnorm.save(str(directory / "vecnormalize.pkl"))
     np.savez(directory / "normalization.npz", norm_obs=bool(vecnorm.norm_obs),
              obs_mean=vecnorm.obs_rms.mean, obs_var=vecnorm.obs_rms.var,
              clip_obs=float(vecnorm.clip_obs), epsilon=float(vecnorm.epsilon))
@@ -665,8 +674,64 @@ def retrain_command(config: dict[str, Any]) -> str | None:
     return None
 
 
-def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None = None) -> Path:
-    """Copy a run's model ("final" or "best"), statistics, config, curve and meta into
+#: models :func:`ship` copies: the final model, SB3's best evaluation (``best/``), or a saved
+#: checkpoint (``checkpoints/model_<N>_steps.zip``) chosen by a stated rule
+SHIPPABLE = ("final", "best", "checkpoint")
+
+
+def _checkpoint_files(run_dir: Path, steps: int) -> tuple[Path, Path]:
+    """(model, VecNormalize statistics) of checkpoint ``steps`` of ``run_dir``; ValueError
+    naming the saved step counts when the model is not there."""
+    folder = run_dir / "checkpoints"
+    model = folder / f"model_{steps}_steps.zip"
+    if not model.is_file():
+        saved = sorted(int(m.group(1)) for f in folder.glob("model_*_steps.zip")
+                       if (m := re.fullmatch(r"model_(\d+)_steps\.zip", f.name)))
+        raise ValueError(f"steps={steps}: {run_dir} has no checkpoint {model.name}; "
+                         f"saved: {saved}")
+    return model, folder / f"model_vecnormalize_{steps}_steps.pkl"
+
+
+def _ship_checkpoint(run_dir: Path, config: dict[str, Any], steps: int, target: Path) -> None:
+    """Checkpoint ``steps`` into ``target``: its model as ``model.zip``, its VecNormalize
+    statistics as ``vecnormalize.pkl`` and, through :func:`write_normalization`,
+    ``normalization.npz`` (for a run without normalisation, ``norm_obs`` False)."""
+    import pickle
+
+    model, stats = _checkpoint_files(run_dir, steps)
+    normalizes = config["hyperparams"].get("normalize", False) is not False
+    if normalizes and not stats.is_file():
+        raise ValueError(f"steps={steps}: {run_dir} normalises observations but has no "
+                         f"{stats.name} for its checkpoint")
+    shutil.copy2(model, target / "model.zip")
+    vecnorm = None
+    if normalizes:
+        shutil.copy2(stats, target / "vecnormalize.pkl")
+        with stats.open("rb") as f:
+            vecnorm = pickle.load(f)  # this run's own checkpoint (as resume reads it): trusted
+    write_normalization(vecnorm, target)
+
+
+def _check_ship_arguments(which: str, steps: int | None, selection: dict[str, Any] | None
+                          ) -> None:
+    if which not in SHIPPABLE:
+        raise ValueError(f"which must be one of {list(SHIPPABLE)}, got {which!r}")
+    if which == "checkpoint":
+        if not isinstance(steps, int) or isinstance(steps, bool) or steps <= 0:
+            raise ValueError(f"which='checkpoint' needs steps=<N>, the step count of "
+                             f"checkpoints/model_<N>_steps.zip (a positive int), got {steps!r}")
+        if not isinstance(selection, dict) or not {"command", "rule"} <= set(selection):
+            raise ValueError("which='checkpoint' needs selection={'command': <the line that "
+                             "chooses it again>, 'rule': <how it was chosen>, ...}: a "
+                             f"checkpoint ships with why it was chosen, got {selection!r}")
+    elif steps is not None:
+        raise ValueError(f"steps is for which='checkpoint' only, got steps={steps!r} with "
+                         f"which={which!r}")
+
+
+def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None = None,
+         steps: int | None = None, selection: dict[str, Any] | None = None) -> Path:
+    """Copy a run's model, statistics, config, curve and meta into
     ``agents/trained/<EnvName-vN>/<name>/`` (or ``dest``); return that directory.
 
     A run named ``<name>/seed_<k>`` (``train(..., seed=k, name="ppo/seed_k")``) goes to
@@ -674,11 +739,29 @@ def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None =
     shipped ``config.yml`` records the run's ``retrain`` line (:func:`retrain_command`; an
     older run's ``command`` is recorded as ``retrain``).
 
+    Args:
+        run_dir: a run directory of :func:`train`.
+        which: "final" (``model.zip``), "best" (``best/best_model.zip``) or "checkpoint"
+            (``checkpoints/model_<steps>_steps.zip`` with the VecNormalize statistics saved
+            beside it, written as ``vecnormalize.pkl`` and ``normalization.npz``).
+        dest: the agent directory to write (default: under ``agents/trained/``).
+        steps: the checkpoint's step count (``which="checkpoint"`` only).
+        selection: how the model was chosen, recorded as ``config.yml``'s ``selection``
+            (with ``model`` and, for a checkpoint, ``steps``): at least ``command``, the line
+            that chooses it again from the retrained run's saved models, and ``rule``; e.g.
+            the validation seeds and the chosen model's scores. Needed for a checkpoint.
+
+    The shipped ``meta.json`` is the run's (its ``timesteps`` are the whole run's, which the
+    ``retrain`` line trains again) with ``shipped_model`` and, for a checkpoint,
+    ``shipped_steps``.
+
     Raises:
-        ValueError: ``which`` is not "final" or "best"; the run records no ``cir-gym train``
-            line that trains it again (no agent ships without one).
+        ValueError: ``which`` is not one of :data:`SHIPPABLE`; a checkpoint without
+            ``steps`` or ``selection``, or one the run did not save; the run records no
+            ``cir-gym train`` line that trains it again (no agent ships without one).
     """
     run_dir = Path(run_dir)
+    _check_ship_arguments(which, steps, selection)
     config = yaml.safe_load((run_dir / "config.yml").read_text())
     retrain = retrain_command(config)
     if retrain is None:
@@ -690,21 +773,29 @@ def ship(run_dir: str | Path, *, which: str = "final", dest: str | Path | None =
         name = f"{run_dir.parent.name}/{name}"
     target = Path(dest) if dest is not None else \
         TRAINED_DIR / env_dir_name(config["env_id"]) / name
-    if which not in ("final", "best"):
-        raise ValueError(f"which must be 'final' or 'best', got {which!r}")
-    src = run_dir if which == "final" else run_dir / "best"
+    if which == "checkpoint":
+        _checkpoint_files(run_dir, steps)  # refused before anything is written
     target.mkdir(parents=True, exist_ok=True)
-    model = src / ("model.zip" if which == "final" else "best_model.zip")
-    shutil.copy2(model, target / "model.zip")
-    for f in ("vecnormalize.pkl", "normalization.npz"):
-        if (src / f).exists():
-            shutil.copy2(src / f, target / f)
+    if which == "checkpoint":
+        _ship_checkpoint(run_dir, config, steps, target)
+    else:
+        src = run_dir if which == "final" else run_dir / "best"
+        model = src / ("model.zip" if which == "final" else "best_model.zip")
+        shutil.copy2(model, target / "model.zip")
+        for f in ("vecnormalize.pkl", "normalization.npz"):
+            if (src / f).exists():
+                shutil.copy2(src / f, target / f)
     for f in ("config.yml", "learning_curve.csv", "meta.json"):
         shutil.copy2(run_dir / f, target / f)
-    if config.get("retrain") != retrain:  # a run from before 'retrain': its 'command' is it
-        config["retrain"] = retrain
+    if config.get("retrain") != retrain or selection is not None:
+        config["retrain"] = retrain  # a run from before 'retrain': its 'command' is it
+        if selection is not None:
+            shipped = {"model": which, **({"steps": steps} if which == "checkpoint" else {})}
+            config["selection"] = _plain({**selection, **shipped})
         (target / "config.yml").write_text(yaml.safe_dump(config, sort_keys=False))
     meta = json.loads((target / "meta.json").read_text())
     meta["shipped_model"] = which
+    if which == "checkpoint":
+        meta["shipped_steps"] = steps
     (target / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
     return target
