@@ -22,6 +22,7 @@ from cir_gym.baselines.hybrid import HYBRID_CONTROLLERS, TASK_ADAPTERS
 from cir_gym.baselines.interaction import INTERACTION_CONTROLLERS
 from cir_gym.baselines.kinematic import KINEMATIC_CONTROLLERS
 from cir_gym.baselines.operational_space import OPERATIONAL_SPACE_CONTROLLERS
+from cir_gym.baselines.setpoint import SETPOINT_CONTROLLERS
 from cir_gym.baselines.visual_servo import VISUAL_SERVO_CONTROLLERS
 
 import cir_gym  # noqa: F401  (registers the environments)
@@ -52,6 +53,7 @@ CONTROLLERS: dict[str, type[Controller]] = {
         *INTERACTION_CONTROLLERS,
         *VISUAL_SERVO_CONTROLLERS,
         *HYBRID_CONTROLLERS,
+        *SETPOINT_CONTROLLERS,
     )
 }
 
