@@ -7,7 +7,12 @@ class's ``primary_metric`` otherwise). Every (variant, policy) pair runs on the 
 pool of worker processes (one per core); the tables in ``<out>/leaderboard.md`` rank by success
 rate, then by the variant's primary metric (:func:`cir_gym.evaluation.rank`), a PNG per
 variant is written beside them and ``<out>/index.html`` (:mod:`cir_gym.scoring.page`) shows
-it all with a video per variant. Every variant also runs the hold-still policy
+it all with a video per variant. A task's tables hold every interface that plays it: the
+policies of an agent-ready variant (``cir_gym/PegInHoleImpedance-v0`` plays
+``cir_gym/PegInHole-v2``, :func:`cir_gym.scoring.policies.task_id`) run on the task's
+variants with the same kwargs and seeds, and their rows are labelled with the interface
+(``impedance_insertion [PegInHoleImpedance-v0]``, :func:`row_key`). Every variant also runs
+the hold-still policy
 (:func:`cir_gym.scoring.normalized.hold_still_policy`) on the same seeds: with the best
 controller it anchors each policy's normalized score on the variant's primary metric (0 = hold
 still, 1 = the best controller; :mod:`cir_gym.score_scale`), a column of every table, and the
@@ -19,6 +24,7 @@ estimate. ``cir-gym leaderboard`` writes into ``runs/leaderboard/`` (untracked) 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing
 import os
@@ -74,10 +80,12 @@ def jobs_for(
     tuned it for exactly the variant's arguments, at those gains (``tuned:<controller>``,
     :func:`cir_gym.scoring.policies.tuned_gains`); a shipped agent (with the ``train`` extra)
     only on the variants of the task it was trained for (:func:`agents.trained_for`:
-    RedundantIK's objective); every installed plugin policy (``plugin:<name>``) that applies."""
-    from cir_gym.scoring.policies import has_tuned_gains, policy_names, trained_for
+    RedundantIK's objective); every installed plugin policy (``plugin:<name>``) that applies.
+    The variants are those of the task ``env_id`` plays (an agent-ready variant's task,
+    :func:`cir_gym.scoring.policies.task_id`): its rows go into the task's tables."""
+    from cir_gym.scoring.policies import has_tuned_gains, policy_names, task_id, trained_for
 
-    cls = cir_gym.ENVIRONMENTS[env_id][0]
+    cls = cir_gym.ENVIRONMENTS[task_id(env_id)][0]
     variants = getattr(cls, "leaderboard_variants", {"default": {}})
     return [
         (env_id, v, {**kw, **(overrides or {})}, p)
@@ -86,6 +94,16 @@ def jobs_for(
         if trained_for(env_id, p, {**kw, **(overrides or {})})
         and has_tuned_gains(env_id, p, {**kw, **(overrides or {})})
     ]
+
+
+def row_key(job: tuple[str, str, dict[str, Any], str]) -> tuple[str, str, str]:
+    """Where a job's result goes: (the id of the task whose table it is a row of, variant,
+    the row's label), :func:`cir_gym.scoring.policies.task_id` and
+    :func:`~cir_gym.scoring.policies.row_label`."""
+    from cir_gym.scoring.policies import row_label, task_id
+
+    env_id, variant, _, policy = job
+    return task_id(env_id), variant, row_label(env_id, policy)
 
 
 def anchor_job(env_id: str, variant: str,
@@ -97,9 +115,10 @@ def anchor_job(env_id: str, variant: str,
 def run_job(
     job: tuple[str, str, dict[str, Any], str], episodes: int, seed: int
 ) -> tuple[tuple[str, str, str], EvaluationResult, float]:
-    """One (environment, variant, policy) of the leaderboard: its episodes, ranked on the
-    variant's primary metric, and the CPU time (s) it took (its process's: the time it takes
-    one free core, whatever else the machine runs). The policy :data:`HOLD_STILL` is the
+    """One (environment, variant, policy) of the leaderboard: its :func:`row_key`, its
+    episodes (labelled with the row's label), ranked on the variant's primary metric, and the
+    CPU time (s) it took (its process's: the time it takes one free core, whatever else the
+    machine runs). The policy :data:`HOLD_STILL` is the
     variant's hold-still policy (:func:`anchor_job`). The episodes run batched where
     :func:`cir_gym.evaluation.evaluate` batches by itself (a course controller: bit for bit)
     and, for a shipped agent on :data:`AGENT_BATCH_IDS`, where the env allows it (to float
@@ -107,6 +126,7 @@ def run_job(
     from cir_gym.scoring.policies import make_policy
 
     env_id, variant, env_kwargs, policy_name = job
+    key = row_key(job)
     t0 = time.process_time()
     if policy_name == HOLD_STILL:
         env = gym.make(env_id, **env_kwargs)
@@ -116,26 +136,28 @@ def run_job(
         policy = make_policy(env_id, policy_name, env_kwargs, {})
     at_once = (policy_name.startswith("agent:") and env_id in AGENT_BATCH_IDS
                and batchable(policy, env_id, **env_kwargs))
-    result = evaluate(policy, env_id, episodes, seed, policy_name=policy_name,
+    result = evaluate(policy, env_id, episodes, seed, policy_name=key[2],
                       batched=True if at_once else None, **env_kwargs)
-    result = result.ranked_on(variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant))
-    return (env_id, variant, policy_name), result, time.process_time() - t0
+    result = result.ranked_on(variant_primary_metric(cir_gym.ENVIRONMENTS[key[0]][0], variant))
+    return key, result, time.process_time() - t0
 
 
 def run_seed_table(
     env_id: str, variant: str, env_kwargs: dict[str, Any], episodes: int, seed: int
 ) -> tuple[tuple[str, str], list[Any], float]:
-    """One variant's multi-seed agents evaluated over all their seeds
+    """One variant's multi-seed agents of ``env_id`` evaluated over all their seeds
     (:func:`agents.report.seed_reports` on the variant's primary metric, batched on
     :data:`AGENT_BATCH_IDS`; their table is written once the variant's anchors are known,
     :func:`agents.report.seed_markdown`) and the CPU time (s) it took."""
     from cir_gym.agents.report import seed_reports
+    from cir_gym.scoring.policies import row_label, task_id
 
     t0 = time.process_time()
     names = _multi_seed_agents(env_id, env_kwargs)
-    metric = variant_primary_metric(cir_gym.ENVIRONMENTS[env_id][0], variant)
+    metric = variant_primary_metric(cir_gym.ENVIRONMENTS[task_id(env_id)][0], variant)
     reports = seed_reports(env_id, env_kwargs, episodes=episodes, seed=seed, names=names,
                            metric=metric, batched=env_id in AGENT_BATCH_IDS) if names else []
+    reports = [dataclasses.replace(r, name=row_label(env_id, r.name)) for r in reports]
     return (env_id, variant), reports, time.process_time() - t0
 
 
@@ -316,7 +338,9 @@ def run_leaderboard(
     Args:
         out: the output folder (created).
         episodes: episodes per (variant, policy), seeds ``seed`` … ``seed + episodes - 1``.
-        envs: environment ids (default: every registered one).
+        envs: environment ids (default: every registered one); each names its task's tables,
+            which hold every interface that plays the task
+            (:func:`cir_gym.scoring.policies.interface_ids`).
         workers: processes (default: one per core).
         env_overrides: added to every environment's kwargs (e.g. a short
             ``episode_duration`` for tests).
@@ -335,9 +359,13 @@ def run_leaderboard(
         )
         figures = figures and "matplotlib" not in missing
         videos = videos and "PIL" not in missing
-    # an environment with no policy to score (an agent-ready variant before an agent ships)
-    # has no table
-    jobs_of = {e: jobs_for(e, env_overrides) for e in envs or list(cir_gym.ENVIRONMENTS)}
+    from cir_gym.scoring.policies import interface_ids, task_id
+
+    # one table per task, with the rows of every interface that plays it (an id given names
+    # its task's tables); a task with no policy to score has none
+    tasks = dict.fromkeys(task_id(e) for e in envs or list(cir_gym.ENVIRONMENTS))
+    jobs_of = {t: [j for e in interface_ids(t) for j in jobs_for(e, env_overrides)]
+               for t in tasks}
     env_ids = [e for e, env_jobs in jobs_of.items() if env_jobs]
     variants = [
         (e, v, {**kw, **(env_overrides or {})})
@@ -347,7 +375,8 @@ def run_leaderboard(
     ]
     # each variant's hold-still run (the normalized score's 0) on the same seeds
     jobs = [j for e in env_ids for j in jobs_of[e]] + [anchor_job(*v) for v in variants]
-    seed_jobs = [(e, v, kw) for e, v, kw in variants if _multi_seed_agents(e, kw)]
+    seed_jobs = [(i, v, kw) for e, v, kw in variants for i in interface_ids(e)
+                 if _multi_seed_agents(i, kw)]
     workers = max(1, workers or min(len(jobs), os.cpu_count() or 1))
     timings = _load_timings(out)
 
@@ -417,7 +446,10 @@ def run_leaderboard(
         "policy). Ranked by success rate, then by each variant's primary metric (mean over "
         "episodes; the environment's, or the variant's own, e.g. the manipulability of "
         "RedundantIK's manipulability variant); *worst* is the worst episode, CVaR20% the mean "
-        "of the worst 20 %. *score*: the " + SCORE_MEANING + " (every variant's hold-still "
+        "of the worst 20 %. A task's tables also rank the policies of the ids that play it at "
+        "another interface, labelled `<policy> [<id>]` (an agent-ready variant's 20-Hz "
+        "setpoint of an impedance loop: the same variants, env arguments, seeds, metrics and "
+        "success). *score*: the " + SCORE_MEANING + " (every variant's hold-still "
         "policy runs on the same seeds; a log scale where the two are a decade or more apart: "
         f"cir_gym/score_scale.py; the anchors are in {ANCHORS_FILE}). Episodes run batched "
         "where a native batched env exists: a course controller's equal the one-by-one "
@@ -449,10 +481,11 @@ def run_leaderboard(
             lines += [f"### {variant} ({setting})", "", ranked_table(rows, a), ""]
             if rows:
                 lines += [anchor_line(a, no_score.get((env_id, variant), "")), ""]
-            if seed_tables.get((env_id, variant)):
+            reports = [r for i in interface_ids(env_id) for r in seed_tables.get((i, variant), [])]
+            if reports:
                 from cir_gym.agents.report import seed_markdown
 
-                seed_md[(env_id, variant)] = seed_markdown(seed_tables[(env_id, variant)], a)
+                seed_md[(env_id, variant)] = seed_markdown(reports, a)
                 lines += [seed_md[(env_id, variant)], ""]
             if figures and rows:
                 from cir_gym.scoring.plotting import plot_comparison
@@ -598,8 +631,9 @@ def _save_timings(out: Path, timings: dict[str, Any], jobs: list[Any],
     ``loads[(env, variant)]`` agents left out) into ``out/timings.json``: the next run's
     estimate (:func:`job_cost`, :func:`seed_table_cost`)."""
     per: dict[str, list[float]] = {}
-    for env_id, variant, _, policy in jobs:
-        sec = seconds.get((env_id, variant, policy))
+    for job in jobs:
+        env_id, _, _, policy = job
+        sec = seconds.get(row_key(job))
         if sec is not None:
             kind = "agent" if policy.startswith("agent:") else "other"
             per.setdefault(f"{_name(env_id)} {policy}", []).append(

@@ -8,6 +8,16 @@ between them (:mod:`cir_gym.score_scale`: linear, or a log scale where the ancho
 or more apart; 0 at m_hold, 1 at m_best, not clipped). The leaderboard measures both anchors on
 its own seeds (:func:`variant_anchors`) and writes them to ``<out>/normalized.json``.
 
+The best controller is the best row of the variant's table that is not a trained agent
+(``agent:``) nor the hold-still policy: a course controller at course or tuned gains, a plugin
+policy, and a course controller at another interface of the task — an agent-ready variant's
+(``impedance_insertion [PegInHoleImpedance-v0]``, :mod:`cir_gym.baselines.setpoint`). Those
+are the course's strategies expressed as setpoint motion of an impedance loop, not learned,
+and the interfaces share the variant's seeds, metrics and success, so they may anchor 1: the
+score then measures an agent against the best the course does on the task, whatever the
+interface. The 0 is the task's own hold-still policy (the torque interface's PD + gravity);
+the agent-ready interface's (a zero setpoint increment) holds the same pose.
+
 "Hold still" is the policy that commands no motion on the variant's interface
 (:data:`HOLD_STILL`, keyed by ``TaskContext.action_kind``): a zero action where the action is a
 motion increment or a velocity (joint velocities, a camera twist, a Cartesian or impedance
@@ -190,8 +200,9 @@ def is_agent(result: EvaluationResult) -> bool:
 def best_controller(
     results: Iterable[EvaluationResult], metric: str | None = None
 ) -> EvaluationResult:
-    """The controller (not an ``agent:`` and not the hold-still policy) with the best mean of
-    ``metric`` (default: the results' primary metric) in the metric's direction.
+    """The controller (not an ``agent:`` and not the hold-still policy; at any interface of the
+    task: the module docstring) with the best mean of ``metric`` (default: the results' primary
+    metric) in the metric's direction.
 
     Raises:
         ValueError: no controller result with a finite mean.
@@ -251,17 +262,23 @@ def normalized_scores(
     log: bool | None = None,
 ) -> dict[str, NormalizedScore]:
     """The normalized score of every result on one leaderboard variant (the arguments of
-    :func:`variant_anchors`).
+    :func:`variant_anchors`); the results may be on any interface of the anchors' task
+    (:func:`cir_gym.scoring.policies.task_id`).
 
     Returns:
         policy name → :class:`NormalizedScore`.
     """
+    from cir_gym.scoring.policies import task_id
+
     rows = list(results)
     anchors = variant_anchors(rows, hold, best, metric, log=log)
     out = {}
     for r in rows:
-        if r.env_id != hold.env_id:
-            raise ValueError(f"{r.policy_name!r} is on {r.env_id}, the anchors on {hold.env_id}")
+        if task_id(r.env_id) != task_id(hold.env_id):
+            raise ValueError(
+                f"{r.policy_name!r} is on {r.env_id}, another task than the anchors' "
+                f"{hold.env_id}"
+            )
         value = _mean(r, anchors.metric)
         out[r.policy_name] = NormalizedScore(
             r.policy_name,

@@ -82,6 +82,35 @@ def check_env_id(env_id: str) -> str:
     return key
 
 
+def task_id(env_id: str) -> str:
+    """The id of the task ``env_id`` plays: an agent-ready variant's task (its class's
+    ``task_class`` registered under its own id: ``cir_gym/PegInHoleImpedance-v0`` →
+    ``cir_gym/PegInHole-v2``), else ``env_id`` itself. Same seeds, metrics and success: the
+    leaderboard ranks every interface of a task in the task's tables. An id that is not
+    registered is its own task."""
+    task = getattr(cir_gym.ENVIRONMENTS.get(env_id, (None,))[0], "task_class", None)
+    return next((e for e, (cls, _) in cir_gym.ENVIRONMENTS.items() if cls is task), env_id)
+
+
+def interface_ids(task: str) -> list[str]:
+    """``task`` and the ids that play it at another interface (:func:`task_id`), in
+    ``cir_gym.ENVIRONMENTS``' order."""
+    return [task] + [e for e in cir_gym.ENVIRONMENTS if e != task and task_id(e) == task]
+
+
+def row_label(env_id: str, policy: str) -> str:
+    """A policy's row in its task's tables: ``policy`` on the task's own id, ``policy
+    [<Interface-vN>]`` on another interface (``impedance_insertion [PegInHoleImpedance-v0]``).
+    The prefixes of :data:`PREFIXES` stay in front (an agent's row is still ``agent:…``)."""
+    return policy if task_id(env_id) == env_id else f"{policy} [{env_id.split('/')[-1]}]"
+
+
+def policy_of_row(label: str) -> str:
+    """The policy name of a row label (:func:`row_label` undone; the interface's id is the
+    result's ``env_id``)."""
+    return label.split(" [", 1)[0]
+
+
 def module_missing(name: str) -> bool:
     """Whether top-level module ``name`` cannot be imported, looked up without importing it
     (torch takes seconds)."""
