@@ -351,3 +351,24 @@ def test_leaderboard_from_a_sweep_ranks_its_episodes_as_the_evaluator_scores_the
     page = (tmp_path / "page" / "index.html").read_text()
     assert all(f'src="{f}"' in page for f in figures) and page.count("<table") == 3
     assert cir_gym.ENVIRONMENTS[env_id][0].primary_metric == "rms_error"
+
+
+def test_a_video_plays_each_row_on_its_own_interface(monkeypatch, tmp_path: Path):
+    """A variant's video shows its best rows side by side; a row of another interface
+    (``impedance_insertion [PegInHoleImpedance-v0]``) is played on that interface's id by its
+    policy name, and captioned with the row's label."""
+    import cir_gym.scoring.page as page
+
+    played, captions = [], []
+    monkeypatch.setattr(page, "episode_frames",
+                        lambda env_id, policy, kwargs, seed: played.append((env_id, policy)) or [])
+    monkeypatch.setattr(page, "labelled", lambda frames, label: captions.append(label) or frames)
+    monkeypatch.setattr(page, "side_by_side", lambda *clips: [])
+    monkeypatch.setattr(page, "save_gif", lambda frames, path, fps: None)
+    label = "impedance_insertion [PegInHoleImpedance-v0]"
+    shown = [("cir_gym/PegInHole-v2", "hybrid_spiral", "hybrid_spiral"),
+             ("cir_gym/PegInHoleImpedance-v0", "impedance_insertion", label)]
+    assert page.make_video((shown, {"chamfer": 0.003}, 1000, str(tmp_path / "v.gif"))) == ""
+    assert played == [("cir_gym/PegInHole-v2", "hybrid_spiral"),
+                      ("cir_gym/PegInHoleImpedance-v0", "impedance_insertion")]
+    assert captions == ["hybrid_spiral", label]

@@ -35,6 +35,7 @@ import numpy as np
 import cir_gym
 from cir_gym.envs.base import make_env
 from cir_gym.evaluation import interface_env_kwargs
+from cir_gym.scoring.policies import policy_of_row
 
 #: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
 VIDEO_SIZE = 320
@@ -401,11 +402,16 @@ def save_gif(frames: list[np.ndarray], path: str | Path, fps: float, colours: in
     return path
 
 
-def make_video(job: tuple[str, dict[str, Any], list[str], int, str]) -> str:
-    """Write one variant's GIF; return "" or the error (a failed video never stops the page)."""
-    env_id, env_kwargs, policies, seed, path = job
+def make_video(job: tuple[list[tuple[str, str, str]], dict[str, Any], int, str]) -> str:
+    """Write one variant's GIF; return "" or the error (a failed video never stops the page).
+
+    ``job``: ([(env id, policy, row label), ...] side by side, env kwargs, seed, path); a row
+    of another interface (``impedance_insertion [PegInHoleImpedance-v0]``) plays on its own id.
+    """
+    shown, env_kwargs, seed, path = job
     try:
-        clips = [labelled(episode_frames(env_id, p, env_kwargs, seed), p) for p in policies]
+        clips = [labelled(episode_frames(env_id, policy, env_kwargs, seed), label)
+                 for env_id, policy, label in shown]
         frames = clips[0] if len(clips) == 1 else side_by_side(*clips)
         save_gif(frames, path, fps=VIDEO_FPS)
         return ""
@@ -608,11 +614,12 @@ def write_page(
             rows = rows_of[variant]
             ctrl = best([r for r in rows if not r.policy_name.startswith("agent:")])
             agent = best([r for r in rows if r.policy_name.startswith("agent:")])
-            shown = [r.policy_name for r in (ctrl, agent) if r is not None]
+            shown = [(r.env_id, policy_of_row(r.policy_name), r.policy_name)
+                     for r in (ctrl, agent) if r is not None]
             name = env_id.split("/")[-1]
             gif = out / "videos" / f"{name}_{slug(variant)}.gif"
             if videos and shown:
-                jobs.append((env_id, {**kwargs, **(env_overrides or {})}, shown, seed, str(gif)))
+                jobs.append((shown, {**kwargs, **(env_overrides or {})}, seed, str(gif)))
             setting = ", ".join(f"{k}={v}" for k, v in kwargs.items()) or "default arguments"
             fig = out / f"{name}_{slug(variant)}.png"
             entries.append(
@@ -634,7 +641,7 @@ def write_page(
                 messages = list(pool.map(make_video, jobs))
         else:
             messages = [make_video(j) for j in jobs]
-        errors = {j[4]: m for j, m in zip(jobs, messages, strict=True) if m}
+        errors = {j[3]: m for j, m in zip(jobs, messages, strict=True) if m}
 
     body = [
         "<h1>cir_gym leaderboard</h1>",
@@ -672,8 +679,8 @@ def write_page(
             if gif and gif not in errors:
                 sides = ("left", "right") if len(shown) == 2 else ("",)
                 who = "; ".join(
-                    f"{side + ': ' if side else ''}<code>{html.escape(s)}</code>"
-                    for side, s in zip(sides, shown, strict=False)
+                    f"{side + ': ' if side else ''}<code>{html.escape(label)}</code>"
+                    for side, (_, _, label) in zip(sides, shown, strict=False)
                 )
                 row.append(
                     f'<figure><img class="video" src="{_rel(Path(gif), out)}" alt="video '
