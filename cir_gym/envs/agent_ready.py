@@ -509,9 +509,11 @@ class PegInHoleImpedanceEnv(ImpedanceTaskEnv):
     PegInHole-v2 are scored on the same seeds by the same code.
 
     ## Reference controllers
-    None act on this interface: the course's controllers (hybrid_force_position,
-    hybrid_spiral, position_only, admittance) run on PegInHole-v2's torque interface and meet
-    the agents of this variant in one table. An action of zeros is the hold-still policy of
+    ``impedance_insertion`` and ``impedance_spiral`` (:mod:`cir_gym.baselines.setpoint`): the
+    insertion strategy of the hybrid laws as setpoint motion, f = K·Δx. The leaderboard ranks
+    every policy of this variant in PegInHole-v2's tables (labelled ``[PegInHoleImpedance-v0]``)
+    beside the torque-interface controllers (hybrid_force_position, hybrid_spiral,
+    position_spiral, position_only, admittance), on the same seeds. An action of zeros is the hold-still policy of
     the normalized score (:mod:`cir_gym.scoring.normalized`).
 
     ## Version History
@@ -710,9 +712,11 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     ``success_threshold``, contact loss below 1 %).
 
     ## Reference controllers
-    None act on this interface: the course's controllers (impedance, admittance,
-    explicit_force, implicit_force, parallel_force_position) run on AdmittanceContact-v1 and
-    meet the agents of this variant in one table. An action of zeros is the hold-still policy
+    ``impedance_setpoint`` (:mod:`cir_gym.baselines.setpoint`): impedance control with the
+    setpoint sunk by the designed equilibrium f̄ (1/K + 1/k̂). The leaderboard ranks every
+    policy of this variant in AdmittanceContact-v1's tables (labelled
+    ``[AdmittanceContactImpedance-v0]``) beside the torque-interface controllers (impedance,
+    admittance, explicit_force, implicit_force, parallel_force_position), on the same seeds. An action of zeros is the hold-still policy
     of the normalized score (:mod:`cir_gym.scoring.normalized`).
 
     ## Version History
