@@ -57,11 +57,11 @@ the axial direction), with the damping −D_F ż; the peg is held square to the 
 ``drop`` below the contact height means the tip found the hole: the controller returns to Σ
 and inserts.
 
-``position_spiral`` is hybrid_spiral without the force loop, as it was before the loop: the
-same approach, spiral and insertion with γ̄ = 0 on Σ by accommodation alone (K_I = 0) and, on
-the face, the axial push as feed-forward plus damping, h_z = −``search_force`` − D_F ż. The
-F/T reading only detects the contact (and the tip's height the drop): position control with
-a spiral search. It is kept because the force loop costs the spiral its insertions here.
+``position_spiral`` is hybrid_spiral without the force loop: the same approach, spiral and
+insertion with γ̄ = 0 on Σ by accommodation alone (K_I = 0) and, on the face, the axial push as
+feed-forward plus damping, h_z = −``search_force`` − D_F ż. The F/T reading only detects the
+contact (and the tip's height the drop): position control with a spiral search, which inserts
+where the force loop makes the spiral hit the force limit.
 
 ``position_only`` is stiff Cartesian position control of the tip down the nominal hole's axis
 (τ = g + J_tipᵀ (K_P x̃ − K_D ẋ), no force feedback, no search): the reason force control
@@ -660,7 +660,7 @@ class PositionSpiralGains(SpiralSearchGains, AccommodationGains):
 
 
 class PositionSpiral(HybridSpiral):
-    """Position control with the spiral search: hybrid_spiral as it was before its force loop.
+    """Position control with the spiral search: hybrid_spiral without its force loop.
 
     The law: hybrid_spiral's approach, search and insertion (Σ_face above the bore, Σ in it,
     Σ_search on the face; the same motion law, accommodation −D_F ẋ, tilt spring, guarded move
@@ -675,14 +675,14 @@ class PositionSpiral(HybridSpiral):
     the hole it detects from the tip's height. After the first contact the reading no longer
     enters any command: it is position control with a spiral search, not force control.
 
-    Why it exists: the force loop costs the spiral its insertions on this task (on the face
-    the peg hops harder against the loop and hits the 100-N single-contact limit). On
-    PegInHole-v2's leaderboard seeds 1000-1029 (30 episodes, default gains) it inserts 26/30
-    (87 % [70, 95]) on the sharp edge and 25/30 (83 % [66, 93]) with the 3 mm chamfer, 4 and 5
-    stopped at the limit, largest single contact 79.2 and 55.5 N mean; hybrid_spiral 9/30 and
-    10/30, 21 and 20 stopped, 116.4 and 121.7 N. On the held-out seeds 3000-3029 (sharp edge,
-    results/peg_in_hole/laws.md) this law inserts 27/30 (3 stopped), hybrid_spiral 5/30 with
-    the loop (25 stopped) and 25/30 with ``crossover_ratio=0`` (4 stopped).
+    What it measures against hybrid_spiral: with the force loop the peg hops harder on the face
+    and hits the 100-N single-contact limit. On PegInHole-v2's leaderboard seeds 1000-1029 (30
+    episodes, default gains; results/leaderboard.md) this law inserts 26/30 (87 % [70, 95]) on
+    the sharp edge and 25/30 (83 % [66, 93]) with the 3 mm chamfer, 4 and 5 stopped at the
+    limit; hybrid_spiral 9/30 and 10/30, 21 and 20 stopped. On seeds 3000-3029 (sharp edge)
+    results/peg_in_hole/laws.md gives hybrid_spiral 5/30 with the loop (25 stopped) and 25/30
+    with ``crossover_ratio=0`` (4 stopped); this law's own 27/30 there (3 stopped) is in
+    results/peg_in_hole/README.md.
 
     State: :data:`POSITION_SPIRAL_STATE` and the posture target q₀.
     """
@@ -707,8 +707,8 @@ class PositionSpiral(HybridSpiral):
 
     def search_wrench(self, f: Frames, fields: np.ndarray) -> np.ndarray:
         """hybrid_spiral's search wrench (N, 6) with its axial row replaced by the feed-forward
-        push with damping, h_z = −``search_force`` − D_F ż: force feedback against the stiff
-        face (11 kg of task inertia on a 1-ms contact, a delayed sensor) made it bounce."""
+        push with damping, h_z = −``search_force`` − D_F ż (no force feedback against the stiff
+        face: 11 kg of task inertia on a 1-ms contact with a delayed sensor bounces)."""
         h = super().search_wrench(f, fields)
         h[:, 2] = -self.gains.search_force - self.gains.d_f * f["v"][:, 2]
         return h

@@ -1,4 +1,4 @@
-"""Provenance of the shipped agents (issue 41): each seed in ``agents/trained/`` is trained again
+"""Provenance of the shipped agents: each seed in ``agents/trained/`` is trained again
 by one committed command that its ``config.yml`` records as ``retrain``, on the env id it is
 listed under today, with the hyperparameters, arguments, seed and steps it was trained with;
 no agent is relabelled across env versions or carried nowhere, and no shipped run stopped short.

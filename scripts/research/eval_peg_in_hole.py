@@ -472,7 +472,9 @@ def laws_markdown(rows: list[dict[str, Any]]) -> str:
         "physics-step resolution (0.5 ms): the largest *single* robot-block contact force, "
         "which the 100-N limit reads, and the largest *net* force (their vector sum, what the "
         "wrist feels). \"no force loop\": the same law with `crossover_ratio=0` (K_I = 0: the "
-        "wrist's wrench only detects the contact and the drop, the law before the force loop). "
+        "wrist's wrench only detects the contact and the drop; for hybrid_force_position exactly "
+        "accommodation control, for hybrid_spiral close to position_spiral, which differs in "
+        "its axial search push). "
         "CPU: process time of the run on a shared 2-core machine.",
         "",
         "| law | success | success, single contact ≤ 50 N | force limit hit | insertion time, "
