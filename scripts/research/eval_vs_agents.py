@@ -124,19 +124,20 @@ def finished_steps(run: Path) -> int | None:
 def checkpoint_agent(run: Path, root: Path, steps: int) -> Path:
     """Checkpoint ``steps`` of ``run`` as an agent directory ``<root>/snapshots/<run>/step_<N>``
     for :func:`cir_gym.agents.policy.load_agent`: the run's config, the checkpoint's model.zip
-    and its VecNormalize statistics as normalization.npz."""
+    and its VecNormalize statistics as normalization.npz
+    (:func:`cir_gym.agents.train.write_normalization`, the one writer of that file)."""
     dest = root / "snapshots" / run.relative_to(root) / f"step_{steps}"
     if not (dest / "normalization.npz").exists():
         import pickle
+
+        from cir_gym.agents.train import write_normalization
 
         dest.mkdir(parents=True, exist_ok=True)
         shutil.copy2(run / "config.yml", dest / "config.yml")
         shutil.copy2(run / "checkpoints" / f"model_{steps}_steps.zip", dest / "model.zip")
         with (run / "checkpoints" / f"model_vecnormalize_{steps}_steps.pkl").open("rb") as f:
             vn = pickle.load(f)  # our own training's checkpoint: a trusted pickle
-        np.savez(dest / "normalization.npz", norm_obs=bool(vn.norm_obs),
-                 obs_mean=vn.obs_rms.mean, obs_var=vn.obs_rms.var,
-                 clip_obs=float(vn.clip_obs), epsilon=float(vn.epsilon))
+        write_normalization(vn, dest)
     return dest
 
 
