@@ -104,10 +104,12 @@ from cir_gym.robot import ModelError, Robot, apply_model_error
 __all__ = [
     "INTERACTION_CONTROLLERS",
     "Admittance",
+    "CommonGains",
     "ExplicitForce",
     "Impedance",
     "ImplicitForce",
     "ParallelForcePosition",
+    "PositionBased",
     "sensor_crossover_limit",
 ]
 
@@ -148,7 +150,7 @@ def _positive(gains: Any, *names: str, allow_zero: tuple[str, ...] = ()) -> None
 
 
 @dataclass(frozen=True)
-class _CommonGains:
+class CommonGains:
     """Gains every interaction law shares (SI units).
 
     stiffness: the surface stiffness k̂ the law is designed for (N/m); None = the env's nominal
@@ -453,7 +455,7 @@ class _Interaction(RowLaw):
         raise NotImplementedError
 
 
-class _PositionBased(_Interaction):
+class PositionBased(_Interaction):
     """A law that outputs a depth z_c along n̂: x_c = path (in the plane) + n̂ z_c."""
 
     def depth(
@@ -479,7 +481,7 @@ class _PositionBased(_Interaction):
 
 # ---------------------------------------------------------------------- impedance
 @dataclass(frozen=True)
-class ImpedanceGains(_CommonGains):
+class ImpedanceGains(CommonGains):
     """Impedance M_d x̃̈ + D_d x̃̇ + K_d x̃ = h_e (translation), with force measurement.
 
     mass: apparent mass M_d (kg, every direction).
@@ -564,7 +566,7 @@ class Impedance(_Interaction):
 
 # ---------------------------------------------------------------------- admittance
 @dataclass(frozen=True)
-class AdmittanceGains(_CommonGains):
+class AdmittanceGains(CommonGains):
     """Admittance filter along n̂: M_d Δ̈ + D_d Δ̇ + K_d Δ = f̂ − f̄ on the depth.
 
     crossover: the force loop's crossover ω_c (rad/s), capped by the sensor's ω_s; D_d and M_d
@@ -584,7 +586,7 @@ class AdmittanceGains(_CommonGains):
         _positive(self, "stiffness_normal", allow_zero=("stiffness_normal",))
 
 
-class Admittance(_PositionBased):
+class Admittance(PositionBased):
     """Admittance control: compliant frame from the force error, stiff inner motion loop."""
 
     name = "admittance"
@@ -624,7 +626,7 @@ class Admittance(_PositionBased):
 
 # ---------------------------------------------------------------------- explicit force
 @dataclass(frozen=True)
-class ExplicitForceGains(_CommonGains):
+class ExplicitForceGains(CommonGains):
     """Explicit force control along n̂ with an integral regulator (the notes' §6.4).
 
     crossover_ratio: K_if = ω_cf = ratio · ω_n, ω_n = √(k̂/m̂) (the rule: ratio < 1).
@@ -702,7 +704,7 @@ class ExplicitForce(_Interaction):
 
 # ---------------------------------------------------------------------- implicit force
 @dataclass(frozen=True)
-class ImplicitForceGains(_CommonGains):
+class ImplicitForceGains(CommonGains):
     """Implicit force control: R_f = k_Pf + k_If/s and the compensator C(s) (the notes' §6.5).
 
     crossover: ω_cf = k_Pf (rad/s), capped at the sensor's ω_s.
@@ -718,7 +720,7 @@ class ImplicitForceGains(_CommonGains):
         _positive(self, "integral_ratio", allow_zero=("integral_ratio",))
 
 
-class ImplicitForce(_PositionBased):
+class ImplicitForce(PositionBased):
     """Implicit force control: a force loop around the position loop."""
 
     name = "implicit_force"
@@ -756,7 +758,7 @@ class ImplicitForce(_PositionBased):
 
 # ---------------------------------------------------------------------- parallel
 @dataclass(frozen=True)
-class ParallelGains(_CommonGains):
+class ParallelGains(CommonGains):
     """Parallel force/position control: x_F = −n̂ (K_F e + K_I ∫e).
 
     crossover: ω_c (rad/s) of the integral force loop, capped at ω_s: K_I = ω_c/k̂_e.
@@ -772,7 +774,7 @@ class ParallelGains(_CommonGains):
         _positive(self, "proportional", allow_zero=("proportional",))
 
 
-class ParallelForcePosition(_PositionBased):
+class ParallelForcePosition(PositionBased):
     """Parallel force/position control with force priority (Siciliano et al. §9.6.2)."""
 
     name = "parallel_force_position"

@@ -64,7 +64,7 @@ from cir_gym.baselines.base import (
     transpose,
 )
 from cir_gym.baselines.hybrid import ALIGNED
-from cir_gym.baselines.interaction import Impedance, _CommonGains, _PositionBased
+from cir_gym.baselines.interaction import CommonGains, Impedance, PositionBased
 
 from cir_gym import operational_space as osp
 from cir_gym import trajectories as traj
@@ -384,7 +384,7 @@ def _take(peg: PegFrame, rows: np.ndarray) -> PegFrame:
 
 
 @dataclass(frozen=True)
-class ImpedanceSetpointGains(_CommonGains):
+class ImpedanceSetpointGains(CommonGains):
     """Gains of :class:`ImpedanceSetpoint`: the interaction laws' shared gains (the guarded
     approach's ``approach_speed``, ``slow_height``, ``slow_speed``, ``contact_force``,
     ``ramp_time``, ``bias_time``, ``stiffness`` k̂; the torque loop's ``motion_omega``,
@@ -417,7 +417,7 @@ class ImpedanceSetpointGains(_CommonGains):
                 raise InvalidGain(f"{name} must be a finite number > 0, got {value!r}")
 
 
-class ImpedanceSetpoint(_PositionBased):
+class ImpedanceSetpoint(PositionBased):
     """The course's impedance control on the agent-ready interface (module docstring): after
     the guarded approach, the setpoint at x_d = path − n̂ f̄ (1/K_p,n + 1/k̂) in the nominal
     surface's frame, the tool's orientation the task's.
