@@ -60,6 +60,7 @@ from cir_gym.baselines.base import (
     Observation,
     RowLaw,
     SiteTerms,
+    check_gain_type,
     matvec,
     transpose,
 )
@@ -112,11 +113,17 @@ def _require_setpoint_interface(name: str, context: TaskContext) -> None:
         )
 
 
-def _check_positive(owner: str, gains: Any) -> None:
-    for name, value in dataclasses.asdict(gains).items():
-        if not (math.isfinite(value) and value > 0):
+def _check_gains(gains: Any, positive: tuple[str, ...]) -> None:
+    """InvalidGain naming the first field of ``gains`` of the wrong type (a string for a
+    number, ...: :func:`~cir_gym.baselines.base.check_gain_type`, as ``make`` checks
+    overrides) or, among ``positive``, not > 0 (None passes where the field allows it)."""
+    owner = gains.controller
+    for field in dataclasses.fields(gains):
+        value = check_gain_type(type(gains), field, getattr(gains, field.name), owner)
+        if field.name in positive and value is not None and not value > 0:
             raise InvalidGain(
-                f"gain {name!r} of {owner} must be a finite number > 0, got {value!r}"
+                f"gain {field.name!r} of controller {owner!r} must be a finite number > 0, "
+                f"got {value!r}"
             )
 
 
@@ -174,9 +181,11 @@ class ImpedanceInsertionGains:
     bore_margin: float = 0.0015
     estimation_depth: float = 0.002
     tilt_rate: float = 0.035
+    #: the controller these gains are for (named in errors)
+    controller: ClassVar[str] = "impedance_insertion"
 
     def __post_init__(self) -> None:
-        _check_positive("impedance_insertion", self)
+        _check_gains(self, tuple(f.name for f in dataclasses.fields(self)))
 
 
 class ImpedanceInsertion(RowLaw):
@@ -327,6 +336,7 @@ class ImpedanceSpiralGains(ImpedanceInsertionGains):
     pitch: float = 0.0005
     search_speed: float = 0.0075
     drop: float = 0.0005
+    controller: ClassVar[str] = "impedance_spiral"
 
 
 class ImpedanceSpiral(ImpedanceInsertion):
@@ -408,13 +418,11 @@ class ImpedanceSetpointGains(CommonGains):
     use_force_ref: bool = True
     surface_compliance: bool = True
     loop_damping_ratio: float = 1.0
+    controller: ClassVar[str] = "impedance_setpoint"
 
     def __post_init__(self) -> None:
+        _check_gains(self, ("normal_stiffness", "loop_damping_ratio"))  # types first
         super().__post_init__()
-        for name in ("normal_stiffness", "loop_damping_ratio"):
-            value = getattr(self, name)
-            if value is not None and not (math.isfinite(value) and value > 0):
-                raise InvalidGain(f"{name} must be a finite number > 0, got {value!r}")
 
 
 class ImpedanceSetpoint(PositionBased):

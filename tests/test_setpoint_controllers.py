@@ -13,6 +13,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from cir_gym.baselines import setpoint
 from cir_gym.baselines.base import InvalidGain
 
 from cir_gym import baselines
@@ -43,6 +44,22 @@ def test_the_controllers_are_the_agent_ready_ids_policies() -> None:
         baselines.make("impedance_spiral", PEG, env_kwargs={"variable_stiffness": True})
     with pytest.raises(InvalidGain, match="search_force"):
         baselines.make("impedance_spiral", PEG, search_force=-1.0)
+
+
+@pytest.mark.parametrize("gains, match", [
+    (lambda: setpoint.ImpedanceSpiralGains(search_force="2"),
+     "gain 'search_force' of controller 'impedance_spiral' must be a finite real number"),
+    (lambda: setpoint.ImpedanceSpiralGains(pitch=0.0), "gain 'pitch' .* > 0, got 0.0"),
+    (lambda: setpoint.ImpedanceInsertionGains(speed=float("nan")), "gain 'speed'"),
+    (lambda: setpoint.ImpedanceSetpointGains(normal_stiffness="1e3"),
+     "gain 'normal_stiffness' of controller 'impedance_setpoint' .* or None, got '1e3'"),
+    (lambda: setpoint.ImpedanceSetpointGains(approach_speed="2"), "gain 'approach_speed'"),
+])
+def test_gains_built_directly_refuse_a_bad_value_naming_the_gain(gains, match) -> None:
+    """A Gains built without ``make`` checks types as ``make`` does (InvalidGain, not a
+    TypeError from the range check) and the ranges."""
+    with pytest.raises(InvalidGain, match=match):
+        gains()
 
 
 def test_insertion_presses_the_face_with_the_designed_force() -> None:
