@@ -397,8 +397,9 @@ def _take(peg: PegFrame, rows: np.ndarray) -> PegFrame:
 class ImpedanceSetpointGains(CommonGains):
     """Gains of :class:`ImpedanceSetpoint`: the interaction laws' shared gains (the guarded
     approach's ``approach_speed``, ``slow_height``, ``slow_speed``, ``contact_force``,
-    ``ramp_time``, ``bias_time``, ``stiffness`` k̂; the torque loop's ``motion_omega``,
-    ``inner_omega``, ``posture_omega`` do not act on this interface), plus impedance's design:
+    ``bias_time``, ``stiffness`` k̂; the torque loop's ``motion_omega``, ``inner_omega``,
+    ``posture_omega`` do not act on this interface; ``ramp_time`` must be 0, as impedance's: the
+    law tracks no force reference, its sink is static), plus impedance's design:
 
     Attributes:
         contact_force: the measured normal force that declares the first contact (N): 1 N,
@@ -423,6 +424,12 @@ class ImpedanceSetpointGains(CommonGains):
     def __post_init__(self) -> None:
         _check_gains(self, ("normal_stiffness", "loop_damping_ratio"))  # types first
         super().__post_init__()
+        if self.ramp_time != 0.0:
+            raise InvalidGain(
+                f"ramp_time must be 0 for impedance_setpoint, got {self.ramp_time!r}: as "
+                "impedance, it has no force reference to shape (its setpoint sink is static); "
+                "the force laws take ramp_time"
+            )
 
 
 class ImpedanceSetpoint(PositionBased):
@@ -478,8 +485,8 @@ class ImpedanceSetpoint(PositionBased):
     def depth(
         self, obs: Observation, state: np.ndarray, f: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """z_c = −sink(f_r) and ż_c = 0 (N,): the setpoint's depth along n̂ from the nominal
-        surface in contact (f_r the force reference: f̄, or its ramp with ``ramp_time``)."""
+        """z_c = −sink(f̄) and ż_c = 0 (N,): the setpoint's depth along n̂ from the nominal
+        surface in contact (f̄ the force reference: ``ramp_time`` is 0)."""
         f_r = self.force_reference(obs, state)[0]
         return -self.sink(f_r), np.zeros_like(f_r)
 

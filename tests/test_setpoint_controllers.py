@@ -62,6 +62,16 @@ def test_gains_built_directly_refuse_a_bad_value_naming_the_gain(gains, match) -
         gains()
 
 
+def test_impedance_setpoint_refuses_a_force_ramp_as_impedance_does() -> None:
+    """ramp_time shapes a force reference; impedance_setpoint has none (its sink is static),
+    as interaction.Impedance, so ramp_time > 0 is refused in the same words."""
+    with pytest.raises(InvalidGain, match="ramp_time must be 0 for impedance_setpoint"):
+        baselines.make("impedance_setpoint", CONTACT, ramp_time=0.3)
+    with pytest.raises(InvalidGain, match="no force reference to shape"):
+        setpoint.ImpedanceSetpointGains(ramp_time=0.3)
+    assert baselines.make("impedance_setpoint", CONTACT, ramp_time=0).gains.ramp_time == 0.0
+
+
 def test_insertion_presses_the_face_with_the_designed_force() -> None:
     """f = K·Δx: on the sharp edge with the hole 1.4 mm off (seed 1000) the peg lands on the
     face and stays there, the setpoint Δ = f̄/K_z = 8 mm below the tip, and the wrist reads
