@@ -9,9 +9,9 @@ increments. At rest in contact the tip is a spring K_p about the setpoint, γ_e 
 controller on this interface sets the contact force by where it puts the setpoint, f = K·Δx.
 The laws here are the course's strategies at that level. They use only what the task's
 controllers know (``controller_context()``: the nominal hole or surface, the tool, the loop's
-stiffness K_p and, where the variant tells it, the surface's stiffness) and the observation
-(the tip's pose from the joint encoders, the wrist F/T reading, the setpoint's offset from the
-tip); none reads the simulator.
+stiffness K_p and damping ratio ζ and, where the variant tells it, the surface's stiffness) and
+the observation (the tip's pose from the joint encoders, the wrist F/T reading, the setpoint's
+offset from the tip); none reads the simulator.
 
 Each law outputs the increment from the current setpoint to its target, [δp; δφ] (m, rad, world
 frame); the action is that increment over the env's ``max_translation`` / ``max_rotation``,
@@ -410,19 +410,16 @@ class ImpedanceSetpointGains(CommonGains):
             (N/m); None = the env's (``impedance_stiffness`` along the nominal normal).
         use_force_ref: sink the setpoint so that the equilibrium force is f̄ (else the path).
         surface_compliance: the sink includes the surface's deflection f̄/k̂.
-        loop_damping_ratio: ζ of the env's loop (its ``damping_ratio``, which the context does
-            not carry), for the loop's damping K_d = 2ζ√(K_p diag Λ(q₀)) in the velocity lead.
     """
 
     contact_force: float = 1.0
     normal_stiffness: float | None = None
     use_force_ref: bool = True
     surface_compliance: bool = True
-    loop_damping_ratio: float = 1.0
     controller: ClassVar[str] = "impedance_setpoint"
 
     def __post_init__(self) -> None:
-        _check_gains(self, ("normal_stiffness", "loop_damping_ratio"))  # types first
+        _check_gains(self, ("normal_stiffness",))  # types first
         super().__post_init__()
         if self.ramp_time != 0.0:
             raise InvalidGain(
@@ -444,7 +441,7 @@ class ImpedanceSetpoint(PositionBased):
 
     Knowledge: the nominal surface (point, normal), the tool, the nominal arm (Λ for the
     loop's damping), the surface's stiffness where the variant tells it (else impedance's
-    worst case, 1e5 N/m: the smallest sink), the loop's K_p (context); the F/T reading for
+    worst case, 1e5 N/m: the smallest sink), the loop's K_p and ζ (context); the F/T reading for
     the first contact (re-biased in free space, as every interaction law does). State: the
     interaction laws' common state.
     """
@@ -464,15 +461,17 @@ class ImpedanceSetpoint(PositionBased):
             k_n = float(np.sum(K * self.normal * self.normal))  # n̂ᵀ diag(K_p) n̂
             self.gains = dataclasses.replace(self.gains, normal_stiffness=k_n)
         self.loop_stiffness = np.asarray(context.extras["impedance_stiffness"], dtype=float)
+        self.loop_damping_ratio = float(context.extras["impedance_damping_ratio"])
         self.velocity_lead = np.zeros(3)
 
     def design(self, q: np.ndarray) -> None:
         """The velocity lead K_p⁻¹ K_d (3,) (s) at the start posture ``q``: the env's damping
-        K_d = 2ζ√(K_p diag Λ(q₀)), Λ the nominal arm's task inertia at the tool tip."""
+        K_d = 2ζ√(K_p diag Λ(q₀)), ζ the env's (``impedance_damping_ratio`` of the context), Λ
+        the nominal arm's task inertia at the tool tip."""
         J = self.robot.jacobian(self.site, q)
         Lambda = osp.task_inertia(J, self.robot.inertia(q))
         K = self.loop_stiffness
-        K_d = critical_damping(K, np.diag(Lambda), self.gains.loop_damping_ratio)
+        K_d = critical_damping(K, np.diag(Lambda), self.loop_damping_ratio)
         self.velocity_lead = (K_d / K)[:3]
 
     def track(

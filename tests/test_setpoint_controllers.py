@@ -130,6 +130,22 @@ def test_impedance_setpoint_sink_is_impedance_s_design() -> None:
         assert policy.sink(f) == pytest.approx(f * (1 / k_loop + 1e-4), rel=1e-15)
 
 
+def test_impedance_setpoint_leads_by_the_env_s_damping() -> None:
+    """The velocity lead K_p⁻¹ K_d = 2ζ √(Λ/K_p) uses the env's ζ, which the context carries
+    (``impedance_damping_ratio``): at ζ = 0.5 it is half the lead at the default ζ = 1."""
+    leads = {}
+    for zeta in (1.0, 0.5):
+        env = gym.make(CONTACT, damping_ratio=zeta)
+        assert env.unwrapped.controller_context().extras["impedance_damping_ratio"] == zeta
+        policy = baselines.make("impedance_setpoint", CONTACT, env=env)
+        obs, _ = env.reset(seed=1000)
+        policy.predict(obs, None, episode_start=[True])
+        leads[zeta] = policy.velocity_lead.copy()
+        env.close()
+    assert np.all((leads[1.0] > 0.1) & (leads[1.0] < 0.4))  # s: 0.17-0.27 s per world axis
+    np.testing.assert_allclose(leads[0.5], 0.5 * leads[1.0], rtol=1e-12)
+
+
 def _rows_alone(env_id: str, name: str, steps: int, **kw) -> None:
     """On 3 copies of the batched env, the action of the stacked observations is each row's
     own (bit for bit), with each row's state."""

@@ -353,7 +353,10 @@ class ImpedanceTaskEnv(RobotEnv):
         return self.task.caption()
 
     def controller_context(self) -> TaskContext:
-        """The task's nominal facts; the action is a setpoint increment of the impedance loop."""
+        """The task's nominal facts; the action is a setpoint increment of the impedance loop,
+        whose rate, stiffness K_p (6,) and damping ratio ζ (K_d = 2ζ√(K_p diag Λ(q₀))) the
+        extras carry (``impedance_freq``, ``impedance_stiffness``,
+        ``impedance_damping_ratio``)."""
         ctx = self.task_context
         return TaskContext(
             robot=ctx.robot,
@@ -365,6 +368,7 @@ class ImpedanceTaskEnv(RobotEnv):
                 **ctx.extras,
                 "impedance_freq": IMPEDANCE_FREQ,
                 "impedance_stiffness": self.stiffness.copy(),
+                "impedance_damping_ratio": self.damping_ratio,
                 "variable_stiffness": self.variable_stiffness,
             },
         )
