@@ -35,6 +35,7 @@ __all__ = [
     "RowLaw",
     "SiteTerms",
     "check_gain_type",
+    "is_real",
     "matvec",
     "rows_method",
     "transpose",
@@ -122,7 +123,7 @@ class InvalidGain(ValueError):
     """An unknown gain name, a gain of the wrong type, or a gain outside its allowed range."""
 
 
-def _is_real(value: Any) -> bool:
+def is_real(value: Any) -> bool:
     """An int or float (numpy scalars included), not a bool."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
@@ -158,7 +159,7 @@ def _real_sequence(value: Any, shape: tuple[int, ...] | None) -> np.ndarray | No
         return None
     if shape is not None and items.shape != shape:
         return None
-    if not all(_is_real(x) and np.isfinite(float(x)) for x in items.ravel()):
+    if not all(is_real(x) and np.isfinite(float(x)) for x in items.ravel()):
         return None
     return np.asarray(value, dtype=float)
 
@@ -200,7 +201,7 @@ def check_gain_type(owner: type, field: dataclasses.Field, value: Any, controlle
             allowed.append(
                 "a finite integer" if integral else "a finite real number (int or float)"
             )
-            if _is_real(value) and np.isfinite(float(value)):
+            if is_real(value) and np.isfinite(float(value)):
                 if not integral:
                     return float(value)
                 if isinstance(value, numbers.Integral):

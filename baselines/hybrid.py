@@ -88,6 +88,7 @@ from cir_gym.baselines.base import (
     InvalidGain,
     Observation,
     RowLaw,
+    is_real,
     matvec,
     transpose,
 )
@@ -213,7 +214,7 @@ def _require_torque(name: str, context: TaskContext) -> None:
 
 def _check_positive(owner: str, **values: float) -> None:
     for name, value in values.items():
-        if not np.isfinite(value) or value < 0:
+        if not is_real(value) or not np.isfinite(value) or value < 0:
             raise InvalidGain(
                 f"gain {name!r} of {owner} must be a finite number >= 0, got {value!r}"
             )

@@ -92,6 +92,7 @@ from cir_gym.baselines.base import (
     Observation,
     RowLaw,
     SiteTerms,
+    is_real,
     matvec,
     rows_method,
 )
@@ -143,7 +144,8 @@ def _positive(gains: Any, *names: str, allow_zero: tuple[str, ...] = ()) -> None
         value = getattr(gains, name)
         if value is None:
             continue
-        ok = np.isfinite(value) and (value >= 0 if name in allow_zero else value > 0)
+        ok = (is_real(value) and np.isfinite(value)
+              and (value >= 0 if name in allow_zero else value > 0))
         if not ok:
             bound = ">= 0" if name in allow_zero else "> 0"
             raise InvalidGain(f"{name} must be a finite number {bound}, got {value!r}")

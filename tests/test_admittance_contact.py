@@ -409,3 +409,17 @@ def test_one_simulation_loop() -> None:
     assert source.count("._simulate(") == 1 and "mj_step" not in source
     assert "_simulate(" in inspect.getsource(AdmittanceContactEnv._advance)
     assert len(source.splitlines()) <= 660
+
+
+@pytest.mark.parametrize(("gains", "name"), [
+    ("cir_gym.baselines.interaction:ImpedanceGains", "mass"),
+    ("cir_gym.baselines.hybrid:HybridSpiralGains", "search_force"),
+])
+def test_a_gain_of_the_wrong_type_built_directly_is_refused_by_name(gains: str, name: str) -> None:
+    """Gains built directly (not through baselines.make, which checks types first) refuse a
+    string by name as InvalidGain, not with numpy's TypeError."""
+    import importlib
+
+    module, cls = gains.split(":")
+    with pytest.raises(InvalidGain, match=name):
+        getattr(importlib.import_module(module), cls)(**{name: "2"})
