@@ -236,6 +236,18 @@ POSITION_STATE = np.dtype([("z_ref", "f8")])
 APPROACH, SEARCH, FOUND = 0, 1, 2
 
 
+def spiral_point(fields: np.ndarray, pitch: float, speed: float, dt: float) -> np.ndarray:
+    """The spiral search's next point (N, 2) (m, hole plane): θ in ``fields`` advanced by one
+    period ``dt`` at ``speed`` (m/s) along the Archimedean spiral r = ``pitch`` θ/2π about
+    ``fields["centre"]`` (the step's radius at least ``pitch``/2, so the first turn is not a
+    spin on the spot)."""
+    theta = fields["theta"]
+    r = pitch * theta / (2 * np.pi)
+    theta += speed * dt / np.maximum(r, pitch / 2)
+    r = pitch * theta / (2 * np.pi)
+    return fields["centre"] + r[:, None] * np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+
+
 def _with_posture(layout: np.dtype, n: int) -> np.dtype:
     """``layout`` followed by the posture target ``q0`` (n,) (rad)."""
     return np.dtype([*layout.descr, ("q0", "f8", (n,))])
@@ -627,11 +639,7 @@ class HybridSpiral(HybridForcePosition):
         around the contact point at ``omega_search``, pressing with γ̄_z = −``search_force``
         (the force loop's γ̄_z + u_I,z with the damping −D_F ż). Advances θ in ``fields``."""
         g = self.gains
-        theta = fields["theta"]
-        r = g.pitch * theta / (2 * np.pi)
-        theta += g.search_speed * self.dt / np.maximum(r, g.pitch / 2)  # at search_speed
-        r = g.pitch * theta / (2 * np.pi)
-        target = fields["centre"] + r[:, None] * np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+        target = spiral_point(fields, g.pitch, g.search_speed, self.dt)
         x_ref = np.concatenate((target, f["x"][:, 2:]), axis=-1)
         sigma = selection_matrix(search=True)
         push = np.array([0.0, 0.0, -g.search_force, 0.0, 0.0, 0.0])

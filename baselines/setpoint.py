@@ -64,7 +64,7 @@ from cir_gym.baselines.base import (
     matvec,
     transpose,
 )
-from cir_gym.baselines.hybrid import ALIGNED
+from cir_gym.baselines.hybrid import ALIGNED, APPROACH, FOUND, SEARCH, spiral_point
 from cir_gym.baselines.interaction import CommonGains, Impedance, PositionBased
 
 from cir_gym import operational_space as osp
@@ -89,8 +89,6 @@ SETPOINT_INCREMENT = "impedance_setpoint_increment"
 #: state of impedance_insertion (float64 rows viewed with named fields): whether the tip has
 #: entered the bore (0/1) and where (3,) (m, nominal hole frame)
 INSERTION_STATE = np.dtype([("entered", "f8"), ("entry", "f8", (3,))])
-#: the spiral search's phases: approaching or inserting, searching, in the hole
-APPROACH, SEARCH, FOUND = 0.0, 1.0, 2.0
 #: state of impedance_spiral: :data:`INSERTION_STATE`, the phase, the spiral's angle θ (rad),
 #: its centre (2,) and the contact height z_c (m, nominal hole frame)
 SPIRAL_STATE = np.dtype([
@@ -367,11 +365,7 @@ class ImpedanceSpiral(ImpedanceInsertion):
         """The search's target (N, 3) (m, hole frame): r = p θ/2π about the centre, θ advanced
         at ``search_speed``, Δ_s = f_s/K_z below the contact height."""
         g = self.gains
-        theta = fields["theta"]
-        r = g.pitch * theta / (2 * np.pi)
-        theta += g.search_speed * self.dt / np.maximum(r, g.pitch / 2)
-        r = g.pitch * theta / (2 * np.pi)
-        xy = fields["centre"] + r[:, None] * np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+        xy = spiral_point(fields, g.pitch, g.search_speed, self.dt)
         z = fields["z_contact"] - g.search_force / self.axial_stiffness(peg.R_h)
         return np.concatenate((xy, z[:, None]), axis=-1)
 
