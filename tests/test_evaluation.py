@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from cir_gym import baselines
 from cir_gym.cli import main
 from cir_gym.evaluation import EpisodeResult, EvaluationResult, evaluate, rank
-from cir_gym.metrics import MetricSpec, aggregate, cvar
+from cir_gym.metrics import MetricSpec, aggregate, cvar, mean_interval, wilson_interval
 from cir_gym.scoring.leaderboard import run_leaderboard
 
 ENV = "cir_gym/JointTracking-v2"
@@ -95,6 +95,56 @@ def test_aggregates_cvar_and_worst():
     assert agg["worst"] == 10.0 and agg["mean"] == 5.5
     assert agg["cvar"] == pytest.approx(9.5)  # mean of the worst 20 %: 10 and 9
     assert cvar(values, "higher") == pytest.approx(1.5)
+
+
+def test_the_summary_keeps_std_and_adds_the_interval_of_the_mean():
+    """ci_low ≤ mean ≤ ci_high next to the std; none from one episode or none at all."""
+    spec = MetricSpec("err", "rad", "lower", "")
+    agg = aggregate(spec, np.array([1.0, 2.0, np.nan, 4.0, 8.0]))  # the NaN episode ignored
+    assert agg["std"] == pytest.approx(np.std([1.0, 2.0, 4.0, 8.0]))
+    assert agg["ci_low"] < agg["mean"] == 3.75 < agg["ci_high"]
+    assert 1.0 <= agg["ci_low"] and agg["ci_high"] <= 8.0
+    one = aggregate(spec, np.array([3.0]))
+    assert one["mean"] == 3.0 and np.isnan(one["ci_low"]) and np.isnan(one["ci_high"])
+    assert all(np.isnan(v) for v in aggregate(spec, np.array([np.nan])).values())
+
+
+def test_the_bootstrap_interval_of_the_mean_is_reproducible_and_shrinks_with_n():
+    """Seeded: the same values give the same interval. It holds the mean and narrows like
+    1/√n (30 → 300 episodes of one distribution: ≈ √10 = 3.2 times); on 30 normal values it
+    is within 10 % of Student's t interval (2.045 s/√30 each side)."""
+    rng = np.random.default_rng(1)
+    x30, x300 = rng.normal(7.0, 1.5, 30), rng.normal(7.0, 1.5, 300)
+    lo30, hi30 = mean_interval(x30)
+    assert (lo30, hi30) == mean_interval(x30)
+    assert mean_interval(x30, seed=1) != (lo30, hi30)
+    assert lo30 < x30.mean() < hi30
+    lo300, hi300 = mean_interval(x300)
+    assert lo300 < x300.mean() < hi300
+    assert 2.5 < (hi30 - lo30) / (hi300 - lo300) < 4.0
+    t_width = 2 * 2.045 * np.std(x30, ddof=1) / np.sqrt(30)
+    assert (hi30 - lo30) == pytest.approx(t_width, rel=0.1)
+    assert mean_interval(np.full(30, 12.0)) == (12.0, 12.0)  # every episode at the limit
+    assert all(np.isnan(mean_interval(np.array([5.0]))))
+    with pytest.raises(ValueError, match="confidence"):
+        mean_interval(x30, confidence=95)
+    with pytest.raises(ValueError, match="finite"):
+        mean_interval(np.array([1.0, np.nan]))
+
+
+def test_the_wilson_interval_of_a_success_rate():
+    """26/30 → 0.703–0.947 (the closed form); 0/30 and 30/30 are not zero-width, as
+    p ± z √(p(1 − p)/n) would be; the interval narrows with n and stays in [0, 1]."""
+    assert wilson_interval(26, 30) == pytest.approx((0.7032, 0.9469), abs=1e-4)
+    low, high = wilson_interval(0, 30)
+    assert low == 0.0 and high == pytest.approx(0.1135, abs=1e-4)
+    low, high = wilson_interval(30, 30)
+    assert high == pytest.approx(1.0) and low == pytest.approx(0.8865, abs=1e-4)
+    w30, w300 = (np.subtract(*wilson_interval(k, n)[::-1]) for k, n in ((15, 30), (150, 300)))
+    assert w300 < w30 / 2.5
+    for bad in ((31, 30), (-1, 30), (0, 0)):
+        with pytest.raises(ValueError, match=r"successes|n must"):
+            wilson_interval(*bad)
 
 
 def test_leaderboard_is_deterministic(tmp_path):
@@ -318,7 +368,7 @@ def test_no_factor_to_the_best_controller_of_censored_insertion_times():
     assert censored_ratio(never, ctrl) and censored_ratio(partly, ctrl)
     assert not censored_ratio(always, ctrl)
     assert censored_ratio(always, _pegs("ctrl", [True, False], [7.8, 12.0]))  # either side
-    assert _summary_cell(never, ctrl).endswith(f"0 % success), {NO_FACTOR}")
+    assert _summary_cell(never, ctrl).endswith(f"0 % (0–66) success), {NO_FACTOR}")
     assert "×" not in _summary_cell(partly, ctrl)
     assert "**1.15×** the best controller's" in _summary_cell(always, ctrl)
 

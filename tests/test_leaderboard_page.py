@@ -72,7 +72,7 @@ def test_the_summary_footnote_of_a_left_out_factor_is_a_paragraph_under_its_tabl
     rows = [result("hybrid_spiral", True, 7.8), result("agent:ppo_position", False, 12.0)]
     out = markdown_to_html(rl_summary({"sharp edge": rows}), "summary")
     table, after = out.split("</table>", 1)
-    assert "0 % success), –†</td>" in table
+    assert "0 % (0–79) success), –†</td>" in table  # the Wilson interval of 0 of 1
     assert re.search(r"<p>† No factor to the best controller: .*<code>insertion_time</code>", after)
 
 
@@ -153,6 +153,43 @@ def test_the_ranked_table_has_units_on_every_metric_and_family_rows() -> None:
     assert "worst (s)" in head and "CVaR&nbsp;20&nbsp;% (s)" in head
 
 
+def test_the_ranked_tables_quote_the_mean_and_the_success_rate_with_95_intervals() -> None:
+    """26 of 30 episodes inserted (6.5–7.75 s), 4 at the 12 s limit: the markdown and the HTML
+    table show the mean with its bootstrap interval and 87 % (70–95), the Wilson interval of
+    26/30, under headers that name the intervals; the old "mean ± std" is gone."""
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+    from cir_gym.evaluation import EpisodeResult, EvaluationResult
+    from cir_gym.metrics import mean_interval
+    from cir_gym.scoring.tables import interval_cell, ranked_table
+
+    times = [6.5 + 0.05 * i if i < 26 else 12.0 for i in range(30)]
+    episodes = [EpisodeResult(i, 0.0, 1, i < 26, False, {"insertion_time": t})
+                for i, t in enumerate(times)]
+    r = EvaluationResult("cir_gym/PegInHole-v2", "position_spiral", episodes,
+                         PegInHoleEnv.metric_specs, "insertion_time")
+    low, high = mean_interval(np.array(times))
+    mean = interval_cell(float(np.mean(times)), low, high)
+    assert re.fullmatch(r"7\.7\d \[7\.\d\d, 8\.\d\d\]", mean), mean
+
+    head, _, row = ranked_table([r]).splitlines()
+    assert "| insertion_time (s) mean [95 % CI] |" in head and "| success (95 % Wilson) |" in head
+    assert f"| {mean} |" in row and "| 87 % (70–95) |" in row and "±" not in head + row
+    page = ranked_html([r])
+    assert "percentile bootstrap of the mean over the episodes&#x27; seeds" in page
+    assert "95 % Wilson interval, in %" in page
+    assert f"<td>{mean}</td>" in page and "<td>87 % (70–95)</td>" in page and "±" not in page
+
+
+def test_a_mean_and_its_interval_share_one_precision() -> None:
+    from cir_gym.scoring.tables import interval_cell
+
+    assert interval_cell(6.98, 6.41, 7.6) == "6.98 [6.41, 7.60]"
+    assert interval_cell(9.9, 9.5, 10.3) == "9.9 [9.5, 10.3]"  # 3 digits of the largest
+    assert interval_cell(0.0123, 0.0101, 0.0148) == "0.0123 [0.0101, 0.0148]"
+    assert interval_cell(2.5e-6, 1e-6, 4e-6) == "2.5e-06 [1e-06, 4e-06]"
+    assert interval_cell(7.123, float("nan"), float("nan")) == "7.12"  # one episode: no CI
+
+
 def test_markdown_tables_get_the_metric_units() -> None:
     from cir_gym.envs.peg_in_hole import PegInHoleEnv
 
@@ -163,7 +200,8 @@ def test_markdown_tables_get_the_metric_units() -> None:
 
 def test_the_glossary_explains_the_rl_terms() -> None:
     text = glossary_html()
-    for term in ("return", "success", "CVaR 20 %", "IQM", "bootstrap CI", "tuned:"):
+    for term in ("return", "success", "CVaR 20 %", "IQM", "bootstrap CI", "tuned:",
+                 "mean [95 % CI]", "success (95 % Wilson)"):
         assert f"<th>{html.escape(term)}" in text, term
 
 

@@ -44,7 +44,15 @@ from cir_gym.evaluation import EvaluationResult, batchable, evaluate, variant_pr
 from cir_gym.score_scale import Anchors
 from cir_gym.scoring.normalized import HoldStill, hold_still_policy, variant_anchors
 from cir_gym.scoring.page import write_page
-from cir_gym.scoring.tables import SCORE_MEANING, ranked_table, rl_summary, score_cell, slug
+from cir_gym.scoring.tables import (
+    MEAN_MEANING,
+    SCORE_MEANING,
+    SUCCESS_MEANING,
+    ranked_table,
+    rl_summary,
+    score_cell,
+    slug,
+)
 
 #: the policy name of a variant's hold-still run (the normalized score's 0)
 HOLD_STILL = HoldStill.name
@@ -445,12 +453,14 @@ def run_leaderboard(
         f"{episodes} episodes per policy, seeds {seed}…{seed + episodes - 1} (the same for every "
         "policy). Ranked by success rate, then by each variant's primary metric (mean over "
         "episodes; the environment's, or the variant's own, e.g. the manipulability of "
-        "RedundantIK's manipulability variant); *worst* is the worst episode, CVaR20% the mean "
-        "of the worst 20 %. A task's tables also rank the policies of the ids that play it at "
-        "another interface, labelled `<policy> [<id>]` (an agent-ready variant's 20-Hz "
-        "setpoint of an impedance loop: the same variants, env arguments, seeds, metrics and "
-        "success). *score*: the " + SCORE_MEANING + " (every variant's hold-still "
-        "policy runs on the same seeds; a log scale where the two are a decade or more apart: "
+        "RedundantIK's manipulability variant), shown as *mean [95 % CI]* (" + MEAN_MEANING
+        + "); *success (95 % Wilson)*: the " + SUCCESS_MEANING + "; *worst* is the worst "
+        "episode, CVaR20% the mean of the worst 20 %. A task's tables also rank the policies of "
+        "the ids that play it at another interface, labelled `<policy> [<id>]` (an "
+        "agent-ready variant's 20-Hz setpoint of an impedance loop: the same variants, env "
+        "arguments, seeds, metrics and success). *score*: the " + SCORE_MEANING
+        + " (every variant's hold-still policy runs on the same seeds; a log scale where the "
+        "two are a decade or more apart: "
         f"cir_gym/score_scale.py; the anchors are in {ANCHORS_FILE}). Episodes run batched "
         "where a native batched env exists: a course controller's equal the one-by-one "
         "episodes bit for bit, a shipped agent's (on "

@@ -35,6 +35,7 @@ import numpy as np
 import cir_gym
 from cir_gym.envs.base import make_env
 from cir_gym.evaluation import interface_env_kwargs
+from cir_gym.metrics import BOOTSTRAP_RESAMPLES
 from cir_gym.scoring.policies import policy_of_row
 
 #: GIF frame size (px, each side), frame rate (frames/s) and the longest episode shown (s)
@@ -140,10 +141,19 @@ GLOSSARY: tuple[tuple[str, str], ...] = (
         "seed) and the interval holds the middle 95 % of those values.",
     ),
     (
-        "mean ± std",
-        "mean over episodes ± their standard deviation (the spread of the episodes, "
-        "not an interval of the mean); with fewer than 30 episodes, read the ranking as "
-        "indicative.",
+        "mean [95 % CI]",
+        "the primary metric's mean over the episodes and its 95 % confidence interval: a "
+        "percentile bootstrap of the mean over the episodes' seeds "
+        f"({BOOTSTRAP_RESAMPLES:,} resamples with a fixed generator seed, so a regenerated "
+        "table shows the same interval). It says how "
+        "well the mean is known, not how the episodes spread (see worst and CVaR); with fewer "
+        "than 30 episodes, read the ranking as indicative.",
+    ),
+    (
+        "success (95 % Wilson)",
+        "the success rate and, in parentheses, its 95 % Wilson score interval in %: e.g. "
+        "87 % (70–95) for 26 of 30 episodes. Unlike ± a standard error it stays inside "
+        "0–100 % and is not zero-width at 0 or 30 of 30 (0 of 30 → 0–11 %).",
     ),
 )
 
@@ -447,13 +457,25 @@ FAMILY_KEY = (
 
 def ranked_html(rows: list[Any], anchors: Any = None) -> str:
     """The ranked table of one variant as HTML: rows in :func:`cir_gym.evaluation.rank` order
-    (success rate, then the primary metric's mean), the success rate, the normalized score
-    given the variant's ``anchors`` (:class:`cir_gym.score_scale.Anchors`), the primary
-    metric's mean ± std, worst episode and CVaR 20 %, every other metric's mean, the return and
-    the share of diverged episodes; every metric header carries its unit, each row its family's
-    colour (:data:`FAMILY_KEY`)."""
+    (success rate, then the primary metric's mean), the success rate with its 95 % Wilson
+    interval, the normalized score given the variant's ``anchors``
+    (:class:`cir_gym.score_scale.Anchors`), the primary metric's mean with its 95 % bootstrap
+    interval (:func:`cir_gym.scoring.tables.mean_cell`), worst episode and CVaR 20 %, every
+    other metric's mean, the return and the share of diverged episodes; every metric header
+    carries its unit, each row its family's colour (:data:`FAMILY_KEY`)."""
     from cir_gym.evaluation import rank
-    from cir_gym.scoring.tables import SCORE_HEADER, SCORE_MEANING, score_cell, score_of
+    from cir_gym.scoring.tables import (
+        MEAN_HEADER,
+        MEAN_MEANING,
+        SCORE_HEADER,
+        SCORE_MEANING,
+        SUCCESS_HEADER,
+        SUCCESS_MEANING,
+        mean_cell,
+        score_cell,
+        score_of,
+        success_cell,
+    )
 
     if not rows:
         return "<p>(no results)</p>"
@@ -464,9 +486,10 @@ def ranked_html(rows: list[Any], anchors: Any = None) -> str:
     head = [
         "#",
         "policy",
-        "success",
+        f'success <abbr title="{html.escape(SUCCESS_MEANING)}">{SUCCESS_HEADER}</abbr>',
         *([f'<abbr title="{SCORE_MEANING}">{SCORE_HEADER}</abbr>'] if anchors else []),
-        f"<strong>{_breakable(primary)}</strong>{_unit(spec.unit)} mean ± std",
+        f"<strong>{_breakable(primary)}</strong>{_unit(spec.unit)} "
+        f'<abbr title="{html.escape(MEAN_MEANING)}">{MEAN_HEADER}</abbr>',
         f"worst{_unit(spec.unit)}",
         f"CVaR&nbsp;20&nbsp;%{_unit(spec.unit)}",
         *(f"{_breakable(m.name)}{_unit(m.unit)}" for m in others),
@@ -478,9 +501,9 @@ def ranked_html(rows: list[Any], anchors: Any = None) -> str:
         p = r.summary[primary]
         cells = [
             str(i),
-            f"{100 * r.success_rate:.0f} %",
+            success_cell(r),
             *([score_cell(score_of(r, anchors))] if anchors else []),
-            f"{p['mean']:.3g} ± {p['std']:.2g}",
+            mean_cell(r, primary),
             f"{p['worst']:.3g}",
             f"{p['cvar']:.3g}",
             *(f"{r.summary[m.name]['mean']:.3g}" for m in others),
@@ -647,7 +670,8 @@ def write_page(
         "<h1>cir_gym leaderboard</h1>",
         f"<p>{episodes} episode{'s' if episodes != 1 else ''} per policy, seeds {seed}…"
         f"{seed + episodes - 1} (the same for every policy), ranked by success rate, then by "
-        "each variant's primary metric (mean over episodes). Each video is one episode (seed "
+        "each variant's primary metric (mean over episodes, with its 95 % interval: see the "
+        "glossary). Each video is one episode (seed "
         f"{seed}, the first {VIDEO_SECONDS:g} s at {VIDEO_FPS} frames/s) of the best "
         "controller (left) and the best agent (right) with the task drawn: the reference "
         "(cyan), the target (yellow), obstacles and forces (red arrows). Generated by "

@@ -4,14 +4,27 @@ anchors are given (:mod:`cir_gym.score_scale`, :mod:`cir_gym.scoring.normalized`
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cir_gym.evaluation import EvaluationResult, rank
+from cir_gym.metrics import BOOTSTRAP_RESAMPLES, wilson_interval
 from cir_gym.score_scale import Anchors
 
 #: the normalized score's column header and what it means
 SCORE_HEADER = "score"
 SCORE_MEANING = "normalized score: 0 = hold still, 1 = the best controller"
+#: the primary metric's and the success rate's column headers (after the metric's name and
+#: unit, and "success") and what their intervals are
+MEAN_HEADER = "mean [95 % CI]"
+MEAN_MEANING = (
+    "95 % CI: percentile bootstrap of the mean over the episodes' seeds "
+    f"({BOOTSTRAP_RESAMPLES:,} resamples, a fixed generator seed: the same episodes give the "
+    "same interval; none from one episode)"
+)
+SUCCESS_HEADER = "(95 % Wilson)"
+SUCCESS_MEANING = "success rate (low–high): its 95 % Wilson interval, in %"
 
 
 def score_of(r: EvaluationResult, anchors: Anchors | None) -> float | None:
@@ -26,10 +39,43 @@ def score_cell(score: float | None) -> str:
     return "–" if score is None or not np.isfinite(score) else f"{score:.2f}"
 
 
+def interval_cell(mean: float, low: float, high: float) -> str:
+    """A mean and its interval at one precision: three significant digits of the largest of
+    the three, ``6.98 [6.41, 7.60]``; the mean alone (``.3g``) without an interval (NaN)."""
+    if not (np.isfinite(low) and np.isfinite(high) and np.isfinite(mean)):
+        return f"{mean:.3g}"
+    largest = max(abs(mean), abs(low), abs(high))
+    if largest == 0.0:
+        return "0 [0, 0]"
+    if not 1e-4 <= largest < 1e5:
+        return f"{mean:.3g} [{low:.3g}, {high:.3g}]"
+    decimals = max(0, 2 - math.floor(math.log10(largest)))
+    return f"{mean:.{decimals}f} [{low:.{decimals}f}, {high:.{decimals}f}]"
+
+
+def mean_cell(r: EvaluationResult, metric: str) -> str:
+    """``metric``'s mean over ``r``'s episodes with its 95 % interval (:func:`interval_cell`;
+    a summary without ``ci_low``/``ci_high`` shows the mean alone)."""
+    s = r.summary[metric]
+    nan = float("nan")
+    return interval_cell(s["mean"], s.get("ci_low", nan), s.get("ci_high", nan))
+
+
+def success_cell(r: EvaluationResult) -> str:
+    """The success rate with its 95 % Wilson interval in %: ``87 % (70–95)``."""
+    n = len(r.episodes)
+    if n == 0:
+        return "–"
+    low, high = wilson_interval(sum(bool(ep.success) for ep in r.episodes), n)
+    return f"{100 * r.success_rate:.0f} % ({100 * low:.0f}–{100 * high:.0f})"
+
+
 def format_table(results: list[EvaluationResult], markdown: bool = True,
                  anchors: Anchors | None = None) -> str:
-    """A table ranked on the primary metric: mean ± std, worst, CVaR, success, the normalized
-    score on the variant's ``anchors`` (a column only when given), the other metrics, return."""
+    """A table ranked on the primary metric: its mean with the 95 % bootstrap interval
+    (:data:`MEAN_MEANING`), worst, CVaR, success with its 95 % Wilson interval, the normalized
+    score on the variant's ``anchors`` (a column only when given), the other metrics' means,
+    return."""
     if not results:
         return "(no results)"
     primary = results[0].primary_metric
@@ -39,8 +85,8 @@ def format_table(results: list[EvaluationResult], markdown: bool = True,
     other = [s for s in results[0].specs if s.name != primary]
     unit = f" ({spec.unit})" if spec.unit else ""
     head = (
-        ["rank", "policy", f"{primary}{unit} mean ± std", f"worst{unit}", f"CVaR 20 %{unit}",
-         "success"]
+        ["rank", "policy", f"{primary}{unit} {MEAN_HEADER}", f"worst{unit}", f"CVaR 20 %{unit}",
+         f"success {SUCCESS_HEADER}"]
         + ([SCORE_HEADER] if anchors is not None else [])
         + [f"{s.name} ({s.unit})" if s.unit else s.name for s in other]
         + ["return", "diverged"]
@@ -52,10 +98,10 @@ def format_table(results: list[EvaluationResult], markdown: bool = True,
             [
                 str(i),
                 r.policy_name,
-                f"{s['mean']:.3g} ± {s['std']:.2g}",
+                mean_cell(r, primary),
                 f"{s['worst']:.3g}",
                 f"{s['cvar']:.3g}",
-                f"{100 * r.success_rate:.0f}%",
+                success_cell(r),
             ]
             + ([score_cell(score_of(r, anchors))] if anchors is not None else [])
             + [f"{r.summary[o.name]['mean']:.3g}" for o in other]
@@ -123,17 +169,17 @@ def _metric_cell(r: EvaluationResult) -> str:
 
 def _summary_cell(r: EvaluationResult | None, reference: EvaluationResult | None,
                   anchors: Anchors | None = None) -> str:
-    """'name: mean (worst, success[, score])' and, given a reference, the factor to it (> 1:
-    worse); :data:`NO_FACTOR` instead of a factor of censored values (:func:`censored_ratio`);
-    the normalized score given the variant's ``anchors``."""
+    """'name: mean [95 % CI] (worst, success (95 % Wilson)[, score])' and, given a reference,
+    the factor to it (> 1: worse); :data:`NO_FACTOR` instead of a factor of censored values
+    (:func:`censored_ratio`); the normalized score given the variant's ``anchors``."""
     if r is None:
         return "–"
     primary = r.primary_metric
     s = r.summary[primary]
     score = f", score {score_cell(score_of(r, anchors))}" if anchors is not None else ""
     text = (
-        f"{r.policy_name}: {s['mean']:.3g} (worst {s['worst']:.3g}, "
-        f"{100 * r.success_rate:.0f} % success{score})"
+        f"{r.policy_name}: {mean_cell(r, primary)} (worst {s['worst']:.3g}, "
+        f"{success_cell(r)} success{score})"
     )
     if reference is not None:
         c = reference.summary[primary]["mean"]
@@ -201,7 +247,8 @@ def rl_summary(by_variant: dict[str, list[EvaluationResult]],
     return "\n".join(
         [
             "Controllers vs RL on each variant's primary metric (mean over the same "
-            "seeds; best = highest success rate, then the best mean). A controller runs at the "
+            "seeds [its 95 % bootstrap interval], the success rate (its 95 % Wilson interval); "
+            "best = highest success rate, then the best mean). A controller runs at the "
             "course's gains and, as `tuned:<controller>`, at the gains `scripts/tune_gains.py` "
             "found for the variant (Optuna on training seeds; results/tuning/); an agent's "
             "factor is to the better of the two best controllers"

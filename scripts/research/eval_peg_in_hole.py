@@ -42,6 +42,7 @@ from cir_gym.baselines.hybrid import TASK_ADAPTERS
 
 from cir_gym import baselines
 from cir_gym.evaluation import evaluate
+from cir_gym.metrics import wilson_interval
 
 ENV_ID = "cir_gym/PegInHole-v2"
 #: the env of a stored row without ``env_id``: rows written before v1 were measured on v0 (the
@@ -370,14 +371,6 @@ def mean_ci(values: Any) -> tuple[float, float, float]:
     return m, m - half, m + half
 
 
-def wilson(successes: int, n: int) -> tuple[float, float, float]:
-    """A proportion and its 95 % Wilson score interval."""
-    z, p = 1.959963984540054, successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return p, max(0.0, centre - half), min(1.0, centre + half)
-
-
 def compare_laws(
     n: int, out: Path, which: list[int] | None = None, first_seed: int | None = None
 ) -> str:
@@ -451,7 +444,8 @@ def _interval(values: Any, scale: float = 1.0, digits: int = 1) -> str:
 
 def _percent(count: int, n: int) -> str:
     """Percentage [low, high] of ``count`` of ``n`` (Wilson interval) as text."""
-    p, lo, hi = wilson(count, n)
+    lo, hi = wilson_interval(count, n)
+    p = count / n
     return f"{100 * p:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
 
 

@@ -32,6 +32,7 @@ import numpy as np
 import cir_gym
 from cir_gym import baselines
 from cir_gym.evaluation import evaluate
+from cir_gym.metrics import wilson_interval
 
 EYE_IN_HAND = "cir_gym/VisualServo-v1"
 EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v1"
@@ -290,14 +291,6 @@ def agent(n: int) -> list[str]:
     return rows
 
 
-def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score 95 % interval (low, high) of a success rate from ``successes`` of ``n``."""
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
-
-
 def rotation(n: int, out: Path) -> list[str]:
     """Each law from a pure rotation about the optical axis (start_offset (0, 0, 0, 0, 0, θ),
     the default 0.1 px feature noise) on seeds ROTATION_SEED …: success with its Wilson 95 %
@@ -313,7 +306,7 @@ def rotation(n: int, out: Path) -> list[str]:
                            policy_name=label, **kwargs)
             wins = sum(ep.success for ep in res.episodes)
             stopped = sum(ep.terminated for ep in res.episodes)
-            low, high = wilson(wins, n)
+            low, high = wilson_interval(wins, n)
             times = [ep.metrics["convergence_time"] for ep in res.episodes if ep.success]
             retreat = np.median([ep.metrics["retreat"] for ep in res.episodes])
             t_conv = f"{np.median(times):.2f}" if times else "–"

@@ -62,8 +62,10 @@ from typing import Any
 
 import numpy as np
 
+from cir_gym.metrics import wilson_interval
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_visual_servo import ROTATION_SEED, wilson
+from eval_visual_servo import ROTATION_SEED
 
 EYE_IN_HAND = "cir_gym/VisualServo-v1"
 EYE_TO_HAND = "cir_gym/VisualServoEyeToHand-v1"
@@ -178,7 +180,7 @@ def row(label: str, finals: np.ndarray, success: np.ndarray, ended: int, t_conv:
     x = finals if finals.shape[0] > 1 else finals.T  # one run: bootstrap the episodes
     point, lo, hi = interval(x)
     wins, n = int(success.sum()), success.size
-    low, high = wilson(wins, n)
+    low, high = wilson_interval(wins, n)
     ratio = f"{point / reference:.2f}" if reference else "–"
     return (f"| {label} | {wins}/{n} = {100 * wins / n:.1f} % ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {point:.3f} ({lo:.3f}–{hi:.3f}) | {ratio} | {np.median(finals):.3f} | {ended} "
