@@ -4,7 +4,7 @@
                                             [--envs cir_gym/CartesianTracking-v1 ...]
 
 For every controller of CartesianTracking-v1 (the operational-space laws) and
-AdmittanceContact-v1 (the interaction laws, torque interface, the 1e4 N/m variant)
+AdmittanceContact-v2 (the interaction laws, torque interface, the 1e4 N/m variant)
 :func:`cir_gym.evaluation.evaluate` runs ``--episodes`` episodes twice in the same run, one
 after the other (``batched=False``) and batched on the native vector env (``batched=True``),
 and prints wall and process-CPU seconds of each and their ratios, with the largest difference
@@ -22,7 +22,7 @@ from cir_gym.evaluation import evaluate
 
 ENVS: dict[str, dict] = {
     "cir_gym/CartesianTracking-v1": {},
-    "cir_gym/AdmittanceContact-v1": {"stiffness": 1.0e4, "force_ref": 20.0},
+    "cir_gym/AdmittanceContact-v2": {"stiffness": 1.0e4, "force_ref": 20.0},
 }
 
 
@@ -31,7 +31,7 @@ def register_batched(env_id: str) -> None:
     not yet listed in ``cir_gym.envs.BATCHED_ENVIRONMENTS`` (AdmittanceContact's)."""
     import cir_gym.envs as envs
 
-    known = {"cir_gym/AdmittanceContact-v1":
+    known = {"cir_gym/AdmittanceContact-v2":
              "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv"}
     if env_id not in envs.BATCHED_ENVIRONMENTS and env_id in known:
         envs.BATCHED_ENVIRONMENTS[env_id] = known[env_id]

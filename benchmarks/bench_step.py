@@ -76,7 +76,7 @@ KINEMATIC = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
 #: controllers touch at step ~700 (PegInHole) and ~870 (AdmittanceContact))
 DRIVEN = {
     "cir_gym/PegInHole-v2": ("hybrid_force_position", 1000),
-    "cir_gym/AdmittanceContact-v1": ("admittance", 1000),
+    "cir_gym/AdmittanceContact-v2": ("admittance", 1000),
 }
 REFERENCE = "Reacher-v5"
 

@@ -17,7 +17,7 @@ replaced; the other sections belong to other scripts):
    * zero actions, ``max_following_error=None`` where the env has it (resets are not what
      this times; the torque tasks' copies then never touch a surface);
    * in contact, the contact envs of ``CONTACT_DRIVES``: after an untimed warm-up the copies
-     press on their surface, driven by the course controller (AdmittanceContact-v1:
+     press on their surface, driven by the course controller (AdmittanceContact-v2:
      ``impedance``; PegInHole-v2: ``hybrid_force_position``; as ``cir_gym.scoring.policies``
      resolves them, predicted in the loop on all copies at once, outside the timed
      ``step``) or, for the agent-ready variants (which have no course controller), by a
@@ -112,11 +112,11 @@ class ContactDrive(NamedTuple):
 #: contact env id → how its copies are driven in contact (the in-contact table)
 CONTACT_DRIVES: dict[str, ContactDrive] = {
     # 500 Hz; 1.2 s: the tool rests on the plate from ~0.8 s
-    "cir_gym/AdmittanceContact-v1": ContactDrive("impedance", 0.0, 600),
+    "cir_gym/AdmittanceContact-v2": ContactDrive("impedance", 0.0, 600),
     # 500 Hz; 2 s: the peg rests on the block from ~1.6 s
     "cir_gym/PegInHole-v2": ContactDrive("hybrid_force_position", 0.0, 1000),
     # 20 Hz; 1 s: every tool on the plate from 1 s (half the increment: ~50 N once clamped)
-    "cir_gym/AdmittanceContactImpedance-v0": ContactDrive(None, 0.5, 20),
+    "cir_gym/AdmittanceContactImpedance-v1": ContactDrive(None, 0.5, 20),
     # 20 Hz; 3 s: 0.2 of the increment (half of it terminates 3 of 5 episodes at 0.7 s);
     # most pegs on the block from 2-4 s
     "cir_gym/PegInHoleImpedance-v0": ContactDrive(None, 0.2, 60),
@@ -481,7 +481,7 @@ def bench_other_envs(episodes: int, other_episodes: int) -> tuple[list[str], flo
 
 # ---------------------------------------------------------------------- 4. RL training
 #: the agent-ready contact variants trained with vec_env: batched (agents/hyperparams/contact)
-RL_ENVS = ("cir_gym/PegInHoleImpedance-v0", "cir_gym/AdmittanceContactImpedance-v0")
+RL_ENVS = ("cir_gym/PegInHoleImpedance-v0", "cir_gym/AdmittanceContactImpedance-v1")
 CONTACT_PPO = Path(__file__).parents[1] / "agents" / "hyperparams" / "contact" / "ppo.yml"
 ROLLOUT = 2048  # PPO env steps per rollout: ppo.yml's n_steps 128 × n_envs 16
 RL_COPIES = 16

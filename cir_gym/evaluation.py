@@ -8,7 +8,7 @@ and model errors. Metrics come from the environment's ``metric_specs`` and its
 
 Batched evaluation: where ``cir_gym.envs.vector`` has a native batched env for the id and its
 arguments (``VECTOR_ENVS``: JointTracking-v2 and ElasticJointTracking-v3 unless ``randomize``,
-CartesianTracking-v1 with exact sensing, AdmittanceContact-v1, ...; see
+CartesianTracking-v1 with exact sensing, AdmittanceContact-v2, ...; see
 ``cir_gym.envs.vector.native_vector_env``) and the policy gives the same actions for a batch of
 observations as for each one alone (:func:`batches_exactly`: the course controllers, whose
 ``predict`` runs one code for a row alone and for a batch, tested bit for bit in

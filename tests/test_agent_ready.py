@@ -35,7 +35,7 @@ from cir_gym.impedance import (
 from cir_gym.validation import InvalidArgument
 
 PEG = "cir_gym/PegInHoleImpedance-v0"
-CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
+CONTACT = "cir_gym/AdmittanceContactImpedance-v1"
 IDS = (PEG, CONTACT)
 TASK = {PEG: PegInHoleEnv, CONTACT: AdmittanceContactEnv}
 

@@ -1073,7 +1073,7 @@ def test_agents_are_scored_only_on_the_objective_they_were_trained_for():
         set(gym.spec(ENV).entry_point.cls.leaderboard_variants)
 
 
-@pytest.mark.skip(reason="AdmittanceContact-v1 ships no residual agent yet (its contact physics "
+@pytest.mark.skip(reason="AdmittanceContact-v2 ships no residual agent yet (its contact physics "
                   "changed: the v0 residual is not carried); retrain one to run this")
 def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
     """scripts/eval_residual_base.py on the shipped AdmittanceContact residual: on the
@@ -1084,7 +1084,7 @@ def test_eval_residual_base_separates_the_base_from_the_agent(tmp_path):
     from scripts.research.eval_residual_base import main as residual_base
 
     out = tmp_path / "r.md"
-    assert residual_base(["--env", "cir_gym/AdmittanceContact-v1", "--agent",
+    assert residual_base(["--env", "cir_gym/AdmittanceContact-v2", "--agent",
                           "residual_ppo_admittance", "--seed-agent", "1", "--episodes", "1",
                           "--out", str(out)]) == 0
     rows = {r.split("|")[1].strip(): [float(c) for c in r.split("|")[2:5]]

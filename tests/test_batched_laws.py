@@ -153,7 +153,7 @@ def test_robot_rows_fallback_equals_row_dynamics(cartesian_obs) -> None:
 
 
 # ---------------------------------------------------------------------- interaction laws
-CONTACT = "cir_gym/AdmittanceContact-v1"
+CONTACT = "cir_gym/AdmittanceContact-v2"
 CONTACT_KW = {"stiffness": 1.0e4, "force_ref": 20.0}
 TORQUE_LAWS = ("impedance", "admittance", "explicit_force", "implicit_force",
                "parallel_force_position")

@@ -185,7 +185,7 @@ def test_bench_step_driven_loop_resets_between_trials_off_the_tape():
     from cir_gym import baselines
 
     bench = _load_bench_step()
-    env_id = "cir_gym/AdmittanceContact-v1"
+    env_id = "cir_gym/AdmittanceContact-v2"
     env = gym.make(env_id, episode_duration=0.2, max_episode_steps=100)  # 500 Hz
     u = env.unwrapped
     policy = baselines.make("admittance", env_id, env_kwargs={"episode_duration": 0.2})

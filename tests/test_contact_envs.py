@@ -13,7 +13,7 @@ import cir_gym  # noqa: F401
 from cir_gym import motion_interface as mi
 
 PEG = "cir_gym/PegInHole-v2"
-ADMITTANCE = "cir_gym/AdmittanceContact-v1"
+ADMITTANCE = "cir_gym/AdmittanceContact-v2"
 
 
 def _rollout(

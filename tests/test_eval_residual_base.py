@@ -27,7 +27,7 @@ def test_env_and_agent_are_required_and_a_wrong_agent_names_the_residual_agents(
     assert "--agent 'ppo_100hz@JointTracking-v1' is not a shipped residual agent" in err
     assert RESIDUAL in err
     with pytest.raises(SystemExit):
-        residual_base(["--env", "cir_gym/AdmittanceContact-v1", "--agent",
+        residual_base(["--env", "cir_gym/AdmittanceContact-v2", "--agent",
                        "residual_ppo_admittance"])
     assert "its residual agents: none" in capsys.readouterr().err
 

@@ -216,7 +216,7 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
             return np.zeros(6), state
 
     short = {"episode_duration": 0.05}
-    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, **short)
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v2", 1, 0, **short)
     assert result.episodes[0].length == 5  # 0.05 s at 100 Hz, not 25 steps at 500 Hz
     with pytest.raises(
         ValueError,
@@ -225,17 +225,17 @@ def test_a_policy_is_evaluated_on_its_recorded_action_interface():
     ):
         evaluate(
             PositionAgent(),
-            "cir_gym/AdmittanceContact-v1",
+            "cir_gym/AdmittanceContact-v2",
             1,
             0,
-            env=gym.make("cir_gym/AdmittanceContact-v1", **short),
+            env=gym.make("cir_gym/AdmittanceContact-v2", **short),
         )
     with pytest.raises(ValueError, match=r"control='torque'.*control='position'"):
-        evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, control="torque", **short)
+        evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v2", 1, 0, control="torque", **short)
     ready = gym.make(
-        "cir_gym/AdmittanceContact-v1", control="position", control_freq=100.0, **short
+        "cir_gym/AdmittanceContact-v2", control="position", control_freq=100.0, **short
     )
-    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v1", 1, 0, env=ready)
+    result = evaluate(PositionAgent(), "cir_gym/AdmittanceContact-v2", 1, 0, env=ready)
     assert result.episodes[0].length == 5
 
 

@@ -1,5 +1,5 @@
 """One table per task: the leaderboard runs the policies of an agent-ready variant
-(PegInHoleImpedance-v0, AdmittanceContactImpedance-v0) on its task's variants and ranks their
+(PegInHoleImpedance-v0, AdmittanceContactImpedance-v1) on its task's variants and ranks their
 rows, labelled with the interface, in the task's tables; an agent-ready controller may anchor
 the normalized score."""
 
@@ -20,12 +20,12 @@ from cir_gym.scoring.policies import (
 )
 
 PEG = "cir_gym/PegInHoleImpedance-v0"
-CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
+CONTACT = "cir_gym/AdmittanceContactImpedance-v1"
 
 
 def test_agent_ready_ids_play_their_task() -> None:
     assert task_id(PEG) == "cir_gym/PegInHole-v2"
-    assert task_id(CONTACT) == "cir_gym/AdmittanceContact-v1"
+    assert task_id(CONTACT) == "cir_gym/AdmittanceContact-v2"
     assert task_id("cir_gym/PegInHole-v2") == "cir_gym/PegInHole-v2"
     assert interface_ids("cir_gym/PegInHole-v2") == ["cir_gym/PegInHole-v2", PEG]
     assert interface_ids("cir_gym/JointTracking-v2") == ["cir_gym/JointTracking-v2"]
@@ -64,12 +64,12 @@ def test_the_leaderboard_writes_agent_ready_rows_into_the_task_s_table(tmp_path,
     md = run_leaderboard(tmp_path, episodes=1, envs=[CONTACT], workers=1,
                          env_overrides={"episode_duration": 1.0}, figures=False, videos=False)
     text = md.read_text()
-    assert "## cir_gym/AdmittanceContact-v1" in text and "## " + CONTACT not in text
+    assert "## cir_gym/AdmittanceContact-v2" in text and "## " + CONTACT not in text
     table = text.split("### stiffness 1e4 N/m", 1)[1].split("###", 1)[0]
-    assert "| impedance_setpoint [AdmittanceContactImpedance-v0] |" in table
+    assert "| impedance_setpoint [AdmittanceContactImpedance-v1] |" in table
     assert "| impedance |" in table
     anchors = (tmp_path / "normalized.json").read_text()
-    assert "cir_gym/AdmittanceContact-v1 stiffness 1e4 N/m" in anchors
+    assert "cir_gym/AdmittanceContact-v2 stiffness 1e4 N/m" in anchors
 
 
 def _result(env_id: str, name: str, values: list[float]) -> EvaluationResult:

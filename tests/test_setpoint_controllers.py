@@ -21,7 +21,7 @@ from cir_gym.evaluation import EvaluationResult, evaluate
 from cir_gym.scoring.policies import policy_names
 
 PEG = "cir_gym/PegInHoleImpedance-v0"
-CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
+CONTACT = "cir_gym/AdmittanceContactImpedance-v1"
 CHAMFER = {"chamfer": 0.003}
 #: batched and sequential episodes of the agent-ready variants agree to round-off
 #: (tests/test_vector_agent_ready.py holds each batched copy to its single env at 1e-12)
@@ -123,7 +123,7 @@ def test_impedance_setpoint_sink_is_impedance_s_design() -> None:
     for k_loop in (1000.0, 400.0):
         policy = baselines.make("impedance_setpoint", CONTACT,
                                 env_kwargs={"stiffness": 1e4, "impedance_stiffness": k_loop})
-        torque = baselines.make("impedance", "cir_gym/AdmittanceContact-v1",
+        torque = baselines.make("impedance", "cir_gym/AdmittanceContact-v2",
                                 env_kwargs={"stiffness": 1e4}, normal_stiffness=k_loop)
         f = np.array([5.0, 20.0])
         assert policy.sink(f) == pytest.approx(torque.sink(f), rel=1e-15)

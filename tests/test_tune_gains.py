@@ -214,7 +214,7 @@ def test_tune_gains_search_space_follows_the_law_and_the_variant():
                                                                     "k0_joint_limits": 10.0}
     assert tunable_gains("clik", rik, "obstacle") == {"K": 50.0}
     assert tunable_gains("pseudo_inverse", rik, "obstacle") == {}
-    ac = "cir_gym/AdmittanceContact-v1"
+    ac = "cir_gym/AdmittanceContact-v2"
     assert tunable_gains("admittance", ac) == {"crossover": 20.0, "motion_omega": 40.0}
     assert tunable_gains("explicit_force", ac) == {"crossover_ratio": 0.5, "zeta": 1.0}
     assert bounds("crossover_ratio", 0.5, 0.002) == pytest.approx((0.05, 5.0))

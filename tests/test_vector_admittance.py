@@ -19,7 +19,7 @@ from cir_gym.evaluation import evaluate
 from cir_gym.scoring.policies import make_policy
 from cir_gym.validation import InvalidArgument
 
-ENV = "cir_gym/AdmittanceContact-v1"
+ENV = "cir_gym/AdmittanceContact-v2"
 CLASS_PATH = "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv"
 # Each copy runs the single env's MuJoCo computations (mj_step per physics step with the
 # copy's own plate stiffness, damping and pose; the position and velocity stages for the

@@ -28,7 +28,7 @@ from cir_gym.envs.agent_ready_vector import (
 from cir_gym.impedance import CartesianImpedance, ImpedanceGains, exp_rotvec
 from cir_gym.validation import InvalidArgument
 
-CONTACT = "cir_gym/AdmittanceContactImpedance-v0"
+CONTACT = "cir_gym/AdmittanceContactImpedance-v1"
 CONTACT_CLASS = "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
 TOL = 1e-12
 STEPS_PEG = 22  # copy 0 inserts at its 20th policy step

@@ -39,7 +39,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
     ),
     **REDUNDANT_IK_ENVIRONMENTS,
     **VISUAL_SERVO_ENVIRONMENTS,
-    "cir_gym/AdmittanceContact-v1": (
+    "cir_gym/AdmittanceContact-v2": (
         AdmittanceContactEnv,
         "iiwa14 pressing on a compliant surface while wiping: interaction control (ch. 6)",
     ),
@@ -55,7 +55,7 @@ ENVIRONMENTS: dict[str, tuple[type[RobotEnv], str]] = {
         PegInHoleImpedanceEnv,
         "PegInHole for agents: 20-Hz pose-setpoint increments of a Cartesian impedance loop (ch. 6)",
     ),
-    "cir_gym/AdmittanceContactImpedance-v0": (
+    "cir_gym/AdmittanceContactImpedance-v1": (
         AdmittanceContactImpedanceEnv,
         "AdmittanceContact for agents: 20-Hz setpoint increments of a Cartesian impedance loop",
     ),
@@ -69,11 +69,11 @@ BATCHED_ENVIRONMENTS: dict[str, str] = {
     "cir_gym/JointTracking-v2": "cir_gym.envs.vector:JointTrackingVectorEnv",
     "cir_gym/ElasticJointTracking-v3": "cir_gym.envs.vector:ElasticJointTrackingVectorEnv",
     "cir_gym/CartesianTracking-v1": "cir_gym.envs.cartesian_vector:CartesianTrackingVectorEnv",
-    "cir_gym/AdmittanceContact-v1": "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv",
+    "cir_gym/AdmittanceContact-v2": "cir_gym.envs.admittance_vector:AdmittanceContactVectorEnv",
     "cir_gym/PegInHole-v2": "cir_gym.envs.peg_in_hole_vector:PegInHoleVectorEnv",
     "cir_gym/RedundantIK-v4": "cir_gym.envs.redundant_ik_vector:RedundantIKVectorEnv",
     "cir_gym/RedundantIK7-v5": "cir_gym.envs.redundant_ik_vector:RedundantIK7VectorEnv",
-    "cir_gym/AdmittanceContactImpedance-v0": (
+    "cir_gym/AdmittanceContactImpedance-v1": (
         "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
     ),
     "cir_gym/PegInHoleImpedance-v0": "cir_gym.envs.agent_ready_vector:PegInHoleImpedanceVectorEnv",

@@ -136,7 +136,8 @@ def build_model(
     * ``tool_contact`` (3,): the net force of the tool-plate contact, world frame (N), the
       force the plate exerts on the tip: n̂ · it is the tool's push along the inward normal;
     * ``peak_contact`` (3,): the contact on the plate (the tool or any link) with the largest
-      force, in its contact frame: [0] is its normal force (N).
+      force, its force in its contact frame (N; normal, two tangential): its magnitude is the
+      largest single contact force (:func:`cir_gym.envs.contact_force.largest_contact_force`).
     """
     spec = mujoco.MjSpec.from_file(str(SCENE))
     spec.option.timestep = timestep

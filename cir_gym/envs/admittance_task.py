@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from cir_gym.envs.contact_force import largest_contact_force
+
 __all__ = [
     "CONTACT_THRESHOLD",
     "REWARD_TERMS",
@@ -38,15 +40,18 @@ REWARD_TERMS = (
 
 
 def period_forces(
-    record: np.ndarray, normal: np.ndarray, tool_at: slice, peak_at: int
+    record: np.ndarray, normal: np.ndarray, tool_at: slice, peak_at: slice
 ) -> tuple[np.ndarray, np.ndarray]:
     """A control period's contact forces at each physics step, from its sensordata record
     (..., n, nsensordata) (n physics steps, a leading copy axis or none) and the true surface
     normal (..., 3): the tool's normal contact force (..., n) (N), n̂ · the plate's force on
     the tip (the ``tool_contact`` sensor at ``tool_at``), and the largest single contact force
-    on the plate (..., n) (N, ``peak_contact``'s normal component at ``peak_at``)."""
+    on the plate (..., n) (N), max_i ‖f_i‖ over the plate's contacts (the tool's and the
+    links'): the whole force, normal and friction, of ``peak_contact`` (at ``peak_at``), as
+    PegInHole measures its largest contact
+    (:func:`~cir_gym.envs.contact_force.largest_contact_force`)."""
     tool = np.sum(record[..., tool_at] * normal[..., None, :], axis=-1)
-    return tool, record[..., peak_at]
+    return tool, largest_contact_force(record[..., peak_at])
 
 
 @dataclass(frozen=True)

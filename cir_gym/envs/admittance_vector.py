@@ -1,8 +1,8 @@
 """Native batched AdmittanceContact on ``mujoco.batch.Batch``: ``num_envs`` copies of
-``cir_gym/AdmittanceContact-v1`` in one vector env.
+``cir_gym/AdmittanceContact-v2`` in one vector env.
 
 >>> import cir_gym
->>> envs = cir_gym.make_vec("cir_gym/AdmittanceContact-v1", num_envs=32)   # doctest: +SKIP
+>>> envs = cir_gym.make_vec("cir_gym/AdmittanceContact-v2", num_envs=32)   # doctest: +SKIP
 >>> obs, infos = envs.reset(seed=0)          # copy i is AdmittanceContact reset(seed=i)
 >>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
 
@@ -71,7 +71,7 @@ _SURFACE_FIELDS = ("jnt_stiffness", "dof_damping", "body_pos", "body_quat")
 
 
 class AdmittanceContactVectorEnv(BatchedTaskEnv):
-    """``num_envs`` copies of ``cir_gym/AdmittanceContact-v1`` on one ``mujoco.batch.Batch``
+    """``num_envs`` copies of ``cir_gym/AdmittanceContact-v2`` on one ``mujoco.batch.Batch``
     (see the module docstring).
 
     Args:
@@ -81,7 +81,7 @@ class AdmittanceContactVectorEnv(BatchedTaskEnv):
     """
 
     env_class: ClassVar[type[AdmittanceContactEnv]] = AdmittanceContactEnv
-    env_id: ClassVar[str] = "cir_gym/AdmittanceContact-v1"
+    env_id: ClassVar[str] = "cir_gym/AdmittanceContact-v2"
     template: AdmittanceContactEnv
 
     episode_state: ClassVar[tuple[str, ...]] = (

@@ -619,13 +619,13 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     impedance loop at 20 Hz.
 
     ## Description
-    The task of ``cir_gym/AdmittanceContact-v1``
+    The task of ``cir_gym/AdmittanceContact-v2``
     (:class:`~cir_gym.envs.admittance_contact.AdmittanceContactEnv`: press the tool on a
     compliant plate with the reference force f̄ while wiping a path; its docstring describes
     the scene, the surface errors and the sensor), played through its torque interface by an
     env-side Cartesian impedance loop at the tool tip (``tcp``). The policy acts at
     ``control_freq`` (default 20 Hz, 25 impedance-loop steps per action). The same seeds give
-    the same surfaces, forces and paths as AdmittanceContact-v1; metrics and success are its
+    the same surfaces, forces and paths as AdmittanceContact-v2; metrics and success are its
     own, unchanged.
 """
         + _COMMON_LOOP
@@ -639,7 +639,7 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     peaks at 0.079 m/s).
 
     ## Observation Space
-    AdmittanceContact-v1's ``Dict`` (q, qd, tool_pos, tool_quat, tool_vel, tool_angvel,
+    AdmittanceContact-v2's ``Dict`` (q, qd, tool_pos, tool_quat, tool_vel, tool_angvel,
     wrench — the wrist F/T reading —, f_ref, tool_pos_ref, tool_vel_ref, setpoint_pos,
     setpoint_quat), where ``setpoint_pos`` and ``setpoint_quat`` hold the impedance loop's
     setpoint as of the task's last step (the torque interface reports the tool's pose there;
@@ -659,11 +659,11 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
         )
         + """
     ## Starting State
-    AdmittanceContact-v1's: at rest at ``START_Q``, the tip 3 cm above the nominal surface;
+    AdmittanceContact-v2's: at rest at ``START_Q``, the tip 3 cm above the nominal surface;
     the setpoint at that pose (an action of zeros holds it).
 
     ## Episode End
-    AdmittanceContact-v1's, at the policy step in which the task's step ends: terminated on
+    AdmittanceContact-v2's, at the policy step in which the task's step ends: terminated on
     the force limit or a divergence (``info["diverged"]``), truncated after
     ``episode_duration`` (100 policy steps by default). ``info`` holds the task's last step's
     entries (``contact_force``, ``in_contact``, ``plate_load``, …), ``task_steps`` and, at the
@@ -710,7 +710,7 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     | height | 480 | frame height (px) |
 
     ## Metrics
-    AdmittanceContact-v1's (``force_rms_error`` primary, ``peak_overshoot``,
+    AdmittanceContact-v2's (``force_rms_error`` primary, ``peak_overshoot``,
     ``contact_loss``, ``path_error``, ``max_force``), read at the task's physics-step
     resolution from the task itself, and its success (no stop, force RMS error below
     ``success_threshold``, contact loss below 1 %).
@@ -718,13 +718,16 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     ## Reference controllers
     ``impedance_setpoint`` (:mod:`cir_gym.baselines.setpoint`): impedance control with the
     setpoint sunk by the designed equilibrium f̄ (1/K + 1/k̂). The leaderboard ranks every
-    policy of this variant in AdmittanceContact-v1's tables (labelled
-    ``[AdmittanceContactImpedance-v0]``) beside the torque-interface controllers (impedance,
+    policy of this variant in AdmittanceContact-v2's tables (labelled
+    ``[AdmittanceContactImpedance-v1]``) beside the torque-interface controllers (impedance,
     admittance, explicit_force, implicit_force, parallel_force_position), on the same seeds. An action of zeros is the hold-still policy
     of the normalized score (:mod:`cir_gym.scoring.normalized`).
 
     ## Version History
     - v0: initial version (on AdmittanceContact-v1's task).
+    - v1: on AdmittanceContact-v2's task: ``max_force`` and the force limit read the whole
+      force (normal and friction) of the largest single contact; the loop, the observations
+      and the reward are unchanged.
     """
     )
 

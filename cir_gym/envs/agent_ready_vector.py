@@ -1,9 +1,9 @@
 """Native batched agent-ready variants: ``num_envs`` copies of
-``cir_gym/AdmittanceContactImpedance-v0`` or ``cir_gym/PegInHoleImpedance-v0`` in one vector
+``cir_gym/AdmittanceContactImpedance-v1`` or ``cir_gym/PegInHoleImpedance-v0`` in one vector
 env, their physics the task's batched env on one ``mujoco.batch.Batch``.
 
 >>> import cir_gym
->>> envs = cir_gym.make_vec("cir_gym/AdmittanceContactImpedance-v0", num_envs=32)  # doctest: +SKIP
+>>> envs = cir_gym.make_vec("cir_gym/AdmittanceContactImpedance-v1", num_envs=32)  # doctest: +SKIP
 >>> obs, infos = envs.reset(seed=0)      # copy i is the single variant reset(seed=i)
 >>> obs, rew, term, trunc, infos = envs.step(envs.action_space.sample())
 
@@ -213,11 +213,11 @@ def _restore(
 
 
 class AdmittanceContactImpedanceVectorEnv(ImpedanceVectorEnv):
-    """``num_envs`` copies of ``cir_gym/AdmittanceContactImpedance-v0`` on
+    """``num_envs`` copies of ``cir_gym/AdmittanceContactImpedance-v1`` on
     :class:`~cir_gym.envs.admittance_vector.AdmittanceContactVectorEnv` (module docstring)."""
 
     env_class: ClassVar[type[ImpedanceTaskEnv]] = AdmittanceContactImpedanceEnv
-    env_id: ClassVar[str] = "cir_gym/AdmittanceContactImpedance-v0"
+    env_id: ClassVar[str] = "cir_gym/AdmittanceContactImpedance-v1"
     task_vector_class: ClassVar[type[BatchedTaskEnv]] = AdmittanceContactVectorEnv
 
 

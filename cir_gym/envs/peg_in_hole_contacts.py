@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from cir_gym import peg_hole_geometry as geo
+from cir_gym.envs.contact_force import largest_contact_force
 
 __all__ = ["SIDE_NORMAL", "STALL_SPEED", "ContactFlags", "ContactSensors", "contact_flags"]
 
@@ -84,9 +85,10 @@ class ContactSensors:
         return sensordata[..., self._largest : self._largest + 3]
 
     def largest(self, sensordata: np.ndarray) -> np.ndarray:
-        """The largest single contact force max_i ‖f_i‖ (...,) (N; 0 without contact)."""
-        f = self.largest_force(sensordata)
-        return np.sqrt(np.sum(f * f, axis=-1))
+        """The largest single contact force max_i ‖f_i‖ (...,) (N; 0 without contact): the
+        whole force (normal and friction) of the largest contact
+        (:func:`~cir_gym.envs.contact_force.largest_contact_force`)."""
+        return largest_contact_force(self.largest_force(sensordata))
 
     def net(self, sensordata: np.ndarray) -> np.ndarray:
         """The net force of the block on the robot Σ_i f_i (..., 3), world frame (N) (the

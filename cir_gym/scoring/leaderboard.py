@@ -70,7 +70,7 @@ HOLD_STILL = HoldStill.name
 #: on the batch's size, so an agent's episode can differ by as much between runs of another
 #: ``--episodes``; a run is deterministic. Evaluating the network row by row would be exact but
 #: costs most of the gain (measured, 8 episodes of JointTracking's residual agent: 8.1 s CPU
-#: against 10.2 s one by one, 2.5 s batched). The contact ids (AdmittanceContact-v1, PegInHole-v2)
+#: against 10.2 s one by one, 2.5 s batched). The contact ids (AdmittanceContact-v2, PegInHole-v2)
 #: are left out until an agent of theirs is measured: contact switching can amplify a last-bit
 #: difference without bound.
 AGENT_BATCH_IDS = frozenset({
@@ -181,7 +181,7 @@ EPISODE_SECONDS: dict[str, float] = {
     "RedundantIK7-v5": 0.45,
     "VisualServo-v1": 0.6,
     "VisualServoEyeToHand-v1": 0.5,
-    "AdmittanceContact-v1": 2.5,
+    "AdmittanceContact-v2": 2.5,
     "PegInHole-v2": 5.0,
     "CartesianTracking-v1": 0.9,
 }

@@ -45,7 +45,7 @@ from cir_gym import baselines
 from cir_gym.envs.admittance_contact import AdmittanceContactEnv
 from cir_gym.evaluation import evaluate
 
-ENV_ID = "cir_gym/AdmittanceContact-v1"
+ENV_ID = "cir_gym/AdmittanceContact-v2"
 SETTINGS: dict[str, dict[str, Any]] = {
     "k = 1e3 N/m": {"stiffness": 1.0e3, "force_ref": 20.0},
     "k = 1e4 N/m": {"stiffness": 1.0e4, "force_ref": 20.0},
