@@ -17,7 +17,13 @@ training still run the single env.
 ObservationLayout`, with its features), the training-only shaping of :mod:`agents.shaping`
 (``reward_offset``; ``log_error_bonus`` on the joint-tracking envs, whose error norm ‖q̄ − q‖ is
 read from the observation, the value ``info["joint_error"]`` holds in the single env), and the
-episode statistics SB3's ``Monitor`` would report (``info["episode"]``).
+episode statistics SB3's ``Monitor`` would report (``info["episode"]``). Under it, for a residual
+agent, :class:`BatchedResidualAction` runs the base controller on every copy's Dict observation
+(the single stack's :class:`agents.residual.ResidualAction`; ~1.6 ms per step for 16 rows of
+impedance_spiral): residual PPO over impedance_spiral on PegInHoleImpedance-v0 at 16 envs, 4096
+steps, trains on ~130 env steps per CPU second against ~42 on a ``DummyVecEnv`` of single envs
+(2 shared cores, load ~5; its copies reach the block, whose contacts cost more physics than a
+from-scratch agent's early episodes in free space).
 """
 
 from __future__ import annotations
@@ -26,10 +32,71 @@ from typing import Any
 
 import numpy as np
 from cir_gym.agents.observation import ObservationLayout
+from cir_gym.agents.residual import agent_action, base_controller, check_scale, combine
 from cir_gym.agents.shaping import check_log_error_bonus, log_error_bonus
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-__all__ = ["BatchedTaskObservation", "make_batched_vec_env"]
+__all__ = ["BatchedResidualAction", "BatchedTaskObservation", "make_batched_vec_env"]
+
+
+class BatchedResidualAction(VecEnvWrapper):
+    """:class:`agents.residual.ResidualAction` on all copies at once: the agent's action is
+    the scaled residual on the controller's, a = clip(a_ctrl + scale ⊙ a_agent, −1, 1) (N, m).
+
+    One ``controller.predict`` per vector step on every copy's Dict observation (N rows), its
+    state (N, state_size) kept across steps; a row's state is re-initialised at its episode's
+    start (``episode_start``): every row after :meth:`reset`, and row i after a step whose
+    ``dones[i]`` (the batched env has then already reset copy i, SAME_STEP autoreset: its
+    observation is the new episode's first), as the single wrapper after ``reset()``. A course
+    controller gives each row the action it gives that observation alone (``baselines.RowLaw``;
+    the others run row by row), so copy i is the single env under ``ResidualAction``.
+
+    Args:
+        venv: an SB3 VecEnv with Dict observations (``cir_gym.envs.vector.sb3_vec_env``).
+        controller: an object with SB3's ``predict`` (e.g. :func:`agents.residual.
+            base_controller` of the batched env's template).
+        scale: residual range per action dimension (scalar or (m,)).
+
+    ``infos[i]["controller_action"]`` (m,) and ``infos[i]["residual_action"]`` (m,) hold copy
+    i's a_ctrl and scale ⊙ a_agent of the step, as the single wrapper's info.
+    """
+
+    def __init__(self, venv: VecEnv, controller: Any, scale: Any) -> None:
+        super().__init__(venv)
+        if not hasattr(controller, "predict"):
+            raise TypeError(f"controller must have SB3's predict(), got {controller!r}")
+        self.controller = controller
+        self.scale = check_scale(scale, venv.action_space)
+        self._obs: dict[str, np.ndarray] | None = None
+        self._state: Any = None
+        self._starts = np.ones(self.num_envs, dtype=bool)
+        self._a_ctrl = np.zeros((self.num_envs, *self.scale.shape))
+        self._residual = np.zeros_like(self._a_ctrl)
+
+    def reset(self) -> dict[str, np.ndarray]:
+        self._obs = self.venv.reset()
+        self._state = None
+        self._starts[:] = True
+        return self._obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        a_agent = agent_action(actions, self._a_ctrl.shape)
+        a_ctrl, self._state = self.controller.predict(
+            self._obs, state=self._state, episode_start=self._starts, deterministic=True)
+        self._a_ctrl = np.asarray(a_ctrl, dtype=np.float64)
+        self._residual = self.scale * np.clip(a_agent, -1.0, 1.0)
+        self.venv.step_async(combine(self._a_ctrl, a_agent, self.scale))
+
+    def step_wait(self) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, list[dict]]:
+        obs, rew, dones, infos = self.venv.step_wait()
+        self._obs = obs  # ended copies: their next episode's first observation
+        self._starts = np.asarray(dones, dtype=bool).copy()
+        for i, info in enumerate(infos):
+            info["controller_action"] = self._a_ctrl[i]
+            info["residual_action"] = self._residual[i]
+        return obs, rew, dones, infos
 
 
 class BatchedTaskObservation(VecEnv):
@@ -58,8 +125,8 @@ class BatchedTaskObservation(VecEnv):
         log_error: dict[str, float] | None = None,
     ) -> None:
         self.render_mode = None
+        self.venv = venv  # before VecEnv.__init__, which asks it for render_mode
         super().__init__(venv.num_envs, layout.space(), venv.action_space)
-        self.venv = venv
         if not np.isfinite(reward_offset):
             raise ValueError(f"reward offset must be finite, got {reward_offset!r}")
         self.layout = layout
@@ -136,12 +203,21 @@ def make_batched_vec_env(
     seed: int,
     reward_offset: float = 0.0,
     log_error: dict[str, float] | None = None,
+    residual: str | None = None,
+    scale: Any = None,
+    controller_kwargs: dict[str, Any] | None = None,
 ) -> VecEnv:
     """``n_envs`` batched training copies of ``env_id`` as an SB3 VecEnv (copy i: seed + i), on
     the id's native batched env (:func:`cir_gym.envs.vector.native_vector_env`).
 
+    ``residual`` (a controller name of ``baselines.available(env_id)``, built with
+    ``controller_kwargs`` on the batched env's template) makes the agent's action the residual
+    on it (:class:`BatchedResidualAction`, scale ``scale``): the stack of ``agents.train.
+    EnvFactory`` with ``residual``.
+
     Raises:
-        ValueError: ``env_id`` has no native batched env, or it does not batch ``env_kwargs``.
+        ValueError: ``env_id`` has no native batched env, or it does not batch ``env_kwargs``;
+            a controller that does not apply, bad gains or scale.
     """
     from cir_gym.envs.vector import VECTOR_ENVS, native_vector_env, sb3_vec_env
 
@@ -157,6 +233,17 @@ def make_batched_vec_env(
     venv = cls(num_envs=n_envs, nthread=1, **env_kwargs)
     layout.check_space(venv.single_observation_space)
     flatten = layout.bind(venv.template)
-    sb3 = sb3_vec_env(venv)
+    sb3: VecEnv = sb3_vec_env(venv)
     sb3.seed(seed)
+    if residual is not None:
+        try:
+            controller = base_controller(residual, venv.template, cls.env_id,
+                                         **(controller_kwargs or {}))
+            sb3 = BatchedResidualAction(sb3, controller, scale)
+        except (ValueError, TypeError):
+            sb3.close()
+            raise
+    elif scale is not None or controller_kwargs:
+        sb3.close()
+        raise ValueError("scale and controller_kwargs need residual=<controller>")
     return BatchedTaskObservation(sb3, layout, flatten, reward_offset, log_error)

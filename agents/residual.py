@@ -6,7 +6,8 @@
 (integrators, adaptive estimates) kept across steps and re-initialised at each episode start,
 exactly as :func:`cir_gym.evaluation.evaluate` runs it. With ``a_agent = 0`` the wrapped env
 behaves exactly like the controller alone, so a residual policy whose mean starts at zero starts
-at the controller's performance.
+at the controller's performance. :class:`agents.batched.BatchedResidualAction` is the same
+layer on a native batched env (one ``predict`` on all copies' observations per step).
 
 Choosing ``scale`` (in units of the action, i.e. of τ_max for torque actions): the residual's
 range must cover the error it corrects, with margin, or it saturates. For JointTracking with an
@@ -25,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["ResidualAction", "check_scale", "combine"]
+__all__ = ["ResidualAction", "agent_action", "base_controller", "check_scale", "combine"]
 
 
 def check_scale(scale: Any, action_space: gym.spaces.Box) -> np.ndarray:
@@ -39,6 +40,41 @@ def check_scale(scale: Any, action_space: gym.spaces.Box) -> np.ndarray:
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0) or np.any(arr > 2):
         raise ValueError(f"residual scale must be in (0, 2], got {scale!r}")
     return arr
+
+
+def base_controller(controller: Any, env: gym.Env, env_id: str | None,
+                    **controller_kwargs: Any) -> Any:
+    """The residual's base: ``controller`` itself (an object with SB3's ``predict``) or, for a
+    name of ``baselines.available(env_id)``, ``baselines.make(controller, env_id, env=env,
+    **controller_kwargs)`` (its context read from ``env``, a single env of ``env_id``).
+
+    Raises:
+        ValueError: a name without ``env_id``; ``controller_kwargs`` with an object.
+        TypeError: an object without ``predict``.
+    """
+    if isinstance(controller, str):
+        from cir_gym import baselines
+
+        if env_id is None:
+            raise ValueError("a controller name needs an env made with gymnasium.make")
+        controller = baselines.make(controller, env_id, env=env, **controller_kwargs)
+    elif controller_kwargs:
+        raise ValueError("controller_kwargs only apply to a controller given by name")
+    if not hasattr(controller, "predict"):
+        raise TypeError(f"controller must have SB3's predict(), got {controller!r}")
+    return controller
+
+
+def agent_action(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """The agent's action a_agent as float64 of ``shape`` ((m,) or (n_envs, m)).
+
+    Raises:
+        ValueError: a NaN or inf in it (or it does not reshape to ``shape``).
+    """
+    a_agent = np.asarray(action, dtype=np.float64).reshape(shape)
+    if not np.all(np.isfinite(a_agent)):
+        raise ValueError(f"residual action contains NaN or inf: {a_agent}")
+    return a_agent
 
 
 def combine(a_ctrl: np.ndarray, a_agent: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -64,18 +100,8 @@ class ResidualAction(gym.Wrapper):
     def __init__(self, env: gym.Env, controller: Any, scale: Any = 0.25,
                  **controller_kwargs: Any) -> None:
         super().__init__(env)
-        if isinstance(controller, str):
-            from cir_gym import baselines
-
-            env_id = env.spec.id if env.spec is not None else None
-            if env_id is None:
-                raise ValueError("a controller name needs an env made with gymnasium.make")
-            controller = baselines.make(controller, env_id, env=env, **controller_kwargs)
-        elif controller_kwargs:
-            raise ValueError("controller_kwargs only apply to a controller given by name")
-        if not hasattr(controller, "predict"):
-            raise TypeError(f"controller must have SB3's predict(), got {controller!r}")
-        self.controller = controller
+        env_id = env.spec.id if env.spec is not None else None
+        self.controller = base_controller(controller, env, env_id, **controller_kwargs)
         self.scale = check_scale(scale, env.action_space)
         self._obs: Any = None
         self._state: Any = None
@@ -97,9 +123,7 @@ class ResidualAction(gym.Wrapper):
         return np.asarray(a_ctrl, dtype=np.float64)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
-        a_agent = np.asarray(action, dtype=np.float64).reshape(self.scale.shape)
-        if not np.all(np.isfinite(a_agent)):
-            raise ValueError(f"residual action contains NaN or inf: {a_agent}")
+        a_agent = agent_action(action, self.scale.shape)
         a_ctrl = self.controller_action()
         a = combine(a_ctrl, a_agent, self.scale)
         obs, reward, terminated, truncated, info = self.env.step(a)

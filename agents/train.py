@@ -554,12 +554,13 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
 
     kind = hp.get("vec_env", "dummy")
     if kind == "batched":  # one mujoco.batch for all training copies (agents/batched.py)
-        if early or res or int(hp.get("task_replay", 1)) > 1:
-            raise HyperparameterError("vec_env 'batched' trains from-scratch agents without "
-                                      "early_termination or task_replay; use vec_env 'dummy'")
+        if early or int(hp.get("task_replay", 1)) > 1:
+            raise HyperparameterError("vec_env 'batched' trains without early_termination or "
+                                      "task_replay; use vec_env 'dummy'")
         venv = make_batched_vec_env(config["env_id"], config.get("env_kwargs") or {}, layout,
                                     n_envs, seed, float(hp.get("reward_offset", 0.0)),
-                                    log_error)
+                                    log_error, factory.residual, factory.scale,
+                                    factory.controller_kwargs)
     else:
         venv = _make_vec_env(train_factory, n_envs, kind, seed)
     n_eval = int(hp.get("n_eval_episodes", 5))
