@@ -1030,9 +1030,18 @@ def test_a_batched_run_trains_ships_and_loads_like_any_other(tmp_path):
     agent = agents.load(ENV, "b", path=run)
     result = evaluate(agent, ENV, 1, seed=100_000, **SHORT)
     assert np.isfinite(result.summary["rms_error"]["mean"])
+    # a residual trains on the batched env too (agents.batched.BatchedResidualAction)
+    run = train(ENV, "ppo", out=tmp_path, name="r", residual="computed_torque", env_kwargs=SHORT,
+                hyperparams_path=hp, progress_bar=False, verbose=0)
+    config = yaml.safe_load((run / "config.yml").read_text())
+    assert config["hyperparams"]["vec_env"] == "batched"
+    assert config["residual"]["controller"] == "computed_torque"
+    (tmp_path / "early").mkdir()
+    early = tiny_hyperparams(tmp_path / "early", vec_env="batched", n_envs=4,
+                             early_termination={"max_error": 1.0})
     with pytest.raises(HyperparameterError, match="batched"):
-        train(ENV, "ppo", out=tmp_path, name="r", residual="computed_torque", env_kwargs=SHORT,
-              hyperparams_path=hp, progress_bar=False, verbose=0)
+        train(ENV, "ppo", out=tmp_path, name="e", env_kwargs=SHORT, hyperparams_path=early,
+              progress_bar=False, verbose=0)
 
 
 def test_ship_puts_a_seed_run_under_its_agent_name(tiny_runs, tmp_path):
