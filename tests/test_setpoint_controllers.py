@@ -34,7 +34,8 @@ def _episodes(name: str, env_id: str, seeds: int, seed: int, **kw) -> Evaluation
 
 def test_the_controllers_are_the_agent_ready_ids_policies() -> None:
     assert baselines.available(PEG) == ["impedance_insertion", "impedance_spiral"]
-    assert baselines.available(CONTACT) == ["impedance_setpoint"]
+    assert baselines.available(CONTACT) == [
+        "impedance_setpoint", "admittance_setpoint", "implicit_force_setpoint"]
     assert {"impedance_insertion", "impedance_spiral"} <= set(policy_names(PEG))
     assert "impedance_setpoint" in policy_names(CONTACT)
     # the torque interface and a variable stiffness are refused, naming what is needed

@@ -716,8 +716,12 @@ class AdmittanceContactImpedanceEnv(ImpedanceTaskEnv):
     ``success_threshold``, contact loss below 1 %).
 
     ## Reference controllers
-    ``impedance_setpoint`` (:mod:`cir_gym.baselines.setpoint`): impedance control with the
-    setpoint sunk by the designed equilibrium f̄ (1/K + 1/k̂). The leaderboard ranks every
+    :mod:`cir_gym.baselines.setpoint`: ``impedance_setpoint``, impedance control with the
+    setpoint sunk by the designed equilibrium f̄ (1/K + 1/k̂) (no force feedback);
+    ``admittance_setpoint`` and ``implicit_force_setpoint``, the course's admittance and
+    implicit force control with this impedance loop as their inner motion loop (the force
+    error moves the setpoint's depth; designed on the loop in series with the surface, at the
+    policy rate). The leaderboard ranks every
     policy of this variant in AdmittanceContact-v2's tables (labelled
     ``[AdmittanceContactImpedance-v1]``) beside the torque-interface controllers (impedance,
     admittance, explicit_force, implicit_force, parallel_force_position), on the same seeds. An action of zeros is the hold-still policy
