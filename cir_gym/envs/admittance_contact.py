@@ -98,14 +98,14 @@ class AdmittanceContactEnv(RobotEnv):
     pressed (> 0.5 N) at every physics step of the period (``info["contact_steps"]``: the
     fraction it did); ``info["peak_contact_force"]``: the largest single contact force ‖f_i‖
     (normal and friction) on the plate (the tool's or a link's) in the period;
-    ``info["plate_load"]``: k x + c ẋ, what a load cell under the plate reads. The controllers measure the wrench through the sensor
-    model (:mod:`cir_gym.ft_sensor`: the tool's weight, bias, noise, quantisation, low-pass
-    filter, delay, zero-order-hold sampling; presets ``"robotiq_ft300"``, ``"ati_gamma"``,
-    ``"ideal"``), one physics step late (MuJoCo computes sensors before it integrates). With
-    ``randomize=True`` each reset draws the stiffness (log-uniform in [1e3, 1e5] N/m), the
-    damping (U(5, 50) N s/m) and the sensor bias (U(±2) N, U(±0.1) N m per axis) and ignores
-    ``stiffness``, ``damping`` and ``sensor_bias``; the draw is in ``info["surface"]`` of
-    ``reset``.
+    ``info["plate_load"]``: k x + c ẋ, what a load cell under the plate reads. The controllers
+    measure the wrench through the sensor model (:mod:`cir_gym.ft_sensor`: the tool's weight,
+    bias, noise, quantisation, low-pass filter, delay, zero-order-hold sampling; presets
+    ``"robotiq_ft300"``, ``"ati_gamma"``, ``"ideal"``), one physics step late (MuJoCo computes
+    sensors before it integrates). With ``randomize=True`` each reset draws the stiffness
+    (log-uniform in [1e3, 1e5] N/m), the damping (U(5, 50) N s/m) and the sensor bias (U(±2) N,
+    U(±0.1) N m per axis) and ignores ``stiffness``, ``damping`` and ``sensor_bias``; the draw
+    is in ``info["surface"]`` of ``reset``.
 
     ## Action Space
     ``control="torque"``: ``Box(-1, 1, (7,), float32)``, τ = a ⊙ τ_max (τ_max = 320, 320, 176,
@@ -205,8 +205,9 @@ class AdmittanceContactEnv(RobotEnv):
     ``peak_overshoot`` (N, max(f − f̄, 0) after the first contact) and ``max_force`` (N, the
     largest single contact force on the plate at any physics step, max_i ‖f_i‖ of the
     contacts' whole forces f_i, normal and friction: what the force limit tests). A stopped
-    episode is scored over the whole horizon, its unplayed steps with f = 0 and no contact. Success: no divergence, no force-limit stop, ``force_rms_error`` <
-    ``success_threshold`` and ``contact_loss`` < 0.01.
+    episode is scored over the whole horizon, its unplayed steps with f = 0 and no contact.
+    Success: no divergence, no force-limit stop, ``force_rms_error`` < ``success_threshold``
+    and ``contact_loss`` < 0.01.
 
     ## Reference controllers
     ``baselines.available("cir_gym/AdmittanceContact-v2")``: impedance, admittance,
