@@ -97,17 +97,23 @@ def mean_interval(values: np.ndarray, confidence: float = 0.95,
     Args:
         values: (n,) finite values (one per episode).
         confidence: in (0, 1).
-        resamples: number of bootstrap resamples (≥ 1).
-        seed: the generator's seed.
+        resamples: number of bootstrap resamples, an integer ≥ 1.
+        seed: the generator's seed, an integer ≥ 0.
 
     Returns:
         (low, high), with low ≤ mean ≤ high; (NaN, NaN) for n < 2 (one value has no
         spread to resample).
+
+    Raises:
+        ValueError: confidence outside (0, 1), resamples or seed not such an integer (a bool
+            is not one), values not finite.
     """
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    if resamples < 1:
-        raise ValueError(f"resamples must be >= 1, got {resamples!r}")
+    if not _is_integer(resamples) or resamples < 1:
+        raise ValueError(f"resamples must be an integer >= 1, got {resamples!r}")
+    if not _is_integer(seed) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0 (np.random.default_rng's), got {seed!r}")
     v = np.asarray(values, dtype=float).ravel()
     if not np.all(np.isfinite(v)):
         raise ValueError("values must be finite (aggregate drops NaN episodes first)")
@@ -130,7 +136,8 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
 
     With p̂ = k/n: centre (p̂ + z²/2n)/(1 + z²/n), half-width
     z √(p̂(1 − p̂)/n + z²/4n²)/(1 + z²/n). Unlike p̂ ± z √(p̂(1 − p̂)/n) it is not degenerate at
-    0/n or n/n (0/30 → 0–0.114) and stays in [0, 1]. ``z`` = :data:`Z95` gives 95 %.
+    0/n or n/n (0/30 → 0–0.114) and stays in [0, 1]: exactly 0 at 0/n, exactly 1 at n/n.
+    ``z`` = :data:`Z95` gives 95 %.
 
     Raises:
         ValueError: n < 1 or successes not in 0…n.
@@ -143,7 +150,15 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     scale = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / scale
     half = z * np.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / scale
-    return max(0.0, float(centre - half)), min(1.0, float(centre + half))
+    # at 0/n and n/n the closed form's bound is 0 and 1 exactly (centre = half), up to rounding
+    low = 0.0 if successes == 0 else max(0.0, float(centre - half))
+    high = 1.0 if successes == n else min(1.0, float(centre + half))
+    return low, high
+
+
+def _is_integer(x: object) -> bool:
+    """An int or numpy integer, not a bool."""
+    return isinstance(x, int | np.integer) and not isinstance(x, bool)
 
 
 #: the keys of :func:`aggregate`'s summary of a metric

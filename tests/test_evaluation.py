@@ -130,16 +130,26 @@ def test_the_bootstrap_interval_of_the_mean_is_reproducible_and_shrinks_with_n()
         mean_interval(x30, confidence=95)
     with pytest.raises(ValueError, match="finite"):
         mean_interval(np.array([1.0, np.nan]))
+    assert mean_interval(x30, resamples=np.int64(10_000), seed=np.int32(0)) == (lo30, hi30)
+    for bad in (1e4, True, 0, "10000"):
+        with pytest.raises(ValueError, match="resamples must be an integer >= 1"):
+            mean_interval(x30, resamples=bad)
+    for bad in (1.5, False, -1, None):
+        with pytest.raises(ValueError, match="seed must be an integer >= 0"):
+            mean_interval(x30, seed=bad)
 
 
 def test_the_wilson_interval_of_a_success_rate():
     """26/30 → 0.703–0.947 (the closed form); 0/30 and 30/30 are not zero-width, as
-    p ± z √(p(1 − p)/n) would be; the interval narrows with n and stays in [0, 1]."""
+    p ± z √(p(1 − p)/n) would be, and end exactly at 0 and 1; the interval narrows with n and
+    stays in [0, 1]."""
     assert wilson_interval(26, 30) == pytest.approx((0.7032, 0.9469), abs=1e-4)
     low, high = wilson_interval(0, 30)
     assert low == 0.0 and high == pytest.approx(0.1135, abs=1e-4)
     low, high = wilson_interval(30, 30)
-    assert high == pytest.approx(1.0) and low == pytest.approx(0.8865, abs=1e-4)
+    assert high == 1.0 and low == pytest.approx(0.8865, abs=1e-4)  # exactly 1, not 1 − 1e-16
+    assert all(wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
+               for n in range(1, 301))
     w30, w300 = (np.subtract(*wilson_interval(k, n)[::-1]) for k, n in ((15, 30), (150, 300)))
     assert w300 < w30 / 2.5
     for bad in ((31, 30), (-1, 30), (0, 0)):

@@ -180,6 +180,42 @@ def test_the_ranked_tables_quote_the_mean_and_the_success_rate_with_95_intervals
     assert f"<td>{mean}</td>" in page and "<td>87 % (70–95)</td>" in page and "±" not in page
 
 
+def test_the_interval_of_the_mean_is_shown_from_ten_episodes() -> None:
+    """3 episodes (a bootstrap covering ~74 %): the mean alone; 30 episodes: mean [low, high]
+    as interval_cell writes it from the summary; the header's meaning and the page's glossary
+    say where the interval starts."""
+    from cir_gym.envs.peg_in_hole import PegInHoleEnv
+    from cir_gym.evaluation import EpisodeResult, EvaluationResult
+    from cir_gym.scoring.page import GLOSSARY
+    from cir_gym.scoring.tables import (
+        MEAN_MEANING,
+        MIN_INTERVAL_EPISODES,
+        interval_cell,
+        mean_cell,
+        ranked_table,
+    )
+
+    def result(n: int) -> EvaluationResult:
+        episodes = [EpisodeResult(i, 0.0, 1, True, False, {"insertion_time": 6.5 + 0.1 * i})
+                    for i in range(n)]
+        return EvaluationResult("cir_gym/PegInHole-v2", "position_spiral", episodes,
+                                PegInHoleEnv.metric_specs, "insertion_time")
+
+    few, many = result(3), result(30)
+    assert np.isfinite(few.summary["insertion_time"]["ci_low"])  # computed, not shown
+    assert mean_cell(few, "insertion_time") == "6.6"
+    assert "| 6.6 |" in ranked_table([few]).splitlines()[2]
+    s = many.summary["insertion_time"]
+    shown = interval_cell(s["mean"], s["ci_low"], s["ci_high"])
+    assert re.fullmatch(r"7\.95 \[7\.\d\d, 8\.\d\d\]", shown), shown
+    assert mean_cell(many, "insertion_time") == shown
+    assert mean_cell(result(MIN_INTERVAL_EPISODES), "insertion_time").endswith("]")
+    assert mean_cell(result(MIN_INTERVAL_EPISODES - 1), "insertion_time").count("[") == 0
+    assert f"below {MIN_INTERVAL_EPISODES} episodes the mean alone" in MEAN_MEANING
+    glossary = dict(GLOSSARY)["mean [95 % CI]"]
+    assert f"Below {MIN_INTERVAL_EPISODES} episodes the table shows the mean alone" in glossary
+
+
 def test_a_mean_and_its_interval_share_one_precision() -> None:
     from cir_gym.scoring.tables import interval_cell
 
