@@ -21,11 +21,12 @@ errors drawn per episode. Groups of rows (``--only``):
 Each row (a law on a setting): mean of the normal-force RMS error with its 95 % Student-t
 interval, successes, force-limit stops, the contact loss (fraction of scored *physics steps*
 in which the tool's normal contact force is below 0.5 N) and the largest single contact
-force of each episode (``max_force``: the largest single contact on the plate at any 0.25-ms
-physics step), its mean and maximum over the episodes; ``contact_forces.png`` shows every
-episode's against the force limit. Cells are cached in ``results.json`` (a rerun adds missing
-ones); the README and the figure are written from it (``--render-only`` writes them without
-running): regenerate them, do not edit them by hand.
+force of each episode (``max_force``: the whole force ‖f_i‖, normal and friction, of the
+largest single contact on the plate at any 0.25-ms physics step), its mean and maximum over
+the episodes; ``contact_forces.png`` shows every episode's against the force limit. Cells are
+cached in ``results.json`` (a rerun adds missing ones); the README and the figure are written
+from it (``--render-only`` writes them without running): regenerate them, do not edit them by
+hand.
 """
 
 from __future__ import annotations
@@ -172,11 +173,8 @@ def write_readme(out: Path, results: dict[str, Any], episodes: int, seed: int) -
         "mean (max) over the episodes. `max_force` is the largest single contact at "
         "physics-step resolution: at every 0.25-ms step, MuJoCo's contact sensor on the plate "
         "(reduce maxforce: the contact with the largest force, the tool's or a link's) gives "
-        "its normal component, and the episode's maximum over its steps is kept (checked "
-        "against a scan of every plate contact with `mj_contactForce` after each step: the "
-        "same value to the last bit over 42,000 steps of three episodes, where only the tip "
-        "touched; with several contacts the sensor picks the largest total force, normal "
-        "and friction, so a different contact's normal force could be larger). "
+        "that contact's force, and its whole magnitude ‖f_i‖ (normal and friction, since "
+        f"{ENV_ID.split('/')[-1]}) is kept, the episode's maximum over its steps. "
         "[contact_forces.png](contact_forces.png): every episode's, per law and setting, "
         "with the limit.",
         "",
