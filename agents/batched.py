@@ -18,12 +18,11 @@ ObservationLayout`, with its features), the training-only shaping of :mod:`agent
 (``reward_offset``; ``log_error_bonus`` on the joint-tracking envs, whose error norm ‖q̄ − q‖ is
 read from the observation, the value ``info["joint_error"]`` holds in the single env), and the
 episode statistics SB3's ``Monitor`` would report (``info["episode"]``). Under it, for a residual
-agent, :class:`BatchedResidualAction` runs the base controller on every copy's Dict observation
-(the single stack's :class:`agents.residual.ResidualAction`; ~1.6 ms per step for 16 rows of
-impedance_spiral): residual PPO over impedance_spiral on PegInHoleImpedance-v0 at 16 envs, 4096
-steps, trains on ~130 env steps per CPU second against ~42 on a ``DummyVecEnv`` of single envs
-(2 shared cores, load ~5; its copies reach the block, whose contacts cost more physics than a
-from-scratch agent's early episodes in free space).
+agent, :class:`BatchedResidualAction` runs the base controller once per vector step on every
+copy's Dict observation (the single stack's :class:`agents.residual.ResidualAction`); its
+training throughput against a ``DummyVecEnv`` of single envs under ``ResidualAction`` is
+measured by ``benchmarks/bench_vector.py --only residual`` (residual PPO over impedance_spiral
+on PegInHoleImpedance-v0, 16 envs).
 """
 
 from __future__ import annotations

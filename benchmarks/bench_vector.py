@@ -4,9 +4,11 @@ and RL training throughput on the batched contact envs.
     python benchmarks/bench_vector.py [--num-envs 16 64] [--envs ID ...] [--steps 200]
                                       [--repeat 5] [--episodes 100] [--seq-episodes 10]
                                       [--other-episodes 1] [--rl-steps 2048] [--rl-warmup 256]
-                                      [--skip ...] [--out results/benchmarks.md]
+                                      [--skip ... | --only ...] [--out results/benchmarks.md]
 
-Four parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
+    python benchmarks/bench_vector.py --only residual --out -   # part 5 alone (~2 CPU min)
+
+Five parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
 replaced; the other sections belong to other scripts):
 
 1. ``throughput``: env-steps/s of each ``--num-envs`` count of copies of every id of
@@ -58,12 +60,21 @@ replaced; the other sections belong to other scripts):
    agents/hyperparams/sac.yml. Each run: an untimed ``learn`` of ``--rl-warmup`` env steps
    (PPO: rounded up to one rollout and its update; SAC: past learning_starts), then a timed
    ``learn`` of ``--rl-steps`` more (PPO: whole rollouts).
+5. ``residual``: the same timing of residual PPO (:data:`RESIDUAL_RL`: over impedance_spiral
+   on PegInHoleImpedance-v0; contact/ppo.yml's entry with its ``residual`` overrides: scale
+   0.5, zeroed last actor layer, learning rate 1e-4, log_std_init -2) with 16 envs: the batched
+   env under ``agents.batched.BatchedResidualAction`` (the controller predicted once per vector
+   step on all copies) against a DummyVecEnv of 16 single envs under
+   ``agents.residual.ResidualAction``; the machine's load average is printed with it. Its
+   copies reach the block soon (the controller drives them there), so contacts cost more
+   physics than a from-scratch agent's early episodes in free space.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 import warnings
@@ -85,7 +96,7 @@ from cir_gym.evaluation import evaluate
 SECTION = "## Vector env"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
 SEED = 1000  # scripts/leaderboard.py's
-PARTS = ("throughput", "evaluator", "leaderboard", "rl")
+PARTS = ("throughput", "evaluator", "leaderboard", "rl", "residual")
 
 #: ids without dynamics: a step integrates q̇ and runs the kinematics of every copy
 KINEMATIC_ENVS = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
@@ -485,6 +496,8 @@ RL_ENVS = ("cir_gym/PegInHoleImpedance-v0", "cir_gym/AdmittanceContactImpedance-
 CONTACT_PPO = Path(__file__).parents[1] / "agents" / "hyperparams" / "contact" / "ppo.yml"
 ROLLOUT = 2048  # PPO env steps per rollout: ppo.yml's n_steps 128 × n_envs 16
 RL_COPIES = 16
+#: (env id, course controller) of the residual agent timed in part 5
+RESIDUAL_RL = ("cir_gym/PegInHoleImpedance-v0", "impedance_spiral")
 
 
 def _observation_layout(env_id: str, hp: dict[str, Any]) -> Any:
@@ -499,13 +512,16 @@ def _observation_layout(env_id: str, hp: dict[str, Any]) -> Any:
     return layout
 
 
-def _rl_vec_envs(env_id: str, layout: Any) -> list[tuple[str, int, Callable[[], Any]]]:
-    """(label, n_envs, ``() ↦ SB3 VecEnv``) of the three sides, seeded 0."""
+def _rl_vec_envs(
+    env_id: str, layout: Any, residual: str | None = None, scale: Any = None
+) -> list[tuple[str, int, Callable[[], Any]]]:
+    """(label, n_envs, ``() ↦ SB3 VecEnv``) of the three sides, seeded 0; with ``residual``
+    (a course controller's name) the agent's action is the residual of ``scale`` on it."""
     from cir_gym.agents.batched import make_batched_vec_env
     from cir_gym.agents.train import EnvFactory
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    factory = EnvFactory(env_id, {}, layout)
+    factory = EnvFactory(env_id, {}, layout, residual, scale)
 
     def dummy(n: int) -> Any:
         venv = DummyVecEnv([factory] * n)
@@ -516,7 +532,9 @@ def _rl_vec_envs(env_id: str, layout: Any) -> list[tuple[str, int, Callable[[], 
         (
             f"batched, {RL_COPIES} copies",
             RL_COPIES,
-            lambda: make_batched_vec_env(env_id, {}, layout, RL_COPIES, 0),
+            lambda: make_batched_vec_env(
+                env_id, {}, layout, RL_COPIES, 0, residual=residual, scale=scale
+            ),
         ),
         (f"DummyVecEnv of {RL_COPIES}", RL_COPIES, lambda: dummy(RL_COPIES)),
         ("1 env", 1, lambda: dummy(1)),
@@ -581,6 +599,28 @@ def _timed_learn(model: Any, warmup: int, steps: int) -> LearnTiming:
     )
 
 
+def _timed_sides(
+    what: str,
+    sides: list[tuple[str, int, Callable[[], Any]]],
+    model_of: Callable[[Any, int], Any],
+    warmup: int,
+    steps: int,
+) -> dict[str, LearnTiming]:
+    """Side label → :func:`_timed_learn` of ``model_of(venv, n_envs)`` on each side, one after
+    the other (printed as ``what``)."""
+    timings = {}
+    for label, n, make in sides:
+        model = model_of(make(), n)
+        timings[label] = t = _timed_learn(model, warmup, steps)
+        model.get_env().close()
+        print(
+            f"  {what} {label}: {t.env_steps / t.cpu_s:,.1f} per CPU s, "
+            f"{t.env_steps / t.wall_s:,.1f}/s wall",
+            flush=True,
+        )
+    return timings
+
+
 def bench_rl(steps: int, warmup: int) -> list[str]:
     """PPO and SAC env-steps per CPU second on each of ``RL_ENVS``: the batched env (16
     copies, ``vec_env: batched``'s adapter) vs DummyVecEnv of 16 single envs vs 1 env."""
@@ -608,16 +648,13 @@ def bench_rl(steps: int, warmup: int) -> list[str]:
         hp = load_hyperparams("ppo", env_id, path=CONTACT_PPO)
         sides = _rl_vec_envs(env_id, _observation_layout(env_id, hp))
         for algo in ("ppo", "sac"):
-            timings = {}
-            for label, n, make in sides:
-                model = _rl_model(algo, make(), n, hp)
-                timings[label] = t = _timed_learn(model, warmup, steps)
-                model.get_env().close()
-                print(
-                    f"  {env_id} {algo} {label}: {t.env_steps / t.cpu_s:,.1f} per CPU s, "
-                    f"{t.env_steps / t.wall_s:,.1f}/s wall",
-                    flush=True,
-                )
+            timings = _timed_sides(
+                f"{env_id} {algo}",
+                sides,
+                lambda venv, n, algo=algo, hp=hp: _rl_model(algo, venv, n, hp),
+                warmup,
+                steps,
+            )
             rate = {k: t.env_steps / t.cpu_s for k, t in timings.items()}
             one, dummy = rate["1 env"], rate[f"DummyVecEnv of {RL_COPIES}"]
             rows += [
@@ -627,6 +664,55 @@ def bench_rl(steps: int, warmup: int) -> list[str]:
                 for label, t in timings.items()
             ]
     return rows
+
+
+def bench_rl_residual(steps: int, warmup: int) -> list[str]:
+    """Residual PPO's env-steps per CPU second over :data:`RESIDUAL_RL`'s controller: the
+    batched env under ``BatchedResidualAction`` (16 copies) vs a DummyVecEnv of 16 single envs
+    under ``ResidualAction`` (contact/ppo.yml's entry with its ``residual`` overrides)."""
+    import torch
+    from cir_gym.agents.hyperparameters import load_hyperparams
+    from cir_gym.agents.train import zero_action_layer
+
+    torch.set_num_threads(1)
+    env_id, controller = RESIDUAL_RL
+    hp = load_hyperparams("ppo", env_id, residual=True, path=CONTACT_PPO)
+    scale = hp.pop("residual_scale")
+
+    def model_of(venv: Any, n: int) -> Any:
+        model = _rl_model("ppo", venv, n, hp)
+        if hp.get("zero_init_action", False):
+            zero_action_layer(model)
+        return model
+
+    layout = _observation_layout(env_id, hp)
+    sides = [s for s in _rl_vec_envs(env_id, layout, controller, scale) if s[1] == RL_COPIES]
+    load_before = os.getloadavg()[0]
+    timings = _timed_sides(f"{env_id} residual ppo", sides, model_of, warmup, steps)
+    load_after = os.getloadavg()[0]
+    rate = {k: t.env_steps / t.cpu_s for k, t in timings.items()}
+    dummy = rate[f"DummyVecEnv of {RL_COPIES}"]
+    return [
+        f"Residual PPO over `{controller}` on {env_id.split('/')[-1]} (contact/ppo.yml with its "
+        f"`residual` overrides: scale {scale}, zeroed last actor layer, learning rate "
+        f"{hp['learning_rate']}), {RL_COPIES} envs: `learn` after an untimed warm-up of "
+        f"{warmup} env steps (rounded up to one {ROLLOUT}-step rollout and its update), timed "
+        f"over {steps} more (whole rollouts); one torch thread, one MuJoCo thread; the sides "
+        "one after the other. Batched: `make_batched_vec_env(..., residual=...)` "
+        "(`BatchedResidualAction`: the controller predicted once per vector step on all "
+        "copies); DummyVecEnv: `EnvFactory` with `ResidualAction` per env. Load average "
+        f"(1 min) {load_before:.1f} at the start, {load_after:.1f} at the end on 2 cores.",
+        "",
+        "| env | agent | vec env | env steps timed | gradient steps | env-steps per CPU s | "
+        "vs DummyVecEnv | env-steps/s (wall) |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+        *(
+            f"| {env_id.split('/')[-1]} | residual PPO ({controller}) | {label} | "
+            f"{t.env_steps:,} | {t.gradient_steps:,} | {rate[label]:,.0f} | "
+            f"{rate[label] / dummy:.1f} | {t.env_steps / t.wall_s:,.0f} |"
+            for label, t in timings.items()
+        ),
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -649,9 +735,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--rl-steps", type=int, default=ROLLOUT, help="env steps timed per RL run")
     p.add_argument("--rl-warmup", type=int, default=256, help="untimed env steps before them")
-    p.add_argument("--skip", nargs="*", default=[], choices=PARTS, help="parts to leave out")
+    parts = p.add_mutually_exclusive_group()
+    parts.add_argument("--skip", nargs="*", default=[], choices=PARTS, help="parts to leave out")
+    parts.add_argument(
+        "--only", nargs="+", choices=PARTS, help="the parts to run (the others are skipped)"
+    )
     p.add_argument("--out", type=Path, default=OUT, help="markdown file ('-' for none)")
     args = p.parse_args(argv)
+    if args.only:
+        args.skip = [part for part in PARTS if part not in args.only]
     unknown = sorted(set(args.envs or ()) - set(VECTOR_ENVS))
     if unknown:
         p.error(f"--envs: no batched env for {unknown}; allowed: {sorted(VECTOR_ENVS)}")
@@ -712,14 +804,17 @@ def main(argv: list[str] | None = None) -> int:
                 f"Target: 10 min.",
                 "",
             ]
-    if "rl" not in args.skip:
-        print("rl:", flush=True)
-        body += [
-            "### RL training throughput on the batched contact envs",
-            "",
-            *bench_rl(args.rl_steps, args.rl_warmup),
-            "",
-        ]
+    for part, title, bench in (
+        ("rl", "RL training throughput on the batched contact envs", bench_rl),
+        (
+            "residual",
+            "Residual RL training throughput on the batched contact env",
+            bench_rl_residual,
+        ),
+    ):
+        if part not in args.skip:
+            print(f"{part}:", flush=True)
+            body += [f"### {title}", "", *bench(args.rl_steps, args.rl_warmup), ""]
     text = "\n".join(body)
     print()
     print(text)
