@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from cir_gym.baselines import setpoint
 from cir_gym.baselines.base import InvalidGain
+from cir_gym.baselines.interaction import CommonGains
 
 import cir_gym
 from cir_gym import baselines
@@ -40,7 +41,7 @@ def test_the_force_laws_are_the_contact_variant_s_controllers() -> None:
 def _designed(name: str, **kw):
     """The law ``name`` designed at the env's start posture, the env's loop damping along the
     normal K_d,z (N s/m) and the sensor's lag τ_s (s), from the env itself."""
-    gains = {k: kw.pop(k) for k in ("crossover",) if k in kw}
+    gains = {k: kw.pop(k) for k in ("crossover", "normal_stiffness") if k in kw}
     env = gym.make(CONTACT, **kw)
     policy = baselines.make(name, CONTACT, env=env, **gains)
     obs, _ = env.reset(seed=1000)
@@ -58,27 +59,32 @@ def _designed(name: str, **kw):
     ({"stiffness": 1e3}, 1e3, 3.45),  # a known soft plate: the loop's lag binds
     ({"stiffness": 1e5, "crossover": 2.0}, 1e5, 2.0),  # the gain caps it lower
     ({"stiffness": 1e5, "crossover": 50.0}, 1e5, 4.89),  # never above the rule
+    # K_p,n overridden: the loop's lag (K_p + k̂)/(3 K_d,n) with the env's damping binds
+    ({"stiffness": 1e3, "normal_stiffness": 1500.0}, 1e3, 4.32),
 ])
 def test_gains_are_the_design_rule_s(kw, k_hat, rounded) -> None:
     """ω_c = min(crossover, 1/(3 τ_s), (K_p + k̂)/(3 K_d,n)); admittance D_d = k̂_e/ω_c,
-    M_d = D_d K_d,n/K_p (the filter's pole on the lead's zero); implicit k_Pf = ω_c,
-    k_If = ω_c²/4, the compensator's ω_i = K_p/K_d,n; k̂_e = 1/(1/K_p + 1/k̂), K_p = 1000 N/m
-    and K_d,n the env's own damping."""
+    M_d = D_d K_d,n/K_env (the filter's pole on the lead's zero); implicit k_Pf = ω_c,
+    k_If = ω_c²/4, the compensator's ω_i = K_env/K_d,n; k̂_e = 1/(1/K_p + 1/k̂). K_p is the
+    ``normal_stiffness`` gain (default the env's K_env = 1000 N/m); K_d,n and ω_L are the
+    env's own whatever K_p says."""
     admittance, K_dz, tau_s = _designed("admittance_setpoint", **dict(kw))
     implicit, _, _ = _designed("implicit_force_setpoint", **dict(kw))
-    K_p = 1000.0
+    K_env = 1000.0
+    K_p = kw.get("normal_stiffness", K_env)
     w_c = min(kw.get("crossover", math.inf), 1 / (3 * tau_s), (K_p + k_hat) / (3 * K_dz))
     k_e = 1 / (1 / K_p + 1 / k_hat)
     assert w_c == pytest.approx(rounded, abs=0.005)
     assert admittance.k_hat == implicit.k_hat == k_hat
+    assert admittance.normal_damping == pytest.approx(K_dz, rel=1e-12)
     assert admittance.omega_c == pytest.approx(w_c, rel=1e-12)
     assert admittance.k_e == implicit.k_e == pytest.approx(k_e, rel=1e-12)
     assert admittance.D_d == pytest.approx(k_e / w_c, rel=1e-12)
-    assert admittance.M_d == pytest.approx(k_e / w_c * K_dz / K_p, rel=1e-12)
+    assert admittance.M_d == pytest.approx(k_e / w_c * K_dz / K_env, rel=1e-12)
     assert admittance.gains.stiffness_normal == 0.0  # integral force control
     assert implicit.k_pf == pytest.approx(w_c, rel=1e-12)
     assert implicit.k_if == pytest.approx(w_c**2 / 4, rel=1e-12)
-    assert implicit.omega_i == pytest.approx(K_p / K_dz, rel=1e-12)
+    assert implicit.omega_i == pytest.approx(K_env / K_dz, rel=1e-12)
 
 
 def _forces(name: str, seed: int, **kw) -> np.ndarray:
@@ -147,7 +153,7 @@ def test_rows_of_every_phase_equal_each_row_alone(name) -> None:
 
 @pytest.mark.parametrize("gains, match", [
     (lambda: baselines.make("admittance_setpoint", CONTACT, crossover=-1.0),
-     "crossover must be a finite number > 0"),
+     "gain 'crossover' of controller 'admittance_setpoint' must be a finite number > 0"),
     (lambda: setpoint.AdmittanceSetpointGains(crossover=float("nan")), "crossover"),
     (lambda: setpoint.AdmittanceSetpointGains(damping="2"),
      "gain 'damping' of controller 'admittance_setpoint' must be a finite real number"),
@@ -158,10 +164,23 @@ def test_rows_of_every_phase_equal_each_row_alone(name) -> None:
     (lambda: baselines.make("implicit_force_setpoint", CONTACT, contact_force="1"),
      "contact_force"),
     (lambda: baselines.make("admittance_setpoint", CONTACT, ramp_time=-0.5), "ramp_time"),
+    (lambda: setpoint.LoopGains(normal_stiffness=-1.0), "'normal_stiffness' .* > 0"),
+    (lambda: setpoint.LoopGains(slow_speed=0.0), "slow_speed must be a finite number > 0"),
+    (lambda: setpoint.ForceLoopGains(crossover=0.0), "'crossover' .* > 0"),
 ])
 def test_bad_gains_raise_invalid_gain_naming_the_gain(gains, match) -> None:
     with pytest.raises(InvalidGain, match=match):
         gains()
+
+
+def test_the_shared_gains_stand_alone() -> None:
+    """LoopGains and ForceLoopGains are interaction gains (CommonGains) of their own: built
+    alone, they hold the interaction laws' fields with this interface's contact force."""
+    loop, force = setpoint.LoopGains(), setpoint.ForceLoopGains(crossover=2.0)
+    assert isinstance(loop, CommonGains) and isinstance(force, setpoint.LoopGains)
+    assert loop.contact_force == 1.0 and loop.normal_stiffness is None
+    assert loop.slow_speed == CommonGains().slow_speed
+    assert force.crossover == 2.0
 
 
 @pytest.mark.parametrize("name", FORCE_LAWS)
