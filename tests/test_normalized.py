@@ -27,12 +27,14 @@ LOWER = (MetricSpec("rms_error", "rad", "lower", "tracking error"),)
 HIGHER = (MetricSpec("final_depth", "m", "higher", "depth"),)
 
 
-def _result(name: str, values: list[float], specs=LOWER, env_id: str = "cir_gym/X-v0"):
+def _result(name: str, values: list[float], specs=LOWER, env_id: str = "cir_gym/X-v0",
+            successes: list[bool] | None = None):
     metric = specs[0].name
+    successes = successes or [False] * len(values)
     episodes = [
-        EpisodeResult(seed=i, episode_return=0.0, length=1, success=False, diverged=False,
+        EpisodeResult(seed=i, episode_return=0.0, length=1, success=ok, diverged=False,
                       metrics={metric: v})
-        for i, v in enumerate(values)
+        for i, (v, ok) in enumerate(zip(values, successes, strict=True))
     ]
     return EvaluationResult(env_id, name, episodes, specs, metric)
 
@@ -89,6 +91,21 @@ def test_scores_of_a_variant_with_the_best_controller_as_anchor() -> None:
     assert (s.hold, s.best, s.best_policy, s.log_scale) == (20.0, 4.0, "tuned:admittance", False)
     per_episode = episode_scores(rows[0], hold, rows[0])
     assert per_episode == pytest.approx([17 / 16, 1.0, 15 / 16])
+
+
+def test_the_anchor_is_the_tables_best_controller_success_first() -> None:
+    # PegInHole's chamfer: a faster mean insertion time bought with failed episodes (scored at
+    # the time limit) must not anchor 1 over the controller that always inserts
+    hold = _result("hold_still", [12.0, 12.0, 12.0])
+    always = _result("impedance_insertion", [7.0, 7.0, 7.0], successes=[True] * 3)
+    mostly = _result("tuned:hybrid", [2.0, 2.0, 12.0], successes=[True, True, False])
+    assert best_controller([mostly, always]).policy_name == "impedance_insertion"
+    scores = normalized_scores([mostly, always], hold)
+    assert scores["impedance_insertion"].score == 1.0
+    assert scores["tuned:hybrid"].score == pytest.approx((12 - 16 / 3) / 5)
+    # at equal success the better mean anchors
+    twin = _result("position_spiral", [6.0, 6.0, 6.0], successes=[True] * 3)
+    assert best_controller([always, twin]).policy_name == "position_spiral"
 
 
 def test_scores_on_a_higher_is_better_metric_and_on_a_log_scale() -> None:

@@ -8,15 +8,16 @@ between them (:mod:`cir_gym.score_scale`: linear, or a log scale where the ancho
 or more apart; 0 at m_hold, 1 at m_best, not clipped). The leaderboard measures both anchors on
 its own seeds (:func:`variant_anchors`) and writes them to ``<out>/normalized.json``.
 
-The best controller is the best row of the variant's table that is not a trained agent
-(``agent:``) nor the hold-still policy: a course controller at course or tuned gains, a plugin
-policy, and a course controller at another interface of the task — an agent-ready variant's
-(``impedance_insertion [PegInHoleImpedance-v0]``, :mod:`cir_gym.baselines.setpoint`). Those
-are the course's strategies expressed as setpoint motion of an impedance loop, not learned,
-and the interfaces share the variant's seeds, metrics and success, so they may anchor 1: the
-score then measures an agent against the best the course does on the task, whatever the
-interface. The 0 is the task's own hold-still policy (the torque interface's PD + gravity);
-the agent-ready interface's (a zero setpoint increment) holds the same pose.
+The best controller is the best row of the variant's table (its rank: success rate first, then
+the mean) that is not a trained agent (``agent:``) nor the hold-still policy: a course
+controller at course or tuned gains, a plugin policy, and a course controller at another
+interface of the task — an agent-ready variant's (``impedance_insertion
+[PegInHoleImpedance-v0]``, :mod:`cir_gym.baselines.setpoint`). Those are the course's
+strategies expressed as setpoint motion of an impedance loop, not learned, and the interfaces
+share the variant's seeds, metrics and success, so they may anchor 1: the score then measures
+an agent against the best the course does on the task, whatever the interface. The 0 is the
+task's own hold-still policy (the torque interface's PD + gravity); the agent-ready interface's
+(a zero setpoint increment) holds the same pose.
 
 "Hold still" is the policy that commands no motion on the variant's interface
 (:data:`HOLD_STILL`, keyed by ``TaskContext.action_kind``): a zero action where the action is a
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from cir_gym.context import TaskContext
-from cir_gym.evaluation import EvaluationResult
+from cir_gym.evaluation import EvaluationResult, rank
 from cir_gym.impedance import tool_robot
 from cir_gym.score_scale import LOG_DECADES, LOG_FLOOR, Anchors, normalized_score, uses_log_scale
 
@@ -201,8 +202,10 @@ def best_controller(
     results: Iterable[EvaluationResult], metric: str | None = None
 ) -> EvaluationResult:
     """The controller (not an ``agent:`` and not the hold-still policy; at any interface of the
-    task: the module docstring) with the best mean of ``metric`` (default: the results' primary
-    metric) in the metric's direction.
+    task: the module docstring) ranked first on ``metric`` (default: the results' primary
+    metric) as the leaderboard's tables rank (:func:`cir_gym.evaluation.rank`): the highest
+    success rate, then the best mean in the metric's direction. The score's 1 is then the
+    tables' best controller: a faster mean bought with failed episodes does not anchor it.
 
     Raises:
         ValueError: no controller result with a finite mean.
@@ -212,12 +215,11 @@ def best_controller(
         raise ValueError("no controller result to anchor the score at 1")
     name = metric or rows[0].primary_metric
     _mean(rows[0], name)  # a clear error for an unknown metric
-    better = rows[0].spec(name).better
-    finite = [r for r in rows if math.isfinite(_mean(r, name))]
+    finite = [r.ranked_on(name) for r in rows if math.isfinite(_mean(r, name))]
     if not finite:
         raise ValueError(f"no controller has a finite mean of {name!r}")
-    sign = 1.0 if better == "lower" else -1.0
-    return min(finite, key=lambda r: sign * _mean(r, name))
+    first = rank(finite)[0]
+    return next(r for r in rows if r.policy_name == first.policy_name)
 
 
 def variant_anchors(
