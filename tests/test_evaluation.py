@@ -474,9 +474,9 @@ def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
         evaluate(policy, ENV, 2, batched=True, randomize=True, **SHORT)
     with pytest.raises(ValueError, match="record=True"):
         evaluate(policy, ENV, 2, batched=True, record=True, **SHORT)
-    ibvs = baselines.make("ibvs", "cir_gym/VisualServo-v1")
-    with pytest.raises(ValueError, match="no batched cir_gym/VisualServo-v1"):
-        evaluate(ibvs, "cir_gym/VisualServo-v1", 2, batched=True)
+    ibvs = baselines.make("ibvs_eye_to_hand", "cir_gym/VisualServoEyeToHand-v1")
+    with pytest.raises(ValueError, match="no batched cir_gym/VisualServoEyeToHand-v1"):
+        evaluate(ibvs, "cir_gym/VisualServoEyeToHand-v1", 2, batched=True)
 
     class Opaque:  # a policy without the flag and not a Controller: sequential by default
         def predict(self, obs, state=None, episode_start=None, deterministic=True):

@@ -176,7 +176,7 @@ def test_batched_training_env_is_the_registry_s(monkeypatch: pytest.MonkeyPatch)
     with pytest.raises(ValueError, match="render_mode"):
         make_batched_vec_env(CONTACT, {"render_mode": "rgb_array"}, layout, 2, seed=7)
     with pytest.raises(ValueError, match="no native batched env"):
-        make_batched_vec_env("cir_gym/VisualServo-v1", {}, layout, 2, seed=7)
+        make_batched_vec_env("cir_gym/VisualServoEyeToHand-v1", {}, layout, 2, seed=7)
 
 
 def test_batched_evaluation_gives_the_sequential_episodes(monkeypatch: pytest.MonkeyPatch) -> None:

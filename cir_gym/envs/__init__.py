@@ -77,6 +77,7 @@ BATCHED_ENVIRONMENTS: dict[str, str] = {
         "cir_gym.envs.agent_ready_vector:AdmittanceContactImpedanceVectorEnv"
     ),
     "cir_gym/PegInHoleImpedance-v0": "cir_gym.envs.agent_ready_vector:PegInHoleImpedanceVectorEnv",
+    "cir_gym/VisualServo-v1": "cir_gym.envs.visual_servo_vector:VisualServoVectorEnv",
 }
 
 
