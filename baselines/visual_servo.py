@@ -47,6 +47,12 @@ defined axis at θ = π, so there too the noise of the pose estimate chooses the
 
 Gains: λ = 0.5 1/s, ViSP's tutorial-ibvs-4pts value at its 40 ms period (the default
 control period here); the adaptive option's ViSP values are λ₀ = 4, λ∞ = 0.4, λ'₀ = 30.
+
+Rows: ``ibvs`` and ``pbvs`` are written once on rows of observations (``RowLaw``; the pose,
+interaction matrix and damped inverse of :mod:`cir_gym.vision_rows`, one LAPACK call per
+row's matrix), one observation being a row of one: a batch (a vector env's copies, the
+batched evaluator, a residual agent's base) gives each row the command it gives alone, bit for
+bit (tests/test_visual_servo_rows.py). ``ibvs_eye_to_hand`` runs row by row.
 """
 
 from __future__ import annotations
@@ -55,17 +61,16 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from cir_gym.baselines.base import Controller, InvalidGain, Observation
+from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw
 
+from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
-from cir_gym.vision import (
-    Camera,
-    damped_pinv,
-    interaction_matrix,
-    normalise,
-    planar_pose,
-    pose_error,
-    transform_points,
+from cir_gym.vision import interaction_matrix, transform_points
+from cir_gym.vision_rows import (
+    damped_pinv_rows,
+    interaction_matrix_rows,
+    normalise_rows,
+    planar_pose_rows,
 )
 
 __all__ = ["IBVS", "PBVS", "VISUAL_SERVO_CONTROLLERS", "EyeToHandIBVS", "adaptive_gain"]
@@ -73,12 +78,15 @@ __all__ = ["IBVS", "PBVS", "VISUAL_SERVO_CONTROLLERS", "EyeToHandIBVS", "adaptiv
 DEPTHS = ("current", "desired", "mean")
 
 
-def adaptive_gain(x: float, lambda_0: float, lambda_inf: float, slope: float) -> float:
-    """ViSP's adaptive gain λ(x) = (λ₀ − λ∞) exp(−λ'₀ x / (λ₀ − λ∞)) + λ∞ (1/s)."""
+def adaptive_gain(x: float | np.ndarray, lambda_0: float, lambda_inf: float, slope: float
+                  ) -> float | np.ndarray:
+    """ViSP's adaptive gain λ(x) = (λ₀ − λ∞) exp(−λ'₀ x / (λ₀ − λ∞)) + λ∞ (1/s) of an error
+    size x (a number, or rows (N,): λ (N,))."""
     span = lambda_0 - lambda_inf
     if span <= 0.0:
-        return lambda_inf
-    return float(span * np.exp(-slope * x / span) + lambda_inf)
+        return lambda_inf if np.ndim(x) == 0 else np.full(np.shape(x), lambda_inf)
+    value = span * np.exp(-slope * np.asarray(x, dtype=float) / span) + lambda_inf
+    return float(value) if np.ndim(value) == 0 else value
 
 
 def _skew(p: np.ndarray) -> np.ndarray:
@@ -86,9 +94,16 @@ def _skew(p: np.ndarray) -> np.ndarray:
 
 
 def _fit(command: np.ndarray, limit: np.ndarray) -> np.ndarray:
-    """``command`` scaled down uniformly so that |command_i| ≤ limit_i (direction kept)."""
-    ratio = float(np.max(np.abs(command) / limit))
-    return command / ratio if ratio > 1.0 else command
+    """``command`` (..., m) scaled down uniformly (each row) so that |command_i| ≤ limit_i
+    (direction kept)."""
+    ratio = np.max(np.abs(command) / limit, axis=-1)
+    return command / np.maximum(ratio, 1.0)[..., None]  # a command within its limits / 1
+
+
+def _matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A x (..., m) of matrices A (..., m, n) and vectors x (..., n): one matrix-vector product
+    per row."""
+    return (A @ x[..., None])[..., 0]
 
 
 @dataclass(frozen=True)
@@ -123,7 +138,9 @@ class ServoGains:
 
 
 class _VisualServo(Controller):
-    """Shared: the camera model, the target model, the action mapping."""
+    """Shared: the camera model, the target model, the action limits, and the laws' steps on
+    one observation's features s (4, 2) or on rows of them (N, 4, 2)
+    (:mod:`cir_gym.vision_rows`: a row gives the same numbers alone or in a batch)."""
 
     Gains = ServoGains
 
@@ -131,7 +148,7 @@ class _VisualServo(Controller):
                  **overrides: Any) -> None:
         super().__init__(context, gains, **overrides)
         extras = context.extras
-        self.camera: Camera = extras["camera"]
+        self.camera = extras["camera"]
         self.model_points = np.asarray(extras["model_points"], dtype=float)
         self.twist_limit = np.asarray(extras["twist_limit"], dtype=float)
         self.velocity_limit = np.asarray(extras["velocity_limit"], dtype=float)
@@ -139,25 +156,29 @@ class _VisualServo(Controller):
         self.robot = robot if robot is not None else context.nominal_robot()
         self.site = context.site
 
-    def _gain(self, e: np.ndarray) -> float:
+    def _gain(self, size: float | np.ndarray) -> float | np.ndarray:
+        """λ (1/s): ``gain``, or the adaptive gain of the error's size ‖e‖∞ (rows: (N,))."""
         if self.gains.adaptive is None:
             return self.gains.gain
-        x = float(np.max(np.abs(e)))  # ‖e‖∞ in normalised coordinates
-        return adaptive_gain(x, *self.gains.adaptive)
+        return adaptive_gain(size, *self.gains.adaptive)
 
     def _features(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        return (np.asarray(obs["features"], dtype=float).reshape(4, 2),
-                np.asarray(obs["features_ref"], dtype=float).reshape(4, 2))
+        """s, s* (..., 4, 2) px."""
+        s, s_ref = (np.asarray(obs[key], dtype=float) for key in ("features", "features_ref"))
+        return s.reshape(*s.shape[:-1], 4, 2), s_ref.reshape(*s_ref.shape[:-1], 4, 2)
 
     def _pose(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return planar_pose(self.model_points, s, self.camera)
+        """The target's pose (R (..., 3, 3), t (..., 3)) in the camera, from s (..., 4, 2)."""
+        return planar_pose_rows(self.model_points, s, self.camera)
 
     def _depths(self, s: np.ndarray) -> np.ndarray:
+        """Ẑ (..., 4) m of the points (≥ 1 mm), from their pose estimate."""
         R, t = self._pose(s)
-        return np.maximum(transform_points(R, t, self.model_points)[:, 2], 1e-3)
+        points = self.model_points @ np.swapaxes(R, -1, -2) + t[..., None, :]  # R P + t
+        return np.maximum(points[..., 2], 1e-3)
 
-    def _L(self, s: np.ndarray, s_ref: np.ndarray, extra: Any = None) -> np.ndarray:
-        """L̂ (8, 6) at the current, the desired or both (mean) features."""
+    def _L(self, s: np.ndarray, s_ref: np.ndarray) -> np.ndarray:
+        """L̂ (..., 8, 6) at the current, the desired or both (mean) features."""
         depth = self.gains.depth
         parts = []
         if depth in ("current", "mean"):
@@ -167,56 +188,68 @@ class _VisualServo(Controller):
         return sum(parts) / len(parts)
 
     def _interaction(self, s: np.ndarray) -> np.ndarray:
-        return interaction_matrix(s, self._depths(s), self.camera)
+        """L(s, Ẑ) (..., 8, 6)."""
+        return interaction_matrix_rows(s, self._depths(s), self.camera)
 
     def _inverse(self, A: np.ndarray) -> np.ndarray:
-        """The damped least-squares inverse A* of an image Jacobian (``damping`` μ)."""
-        return damped_pinv(A, self.gains.damping)
+        """The damped least-squares inverse A* of image Jacobians (..., 8, 6) (``damping`` μ)."""
+        return damped_pinv_rows(A, self.gains.damping)
 
-    def _error(self, s: np.ndarray, s_ref: np.ndarray) -> tuple[np.ndarray, float]:
-        """e (8,) in pixels and the gain λ (adaptive on the normalised error)."""
-        e = (s - s_ref).ravel()
-        return e, self._gain(normalise(s, self.camera) - normalise(s_ref, self.camera))
+    def _error(self, s: np.ndarray, s_ref: np.ndarray) -> tuple[np.ndarray, Any]:
+        """e (..., 8) in pixels and the gain λ (adaptive on the normalised error's ‖·‖∞)."""
+        e = (s - s_ref).reshape(*s.shape[:-2], 8)
+        normalised = normalise_rows(s, self.camera) - normalise_rows(s_ref, self.camera)
+        return e, self._gain(np.max(np.abs(normalised), axis=(-2, -1)))
+
+
+class _EyeInHand(_VisualServo, RowLaw):
+    """An eye-in-hand law written on rows (:meth:`control_rows`): one observation is its one-row
+    case (``RowLaw``)."""
 
     def _camera_action(self, twist: np.ndarray, obs: Observation) -> np.ndarray:
-        """Eye-in-hand: the camera twist (optical = flange frame) as the env's command."""
+        """The camera twists (N, 6) (optical = flange frame) as the env's commands (N, m): the
+        twists, or q̇ = J⁺ [R v; R ω] through the nominal robot (row by row), each scaled down
+        uniformly to its limits."""
         if self.context.action_kind == "twist":
             return _fit(twist, self.twist_limit)
         q = np.asarray(obs["q"], dtype=float)
-        R = self.robot.site_pose(self.site, q)[1]
-        J = self.robot.jacobian(self.site, q)
-        qd = np.linalg.pinv(J) @ np.concatenate((R @ twist[:3], R @ twist[3:]))
-        return _fit(qd, self.velocity_limit)
+        R = np.stack([self.robot.site_pose(self.site, q_i)[1] for q_i in q])
+        J = np.stack([self.robot.jacobian(self.site, q_i) for q_i in q])
+        world = np.concatenate((_matvec(R, twist[:, :3]), _matvec(R, twist[:, 3:])), axis=1)
+        return _fit(_matvec(np.linalg.pinv(J), world), self.velocity_limit)
 
 
-class IBVS(_VisualServo):
+class IBVS(_EyeInHand):
     """Image-based visual servoing, eye in hand: v_c = −λ L̂* (s − s*)."""
 
     name = "ibvs"
     tasks = ("VisualServo",)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         s, s_ref = self._features(obs)
         e, lam = self._error(s, s_ref)
-        twist = -lam * self._inverse(self._L(s, s_ref)) @ e
+        gain = -np.broadcast_to(lam, e.shape[:1])[:, None, None]  # −λ (N, 1, 1)
+        twist = _matvec(gain * self._inverse(self._L(s, s_ref)), e)
         return self._camera_action(twist, obs)
 
 
-class PBVS(_VisualServo):
+class PBVS(_EyeInHand):
     """Position-based visual servoing, eye in hand: v = −λ c*R_cᵀ c*t_c, ω = −λ θu."""
 
     name = "pbvs"
     tasks = ("VisualServo",)
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         s, s_ref = self._features(obs)
         R, t = self._pose(s)
         R_ref, t_ref = self._pose(s_ref)
-        t_e, theta_u = pose_error(R, t, R_ref, t_ref)
-        lam = self._gain(np.concatenate((t_e, theta_u)))
-        R_e = R_ref @ R.T
-        twist = np.concatenate((-lam * R_e.T @ t_e, -lam * theta_u))
-        return self._camera_action(twist, obs)
+        R_e = R_ref @ np.swapaxes(R, 1, 2)  # c*R_c (N, 3, 3)
+        t_e = t_ref - _matvec(R_e, t)  # c*t_c (N, 3)
+        theta_u = np.stack([axis * theta for axis, theta in map(traj.axis_angle_from_matrix, R_e)])
+        lam = self._gain(np.max(np.abs(np.concatenate((t_e, theta_u), axis=1)), axis=1))
+        lam = np.broadcast_to(lam, t_e.shape[:1])[:, None]  # (N, 1)
+        v = _matvec(-lam[:, :, None] * np.swapaxes(R_e, 1, 2), t_e)
+        return self._camera_action(np.concatenate((v, -lam * theta_u), axis=1), obs)
 
 
 class EyeToHandIBVS(_VisualServo):
