@@ -15,8 +15,10 @@ training still run the single env.
 :class:`BatchedTaskObservation` is the batched counterpart of the single-env wrapper stack of
 ``agents.train.EnvFactory``: the observation layout (:class:`agents.observation.
 ObservationLayout`, with its features), the training-only shaping of :mod:`agents.shaping`
-(``reward_offset``; ``log_error_bonus`` on the joint-tracking envs, whose error norm ‖q̄ − q‖ is
-read from the observation, the value ``info["joint_error"]`` holds in the single env), and the
+(``reward_offset``; ``log_error_bonus`` on the error of every copy's last step: the batched
+env's ``error_norms()`` where it has one (VisualServo-v1: ``info["feature_error"]``), else, on
+the joint-tracking envs, ‖q̄ − q‖ read from the observation, the value ``info["joint_error"]``
+holds in the single env), and the
 episode statistics SB3's ``Monitor`` would report (``info["episode"]``). Under it, for a residual
 agent, :class:`BatchedResidualAction` runs the base controller once per vector step on every
 copy's Dict observation (the single stack's :class:`agents.residual.ResidualAction`); its
@@ -27,6 +29,7 @@ on PegInHoleImpedance-v0, 16 envs).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -113,6 +116,9 @@ class BatchedTaskObservation(VecEnv):
             :class:`agents.shaping.RewardOffset`).
         log_error: ``{weight, max_error, floor[, orientation_scale = 0]}`` of
             :class:`agents.shaping.LogErrorBonus` (training only), or None.
+        error_norms: ``() ↦ (n_envs,)``, the error norm of every copy's last step (the
+            value the single env's info holds under one of ``agents.shaping.ERROR_KEYS``):
+            the bonus's error; None: ‖q̄ − q‖ from the observation (joint tracking).
     """
 
     def __init__(
@@ -122,6 +128,7 @@ class BatchedTaskObservation(VecEnv):
         flatten: Any,
         reward_offset: float = 0.0,
         log_error: dict[str, float] | None = None,
+        error_norms: Callable[[], np.ndarray] | None = None,
     ) -> None:
         self.render_mode = None
         self.venv = venv  # before VecEnv.__init__, which asks it for render_mode
@@ -132,11 +139,13 @@ class BatchedTaskObservation(VecEnv):
         self._flatten = flatten
         self.reward_offset = float(reward_offset)
         self.log_error = check_log_error_bonus(log_error) if log_error else None
-        if self.log_error:  # the joint error ‖q̄ − q‖ of the joint-tracking envs
-            if "q_ref" not in layout.keys:
-                raise ValueError("log_error_bonus with vec_env 'batched' needs the joint "
-                                 "reference q_ref in the observation (the joint-tracking "
-                                 "envs); use vec_env 'dummy'")
+        self._error_norms = error_norms
+        if self.log_error:  # the env's error of each copy, or ‖q̄ − q‖ (joint tracking)
+            if error_norms is None and "q_ref" not in layout.keys:
+                raise ValueError("log_error_bonus with vec_env 'batched' needs the batched "
+                                 "env's error_norms() (VisualServo-v1) or the joint reference "
+                                 "q_ref in the observation (the joint-tracking envs); use "
+                                 "vec_env 'dummy'")
             if self.log_error.pop("orientation_scale") > 0:
                 raise ValueError("log_error_bonus orientation_scale > 0 needs an orientation "
                                  "error; the batched envs have none (use 0 or vec_env 'dummy')")
@@ -175,11 +184,7 @@ class BatchedTaskObservation(VecEnv):
         obs, rew, dones, infos = self.venv.step_wait()
         rew = rew.astype(np.float64) + self.reward_offset
         if self.log_error:
-            err = obs["q_ref"] - obs["q"]  # ‖q̄(k+1) − q(k+1)‖ = info["joint_error"]
-            for i in np.flatnonzero(dones):  # obs holds the next episode's first observation
-                last = infos[i]["terminal_observation"]
-                err[i] = last["q_ref"] - last["q"]
-            rew += log_error_bonus(np.linalg.norm(err, axis=1), **self.log_error)
+            rew += log_error_bonus(self._step_error(obs, dones, infos), **self.log_error)
         self._ret += rew
         self._len += 1
         for i in np.flatnonzero(dones):
@@ -192,6 +197,19 @@ class BatchedTaskObservation(VecEnv):
             self._ret[i] = 0.0
             self._len[i] = 0
         return self._flatten(obs), rew.astype(np.float32), dones, infos
+
+    def _step_error(self, obs: dict[str, np.ndarray], dones: np.ndarray,
+                    infos: list[dict[str, Any]]) -> np.ndarray:
+        """The error norm (n_envs,) of every copy's last step, as ``agents.shaping.
+        error_norm`` reads it from the single env's info: the env's ``error_norms()``, else
+        ‖q̄(k+1) − q(k+1)‖ = info["joint_error"] (an ended copy's from its final observation)."""
+        if self._error_norms is not None:
+            return np.abs(self._error_norms())
+        err = obs["q_ref"] - obs["q"]
+        for i in np.flatnonzero(dones):  # obs holds the next episode's first observation
+            last = infos[i]["terminal_observation"]
+            err[i] = last["q_ref"] - last["q"]
+        return np.linalg.norm(err, axis=1)
 
 
 def make_batched_vec_env(
@@ -245,4 +263,5 @@ def make_batched_vec_env(
     elif scale is not None or controller_kwargs:
         sb3.close()
         raise ValueError("scale and controller_kwargs need residual=<controller>")
-    return BatchedTaskObservation(sb3, layout, flatten, reward_offset, log_error)
+    return BatchedTaskObservation(sb3, layout, flatten, reward_offset, log_error,
+                                  getattr(venv, "error_norms", None))

@@ -120,8 +120,7 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         camera_weld = m.body_weldid[m.cam_bodyid[t._cam_id]]
         self._rigid = m.body_weldid[m.geom_bodyid] == camera_weld  # (ngeom,)
         self._encloses_camera = np.full((N, m.ngeom), -1, dtype=np.int8)
-        #: the true feature error e (px) of every copy's last step (its info["feature_error"])
-        self.feature_error = np.zeros(N)
+        self._feature_error = np.zeros(N)  # e (px) of every copy's last step
 
     def _start_episode(self, i: int) -> None:
         """Copy i's scene (target, true camera) from the template, its histories (the reset
@@ -252,7 +251,7 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         unplayed = (t.max_steps - self._k) * t._worst_step if t.charge_unplayed_steps else 0.0
         r_term = np.where(terminated, -t.termination_penalty + unplayed, 0.0)
         reward = r_features + r_action + r_term
-        self.feature_error = e
+        self._feature_error = e
         infos = self._step_infos(
             {
                 "reward_features": r_features,
@@ -267,6 +266,11 @@ class VisualServoVectorEnv(BatchedTaskEnv):
             }
         )
         return self._observation(), reward, terminated, infos
+
+    def error_norms(self) -> np.ndarray:
+        """The true feature error e (N,) px of every copy's last step, the single env's
+        ``info["feature_error"]`` (for training-only shaping, ``agents.batched``)."""
+        return self._feature_error
 
     def _record(self, k: np.ndarray) -> np.ndarray:
         """Store and return the true feature error e (N,) px at steps k (N,), and the flange's
