@@ -7,8 +7,9 @@ and RL training throughput on the batched contact envs.
                                       [--skip ... | --only ...] [--out results/benchmarks.md]
 
     python benchmarks/bench_vector.py --only residual --out -   # part 5 alone (~2 CPU min)
+    python benchmarks/bench_vector.py --only residual_vs --rl-steps 8192 --out -   # part 6
 
-Five parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
+Six parts, written under the heading ``## Vector env`` of ``--out`` (only that section is
 replaced; the other sections belong to other scripts):
 
 1. ``throughput``: env-steps/s of each ``--num-envs`` count of copies of every id of
@@ -68,6 +69,12 @@ replaced; the other sections belong to other scripts):
    ``agents.residual.ResidualAction``; the machine's load average is printed with it. Its
    copies reach the block soon (the controller drives them there), so contacts cost more
    physics than a from-scratch agent's early episodes in free space.
+6. ``residual_vs``: the same timing of residual PPO over IBVS on VisualServo-v1
+   (:data:`RESIDUAL_VS`: the lever agents/hyperparams/levers/vs_residual_logerr_batched.yml,
+   its env arguments and IBVS gain, the log-error bonus on both sides; 4096-step rollouts:
+   n_steps 256 × 16 envs): the batched env under ``BatchedResidualAction`` (the row-vectorised
+   IBVS once per vector step on all copies) against a DummyVecEnv of 16 single envs under
+   ``ResidualAction`` (IBVS per env).
 """
 
 from __future__ import annotations
@@ -96,7 +103,7 @@ from cir_gym.evaluation import evaluate
 SECTION = "## Vector env"
 OUT = Path(__file__).parents[1] / "results" / "benchmarks.md"
 SEED = 1000  # scripts/leaderboard.py's
-PARTS = ("throughput", "evaluator", "leaderboard", "rl", "residual")
+PARTS = ("throughput", "evaluator", "leaderboard", "rl", "residual", "residual_vs")
 
 #: ids without dynamics: a step integrates q̇ and runs the kinematics of every copy
 KINEMATIC_ENVS = ("cir_gym/RedundantIK-v4", "cir_gym/RedundantIK7-v5")
@@ -496,16 +503,44 @@ RL_ENVS = ("cir_gym/PegInHoleImpedance-v0", "cir_gym/AdmittanceContactImpedance-
 CONTACT_PPO = Path(__file__).parents[1] / "agents" / "hyperparams" / "contact" / "ppo.yml"
 ROLLOUT = 2048  # PPO env steps per rollout: ppo.yml's n_steps 128 × n_envs 16
 RL_COPIES = 16
-#: (env id, course controller) of the residual agent timed in part 5
-RESIDUAL_RL = ("cir_gym/PegInHoleImpedance-v0", "impedance_spiral")
+LEVERS = Path(__file__).parents[1] / "agents" / "hyperparams" / "levers"
 
 
-def _observation_layout(env_id: str, hp: dict[str, Any]) -> Any:
+class ResidualCase(NamedTuple):
+    """A residual agent whose training throughput part 5 or 6 times.
+
+    Attributes:
+        env_id: the environment.
+        controller: the course controller under the residual.
+        hyperparams: the PPO entry's file (its ``residual`` overrides applied).
+        env_kwargs: the environment's arguments.
+        controller_kwargs: the controller's gains.
+    """
+
+    env_id: str
+    controller: str
+    hyperparams: Path
+    env_kwargs: dict[str, Any]
+    controller_kwargs: dict[str, Any]
+
+
+#: part 5: residual PPO over impedance_spiral on PegInHoleImpedance-v0 (contact/ppo.yml)
+RESIDUAL_RL = ResidualCase("cir_gym/PegInHoleImpedance-v0", "impedance_spiral", CONTACT_PPO,
+                           {}, {})
+#: part 6: the VisualServo-v1 lever "log-error bonus on the rotation family" (IBVS at the gain
+#: tuned on the default family), as its header's train command runs it
+RESIDUAL_VS = ResidualCase("cir_gym/VisualServo-v1", "ibvs",
+                           LEVERS / "vs_residual_logerr_batched.yml",
+                           {"start_rotation": (0.3, math.pi)}, {"gain": 0.6058598995030436})
+
+
+def _observation_layout(env_id: str, hp: dict[str, Any],
+                        env_kwargs: dict[str, Any] | None = None) -> Any:
     """The flat observation (TaskObservation's layout) of ``env_id`` under ``hp``."""
     from cir_gym.agents.hyperparameters import observation_options
     from cir_gym.agents.observation import ObservationLayout
 
-    probe = gym.make(env_id)
+    probe = gym.make(env_id, **(env_kwargs or {}))
     layout = ObservationLayout.from_space(probe.observation_space, **observation_options(hp))
     layout.bind(probe)
     probe.close()
@@ -513,15 +548,25 @@ def _observation_layout(env_id: str, hp: dict[str, Any]) -> Any:
 
 
 def _rl_vec_envs(
-    env_id: str, layout: Any, residual: str | None = None, scale: Any = None
+    env_id: str,
+    layout: Any,
+    residual: str | None = None,
+    scale: Any = None,
+    env_kwargs: dict[str, Any] | None = None,
+    controller_kwargs: dict[str, Any] | None = None,
+    log_error: dict[str, float] | None = None,
 ) -> list[tuple[str, int, Callable[[], Any]]]:
-    """(label, n_envs, ``() ↦ SB3 VecEnv``) of the three sides, seeded 0; with ``residual``
-    (a course controller's name) the agent's action is the residual of ``scale`` on it."""
+    """(label, n_envs, ``() ↦ SB3 VecEnv``) of the three sides, seeded 0, on ``env_kwargs``;
+    with ``residual`` (a course controller's name, its ``controller_kwargs``) the agent's
+    action is the residual of ``scale`` on it; ``log_error``: the training-only log-error
+    bonus on both sides."""
     from cir_gym.agents.batched import make_batched_vec_env
     from cir_gym.agents.train import EnvFactory
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    factory = EnvFactory(env_id, {}, layout, residual, scale)
+    kw = env_kwargs or {}
+    factory = EnvFactory(env_id, kw, layout, residual, scale, controller_kwargs,
+                         log_error=log_error)
 
     def dummy(n: int) -> Any:
         venv = DummyVecEnv([factory] * n)
@@ -533,7 +578,8 @@ def _rl_vec_envs(
             f"batched, {RL_COPIES} copies",
             RL_COPIES,
             lambda: make_batched_vec_env(
-                env_id, {}, layout, RL_COPIES, 0, residual=residual, scale=scale
+                env_id, kw, layout, RL_COPIES, 0, log_error=log_error, residual=residual,
+                scale=scale, controller_kwargs=controller_kwargs,
             ),
         ),
         (f"DummyVecEnv of {RL_COPIES}", RL_COPIES, lambda: dummy(RL_COPIES)),
@@ -541,10 +587,11 @@ def _rl_vec_envs(
     ]
 
 
-def _rl_model(algo: str, venv: Any, n_envs: int, hp: dict[str, Any]) -> Any:
-    """The SB3 model of ``algo`` ("ppo": ``hp``, contact/ppo.yml's entry, with n_steps
-    keeping its ROLLOUT; "sac": SB3's defaults and [64, 64] nets) on ``venv`` wrapped in
-    VecNormalize."""
+def _rl_model(algo: str, venv: Any, n_envs: int, hp: dict[str, Any], rollout: int = ROLLOUT
+              ) -> Any:
+    """The SB3 model of ``algo`` ("ppo": ``hp``, e.g. contact/ppo.yml's entry, with n_steps
+    keeping ``rollout`` env steps per rollout; "sac": SB3's defaults and [64, 64] nets) on
+    ``venv`` wrapped in VecNormalize."""
     import torch
     from cir_gym.agents.hyperparameters import TRAINING_KEYS, resolve_policy_kwargs
     from stable_baselines3 import PPO, SAC
@@ -552,7 +599,7 @@ def _rl_model(algo: str, venv: Any, n_envs: int, hp: dict[str, Any]) -> Any:
 
     if algo == "ppo":
         kwargs = {k: v for k, v in hp.items() if k not in TRAINING_KEYS}
-        kwargs["n_steps"] = ROLLOUT // n_envs
+        kwargs["n_steps"] = rollout // n_envs
         policy_kwargs = resolve_policy_kwargs(hp["policy_kwargs"])
         venv = VecNormalize(venv, gamma=kwargs["gamma"], **hp["normalize"])
         cls = PPO
@@ -666,39 +713,56 @@ def bench_rl(steps: int, warmup: int) -> list[str]:
     return rows
 
 
-def bench_rl_residual(steps: int, warmup: int) -> list[str]:
-    """Residual PPO's env-steps per CPU second over :data:`RESIDUAL_RL`'s controller: the
-    batched env under ``BatchedResidualAction`` (16 copies) vs a DummyVecEnv of 16 single envs
-    under ``ResidualAction`` (contact/ppo.yml's entry with its ``residual`` overrides)."""
+def bench_rl_residual(steps: int, warmup: int, case: ResidualCase = RESIDUAL_RL) -> list[str]:
+    """Residual PPO's env-steps per CPU second over ``case``'s controller: the batched env
+    under ``BatchedResidualAction`` (16 copies) vs a DummyVecEnv of 16 single envs under
+    ``ResidualAction`` (the case's PPO entry with its ``residual`` overrides, its rollout
+    length, its log-error bonus on both sides)."""
     import torch
     from cir_gym.agents.hyperparameters import load_hyperparams
+    from cir_gym.agents.shaping import check_log_error_bonus
     from cir_gym.agents.train import zero_action_layer
 
     torch.set_num_threads(1)
-    env_id, controller = RESIDUAL_RL
-    hp = load_hyperparams("ppo", env_id, residual=True, path=CONTACT_PPO)
+    env_id, controller = case.env_id, case.controller
+    hp = load_hyperparams("ppo", env_id, residual=True, path=case.hyperparams)
     scale = hp.pop("residual_scale")
+    bonus = hp.get("log_error_bonus")
+    log_error = check_log_error_bonus(bonus) if bonus is not None else None
+    rollout = int(hp["n_steps"]) * RL_COPIES
 
     def model_of(venv: Any, n: int) -> Any:
-        model = _rl_model("ppo", venv, n, hp)
+        model = _rl_model("ppo", venv, n, hp, rollout)
         if hp.get("zero_init_action", False):
             zero_action_layer(model)
         return model
 
-    layout = _observation_layout(env_id, hp)
-    sides = [s for s in _rl_vec_envs(env_id, layout, controller, scale) if s[1] == RL_COPIES]
+    layout = _observation_layout(env_id, hp, case.env_kwargs)
+    sides = [
+        side
+        for side in _rl_vec_envs(env_id, layout, controller, scale, case.env_kwargs,
+                                 case.controller_kwargs, log_error)
+        if side[1] == RL_COPIES
+    ]
     load_before = os.getloadavg()[0]
     timings = _timed_sides(f"{env_id} residual ppo", sides, model_of, warmup, steps)
     load_after = os.getloadavg()[0]
     rate = {k: t.env_steps / t.cpu_s for k, t in timings.items()}
     dummy = rate[f"DummyVecEnv of {RL_COPIES}"]
+    source = case.hyperparams.relative_to(Path(__file__).parents[1])
+    setting = "".join(
+        f"; {what} {kw}" for what, kw in (("env arguments", case.env_kwargs),
+                                           (f"{controller} gains", case.controller_kwargs),
+                                           ("log-error bonus (training only)", log_error))
+        if kw
+    )
     return [
-        f"Residual PPO over `{controller}` on {env_id.split('/')[-1]} (contact/ppo.yml with its "
+        f"Residual PPO over `{controller}` on {env_id.split('/')[-1]} ({source} with its "
         f"`residual` overrides: scale {scale}, zeroed last actor layer, learning rate "
-        f"{hp['learning_rate']}), {RL_COPIES} envs: `learn` after an untimed warm-up of "
-        f"{warmup} env steps (rounded up to one {ROLLOUT}-step rollout and its update), timed "
-        f"over {steps} more (whole rollouts); one torch thread, one MuJoCo thread; the sides "
-        "one after the other. Batched: `make_batched_vec_env(..., residual=...)` "
+        f"{hp['learning_rate']}{setting}), {RL_COPIES} envs: `learn` after an untimed warm-up "
+        f"of {warmup} env steps (rounded up to one {rollout}-step rollout and its update), "
+        f"timed over {steps} more (whole rollouts); one torch thread, one MuJoCo thread; the "
+        "sides one after the other. Batched: `make_batched_vec_env(..., residual=...)` "
         "(`BatchedResidualAction`: the controller predicted once per vector step on all "
         "copies); DummyVecEnv: `EnvFactory` with `ResidualAction` per env. Load average "
         f"(1 min) {load_before:.1f} at the start, {load_after:.1f} at the end on 2 cores.",
@@ -810,6 +874,11 @@ def main(argv: list[str] | None = None) -> int:
             "residual",
             "Residual RL training throughput on the batched contact env",
             bench_rl_residual,
+        ),
+        (
+            "residual_vs",
+            "Residual RL training throughput on the batched VisualServo env",
+            lambda steps, warmup: bench_rl_residual(steps, warmup, RESIDUAL_VS),
         ),
     ):
         if part not in args.skip:
