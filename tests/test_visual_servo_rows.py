@@ -1,5 +1,5 @@
 """The eye-in-hand visual-servoing laws on rows (``RowLaw``: IBVS, PBVS) and the row forms of
-the vision science they use (cir_gym.vision_rows).
+cir_gym.vision's science they use (baselines/visual_servo.py's ``*_rows``).
 
 Two tolerances, two reasons (as tests/test_batched_laws.py):
 
@@ -16,16 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from cir_gym import baselines, vision
-from cir_gym.envs.visual_servo_vector import VisualServoVectorEnv
-from cir_gym.vision_rows import (
+from cir_gym.baselines.visual_servo import (
     damped_pinv_rows,
     homography_rows,
     interaction_matrix_rows,
     normalise_rows,
     planar_pose_rows,
 )
+
+from cir_gym import baselines, vision
+from cir_gym.envs.visual_servo_vector import VisualServoVectorEnv
 
 ENV = "cir_gym/VisualServo-v1"
 REL = 1e-12
@@ -140,7 +140,7 @@ def test_rows_are_the_course_law(name, gains, env_kwargs, servo_obs) -> None:
     assert np.ptp(want[:, 0]) > 0.1 * np.max(np.abs(want[:, 0]))  # the rows differ
 
 
-def test_vision_rows_equal_cir_gym_vision_row_by_row(servo_obs) -> None:
+def test_the_row_forms_equal_cir_gym_vision_row_by_row(servo_obs) -> None:
     """Pose, homography, normalised coordinates, interaction matrix and damped inverse of
     every observed feature set: the row form's row is the single-case function's result."""
     cam = vision.Camera.from_fovy(60.0, 640, 480)
