@@ -104,7 +104,6 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         t, N, b = self.template, self.num_envs, self.batch
         m = t.model
         self._scene = {name: b.expand(name) for name in _SCENE_FIELDS}
-        self._target = m.body("target").id
         self._site_xpos = b.bind("site_xpos")  # (N, nsite, 3)
         self._site_xmat = b.bind("site_xmat")  # (N, nsite, 9)
         self._cam_xpos = b.bind("cam_xpos")  # (N, ncam, 3)
