@@ -1,6 +1,6 @@
 """Residual RL over IBVS on the batched VisualServo-v1 (agents.batched: BatchedResidualAction
 and the log-error bonus on every copy's feature error) against the single env stack of
-agents.train.EnvFactory, and the batched lever file.
+agents.train.EnvFactory.
 
 Tolerance as tests/test_residual_batched.py: what the agent sees is float32 (the flat
 observation, SB3's rewards), compared to 1e-6 relative; float64 episode metrics to 1e-9; ends,
@@ -10,21 +10,15 @@ and the bonus are each the single stack's computation).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
-import yaml
 
 pytest.importorskip("stable_baselines3")
 
 from cir_gym.agents.batched import BatchedTaskObservation, make_batched_vec_env
-from cir_gym.agents.hyperparameters import load_hyperparams
 from cir_gym.agents.observation import ObservationLayout
 from cir_gym.agents.train import EnvFactory
-
-from cir_gym import agents
 
 ENV = "cir_gym/VisualServo-v1"
 RTOL = 1e-6  # float32 values the agent sees
@@ -32,7 +26,6 @@ METRIC_RTOL = 1e-9
 SCALE = 0.25
 GAIN = {"gain": 0.6058598995030436}  # the lever's IBVS gain
 LOG_ERROR = {"weight": 0.1, "max_error": 100.0, "floor": 0.01}
-LEVERS = agents.TRAINED_DIR.parent / "hyperparams" / "levers"
 
 
 def _layout(kwargs: dict) -> ObservationLayout:
@@ -108,18 +101,3 @@ def test_the_bonus_is_the_env_error_and_is_refused_without_one():
     with pytest.raises(ValueError, match="error_norms"):
         BatchedTaskObservation(plain.venv, layout, lambda obs: obs, log_error=LOG_ERROR)
     plain.close(), shaped.close()
-
-
-def test_the_batched_lever_is_the_lever_on_the_batched_env():
-    """levers/vs_residual_logerr_batched.yml: vs_residual_logerr.yml's entry with vec_env
-    batched, nothing else changed (both resolved as the train command resolves them)."""
-    if not (LEVERS / "vs_residual_logerr.yml").exists():
-        pytest.skip("levers/vs_residual_logerr.yml (the twin's original) is not in this tree")
-    twin = load_hyperparams("ppo", ENV, residual=True,
-                            path=LEVERS / "vs_residual_logerr_batched.yml")
-    lever = load_hyperparams("ppo", ENV, residual=True, path=LEVERS / "vs_residual_logerr.yml")
-    assert twin.pop("vec_env") == "batched" and lever.pop("vec_env") == "dummy"
-    assert twin == lever
-    text = (LEVERS / "vs_residual_logerr_batched.yml").read_text()
-    assert yaml.safe_load(text)["training"]["default"]["vec_env"] == "batched"
-    assert Path(LEVERS / "vs_residual_logerr.yml").name in text  # the header names its twin
