@@ -52,9 +52,9 @@ Rows: ``ibvs`` and ``pbvs`` are written once on rows of observations (``RowLaw``
 observation being a row of one: a batch (a vector env's copies, the batched evaluator, a
 residual agent's base) gives each row the command it gives alone, bit for bit
 (tests/test_visual_servo_rows.py). The laws' vision steps are :mod:`cir_gym.vision`'s
-formulas on stacked rows (``*_rows`` below: element-wise numpy and one LAPACK call per row's
-matrix, so a row gives the same numbers alone or in a batch; against the single-case functions
-a row agrees to round-off, measured bit for bit). ``ibvs_eye_to_hand`` runs row by row.
+functions, which take one observation or rows of them (element-wise numpy and one LAPACK call
+per row's matrix, so a row gives the same numbers alone or in a batch).
+``ibvs_eye_to_hand`` runs row by row.
 """
 
 from __future__ import annotations
@@ -65,9 +65,15 @@ from typing import Any
 import numpy as np
 from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw
 
-from cir_gym import trajectories as traj
 from cir_gym.context import TaskContext
-from cir_gym.vision import Camera, interaction_matrix, transform_points
+from cir_gym.vision import (
+    damped_pinv,
+    interaction_matrix,
+    normalise,
+    planar_pose,
+    pose_error,
+    transform_points,
+)
 
 __all__ = ["IBVS", "PBVS", "VISUAL_SERVO_CONTROLLERS", "EyeToHandIBVS", "adaptive_gain"]
 
@@ -100,97 +106,6 @@ def _matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
     """A x (..., m) of matrices A (..., m, n) and vectors x (..., n): one matrix-vector product
     per row."""
     return (A @ x[..., None])[..., 0]
-
-
-# ---------------------------------------------------------------------- vision on rows
-# cir_gym.vision's point-feature functions for one case or rows of them (leading axes ...):
-# s (..., k, 2) px, depths (..., k), matrices (..., m, n).
-def normalise_rows(s: np.ndarray, camera: Camera) -> np.ndarray:
-    """Normalised image coordinates (..., k, 2) x_n = (u − c_u)/f_u, y_n = (v − c_v)/f_v of
-    pixel features s (..., k, 2)."""
-    centre, focal = np.array((camera.cu, camera.cv)), np.array((camera.fu, camera.fv))
-    return (np.asarray(s, dtype=float) - centre) / focal
-
-
-def interaction_matrix_rows(s: np.ndarray, depth: np.ndarray, camera: Camera) -> np.ndarray:
-    """Interaction matrices L (..., 2k, 6) of features s (..., k, 2) at depths Z (..., k) (m,
-    > 0): :func:`cir_gym.vision.interaction_matrix` on each row (rows 2i, 2i+1: point i).
-
-    Raises:
-        ValueError: a depth that is not finite or not > 0.
-    """
-    xn = normalise_rows(s, camera)
-    Z = np.broadcast_to(np.asarray(depth, dtype=float), xn.shape[:-1])
-    if not np.all(np.isfinite(Z)) or np.any(Z <= 0.0):
-        raise ValueError(f"depth must be finite and > 0, got {Z}")
-    x, y = xn[..., 0], xn[..., 1]
-    zero = np.zeros_like(x)
-    L = np.stack((-1.0 / Z, zero, x / Z, x * y, -(1.0 + x * x), y,  # u row (÷ f_u)
-                  zero, -1.0 / Z, y / Z, 1.0 + y * y, -x * y, -x), axis=-1)  # v row (÷ f_v)
-    L = L.reshape(*L.shape[:-1], 2, 6) * np.array((camera.fu, camera.fv))[:, None]
-    return L.reshape(*L.shape[:-3], 2 * L.shape[-3], 6)  # rows 2i, 2i+1: point i
-
-
-def homography_rows(plane_points: np.ndarray, image_points: np.ndarray) -> np.ndarray:
-    """Homographies H (..., 3, 3), ‖H‖_F = 1, (x, y, 1) ∝ H (X, Y, 1), of k ≥ 4 plane points
-    (k, 2) (shared) and normalised image points (..., k, 2): the null vector of each row's
-    2k × 9 direct-linear-transform system (:func:`cir_gym.vision.homography`)."""
-    P = np.asarray(plane_points, dtype=float)
-    P_h = np.concatenate((P, np.ones((len(P), 1))), axis=1)  # (X, Y, 1) (k, 3)
-    m = np.asarray(image_points, dtype=float)
-    A = np.zeros((*m.shape[:-1], 2, 9))  # (..., k, 2, 9): rows 2i, 2i+1 of point i
-    A[..., 0, :3] = P_h
-    A[..., 0, 6:] = -m[..., 0, None] * P_h  # −x (X, Y, 1)
-    A[..., 1, 3:6] = P_h
-    A[..., 1, 6:] = -m[..., 1, None] * P_h  # −y (X, Y, 1)
-    A = A.reshape(*A.shape[:-3], 2 * A.shape[-3], 9)
-    return np.linalg.svd(A)[2][..., -1, :].reshape(*A.shape[:-2], 3, 3)
-
-
-def planar_pose_rows(model_points: np.ndarray, s: np.ndarray, camera: Camera
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Poses (R (..., 3, 3) target→camera, t (..., 3) m) of a planar target from the features
-    s (..., k, 2) of its k ≥ 4 points ``model_points`` (k, 3) (plane z = 0):
-    :func:`cir_gym.vision.planar_pose` on each row (H ∝ [r₁ r₂ t] scaled by the mean of
-    1/‖h₁‖, 1/‖h₂‖ with t_z > 0, r₃ = r₁ × r₂, the nearest rotation by SVD).
-
-    Raises:
-        ValueError: model points off the plane z = 0.
-    """
-    P = np.asarray(model_points, dtype=float).reshape(-1, 3)
-    if np.any(np.abs(P[:, 2]) > 1e-12):
-        raise ValueError("planar_pose_rows needs model points in the plane z = 0")
-    H = homography_rows(P[:, :2], normalise_rows(s, camera))
-    h1, h2 = H[..., :, 0], H[..., :, 1]
-    scale = 2.0 / (np.sqrt(np.sum(h1 * h1, axis=-1)) + np.sqrt(np.sum(h2 * h2, axis=-1)))
-    H = H * scale[..., None, None]
-    H = np.where(H[..., 2:, 2:] < 0.0, -H, H)  # t_z = H[2, 2] > 0: the target in front
-    r1, r2 = H[..., :, 0], H[..., :, 1]
-    M = H.copy()
-    M[..., :, 2] = _cross(r1, r2)  # [r₁ r₂ r₁ × r₂]
-    U, _, Vt = np.linalg.svd(M)
-    U[..., :, 2] *= np.linalg.det(U @ Vt)[..., None]  # U diag(1, 1, det(U Vᵀ))
-    return U @ Vt, H[..., :, 2].copy()
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b (..., 3) of rows of 3-vectors (np.cross's formula without its axis handling)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
-
-
-def damped_pinv_rows(A: np.ndarray, damping: float) -> np.ndarray:
-    """Damped least-squares inverses A* = V diag(σᵢ / (σᵢ² + μ²)) Uᵀ (..., n, m) of A
-    (..., m, n) (:func:`cir_gym.vision.damped_pinv`; μ = ``damping`` ≥ 0, 0: the
-    pseudo-inverse)."""
-    if not np.isfinite(damping) or damping < 0.0:
-        raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
-    if damping == 0.0:
-        return np.linalg.pinv(A)
-    U, sigma, Vt = np.linalg.svd(np.asarray(A, dtype=float), full_matrices=False)
-    gains = sigma / (sigma * sigma + damping * damping)
-    return (np.swapaxes(Vt, -1, -2) * gains[..., None, :]) @ np.swapaxes(U, -1, -2)
 
 
 @dataclass(frozen=True)
@@ -226,8 +141,8 @@ class ServoGains:
 
 class _VisualServo(Controller):
     """Shared: the camera model, the target model, the action limits, and the laws' steps on
-    one observation's features s (4, 2) or on rows of them (N, 4, 2)
-    (the ``*_rows`` functions: a row gives the same numbers alone or in a batch)."""
+    one observation's features s (4, 2) or on rows of them (N, 4, 2) (:mod:`cir_gym.vision`'s
+    functions: a row gives the same numbers alone or in a batch)."""
 
     Gains = ServoGains
 
@@ -256,13 +171,12 @@ class _VisualServo(Controller):
 
     def _pose(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The target's pose (R (..., 3, 3), t (..., 3)) in the camera, from s (..., 4, 2)."""
-        return planar_pose_rows(self.model_points, s, self.camera)
+        return planar_pose(self.model_points, s, self.camera)
 
     def _depths(self, s: np.ndarray) -> np.ndarray:
         """Ẑ (..., 4) m of the points (≥ 1 mm), from their pose estimate."""
         R, t = self._pose(s)
-        points = self.model_points @ np.swapaxes(R, -1, -2) + t[..., None, :]  # R P + t
-        return np.maximum(points[..., 2], 1e-3)
+        return np.maximum(transform_points(R, t, self.model_points)[..., 2], 1e-3)  # R P + t
 
     def _L(self, s: np.ndarray, s_ref: np.ndarray) -> np.ndarray:
         """L̂ (..., 8, 6) at the current, the desired or both (mean) features."""
@@ -276,16 +190,16 @@ class _VisualServo(Controller):
 
     def _interaction(self, s: np.ndarray) -> np.ndarray:
         """L(s, Ẑ) (..., 8, 6)."""
-        return interaction_matrix_rows(s, self._depths(s), self.camera)
+        return interaction_matrix(s, self._depths(s), self.camera)
 
     def _inverse(self, A: np.ndarray) -> np.ndarray:
         """The damped least-squares inverse A* of image Jacobians (..., 8, 6) (``damping`` μ)."""
-        return damped_pinv_rows(A, self.gains.damping)
+        return damped_pinv(A, self.gains.damping)
 
     def _error(self, s: np.ndarray, s_ref: np.ndarray) -> tuple[np.ndarray, Any]:
         """e (..., 8) in pixels and the gain λ (adaptive on the normalised error's ‖·‖∞)."""
         e = (s - s_ref).reshape(*s.shape[:-2], 8)
-        normalised = normalise_rows(s, self.camera) - normalise_rows(s_ref, self.camera)
+        normalised = normalise(s, self.camera) - normalise(s_ref, self.camera)
         return e, self._gain(np.max(np.abs(normalised), axis=(-2, -1)))
 
 
@@ -330,9 +244,8 @@ class PBVS(_EyeInHand):
         s, s_ref = self._features(obs)
         R, t = self._pose(s)
         R_ref, t_ref = self._pose(s_ref)
+        t_e, theta_u = pose_error(R, t, R_ref, t_ref)  # c*t_c, θu of c*R_c (N, 3) each
         R_e = R_ref @ np.swapaxes(R, 1, 2)  # c*R_c (N, 3, 3)
-        t_e = t_ref - _matvec(R_e, t)  # c*t_c (N, 3)
-        theta_u = np.stack([axis * theta for axis, theta in map(traj.axis_angle_from_matrix, R_e)])
         lam = self._gain(np.max(np.abs(np.concatenate((t_e, theta_u), axis=1)), axis=1))
         lam = np.broadcast_to(lam, t_e.shape[:1])[:, None]  # (N, 1)
         v = _matvec(-lam[:, :, None] * np.swapaxes(R_e, 1, 2), t_e)

@@ -13,6 +13,12 @@ Conventions (stated once, used everywhere):
   the top), pixel centres at integers, so the principal point of an ideal camera is
   ((W − 1)/2, (H − 1)/2). Projection: u = c_u + f_u X/Z, v = c_v + f_v Y/Z.
 * **Features** s: (k, 2) pixel coordinates of k points (or flattened (2k,) as (u₁, v₁, u₂, …)).
+* **Rows**: :func:`normalise`, :func:`interaction_matrix`, :func:`homography`,
+  :func:`planar_pose`, :func:`pose_error`, :func:`transform_points` and :func:`damped_pinv`
+  also take rows of observations, a leading batch axis N (features (N, k, 2), poses
+  (N, 3, 3) and (N, 3), matrices (N, m, n)), one observation being the one-row case:
+  element-wise numpy and one LAPACK call per row's matrix, so a row gives the same numbers
+  alone or in a batch.
 * **Camera twist** (v, ω) (6,): linear velocity of the optical centre (m/s) and angular
   velocity (rad/s), both in the optical frame of the moving camera.
 
@@ -128,8 +134,12 @@ def optical_pose(xpos: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def transform_points(R: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """R p + t for each row of ``points`` (k, 3)."""
-    return np.asarray(points, dtype=float) @ np.asarray(R).T + np.asarray(t)
+    """R p + t (k, 3) for each row p of ``points`` (k, 3); rows of poses R (..., 3, 3),
+    t (..., 3) give (..., k, 3)."""
+    R = np.asarray(R)
+    t = np.asarray(t)
+    return np.asarray(points, dtype=float) @ R.swapaxes(-1, -2) + (
+        t[..., None, :] if R.ndim > 2 else t)
 
 
 def project(points_camera: np.ndarray, camera: Camera) -> np.ndarray:
@@ -146,48 +156,81 @@ def project(points_camera: np.ndarray, camera: Camera) -> np.ndarray:
                             camera.cv + camera.fv * P[:, 1] / Z))
 
 
+def _pixel_features(s: np.ndarray) -> np.ndarray:
+    """Features s (..., k, 2) px: (k, 2) and rows (..., k, 2) as they are, (2k,) as (k, 2).
+
+    Raises:
+        ValueError: any other shape.
+    """
+    s = np.asarray(s, dtype=float)
+    if s.ndim == 1 and s.size % 2 == 0:
+        s = s.reshape(-1, 2)  # (u₁, v₁, u₂, …)
+    if s.ndim < 2 or s.shape[-1] != 2:
+        raise ValueError(f"s must be pixel features (k, 2), (2k,) or rows (..., k, 2), got shape "
+                         f"{np.shape(s)}")
+    return s
+
+
 def normalise(s: np.ndarray, camera: Camera) -> np.ndarray:
-    """Normalised image coordinates (k, 2) x_n = X/Z, y_n = Y/Z of pixel features s."""
-    s = np.asarray(s, dtype=float).reshape(-1, 2)
-    return np.column_stack(((s[:, 0] - camera.cu) / camera.fu, (s[:, 1] - camera.cv) / camera.fv))
+    """Normalised image coordinates x_n = (u − c_u)/f_u = X/Z, y_n = (v − c_v)/f_v = Y/Z of
+    pixel features s: (k, 2) of s (k, 2) or (2k,), rows (N, k, 2) of rows s (N, k, 2)."""
+    return (_pixel_features(s) - (camera.cu, camera.cv)) / (camera.fu, camera.fv)
 
 
 def interaction_matrix(s: np.ndarray, depth: np.ndarray | float, camera: Camera) -> np.ndarray:
-    """Interaction matrix L (2k, 6) of k point features: ṡ = L (v, ω), ṡ in px/s.
+    """Interaction matrix L (2k, 6) of k point features: ṡ = L (v, ω), ṡ in px/s; rows
+    (N, 2k, 6) of rows of features.
 
     Args:
-        s: (k, 2) or (2k,) pixel features.
-        depth: (k,) or scalar depths Z (m) of the points in the optical frame (> 0).
+        s: (k, 2) or (2k,) pixel features, or rows of them (N, k, 2).
+        depth: depths Z (m) of the points in the optical frame (> 0): (k,) or a scalar, or
+            rows (N, k) (anything that broadcasts to s's (..., k)).
         camera: the intrinsics (the notes' λ is f_u = f_v).
 
     Rows 2i, 2i+1 are the notes' L(λ, x, y, Z) of point i (module docstring): the normalised
     form [[−1/Z, 0, x/Z, xy, −(1 + x²), y], [0, −1/Z, y/Z, 1 + y², −xy, −x]] with the u row
     scaled by f_u and the v row by f_v.
+
+    Raises:
+        ValueError: a depth that is not finite or not > 0.
     """
     xn = normalise(s, camera)
-    k = xn.shape[0]
-    Z = np.broadcast_to(np.asarray(depth, dtype=float), (k,))
-    if np.any(~np.isfinite(Z)) or np.any(Z <= 0.0):
+    Z = np.broadcast_to(np.asarray(depth, dtype=float), xn.shape[:-1])
+    if not np.all(np.isfinite(Z)) or np.any(Z <= 0.0):
         raise ValueError(f"depth must be finite and > 0, got {Z}")
-    x, y = xn[:, 0], xn[:, 1]
-    L = np.empty((k, 2, 6))
-    zero = np.zeros(k)
-    L[:, 0] = np.column_stack((-1.0 / Z, zero, x / Z, x * y, -(1.0 + x * x), y)) * camera.fu
-    L[:, 1] = np.column_stack((zero, -1.0 / Z, y / Z, 1.0 + y * y, -x * y, -x)) * camera.fv
-    return L.reshape(2 * k, 6)
+    x, y = xn[..., 0], xn[..., 1]
+    L = np.empty((*xn.shape[:-1], 2, 6))  # (..., k, 2, 6): the u and v rows of point i
+    u, v = L[..., 0, :], L[..., 1, :]
+    u[..., 0], u[..., 1], u[..., 2] = -1.0 / Z, 0.0, x / Z
+    u[..., 3], u[..., 4], u[..., 5] = x * y, -(1.0 + x * x), y
+    v[..., 0], v[..., 1], v[..., 2] = 0.0, -1.0 / Z, y / Z
+    v[..., 3], v[..., 4], v[..., 5] = 1.0 + y * y, -x * y, -x
+    u *= camera.fu
+    v *= camera.fv
+    return L.reshape(*xn.shape[:-2], 2 * xn.shape[-2], 6)  # rows 2i, 2i+1: point i
 
 
 def homography(plane_points: np.ndarray, image_points: np.ndarray) -> np.ndarray:
     """Homography H (3, 3), ‖H‖_F = 1, with (x, y, 1) ∝ H (X, Y, 1) for k ≥ 4 correspondences
     of plane points (k, 2) and normalised image points (k, 2): the direct linear transform
-    (the null vector of the 2k × 9 system, exact for 4 points in general position)."""
+    (the null vector of the 2k × 9 system, exact for 4 points in general position). Rows of
+    image points (N, k, 2) (the plane points shared) give rows H (N, 3, 3), one SVD per row.
+
+    Raises:
+        ValueError: image points that are not (..., k, 2) for the k plane points.
+    """
     P = np.asarray(plane_points, dtype=float)
     m = np.asarray(image_points, dtype=float)
-    rows = []
-    for (X, Y), (x, y) in zip(P, m, strict=True):
-        rows.append([X, Y, 1.0, 0.0, 0.0, 0.0, -x * X, -x * Y, -x])
-        rows.append([0.0, 0.0, 0.0, X, Y, 1.0, -y * X, -y * Y, -y])
-    return np.linalg.svd(np.array(rows))[2][-1].reshape(3, 3)
+    if P.ndim != 2 or P.shape[1] != 2 or m.shape[-2:] != P.shape:
+        raise ValueError(f"homography needs plane points (k, 2) and image points (..., k, 2), "
+                         f"got shapes {P.shape} and {m.shape}")
+    P_h = np.column_stack((P, np.ones(len(P))))  # (X, Y, 1) (k, 3)
+    A = np.zeros((*m.shape, 9))  # (..., k, 2, 9): rows 2i (x), 2i+1 (y) of point i
+    A[..., 0, :3] = P_h
+    A[..., 1, 3:6] = P_h
+    A[..., 6:] = -m[..., None] * P_h[:, None]  # −x (X, Y, 1) and −y (X, Y, 1)
+    A = A.reshape(*m.shape[:-2], 2 * len(P), 9)
+    return np.linalg.svd(A)[2][..., -1, :].reshape(*m.shape[:-2], 3, 3)
 
 
 def planar_pose(model_points: np.ndarray, s: np.ndarray, camera: Camera
@@ -195,39 +238,63 @@ def planar_pose(model_points: np.ndarray, s: np.ndarray, camera: Camera
     """Pose (R, t) of a planar target in the optical frame from k ≥ 4 of its points.
 
     ``model_points`` (k, 3) lie in the target's plane z = 0 (target frame); ``s`` (k, 2) are
-    their pixel features. The homography H ∝ [r₁ r₂ t] (normalised coordinates) is
-    decomposed: scale 1/‖h₁‖ (mean of ‖h₁‖, ‖h₂‖) with the sign that puts the target in front
-    (t_z > 0), r₃ = r₁ × r₂, and the nearest rotation (SVD). Exact on noise-free points.
+    their pixel features, or rows of them (N, k, 2). The homography H ∝ [r₁ r₂ t]
+    (normalised coordinates) is decomposed: scale 1/‖h₁‖ (mean of ‖h₁‖, ‖h₂‖) with the sign
+    that puts the target in front (t_z > 0), r₃ = r₁ × r₂, and the nearest rotation (SVD).
+    Exact on noise-free points.
 
     Returns:
-        R (3, 3) target→camera and t (3,) the target origin in the optical frame (m).
+        R (3, 3) target→camera and t (3,) the target origin in the optical frame (m); rows
+        R (N, 3, 3), t (N, 3) of rows of features.
+
+    Raises:
+        ValueError: model points off the plane z = 0.
     """
     P = np.asarray(model_points, dtype=float).reshape(-1, 3)
     if np.any(np.abs(P[:, 2]) > 1e-12):
         raise ValueError("planar_pose needs model points in the plane z = 0")
     H = homography(P[:, :2], normalise(s, camera))
-    scale = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
-    H = H * scale
-    if H[2, 2] < 0.0:  # t_z = H[2, 2] must be > 0 (target in front of the camera)
-        H = -H
-    r1, r2, t = H[:, 0], H[:, 1], H[:, 2]
-    U, _, Vt = np.linalg.svd(np.column_stack((r1, r2, np.cross(r1, r2))))
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    return R, t.copy()
+    h1, h2 = H[..., :, 0], H[..., :, 1]
+    scale = 2.0 / (np.sqrt(np.sum(h1 * h1, axis=-1)) + np.sqrt(np.sum(h2 * h2, axis=-1)))
+    H = H * scale[..., None, None]
+    H = np.where(H[..., 2:, 2:] < 0.0, -H, H)  # t_z = H[2, 2] > 0: the target in front
+    M = H.copy()
+    M[..., :, 2] = _cross(H[..., :, 0], H[..., :, 1])  # [r₁ r₂ r₁ × r₂]
+    U, _, Vt = np.linalg.svd(M)
+    U[..., :, 2] *= np.linalg.det(U @ Vt)[..., None]  # U diag(1, 1, det(U Vᵀ))
+    return U @ Vt, H[..., :, 2].copy()
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b (..., 3) of rows of 3-vectors (np.cross's formula without its axis handling)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
 
 
 def pose_error(R: np.ndarray, t: np.ndarray, R_ref: np.ndarray, t_ref: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
     """Pose of the current camera in the desired camera's frame from the target's pose in
-    both: (R, t) target→current camera, (R_ref, t_ref) target→desired camera.
+    both: (R, t) target→current camera, (R_ref, t_ref) target→desired camera (R (3, 3),
+    t (3,), or rows of them (N, 3, 3), (N, 3)).
 
     Returns:
         t_e (3,): the current optical centre in the desired frame, c*t_c = t_ref − R_e t (m);
-        θu (3,): the rotation vector of c*R_c = R_ref Rᵀ (rad, θ ∈ [0, π]).
+        θu (3,): the rotation vector of c*R_c = R_ref Rᵀ (rad, θ ∈ [0, π]); rows (N, 3) each
+        of rows of poses.
     """
-    R_e = np.asarray(R_ref) @ np.asarray(R).T
-    axis, theta = traj.axis_angle_from_matrix(R_e)
-    return np.asarray(t_ref) - R_e @ np.asarray(t), axis * theta
+    R_e = np.asarray(R_ref) @ np.asarray(R).swapaxes(-1, -2)  # c*R_c
+    t_e = np.asarray(t_ref) - (R_e @ np.asarray(t)[..., None])[..., 0]
+    if R_e.ndim == 2:
+        return t_e, _rotation_vector(R_e)
+    return t_e, np.stack([_rotation_vector(R_i) for R_i in R_e.reshape(-1, 3, 3)]
+                         ).reshape(t_e.shape)  # row by row
+
+
+def _rotation_vector(R: np.ndarray) -> np.ndarray:
+    """θu (3,) (rad) of a rotation R (3, 3), θ ∈ [0, π]."""
+    axis, theta = traj.axis_angle_from_matrix(R)
+    return axis * theta
 
 
 def twist_between(R_e: np.ndarray, t_e: np.ndarray) -> np.ndarray:
@@ -255,7 +322,8 @@ def camera_points(points_world: np.ndarray, position: np.ndarray, R: np.ndarray)
 
 
 def damped_pinv(A: np.ndarray, damping: float) -> np.ndarray:
-    """Damped least-squares inverse A* = Aᵀ (A Aᵀ + μ² I)⁻¹ = (AᵀA + μ² I)⁻¹ Aᵀ (n, m) of A (m, n).
+    """Damped least-squares inverse A* = Aᵀ (A Aᵀ + μ² I)⁻¹ = (AᵀA + μ² I)⁻¹ Aᵀ (n, m) of A (m, n),
+    or of each of rows of matrices A (N, m, n): A* (N, n, m), one SVD per row.
 
     The course's damped least squares (control-laws.md §1) for any shape: through the SVD
     A = U Σ Vᵀ, A* = V diag(σᵢ / (σᵢ² + μ²)) Uᵀ. A direction with σᵢ ≫ μ is inverted as by the
@@ -268,7 +336,8 @@ def damped_pinv(A: np.ndarray, damping: float) -> np.ndarray:
     if damping == 0.0:
         return np.linalg.pinv(A)
     U, sigma, Vt = np.linalg.svd(np.asarray(A, dtype=float), full_matrices=False)
-    return (Vt.T * (sigma / (sigma * sigma + damping * damping))) @ U.T
+    gains = sigma / (sigma * sigma + damping * damping)
+    return (Vt.swapaxes(-1, -2) * gains[..., None, :]) @ U.swapaxes(-1, -2)
 
 
 def detect_markers(

@@ -1,5 +1,5 @@
-"""The eye-in-hand visual-servoing laws on rows (``RowLaw``: IBVS, PBVS) and the row forms of
-cir_gym.vision's science they use (baselines/visual_servo.py's ``*_rows``).
+"""The eye-in-hand visual-servoing laws on rows (``RowLaw``: IBVS, PBVS) and cir_gym.vision's
+science they use, on rows (N, 4, 2) against one observation (4, 2) at a time.
 
 Two tolerances, two reasons (as tests/test_batched_laws.py):
 
@@ -8,21 +8,14 @@ Two tolerances, two reasons (as tests/test_batched_laws.py):
   LAPACK call per row's matrix), so ``evaluate`` may batch these controllers;
 * a row against the law written out here with cir_gym.vision's single-case functions
   (``planar_pose``, ``interaction_matrix``, ``damped_pinv``, ``pose_error``): **1e-12 of
-  the largest command** (the row forms reduce norms over an axis instead of a dot product;
-  measured: bit for bit on these observations).
+  the largest command** (the row law stacks its products where this one multiplies one
+  observation's; measured: bit for bit on these observations).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from cir_gym.baselines.visual_servo import (
-    damped_pinv_rows,
-    homography_rows,
-    interaction_matrix_rows,
-    normalise_rows,
-    planar_pose_rows,
-)
 
 from cir_gym import baselines, vision
 from cir_gym.envs.visual_servo_vector import VisualServoVectorEnv
@@ -140,16 +133,18 @@ def test_rows_are_the_course_law(name, gains, env_kwargs, servo_obs) -> None:
     assert np.ptp(want[:, 0]) > 0.1 * np.max(np.abs(want[:, 0]))  # the rows differ
 
 
-def test_the_row_forms_equal_cir_gym_vision_row_by_row(servo_obs) -> None:
+def test_cir_gym_vision_on_rows_is_each_row_alone(servo_obs) -> None:
     """Pose, homography, normalised coordinates, interaction matrix and damped inverse of
-    every observed feature set: the row form's row is the single-case function's result."""
+    every observed feature set: the function's row on rows (N, 4, 2) is its result on that
+    observation (4, 2) alone."""
     cam = vision.Camera.from_fovy(60.0, 640, 480)
     P = baselines.make("ibvs", ENV).model_points
     s = servo_obs["features"].reshape(-1, 4, 2)
-    R, t = planar_pose_rows(P, s, cam)
-    H = homography_rows(P[:, :2], normalise_rows(s, cam))
-    Z = np.maximum((P @ np.swapaxes(R, 1, 2) + t[:, None])[..., 2], 1e-3)
-    L = interaction_matrix_rows(s, Z, cam)
+    R, t = vision.planar_pose(P, s, cam)
+    H = vision.homography(P[:, :2], vision.normalise(s, cam))
+    Z = np.maximum(vision.transform_points(R, t, P)[..., 2], 1e-3)
+    L = vision.interaction_matrix(s, Z, cam)
+    t_e, theta_u = vision.pose_error(R, t, R[::-1], t[::-1])  # against another row's pose
     for i in range(len(s)):
         R_i, t_i = vision.planar_pose(P, s[i], cam)
         np.testing.assert_allclose(R[i], R_i, rtol=0, atol=REL)
@@ -159,11 +154,14 @@ def test_the_row_forms_equal_cir_gym_vision_row_by_row(servo_obs) -> None:
         L_i = vision.interaction_matrix(s[i], Z[i], cam)
         np.testing.assert_allclose(L[i], L_i, rtol=REL, atol=REL * np.max(np.abs(L_i)))
         for mu in (0.0, 1.0, 30.0):
-            np.testing.assert_allclose(damped_pinv_rows(L, mu)[i], vision.damped_pinv(L_i, mu),
+            np.testing.assert_allclose(vision.damped_pinv(L, mu)[i], vision.damped_pinv(L_i, mu),
                                        rtol=REL, atol=REL / np.min(Z))
+        t_e_i, theta_u_i = vision.pose_error(R[i], t[i], R[-1 - i], t[-1 - i])
+        np.testing.assert_allclose(t_e[i], t_e_i, rtol=0, atol=REL)
+        np.testing.assert_allclose(theta_u[i], theta_u_i, rtol=0, atol=REL)
     with pytest.raises(ValueError, match="depth"):
-        interaction_matrix_rows(s, -Z, cam)
+        vision.interaction_matrix(s, -Z, cam)
     with pytest.raises(ValueError, match="damping"):
-        damped_pinv_rows(L, -1.0)
+        vision.damped_pinv(L, -1.0)
     with pytest.raises(ValueError, match="plane"):
-        planar_pose_rows(P + 0.1, s, cam)
+        vision.planar_pose(P + 0.1, s, cam)
