@@ -13,12 +13,12 @@ Conventions (stated once, used everywhere):
   the top), pixel centres at integers, so the principal point of an ideal camera is
   ((W − 1)/2, (H − 1)/2). Projection: u = c_u + f_u X/Z, v = c_v + f_v Y/Z.
 * **Features** s: (k, 2) pixel coordinates of k points (or flattened (2k,) as (u₁, v₁, u₂, …)).
-* **Rows**: :func:`normalise`, :func:`interaction_matrix`, :func:`homography`,
-  :func:`planar_pose`, :func:`pose_error`, :func:`transform_points` and :func:`damped_pinv`
-  also take rows of observations, a leading batch axis N (features (N, k, 2), poses
-  (N, 3, 3) and (N, 3), matrices (N, m, n)), one observation being the one-row case:
-  element-wise numpy and one LAPACK call per row's matrix, so a row gives the same numbers
-  alone or in a batch.
+* **Rows**: :func:`optical_pose`, :func:`camera_points`, :func:`normalise`,
+  :func:`interaction_matrix`, :func:`homography`, :func:`planar_pose`, :func:`pose_error`,
+  :func:`transform_points` and :func:`damped_pinv` also take rows of observations, a leading
+  batch axis N (features (N, k, 2), poses (N, 3, 3) and (N, 3), matrices (N, m, n)), one
+  observation being the one-row case: element-wise numpy and one LAPACK call per row's
+  matrix, so a row gives the same numbers alone or in a batch.
 * **Camera twist** (v, ω) (6,): linear velocity of the optical centre (m/s) and angular
   velocity (rad/s), both in the optical frame of the moving camera.
 
@@ -127,10 +127,11 @@ class Camera:
 
 
 def optical_pose(xpos: np.ndarray, xmat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World pose (p (3,), R (3, 3) optical→world) of a MuJoCo camera from ``cam_xpos`` and
-    ``cam_xmat`` (camera→world): R = R_mujoco · MUJOCO_TO_OPTICAL (its own inverse)."""
-    return np.asarray(xpos, dtype=float).copy(), np.asarray(xmat, dtype=float).reshape(3, 3) \
-        @ MUJOCO_TO_OPTICAL
+    """World pose (p (3,), R (3, 3) optical→world) of a MuJoCo camera from ``cam_xpos`` (3,)
+    and ``cam_xmat`` (9,) (camera→world): R = R_mujoco · MUJOCO_TO_OPTICAL (its own inverse);
+    rows p (N, 3), R (N, 3, 3) of rows (N, 3), (N, 9)."""
+    p = np.array(xpos, dtype=float)
+    return p, np.asarray(xmat, dtype=float).reshape(*p.shape[:-1], 3, 3) @ MUJOCO_TO_OPTICAL
 
 
 def transform_points(R: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -317,8 +318,10 @@ def twist_between(R_e: np.ndarray, t_e: np.ndarray) -> np.ndarray:
 
 def camera_points(points_world: np.ndarray, position: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Points (k, 3) of the world in the optical frame of a camera at ``position`` (3,) with
-    orientation ``R`` (3, 3, optical → world): Rᵀ (p − position)."""
-    return (np.asarray(points_world, dtype=float) - position) @ np.asarray(R)
+    orientation ``R`` (3, 3, optical → world): Rᵀ (p − position); rows (N, k, 3) of rows of
+    points (N, k, 3) and cameras (N, 3), (N, 3, 3)."""
+    position = np.asarray(position, dtype=float)
+    return (np.asarray(points_world, dtype=float) - position[..., None, :]) @ np.asarray(R)
 
 
 def damped_pinv(A: np.ndarray, damping: float) -> np.ndarray:

@@ -20,8 +20,9 @@ states):
   error are per-simulation model fields (``Batch.expand``: ``body_pos``, ``body_quat``,
   ``cam_pos``, ``cam_quat``, ``cam_intrinsic``), copied from the template at the copy's
   reset; its true intrinsics (the calibration error) are rows of (f_u, f_v, c_u, c_v).
-* **The features**: the markers in each copy's optical frame and their projection through
-  its true intrinsics on (N, 4, 3) arrays, the image test on (N, 4); the line of sight
+* **The features**: the markers in each copy's optical frame (:mod:`cir_gym.vision`'s
+  ``optical_pose`` and ``camera_points`` on rows) and their projection through its true
+  intrinsics on (N, 4, 3) arrays, the image test on (N, 4); the line of sight
   (:func:`cir_gym.vision.visible`'s rule) as ``Batch.ray`` casts of all copies' rays at once,
   a ray that meets a geom enclosing the camera centre cast again from beyond its face. Whether
   a geom encloses the camera centre is MuJoCo's ``mju_rayGeom`` test
@@ -54,7 +55,7 @@ import numpy as np
 from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.envs.visual_servo import VisualServoEnv
 from cir_gym.envs.visual_servo_base import CONVERGED, JOINT_MARGIN, MIN_DEPTH, REWARD_SCALES
-from cir_gym.vision import CAMERA_GEOM_GROUPS, MUJOCO_TO_OPTICAL, _encloses
+from cir_gym.vision import CAMERA_GEOM_GROUPS, _encloses, camera_points, optical_pose
 
 __all__ = ["VisualServoVectorEnv"]
 
@@ -172,9 +173,8 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         """(s (N, 4, 2) px through each copy's true camera, behind (N,) bool: a marker at depth
         ≤ MIN_DEPTH, whose row of s is meaningless) at the batch's current poses."""
         t = self.template
-        p_c = self._cam_xpos[:, t._cam_id]  # (N, 3)
-        R_c = self._cam_xmat[:, t._cam_id].reshape(-1, 3, 3) @ MUJOCO_TO_OPTICAL
-        P = (self._geom_xpos[:, t._marker_ids] - p_c[:, None]) @ R_c  # (N, 4, 3) optical
+        p_c, R_c = optical_pose(self._cam_xpos[:, t._cam_id], self._cam_xmat[:, t._cam_id])
+        P = camera_points(self._geom_xpos[:, t._marker_ids], p_c, R_c)  # (N, 4, 3) optical
         Z = P[..., 2]
         behind = np.any(Z <= MIN_DEPTH, axis=1)
         fu, fv, cu, cv = (self._intrinsics[:, j, None] for j in range(4))
