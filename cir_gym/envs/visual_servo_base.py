@@ -440,30 +440,32 @@ class VisualServoBase(RobotEnv):
         detection_failure = self._observe()
         e = self._record(k)
         terminated = bool(diverged or lost or at_limit)
-        r_features = -(1.0 - float(np.mean(np.exp(-(e**2) / REWARD_SCALES**2))))
-        r_action = -self.action_weight * float(a @ a) / a.size
-        r_term = 0.0
-        if terminated:  # the penalty, and the worst reward of every unplayed step (Rewards)
-            unplayed = (self.max_steps - k) * self._worst_step if self.charge_unplayed_steps else 0.0
-            r_term = -self.termination_penalty + unplayed
-        reward = r_features + r_action + r_term
+        terms = self.reward_terms(e, a, terminated, self.max_steps - k)
+        info: dict[str, Any] = {name: float(value) for name, value in terms.items()}
+        reward = info["reward_features"] + info["reward_action"] + info["reward_termination"]
         truncated = k >= self.max_steps and not terminated
-        info: dict[str, Any] = {
-            "reward_features": r_features,
-            "reward_action": r_action,
-            "reward_termination": r_term,
-            "feature_error": e,
-            "feature_lost": lost,
-            "features_visible": seen,
-            "joint_limit": at_limit,
-            "detection_failure": detection_failure,
-            "diverged": bool(diverged),
-        }
+        info.update(feature_error=e, feature_lost=lost, features_visible=seen, joint_limit=at_limit,
+                    detection_failure=detection_failure, diverged=bool(diverged))
         if terminated or truncated:
             metrics = self.episode_metrics()
             info["episode_metrics"] = metrics
             info["is_success"] = bool(not terminated and metrics["final_feature_error"] < CONVERGED)
         return self._obs(), reward, terminated, truncated, info
+
+    def reward_terms(self, e: Any, a: np.ndarray, terminated: Any, steps_left: Any
+                     ) -> dict[str, Any]:
+        """The reward's terms (## Rewards) of a step, ``info["reward_<name>"]``: from the true
+        feature error e (px), the action a (m,), whether the step ended the episode and the
+        steps T − k left unplayed; or of rows of steps (e (N,), a (N, m), (N,), (N,)), each
+        term then (N,). The reward is r_features + r_action + r_termination."""
+        e = np.asarray(e)
+        r_features = -(1.0 - np.mean(np.exp(-(e[..., None] ** 2) / REWARD_SCALES**2), axis=-1))
+        r_action = -self.action_weight * np.sum(a * a, axis=-1) / a.shape[-1]
+        # a failure: the penalty, and the worst reward of every unplayed step
+        unplayed = steps_left * self._worst_step if self.charge_unplayed_steps else 0.0
+        r_term = np.where(terminated, -self.termination_penalty + unplayed, 0.0)
+        return {"reward_features": r_features, "reward_action": r_action,
+                "reward_termination": r_term}
 
     def _joint_command(self, a: np.ndarray) -> np.ndarray:
         """q̇ (7,) from the action: a ⊙ q̇_max, or q̇ = J⁺ V for a twist V = a ⊙ twist limits,

@@ -54,7 +54,7 @@ import numpy as np
 
 from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.envs.visual_servo import VisualServoEnv
-from cir_gym.envs.visual_servo_base import CONVERGED, JOINT_MARGIN, MIN_DEPTH, REWARD_SCALES
+from cir_gym.envs.visual_servo_base import CONVERGED, JOINT_MARGIN, MIN_DEPTH
 from cir_gym.vision import CAMERA_GEOM_GROUPS, _encloses, camera_points, optical_pose
 
 __all__ = ["VisualServoVectorEnv"]
@@ -245,17 +245,12 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         self._s_obs[:] = self._s_true + noise * t.pixel_noise
         e = self._record(self._k)
         terminated = diverged | lost | at_limit
-        r_features = -(1.0 - np.mean(np.exp(-(e[:, None] ** 2) / REWARD_SCALES**2), axis=1))
-        r_action = -t.action_weight * np.sum(a * a, axis=1) / a.shape[1]
-        unplayed = (t.max_steps - self._k) * t._worst_step if t.charge_unplayed_steps else 0.0
-        r_term = np.where(terminated, -t.termination_penalty + unplayed, 0.0)
-        reward = r_features + r_action + r_term
+        terms = t.reward_terms(e, a, terminated, t.max_steps - self._k)  # the single env's
+        reward = terms["reward_features"] + terms["reward_action"] + terms["reward_termination"]
         self._feature_error = e
         infos = self._step_infos(
             {
-                "reward_features": r_features,
-                "reward_action": r_action,
-                "reward_termination": r_term,
+                **terms,
                 "feature_error": e,
                 "feature_lost": lost,
                 "features_visible": seen,
