@@ -66,6 +66,7 @@ import numpy as np
 from cir_gym.baselines.base import Controller, InvalidGain, Observation, RowLaw
 
 from cir_gym.context import TaskContext
+from cir_gym.trajectories import skew
 from cir_gym.vision import (
     damped_pinv,
     interaction_matrix,
@@ -89,10 +90,6 @@ def adaptive_gain(x: float | np.ndarray, lambda_0: float, lambda_inf: float, slo
         return lambda_inf if np.ndim(x) == 0 else np.full(np.shape(x), lambda_inf)
     value = span * np.exp(-slope * np.asarray(x, dtype=float) / span) + lambda_inf
     return float(value) if np.ndim(value) == 0 else value
-
-
-def _skew(p: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]])
 
 
 def _fit(command: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -271,7 +268,7 @@ class EyeToHandIBVS(_VisualServo):
         Z = np.maximum(transform_points(R, t, self.model_points)[:, 2], 1e-3)
         G = np.zeros((6, 6))
         G[:3, :3] = -np.eye(3)
-        G[:3, 3:] = -_skew(t)
+        G[:3, 3:] = -skew(t)
         G[3:, 3:] = -np.eye(3)
         return interaction_matrix(s, Z, self.camera) @ G
 
@@ -288,7 +285,7 @@ class EyeToHandIBVS(_VisualServo):
         r = self.moving_offset * R_f[:, 2]  # flange → marker origin (world)
         M = np.zeros((6, 6))  # flange world twist → marker twist in camera axes
         M[:3, :3] = Rc.T
-        M[:3, 3:] = -Rc.T @ _skew(r)  # v_m = v_f + ω × r
+        M[:3, 3:] = -Rc.T @ skew(r)  # v_m = v_f + ω × r
         M[3:, 3:] = Rc.T
         J_image = LG @ M @ J
         return _fit(-lam * self._inverse(J_image) @ e, self.velocity_limit)

@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike
 
 from cir_gym import trajectories as traj
 from cir_gym.robot import Robot
+from cir_gym.trajectories import skew  # S(v) x = v × x; re-exported here
 
 __all__ = [
     "PoseErrorKinematics",
@@ -202,20 +203,6 @@ def quat_angle(quat_ref: list[float], quat: list[float]) -> float:
 
 
 # ---------------------------------------------------------------------- SO(3) Jacobians
-def skew(v: ArrayLike) -> np.ndarray:
-    """S(v) (..., 3, 3) with S(v) x = v × x."""
-    v = np.asarray(v, dtype=float)
-    if v.ndim == 1:  # the common single-vector case, without np.stack (~10x faster)
-        x, y, w = v.tolist()
-        return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
-    # S(v) is linear in v: vec S(v) = v [vec S(e_x); vec S(e_y); vec S(e_z)] (exact: one
-    # nonzero product per entry)
-    return (v[..., None, :] @ _SKEW_BASIS).reshape(*v.shape[:-1], 3, 3)
-
-
-_SKEW_BASIS = np.stack([skew(e).ravel() for e in np.eye(3)])  # (3, 9)
-
-
 def _coefficients(theta: np.ndarray) -> tuple[np.ndarray, ...]:
     """a, b, c, d(θ) of J_l = I + a S + b S², J_l⁻¹ = I − S/2 + c S², d = c'(θ)/θ."""
     if np.ndim(theta) == 0:  # numpy scalars, so that c[..., None, None] works

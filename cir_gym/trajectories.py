@@ -52,6 +52,7 @@ __all__ = [
     "quat_from_matrix",
     "quat_mul",
     "random_joint_trajectory",
+    "skew",
     "slerp",
 ]
 
@@ -1349,9 +1350,31 @@ def slerp(q0: ArrayLike, q1: ArrayLike, s: ArrayLike) -> np.ndarray:
     return q[0] if scalar else q
 
 
-def _skew(r: np.ndarray) -> np.ndarray:
-    """S(r) with S(r) x = r × x, for r (3,)."""
-    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+def skew(v: ArrayLike) -> np.ndarray:
+    """The cross-product matrix S(v), S(v) x = v × x, for v (3,) or rows (..., 3).
+
+    S(v) = [[0, −v_z, v_y], [v_z, 0, −v_x], [−v_y, v_x, 0]] (3, 3), or (..., 3, 3) for rows,
+    in the unit of v. The single vector is built from its three floats, rows by one matrix
+    product vec S(v) = v [vec S(e_x); vec S(e_y); vec S(e_z)] (exact: one nonzero product per
+    entry). Another shape raises ``ValueError``.
+    """
+    if type(v) is not np.ndarray:  # an ndarray of any real dtype goes through as it is
+        v = np.asarray(v, dtype=float)
+    try:
+        if v.ndim == 1:  # the common single vector: three floats, no matrix product
+            x, y, z = v.tolist()
+            return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        return (v @ _SKEW_BASIS).reshape(*v.shape[:-1], 3, 3)
+    except ValueError:  # three values to unpack, or the product's inner dimension
+        raise ValueError(f"v must have shape (3,) or (..., 3), got {v.shape}") from None
+
+
+#: (3, 9): row k is vec S(e_k); for each cyclic (i, j, k), S[i, j] = −v_k and S[j, i] = +v_k
+_SKEW_BASIS = np.zeros((3, 9))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _SKEW_BASIS[_k, 3 * _j + _i] = 1.0
+    _SKEW_BASIS[_k, 3 * _i + _j] = -1.0
+del _i, _j, _k
 
 
 def matrix_from_axis_angle(r: ArrayLike, theta: ArrayLike) -> np.ndarray:
@@ -1368,7 +1391,7 @@ def matrix_from_axis_angle(r: ArrayLike, theta: ArrayLike) -> np.ndarray:
     norm = np.linalg.norm(axis)
     if norm < 1e-12:
         raise ValueError(f"r must be a non-zero axis, got {axis}")
-    S = _skew(axis / norm)
+    S = skew(axis / norm)
     th, scalar = _as_times(theta)
     th = th[:, None, None]
     R = np.eye(3) + np.sin(th) * S + (1.0 - np.cos(th)) * (S @ S)

@@ -1,8 +1,11 @@
-"""Small 3-D helpers: cross-product matrices, cross products, quaternions to rotations."""
+"""Small 3-D helpers: cross products, quaternions to rotations; the cross-product matrix S(v) is
+:func:`cir_gym.trajectories.skew`, imported here for the dynamics modules."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from cir_gym.trajectories import skew  # S(v) x = v × x, for the dynamics modules
 
 
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
@@ -22,19 +25,7 @@ def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
     )
 
 
-def skew(vector: np.ndarray) -> np.ndarray:
-    """Cross-product matrices S(v), S(v) u = v × u.  # (..., 3) -> (..., 3, 3)"""
-    return (vector @ _LEVI_CIVITA).reshape(*vector.shape[:-1], 3, 3)
-
-
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a × b for broadcastable stacks of 3-vectors (faster than ``np.cross`` on small arrays)."""
     return (skew(a) @ b[..., None])[..., 0]
 
-
-# (v @ _LEVI_CIVITA).reshape(3, 3) = S(v): for each even permutation (i, j, k),
-# S[i, j] = −v_k and S[j, i] = +v_k.
-_LEVI_CIVITA = np.zeros((3, 9))
-for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-    _LEVI_CIVITA[_k, 3 * _j + _i] = 1.0
-    _LEVI_CIVITA[_k, 3 * _i + _j] = -1.0

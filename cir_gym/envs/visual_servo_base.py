@@ -62,11 +62,6 @@ def random_unit(rng: np.random.Generator, n: int) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _skew(r: np.ndarray) -> np.ndarray:
-    """[r]× (3, 3): [r]× w = r × w."""
-    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-
-
 class VisualServoBase(RobotEnv):
     """Shared plumbing; subclasses set the geometry (see the two environment docstrings)."""
 
@@ -275,7 +270,7 @@ class VisualServoBase(RobotEnv):
         J = self.robot.jacobian(self._flange, q)
         if self.moving_offset:
             r = self.moving_offset * self.robot.site_pose(self._flange, q)[1][:, 2]
-            J[:3] -= _skew(r) @ J[3:]  # v_o = v_f + ω × r = v_f − r × ω
+            J[:3] -= traj.skew(r) @ J[3:]  # v_o = v_f + ω × r = v_f − r × ω
         return J
 
     def _solve_ik(self, q: np.ndarray, p: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
