@@ -308,10 +308,9 @@ def twist_between(R_e: np.ndarray, t_e: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R_e, dtype=float)
     t = np.asarray(t_e, dtype=float)
-    skew = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
     W = np.zeros((6, 6))
     W[:3, :3] = R
-    W[:3, 3:] = skew @ R
+    W[:3, 3:] = traj.skew(t) @ R
     W[3:, 3:] = R
     return W
 
