@@ -41,6 +41,7 @@ import argparse
 import itertools
 import json
 import math
+import shlex
 import sys
 import time
 from dataclasses import dataclass
@@ -294,13 +295,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cpu[name] = time.process_time() - start
         print(f"{name}: {sum(e.success for e in results[name])}/{args.episodes} successes, "
               f"region {convergence_region(results[name]):.0f}°, {cpu[name]:.0f} CPU-s", flush=True)
-    stem = args.out / args.env.split("/")[-1]
+    # an agent's table beside the controllers' (not over it): <Env>_<agent>_seed_<k>
+    stem = args.out / (args.agent.replace("/", "_") if args.agent else args.env.split("/")[-1])
+    command = shlex.join(["python", "scripts/research/eval_vs_rotation.py",
+                          *(sys.argv[1:] if argv is None else argv)])
     seeds = f"seeds {args.seed}–{args.seed + args.episodes - 1}"
     every = [e for eps in results.values() for e in eps]
     text = "\n".join([
         f"# {args.env}: the rotation family's convergence region", "",
-        f"Written by `python scripts/research/eval_vs_rotation.py --episodes {args.episodes}"
-        + "".join(f" --set {s}" for s in args.set) + "`: " + f"{args.env} with {kwargs} "
+        f"Written by `{command}`: {args.env} with {kwargs} "
         f"(default 0.1 px feature noise unless set), {seeds}, by `cir_gym.evaluation.evaluate`. "
         "Spin: |r_z| of the start's rotation vector (its twist about the optical axis differs "
         f"by ≤ {max(abs(e.twist - e.spin) for e in every):.1f}° here). Convergence region: the "
