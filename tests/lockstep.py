@@ -129,3 +129,49 @@ def lockstep(
                 assert_info(infos, i, w_info, tol, what)
             assert_obs(row(obs, i), w_obs, obs_tol, what)
     return seen
+
+
+
+#: tolerances of an SB3 VecEnv stack against its single-env stack: the float32 values the agent
+#: sees (observations, rewards, actions), relative; the float64 episode metrics, relative
+SB3_RTOL = 1e-6
+SB3_METRIC_RTOL = 1e-9
+
+
+def sb3_step(venv: Any, singles: list[Any], actions: np.ndarray, k: int,
+             info_keys: tuple[str, ...] = ("controller_action",)) -> list[tuple[int, bool]]:
+    """One ``venv.step(actions)`` of an SB3 VecEnv (SAME_STEP autoreset, ``terminal_observation``)
+    against ``singles[i].step(actions[i])`` (a single-env stack with Monitor's ``episode``
+    info; reset here after its episode ends): ends, rewards, the step infos ``info_keys``, final
+    observations, episode statistics, success, episode metrics and the next observations, to
+    :data:`SB3_RTOL` / :data:`SB3_METRIC_RTOL`.
+
+    Returns:
+        (copy, terminated) of every copy whose episode ended in this step.
+    """
+    import pytest
+
+    obs, rew, dones, infos = venv.step(actions)
+    ended = []
+    for i, env in enumerate(singles):
+        what = f"step {k} copy {i}"
+        o, r, term, trunc, info = env.step(actions[i])
+        assert bool(dones[i]) == (term or trunc), what
+        assert rew[i] == pytest.approx(r, rel=SB3_RTOL, abs=SB3_RTOL), what
+        for key in info_keys:
+            np.testing.assert_allclose(infos[i][key], info[key], rtol=SB3_RTOL, atol=SB3_RTOL,
+                                       err_msg=f"{what} {key}")
+        if dones[i]:
+            ended.append((i, bool(term)))
+            np.testing.assert_allclose(infos[i]["terminal_observation"], o, rtol=SB3_RTOL,
+                                       atol=SB3_RTOL, err_msg=what)
+            assert infos[i]["episode"]["l"] == info["episode"]["l"], what
+            assert infos[i]["episode"]["r"] == pytest.approx(info["episode"]["r"],
+                                                             rel=SB3_RTOL), what
+            assert infos[i]["is_success"] == info["is_success"], what
+            for name, value in info["episode_metrics"].items():
+                assert infos[i]["episode_metrics"][name] == pytest.approx(
+                    value, rel=SB3_METRIC_RTOL, abs=1e-12), f"{what} {name}"
+            o, _ = env.reset()
+        np.testing.assert_allclose(obs[i], o, rtol=SB3_RTOL, atol=SB3_RTOL, err_msg=what)
+    return ended

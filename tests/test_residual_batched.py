@@ -25,13 +25,14 @@ pytest.importorskip("stable_baselines3")
 from cir_gym.agents.batched import make_batched_vec_env
 from cir_gym.agents.observation import ObservationLayout
 from cir_gym.agents.train import EnvFactory
+from lockstep import SB3_METRIC_RTOL as METRIC_RTOL
+from lockstep import SB3_RTOL as RTOL
+from lockstep import sb3_step
 
 from cir_gym import agents, baselines
 from cir_gym.envs import BATCHED_ENVIRONMENTS
 from cir_gym.evaluation import evaluate
 
-RTOL = 1e-6  # float32 values the agent sees
-METRIC_RTOL = 1e-9  # float64 episode metrics
 SCALE = 0.5
 
 
@@ -89,28 +90,8 @@ def test_each_copy_is_the_single_env_under_residual_action(env_id, controller, k
         a = rng.uniform(-0.2, 0.2, (n, m)).astype(np.float32)
         if push:
             a[0, 2] = -1.0
-        obs, rew, dones, infos = venv.step(a)
-        for i, env in enumerate(singles):
-            what = f"step {k} copy {i}"
-            o, r, term, trunc, info = env.step(a[i])
-            assert bool(dones[i]) == (term or trunc), what
-            assert rew[i] == pytest.approx(r, rel=RTOL, abs=RTOL), what
-            for key in ("controller_action", "residual_action"):
-                np.testing.assert_allclose(infos[i][key], info[key], rtol=RTOL, atol=RTOL,
-                                           err_msg=f"{what} {key}")
-            if dones[i]:
-                ends.append((k, i))
-                np.testing.assert_allclose(infos[i]["terminal_observation"], o, rtol=RTOL,
-                                           atol=RTOL, err_msg=what)
-                assert infos[i]["episode"]["l"] == info["episode"]["l"], what
-                assert infos[i]["episode"]["r"] == pytest.approx(info["episode"]["r"],
-                                                                 rel=RTOL), what
-                assert infos[i]["is_success"] == info["is_success"], what
-                for name, value in info["episode_metrics"].items():
-                    assert infos[i]["episode_metrics"][name] == pytest.approx(
-                        value, rel=METRIC_RTOL, abs=1e-12), f"{what} {name}"
-                o, _ = env.reset()
-            np.testing.assert_allclose(obs[i], o, rtol=RTOL, atol=RTOL, err_msg=what)
+        ends += [(k, i) for i, _ in sb3_step(venv, singles, a, k,
+                                             ("controller_action", "residual_action"))]
     venv.close()
     assert len({i for _, i in ends}) == n  # every copy was autoreset
     if push:  # ends at different steps: copies restart while the others go on
