@@ -1,9 +1,9 @@
-"""A normalized score on a leaderboard variant's primary metric: 0 = hold still, 1 = the best
-tuned controller.
+"""A normalized score on a leaderboard variant's primary metric: 0 = hold still, 1 = the
+variant's first-ranked controller.
 
 For a policy whose primary metric has mean m over the variant's episodes, with m_hold the mean
 of the hold-still policy (:func:`hold_still_policy`, the same seeds) and m_best the mean of the
-best tuned controller (:func:`best_controller`), the score is :func:`normalized_score` of m
+first-ranked controller (:func:`best_controller`), the score is :func:`normalized_score` of m
 between them (:mod:`cir_gym.score_scale`: linear, or a log scale where the anchors are a decade
 or more apart; 0 at m_hold, 1 at m_best, not clipped). The leaderboard measures both anchors on
 its own seeds (:func:`variant_anchors`) and writes them to ``<out>/normalized.json``.
