@@ -48,6 +48,7 @@ __all__ = [
     "camera_points",
     "damped_pinv",
     "detect_markers",
+    "encloses",
     "homography",
     "interaction_matrix",
     "normalise",
@@ -369,8 +370,8 @@ def detect_markers(
     return out, found
 
 
-def _encloses(model: mujoco.MjModel, data: mujoco.MjData, geom: int, point: np.ndarray,
-              direction: np.ndarray) -> bool:
+def encloses(model: mujoco.MjModel, data: mujoco.MjData, geom: int, point: np.ndarray,
+             direction: np.ndarray) -> bool:
     """True if the convex primitive geom ``geom`` encloses ``point``: rays from it both ways
     along ``direction`` meet its surface (from outside, at most one of them does). Meshes and
     planes: False."""
@@ -419,7 +420,7 @@ def visible(
             if x < 0.0 or x >= 1.0 or hit[0] == g:
                 out[i] = True
                 break
-            if not _encloses(model, data, int(hit[0]), origin, direction):
+            if not encloses(model, data, int(hit[0]), origin, direction):
                 break  # something in between: hidden
             start = start + x * ray + 1e-9 * direction  # beyond the enclosing geom's face
     return out

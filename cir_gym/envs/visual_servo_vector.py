@@ -26,7 +26,7 @@ states):
   (:func:`cir_gym.vision.visible`'s rule) as ``Batch.ray`` casts of all copies' rays at once,
   a ray that meets a geom enclosing the camera centre cast again from beyond its face. Whether
   a geom encloses the camera centre is MuJoCo's ``mju_rayGeom`` test
-  (``cir_gym.vision._encloses``), kept for the episode for the geoms rigid with the camera
+  (``cir_gym.vision.encloses``), kept for the episode for the geoms rigid with the camera
   (its own body's weld group) and tested again at each step for the others.
 * **Noise, reward, ends**: the projected features' noise is drawn from each copy's own
   generator (8 standard normals per step, the single env's draw), the reward terms, the
@@ -55,7 +55,7 @@ import numpy as np
 from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.envs.visual_servo import VisualServoEnv
 from cir_gym.envs.visual_servo_base import CONVERGED, JOINT_MARGIN, MIN_DEPTH
-from cir_gym.vision import CAMERA_GEOM_GROUPS, _encloses, camera_points, optical_pose
+from cir_gym.vision import CAMERA_GEOM_GROUPS, camera_points, encloses, optical_pose
 
 __all__ = ["VisualServoVectorEnv"]
 
@@ -65,7 +65,7 @@ _SCENE_FIELDS = ("body_pos", "body_quat", "cam_pos", "cam_quat", "cam_intrinsic"
 
 
 class _GeomPoses(NamedTuple):
-    """One copy's geom poses, read as an MjData's by ``cir_gym.vision._encloses``."""
+    """One copy's geom poses, read as an MjData's by ``cir_gym.vision.encloses``."""
 
     geom_xpos: np.ndarray  # (ngeom, 3)
     geom_xmat: np.ndarray  # (ngeom, 9)
@@ -219,7 +219,7 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         for r in np.flatnonzero(known < 0):
             i, geom = int(copies[r]), int(geoms[r])
             poses = _GeomPoses(self._geom_xpos[i], self._geom_xmat[i])
-            known[r] = _encloses(self.template.model, poses, geom, origin[r], direction[r])
+            known[r] = encloses(self.template.model, poses, geom, origin[r], direction[r])
             if self._rigid[geom]:
                 self._encloses_camera[i, geom] = known[r]
         return known > 0
