@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from cir_gym.context import TaskContext
-from cir_gym.evaluation import EvaluationResult, rank
+from cir_gym.evaluation import EvaluationResult
 from cir_gym.impedance import tool_robot
 from cir_gym.score_scale import LOG_DECADES, LOG_FLOOR, Anchors, normalized_score, uses_log_scale
 
@@ -215,11 +215,10 @@ def best_controller(
         raise ValueError("no controller result to anchor the score at 1")
     name = metric or rows[0].primary_metric
     _mean(rows[0], name)  # a clear error for an unknown metric
-    finite = [r.ranked_on(name) for r in rows if math.isfinite(_mean(r, name))]
+    finite = [r for r in rows if math.isfinite(_mean(r, name))]
     if not finite:
         raise ValueError(f"no controller has a finite mean of {name!r}")
-    first = rank(finite)[0]
-    return next(r for r in rows if r.policy_name == first.policy_name)
+    return min(finite, key=lambda r: r.ranked_on(name).rank_key())
 
 
 def variant_anchors(

@@ -5,7 +5,7 @@
 
 ``RUN`` is a run folder under ``--runs`` (``<Env>/<agent>/seed_<k>``, e.g.
 ``VisualServo-v1/residual_ppo_tuned_ibvs/seed_0``); its checkpoint ``--steps`` (default: the
-last one) is loaded as an agent (``eval_vs_agents.checkpoint_agent``: the checkpoint's model and
+last one) is loaded as an agent (``eval_vs_agents.checkpoint_policy``: the checkpoint's model and
 VecNormalize statistics) and scored with :func:`cir_gym.evaluation.evaluate` on the episodes
 ``--seed … --seed + episodes − 1`` (7000+: seeds no training, evaluation during training,
 validation, tuning or leaderboard run uses), then ``--controller`` (a policy name:
@@ -23,14 +23,12 @@ import sys
 import time
 from pathlib import Path
 
-from cir_gym.agents.policy import load_agent
-
 from cir_gym.evaluation import EvaluationResult, evaluate
 from cir_gym.metrics import wilson_interval
 from cir_gym.scoring.policies import make_policy, parse_value
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_vs_agents import RUNS, checkpoint_agent, checkpoint_steps
+from eval_vs_agents import RUNS, checkpoint_policy
 
 FORCE_METRICS = ("max_force", "peak_force")  # the largest single contact, where a task has one
 
@@ -59,15 +57,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=Path, default=RUNS)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args(argv)
-    run = args.runs / args.run
-    saved = checkpoint_steps(run)
-    if not saved:
-        parser.error(f"{run} has no checkpoint (checkpoints/model_<N>_steps.zip)")
-    steps = args.steps if args.steps is not None else max(saved)
-    if steps not in saved:
-        parser.error(f"--steps {steps}: {run} has checkpoints at {saved}")
+    try:
+        steps, agent = checkpoint_policy(args.runs / args.run, args.runs, args.steps, args.env)
+    except ValueError as exc:
+        parser.error(str(exc))
     kwargs = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
-    agent = load_agent(checkpoint_agent(run, args.runs, steps), args.env)
     print(f"{args.env} {kwargs or ''}, seeds {args.seed}–{args.seed + args.episodes - 1}, "
           f"`{args.metric}`:\n\n| policy | mean [95 % CI] | success (Wilson 95 %) | |\n"
           "|---|---|---|---|")

@@ -143,6 +143,24 @@ def checkpoint_agent(run: Path, root: Path, steps: int) -> Path:
     return dest
 
 
+def checkpoint_policy(run: Path, root: Path, steps: int | None, env_id: str) -> tuple[int, Any]:
+    """(steps, agent) of checkpoint ``steps`` (None: the last) of the run folder ``run`` under
+    ``root``, loaded by :func:`cir_gym.agents.policy.load_agent` on ``env_id``.
+
+    Raises:
+        ValueError: no checkpoint, or none at ``steps`` (the message lists the saved ones).
+    """
+    from cir_gym.agents.policy import load_agent
+
+    saved = checkpoint_steps(run)
+    if not saved:
+        raise ValueError(f"{run} has no checkpoint (checkpoints/model_<N>_steps.zip)")
+    steps = max(saved) if steps is None else steps
+    if steps not in saved:
+        raise ValueError(f"--steps {steps}: {run} has checkpoints at {saved}")
+    return steps, load_agent(checkpoint_agent(run, root, steps), env_id)
+
+
 def agent_of(run: Path, root: Path, source: str, steps: int) -> Path:
     """The agent directory of a run's ``"final"`` model (the run itself) or of its
     ``"checkpoint"`` at ``steps``."""

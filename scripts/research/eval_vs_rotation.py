@@ -57,7 +57,7 @@ from cir_gym.metrics import wilson_interval
 from cir_gym.scoring.policies import PolicyError, make_policy, parse_value, tuned_gains
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_vs_agents import RUNS, checkpoint_agent, checkpoint_steps
+from eval_vs_agents import RUNS, checkpoint_policy
 
 ENV = "cir_gym/VisualServo-v1"
 POLICIES = ("ibvs", "pbvs", "tuned:ibvs")
@@ -248,17 +248,8 @@ def plot(results: dict[str, list[Episode]], title: str, path: Path) -> Path:
 
 def agent_policy(run: str, root: Path, steps: int | None, env_id: str) -> tuple[str, Any]:
     """(label, agent) of the checkpoint ``steps`` (default: the last) of the run ``root/run``."""
-    from cir_gym.agents.policy import load_agent
-
-    folder = root / run
-    saved = checkpoint_steps(folder)
-    if not saved:
-        raise ValueError(f"--agent {run}: {folder} has no checkpoint "
-                         "(checkpoints/model_<N>_steps.zip)")
-    steps = max(saved) if steps is None else steps
-    if steps not in saved:
-        raise ValueError(f"--steps {steps}: {folder} has checkpoints at {saved}")
-    return f"train:{run} @ {steps}", load_agent(checkpoint_agent(folder, root, steps), env_id)
+    steps, agent = checkpoint_policy(root / run, root, steps, env_id)
+    return f"train:{run} @ {steps}", agent
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
