@@ -21,6 +21,7 @@ from cir_gym.scoring.normalized import (
     normalized_score,
     normalized_scores,
     uses_log_scale,
+    variant_anchors,
 )
 
 LOWER = (MetricSpec("rms_error", "rad", "lower", "tracking error"),)
@@ -115,6 +116,21 @@ def test_scores_on_a_higher_is_better_metric_and_on_a_log_scale() -> None:
     scores = normalized_scores(rows, hold)
     assert scores["a"].log_scale and scores["a"].score == 1.0
     assert scores["b"].score == pytest.approx(2 / 3)
+
+
+def test_no_scale_where_holding_still_beats_the_first_ranked_controller() -> None:
+    # RedundantIK's obstacle variants: holding still keeps 0.087 m of clearance, the
+    # first-ranked controller 0.039 m; on that scale a failing row with less clearance than the
+    # anchor would score above 1, so the variant gets no score
+    hold = _result("hold_still", [0.087], HIGHER)
+    rows = [_result("clik_nullspace", [0.039], HIGHER, successes=[True]),
+            _result("pseudo_inverse", [0.0], HIGHER)]
+    with pytest.raises(ValueError, match=r"holding still .* better .*clik_nullspace"):
+        variant_anchors(rows, hold)
+    lower = _result("hold_still", [1.0])
+    with pytest.raises(ValueError, match="holding still"):
+        variant_anchors([_result("a", [2.0])], lower)
+    assert variant_anchors([_result("a", [0.5])], lower).best == 0.5
 
 
 def test_results_of_another_env_or_metric_are_refused() -> None:

@@ -241,14 +241,22 @@ def variant_anchors(
         log: the scale; None: :func:`uses_log_scale` of the anchors.
 
     Raises:
-        ValueError: an unknown metric, no controller with a finite mean, or anchors that are
-            equal or not finite (no scale; the message gives both).
+        ValueError: an unknown metric, no controller with a finite mean, anchors that are
+            equal or not finite, or a hold-still mean better than the anchor's in the metric's
+            direction (no scale: it would rank failing rows above 1; the message gives both).
     """
     rows = list(results)
     name = metric or hold.primary_metric
     anchor = best if best is not None else best_controller(rows, name)
     m_hold, m_best = _mean(hold, name), _mean(anchor, name)
-    unit = hold.spec(name).unit
+    spec = hold.spec(name)
+    hold_is_better = m_hold < m_best if spec.better == "lower" else m_hold > m_best
+    if hold_is_better:
+        raise ValueError(
+            f"holding still ({m_hold:.3g}) is better on {name!r} ({spec.better} is better) than "
+            f"the first-ranked controller {anchor.policy_name} ({m_best:.3g}): no scale"
+        )
+    unit = spec.unit
     if log is None:
         return Anchors.of(name, m_hold, m_best, anchor.policy_name, unit)
     return Anchors(name, m_hold, m_best, anchor.policy_name, log, unit)
