@@ -75,9 +75,15 @@ from cir_gym.agents.shaping import (
     TaskReplay,
     check_log_error_bonus,
 )
-from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import (
+    BaseCallback,
+    CallbackList,
+    CheckpointCallback,
+    EvalCallback,
+)
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
     SubprocVecEnv,
@@ -281,6 +287,40 @@ def _last_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
         return None
     _, model, vn = max(ckpts, key=lambda c: c[0])
     return model, (vn if vn.exists() else None)
+
+
+def replay_buffer_file(run_dir: Path, steps: int) -> Path:
+    """The replay buffer an off-policy run saved with its model at ``steps`` (SB3's name)."""
+    return run_dir / "checkpoints" / f"model_replay_buffer_{steps}_steps.pkl"
+
+
+def save_replay_buffer(model: Any, run_dir: Path) -> None:
+    """Save an off-policy model's replay buffer beside its checkpoint of the same steps and
+    delete the earlier ones (a buffer of 10⁶ transitions is hundreds of MB: only the latest is
+    kept, the one a resumed run continues with). Written to a temporary name and renamed, so a
+    run killed while writing keeps the previous buffer."""
+    path = replay_buffer_file(run_dir, int(model.num_timesteps))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.pkl")
+    model.save_replay_buffer(str(tmp))
+    tmp.replace(path)
+    for old in path.parent.glob("model_replay_buffer_*_steps.pkl"):
+        if old != path:
+            old.unlink()
+
+
+class ReplayBufferCheckpoint(BaseCallback):
+    """Every ``save_freq`` calls (the model checkpoints' frequency), :func:`save_replay_buffer`:
+    an off-policy run resumes with the transitions it had gathered, not an empty buffer."""
+
+    def __init__(self, save_freq: int, run_dir: Path) -> None:
+        super().__init__()
+        self.save_freq, self.run_dir = save_freq, run_dir
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            save_replay_buffer(self.model, self.run_dir)
+        return True
 
 
 #: optimiser keys that a resumed run takes from its (possibly edited) config.yml
@@ -587,6 +627,13 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
                               tensorboard_log=str(run_dir / "tb"), custom_objects=custom)
         print(f"resuming {run_dir} from {model_file.name} ({model.num_timesteps} steps)",
               file=sys.stderr)
+        if isinstance(model, OffPolicyAlgorithm):
+            buffer = replay_buffer_file(run_dir, model.num_timesteps)
+            if buffer.is_file():
+                model.load_replay_buffer(str(buffer))
+            else:
+                print(f"no replay buffer saved at {model.num_timesteps} steps: the run "
+                      f"continues with an empty one", file=sys.stderr)
     else:
         if norm_kwargs is not None:
             venv = VecNormalize(venv, **norm_kwargs)
@@ -614,13 +661,16 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
         curve.best_mean_reward = max(returns, default=-np.inf)
     ckpt = CheckpointCallback(ckpt_freq, str(run_dir / "checkpoints"), name_prefix="model",
                               save_vecnormalize=True, verbose=0)
+    off_policy = isinstance(model, OffPolicyAlgorithm)
+    callbacks = [ckpt, curve] + ([ReplayBufferCheckpoint(ckpt_freq, run_dir)] if off_policy
+                                 else [])
     remaining = max(0, total - model.num_timesteps)
     steps_before = model.num_timesteps
     t0, cpu0 = time.perf_counter(), time.process_time()
     interrupted = False
     previous_term = _term_raises_interrupt()
     try:
-        model.learn(remaining, callback=CallbackList([ckpt, curve]), tb_log_name="run",
+        model.learn(remaining, callback=CallbackList(callbacks), tb_log_name="run",
                     reset_num_timesteps=not resume, progress_bar=progress_bar)
     except KeyboardInterrupt:
         interrupted = True
@@ -631,6 +681,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
         vecnorm = model.get_vec_normalize_env()
         if vecnorm is not None:
             vecnorm.save(str(ckpt_dir / f"model_vecnormalize_{model.num_timesteps}_steps.pkl"))
+        if off_policy:
+            save_replay_buffer(model, run_dir)
         print(f"\ninterrupted: checkpoint {stem}.zip saved; continue with resume=True "
               f"(cir-gym train ... --resume)", file=sys.stderr)
     finally:
@@ -654,6 +706,8 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
         if not interrupted:
             model.save(str(run_dir / "model.zip"))
             save_normalization(model.get_vec_normalize_env(), run_dir)
+            if off_policy:  # a finished run lengthened with --timesteps resumes from model.zip
+                save_replay_buffer(model, run_dir)
         for e in (venv, eval_env):
             try:
                 e.close()

@@ -695,6 +695,28 @@ def test_resume_continues_from_the_last_checkpoint(tiny_runs, tmp_path):
     assert meta["cpu_time_s"] > first["cpu_time_s"]  # summed over the sessions
 
 
+def test_an_off_policy_run_resumes_with_its_replay_buffer(tmp_path):
+    """SAC saves its replay buffer with each checkpoint (only the latest is kept) and a resumed
+    run continues with those transitions, not an empty buffer."""
+    from cir_gym.agents.train import replay_buffer_file, train
+    from stable_baselines3 import SAC
+
+    hp = tmp_path / "sac.yml"
+    hp.write_text(yaml.safe_dump({"default": {
+        "policy": "MlpPolicy", "n_timesteps": 128, "n_envs": 2, "learning_starts": 32,
+        "batch_size": 32, "buffer_size": 1000, "policy_kwargs": {"net_arch": [16, 16]},
+        "eval_freq": 10_000, "n_eval_episodes": 1, "checkpoint_freq": 64}}))
+    run = train(ENV, "sac", out=tmp_path, env_kwargs=SHORT, hyperparams_path=hp,
+                progress_bar=False, verbose=0)
+    buffers = sorted((run / "checkpoints").glob("model_replay_buffer_*_steps.pkl"))
+    assert buffers == [replay_buffer_file(run, 128)]  # the 64-step buffer was replaced
+    train(ENV, "sac", out=tmp_path, resume=True, timesteps=192, progress_bar=False, verbose=0)
+    model = SAC.load(str(run / "model.zip"), device="cpu")
+    model.load_replay_buffer(str(replay_buffer_file(run, 192)))
+    # 2 copies x 96 vector steps: the 64 of the first session and the 32 after the resume
+    assert model.replay_buffer.size() == 96
+
+
 def test_resume_takes_the_edited_learning_rate_of_config_yml(tiny_runs, tmp_path):
     """Fine-tuning: a learning rate edited in config.yml before resuming is the one trained
     with (a linear schedule starts where it stands at the resumed step), not the saved one."""
