@@ -13,9 +13,10 @@ from scripts.research import eval_vs_agents as ev
 ENV = "cir_gym/VisualServoEyeToHand-v1"
 
 
-def _run(root: Path, seed: int, checkpoints: tuple[int, ...], finished: int | None) -> Path:
+def _run(root: Path, seed: int, checkpoints: tuple[int, ...], finished: int | None,
+         algo: str = "ppo") -> Path:
     """A run directory as the trainer leaves it (empty model files: the scorer is faked)."""
-    run = root / "VisualServoEyeToHand-v1" / "ppo" / f"seed_{seed}"
+    run = root / "VisualServoEyeToHand-v1" / algo / f"seed_{seed}"
     (run / "checkpoints").mkdir(parents=True)
     (run / "config.yml").write_text("env_id: cir_gym/VisualServoEyeToHand-v1\n")
     for k in checkpoints:
@@ -101,6 +102,17 @@ def test_select_scores_every_checkpoint_and_final_model_and_chooses_per_run(tmp_
     assert saved["runs"] == json.loads(json.dumps(record["runs"]))
     md = (out / "VisualServoEyeToHand-v1_selection.md").read_text()
     assert "| **checkpoint** | 300000 | 10/10 | 0.200 |" in md
+
+
+def test_select_with_algo_scores_and_records_only_those_runs(tmp_path):
+    root, out = tmp_path / "runs", tmp_path / "out"
+    _run(root, 0, (100_000,), finished=None)
+    _run(root, 0, (100_000,), finished=None, algo="residual_ppo")
+    scorer = FakeScorer({("seed_0", "checkpoint", 100_000): (10, 0.2)}, episodes=10)
+    record = ev.select_env(ENV, root, out, episodes=10, score=scorer, algos=["residual_ppo"])
+    assert list(record["runs"]) == ["residual_ppo/seed_0"] and len(scorer.calls) == 1
+    md = (out / "VisualServoEyeToHand-v1_selection.md").read_text()
+    assert f"select --env {ENV} --algo residual_ppo`" in md
 
 
 def test_select_does_not_score_a_candidate_twice_but_scores_new_ones(tmp_path):

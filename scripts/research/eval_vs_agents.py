@@ -1,9 +1,10 @@
 """Score the visual-servoing agents of ``scripts/research/train_vs.sh`` against tuned IBVS.
 
     python scripts/research/eval_vs_agents.py select [--env cir_gym/VisualServo-v1]
-        [--runs /work/main/runs/rl] [--out results/visual_servo/agents]
+        [--algo AGENT ...] [--runs /work/main/runs/rl] [--out results/visual_servo/agents]
     python scripts/research/eval_vs_agents.py evaluate [--env cir_gym/VisualServo-v1]
-        [--episodes 100] [--runs /work/main/runs/rl] [--out results/visual_servo/agents]
+        [--episodes 100] [--algo AGENT ...] [--runs /work/main/runs/rl]
+        [--out results/visual_servo/agents]
     python scripts/research/eval_vs_agents.py rotation [--episodes 30] [...]
     python scripts/research/eval_vs_agents.py bench [--steps 1000]
 
@@ -100,10 +101,17 @@ def controller(env_id: str, name: str, tuned: bool, env_kwargs: dict[str, Any] |
     return baselines.make(name, env_id, env_kwargs=env_kwargs or {}, **gains)
 
 
-def runs_of(root: Path, env_id: str) -> list[Path]:
-    """The run directories ``<root>/<Env>/<algo>/seed_<k>`` that hold a config."""
+def runs_of(root: Path, env_id: str, algos: list[str] | None = None) -> list[Path]:
+    """The run directories ``<root>/<Env>/<algo>/seed_<k>`` that hold a config, of the agents
+    ``algos`` only when given (``--algo``)."""
     base = root / env_id.split("/")[1]
-    return sorted(p.parent for p in base.glob("*/seed_*/config.yml"))
+    runs = sorted(p.parent for p in base.glob("*/seed_*/config.yml"))
+    return [r for r in runs if algos is None or r.parent.name in algos]
+
+
+def algo_option(algos: list[str] | None) -> str:
+    """The ``--algo`` options of a command line that chose ``algos`` ("" for every run)."""
+    return "".join(f" --algo {a}" for a in algos or [])
 
 
 def checkpoint_steps(run: Path) -> list[int]:
@@ -255,11 +263,12 @@ def validation_scorer(env_id: str, root: Path, episodes: int) -> Scorer:
 
 
 def select_env(env_id: str, root: Path, out: Path, episodes: int = VALIDATION_EPISODES,
-               score: Scorer | None = None) -> dict[str, Any]:
+               score: Scorer | None = None, algos: list[str] | None = None) -> dict[str, Any]:
     """Score every candidate (:func:`candidates`) of every run of ``env_id`` on the validation
     episodes, choose one per run (:func:`best`), write ``<out>/<Env>_selection.json`` (and a
     table, ``.md``) and return that record. A candidate already in the file with the same
-    seeds and episode count is not scored again."""
+    seeds and episode count is not scored again. ``algos``: only these agents' runs are
+    scored and recorded."""
     score = score or validation_scorer(env_id, root, episodes)
     file = out / f"{env_id.split('/')[1]}_selection.json"
     earlier: dict[str, Any] = {}
@@ -268,7 +277,7 @@ def select_env(env_id: str, root: Path, out: Path, episodes: int = VALIDATION_EP
         if (old["seed"], old["episodes"]) == (VALIDATION_SEED, episodes):
             earlier = old["runs"]
     runs: dict[str, Any] = {}
-    for run in runs_of(root, env_id):
+    for run in runs_of(root, env_id, algos):
         name = f"{run.parent.name}/{run.name}"
         known = {(r["source"], r["steps"]): r for r in earlier.get(name, {}).get("rows", [])}
         rows = []
@@ -292,7 +301,8 @@ def select_env(env_id: str, root: Path, out: Path, episodes: int = VALIDATION_EP
         file.write_text(json.dumps({"env_id": env_id, "seed": VALIDATION_SEED,
                                     "episodes": episodes, "runs": {**earlier, **runs}},
                                    indent=1))
-    record = {"env_id": env_id, "seed": VALIDATION_SEED, "episodes": episodes, "runs": runs}
+    record = {"env_id": env_id, "seed": VALIDATION_SEED, "episodes": episodes, "runs": runs,
+              "algos": algos}
     out.mkdir(parents=True, exist_ok=True)
     file.write_text(json.dumps(record, indent=1))
     file.with_suffix(".md").write_text(selection_markdown(record))
@@ -303,7 +313,8 @@ def selection_markdown(record: dict[str, Any]) -> str:
     """Per run, every candidate's validation success and final-error IQM, the chosen marked."""
     env_id, seed, n = record["env_id"], record["seed"], record["episodes"]
     lines = [f"# Checkpoint selection on {env_id.split('/')[1]}", "",
-             f"Written by `python scripts/research/eval_vs_agents.py select --env {env_id}`: "
+             f"Written by `python scripts/research/eval_vs_agents.py select --env {env_id}"
+             f"{algo_option(record.get('algos'))}`: "
              f"every saved checkpoint and final model of every run on the validation seeds "
              f"{seed}–{seed + n - 1} (not the test seeds {TEST_SEED}…), with the run's own "
              "observation statistics, deterministic actions. Chosen (**bold**): the highest "
@@ -352,7 +363,8 @@ def policies_of(run: Path, chosen: dict[str, Any] | None) -> list[tuple[str, str
     return found
 
 
-def evaluate_env(env_id: str, episodes: int, root: Path, out: Path) -> Path:
+def evaluate_env(env_id: str, episodes: int, root: Path, out: Path,
+                 algos: list[str] | None = None) -> Path:
     from cir_gym.agents.policy import load_agent
 
     from cir_gym.evaluation import evaluate
@@ -371,9 +383,10 @@ def evaluate_env(env_id: str, episodes: int, root: Path, out: Path) -> Path:
             earlier[label] = {"kind": "controller", **outcomes(res)}
         results[label] = earlier[label]
         print(label, np.mean(results[label]["success"]), flush=True)
-    chosen = {name: r["chosen"] for name, r in select_env(env_id, root, out)["runs"].items()}
+    selection = select_env(env_id, root, out, algos=algos)
+    chosen = {name: r["chosen"] for name, r in selection["runs"].items()}
     tested = {model_of(r): r for r in earlier.values() if r["kind"] == "agent"}
-    for run in runs_of(root, env_id):
+    for run in runs_of(root, env_id, algos):
         name = f"{run.parent.name}/{run.name}"
         for label, selection, source, steps in policies_of(run, chosen.get(name)):
             if label not in earlier:
@@ -396,7 +409,8 @@ def evaluate_env(env_id: str, episodes: int, root: Path, out: Path) -> Path:
     reference = iqm(np.array(ref["final_feature_error"]))
     lines = [f"# Agents on {env_id.split('/')[1]} against tuned IBVS", "",
              f"Written by `python scripts/research/eval_vs_agents.py evaluate --env {env_id} "
-             f"--episodes {episodes}`: seeds {TEST_SEED}–{TEST_SEED + episodes - 1} (held out "
+             f"--episodes {episodes}{algo_option(algos)}`: seeds {TEST_SEED}–"
+             f"{TEST_SEED + episodes - 1} (held out "
              "from training, its evaluations and the study), deterministic actions, "
              "`cir_gym.evaluation.evaluate`. Success: final feature error < 1 px, no feature "
              "lost, no joint limit. Final error: IQM over the episodes (over seeds × episodes "
@@ -539,14 +553,17 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--episodes", type=int, default=30)
     b = sub.add_parser("bench", help="off-policy CPU cost")
     b.add_argument("--steps", type=int, default=1000)
+    for p in (v, e):
+        p.add_argument("--algo", action="append", default=None,
+                       help="only this agent's runs (<runs>/<Env>/<algo>/seed_*; repeatable)")
     for p in (v, e, r, b):
         p.add_argument("--runs", type=Path, default=RUNS)
         p.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
     if args.cmd == "select":
-        select_env(args.env, args.runs, args.out)
+        select_env(args.env, args.runs, args.out, algos=args.algo)
     elif args.cmd == "evaluate":
-        evaluate_env(args.env, args.episodes, args.runs, args.out)
+        evaluate_env(args.env, args.episodes, args.runs, args.out, algos=args.algo)
     elif args.cmd == "rotation":
         rotation(args.episodes, args.runs, args.out)
     else:
