@@ -36,23 +36,26 @@ RULE = ("the highest success rate on the validation episodes, then the lowest fi
         "error IQM, then the fewest steps (eval_vs_agents.best)")
 
 
-def select_command(env_id: str) -> str:
-    """The command that scores every saved model of the runs of ``env_id`` and chooses."""
+def select_command(env_id: str, agent: str) -> str:
+    """The command that scores every saved model of the runs of ``agent`` on ``env_id`` and
+    chooses."""
     return shlex.join(["python", "scripts/research/eval_vs_agents.py", "select", "--env",
-                       env_id])
+                       env_id, "--algo", agent])
 
 
 def choice(run: Path, record: dict[str, Any], name: str) -> dict[str, Any]:
-    """The validation row chosen for ``run`` (its entry ``name`` of the selection record);
-    ValueError when the run is in training or has saved models the selection did not score."""
+    """The validation row chosen for ``run`` (its entry ``name``, ``<agent>/seed_<k>``, of the
+    selection record); ValueError when the run is in training or has saved models the
+    selection did not score."""
+    command = select_command(record["env_id"], name.split("/")[0])
     entry = record["runs"].get(name)
     if entry is None or not entry["finished"]:
         raise ValueError(f"{name}: not a finished run in the selection; run "
-                         f"`{select_command(record['env_id'])}` after it finishes")
+                         f"`{command}` after it finishes")
     scored = {(r["source"], r["steps"]) for r in entry["rows"]}
     if missing := set(candidates(run)) - scored:
         raise ValueError(f"{name}: models not in the selection: {sorted(missing)}; run "
-                         f"`{select_command(record['env_id'])}` first")
+                         f"`{command}` first")
     chosen = entry["chosen"]
     return next(r for r in entry["rows"]
                 if (r["source"], r["steps"]) == (chosen["source"], chosen["steps"]))
@@ -67,7 +70,7 @@ def ship_seed(env_id: str, agent: str, seed: int, runs: Path, record: dict[str, 
     run = runs / env_id.split("/")[1] / agent / f"seed_{seed}"
     row = choice(run, record, name)
     selection = {
-        "command": select_command(env_id),
+        "command": select_command(env_id, agent),
         "rule": RULE,
         "seeds": [record["seed"], record["seed"] + record["episodes"] - 1],
         "episodes": record["episodes"],
