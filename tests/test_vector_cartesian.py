@@ -42,11 +42,10 @@ def _lockstep(
     steps: int,
     actions_for: Callable[[int, dict, np.ndarray], np.ndarray],
 ) -> int:
-    """Each copy equal to its single env (tests/lockstep.py; observations exactly, the rest to
-    TOL) under ``actions_for``; returns how many episodes ended."""
+    """Each copy equal to its single env to TOL (tests/lockstep.py) under ``actions_for``;
+    returns how many episodes ended."""
     singles = [CartesianTrackingEnv(**kw) for _ in range(envs.num_envs)]
-    return len(lockstep(envs, singles, actions_for, seed=seed, steps=steps, tol=TOL,
-                        obs_tol=0.0).ends)
+    return len(lockstep(envs, singles, actions_for, seed=seed, steps=steps, tol=TOL).ends)
 
 
 @pytest.mark.parametrize(

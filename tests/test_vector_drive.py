@@ -1,12 +1,12 @@
 """The batched joint-space envs with a real drive (``drive``: encoders, velocity by differences,
 delay, ripple), ``torque_noise`` and ``encoder_resolution`` against the single envs, copy by copy.
 
-Tolerances: observations exactly equal (``obs_tol=0``), rewards, infos and metrics to 1e-12
-relative. The drive's arithmetic is one code (:class:`cir_gym.drives.DriveState`) on a (n,)
-row and on (N, n) rows, elementwise (rounding to the encoder quantum, the backward difference,
-the ripple's sin), the physics is mj_step's own per copy, and the noise is drawn from the
-copy's generator in the single env's order, so a copy's numbers are its single env's; the
-rewards' reductions may run in another order on (N, n) arrays (tests/test_vector.py).
+Tolerance: observations, rewards, infos and metrics to 1e-12 relative. The drive's arithmetic
+is one code (:class:`cir_gym.drives.DriveState`) on a (n,) row and on (N, n) rows, elementwise
+(rounding to the encoder quantum, the backward difference, the ripple's sin), the physics is
+mj_step's own per copy, and the noise is drawn from the copy's generator in the single env's
+order, so a copy's numbers are in fact its single env's, bit for bit; the rewards' reductions
+may run in another order on (N, n) arrays (tests/test_vector.py).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def test_random_actions_each_copy_is_the_single_env(vec_cls, kw):
     envs = vec_cls(num_envs=N, nthread=1, **kw)
     seen = lockstep(
         envs, _singles(vec_cls, kw, N), lambda k, obs, start: rng.uniform(-1.3, 1.3, (N, 7)),
-        seed=10, steps=120, tol=TOL, obs_tol=0.0,
+        seed=10, steps=120, tol=TOL,
     )
     assert len(seen.ends) >= 2 * N  # every copy crossed two episode ends
     envs.close()
@@ -99,7 +99,7 @@ def test_course_laws_over_whole_episodes_with_the_industrial_drive(law):
 
     envs = JointTrackingVectorEnv(num_envs=2, nthread=1, **kw)
     seen = lockstep(envs, _singles(JointTrackingVectorEnv, kw, 2), act, seed=1000, steps=700,
-                    tol=TOL, obs_tol=0.0)
+                    tol=TOL)
     assert len(seen.ends) == 2 and not any(e["diverged"] for e in seen.ends)
     envs.close()
 
