@@ -53,8 +53,9 @@ observation being a row of one: a batch (a vector env's copies, the batched eval
 residual agent's base) gives each row the command it gives alone, bit for bit
 (tests/test_visual_servo_rows.py). The laws' vision steps are :mod:`cir_gym.vision`'s
 functions, which take one observation or rows of them (element-wise numpy and one LAPACK call
-per row's matrix, so a row gives the same numbers alone or in a batch).
-``ibvs_eye_to_hand`` runs row by row.
+per row's matrix, so a row gives the same numbers alone or in a batch). So is
+``ibvs_eye_to_hand`` (its nominal-robot Jacobians, with ``action="joint_velocity"``, row by
+row).
 """
 
 from __future__ import annotations
@@ -193,6 +194,13 @@ class _VisualServo(Controller):
         """The damped least-squares inverse A* of image Jacobians (..., 8, 6) (``damping`` μ)."""
         return damped_pinv(A, self.gains.damping)
 
+    def _flange_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal robot's flange rotations R (N, 3, 3), flange → world, and geometric
+        Jacobians J (N, 6, 7) at the joints q (N, 7), row by row."""
+        R = np.stack([self.robot.site_pose(self.site, q_i)[1] for q_i in q])
+        J = np.stack([self.robot.jacobian(self.site, q_i) for q_i in q])
+        return R, J
+
     def _error(self, s: np.ndarray, s_ref: np.ndarray) -> tuple[np.ndarray, Any]:
         """e (..., 8) in pixels and the gain λ (adaptive on the normalised error's ‖·‖∞)."""
         e = (s - s_ref).reshape(*s.shape[:-2], 8)
@@ -210,9 +218,7 @@ class _EyeInHand(_VisualServo, RowLaw):
         uniformly to its limits."""
         if self.context.action_kind == "twist":
             return _fit(twist, self.twist_limit)
-        q = np.asarray(obs["q"], dtype=float)
-        R = np.stack([self.robot.site_pose(self.site, q_i)[1] for q_i in q])
-        J = np.stack([self.robot.jacobian(self.site, q_i) for q_i in q])
+        R, J = self._flange_rows(np.asarray(obs["q"], dtype=float))
         world = np.concatenate((_matvec(R, twist[:, :3]), _matvec(R, twist[:, 3:])), axis=1)
         return _fit(_matvec(np.linalg.pinv(J), world), self.velocity_limit)
 
@@ -249,9 +255,10 @@ class PBVS(_EyeInHand):
         return self._camera_action(np.concatenate((v, -lam * theta_u), axis=1), obs)
 
 
-class EyeToHandIBVS(_VisualServo):
+class EyeToHandIBVS(_VisualServo, RowLaw):
     """Image-based visual servoing with a fixed camera: V_m = −λ (L̂ G)* e, or through the
-    robot Jacobian q̇ = −λ (L̂ G M J(q))* e (``action="joint_velocity"``)."""
+    robot Jacobian q̇ = −λ (L̂ G M J(q))* e (``action="joint_velocity"``); written on rows
+    (:meth:`control_rows`), one observation is its one-row case (``RowLaw``)."""
 
     name = "ibvs_eye_to_hand"
     tasks = ("VisualServoEyeToHand",)
@@ -263,32 +270,40 @@ class EyeToHandIBVS(_VisualServo):
                                                       context.extras["camera_pose"])
 
     def _interaction(self, s: np.ndarray) -> np.ndarray:
-        """L G (8, 6): features against the markers' twist in the camera frame."""
+        """L G (N, 8, 6): features against the markers' twist in the camera frame, of rows
+        s (N, 4, 2)."""
         R, t = self._pose(s)
-        Z = np.maximum(transform_points(R, t, self.model_points)[:, 2], 1e-3)
-        G = np.zeros((6, 6))
-        G[:3, :3] = -np.eye(3)
-        G[:3, 3:] = -skew(t)
-        G[3:, 3:] = -np.eye(3)
+        Z = np.maximum(transform_points(R, t, self.model_points)[..., 2], 1e-3)
+        G = np.zeros((*t.shape[:-1], 6, 6))
+        G[..., :3, :3] = -np.eye(3)
+        G[..., :3, 3:] = -skew(t)
+        G[..., 3:, 3:] = -np.eye(3)
         return interaction_matrix(s, Z, self.camera) @ G
 
-    def control(self, obs: Observation, state: np.ndarray) -> np.ndarray:
+    def _marker_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(M (N, 6, 6), J (N, 6, 7)) at the joints q (N, 7), through the nominal robot (row by
+        row): J the flange's geometric Jacobian, M its world twist → the markers' twist in the
+        nominal camera's axes, v_m = Rcᵀ (v_f + ω × r), ω_m = Rcᵀ ω (r: flange → marker
+        origin)."""
+        R_f, J = self._flange_rows(q)
+        Rc = self.camera_rotation  # optical → world (nominal extrinsics)
+        r = self.moving_offset * R_f[:, :, 2]  # (N, 3) world
+        M = np.zeros((len(q), 6, 6))
+        M[:, :3, :3] = Rc.T
+        M[:, :3, 3:] = -Rc.T @ skew(r)  # v_m = v_f + ω × r
+        M[:, 3:, 3:] = Rc.T
+        return M, J
+
+    def control_rows(self, obs: Observation, state: np.ndarray) -> np.ndarray:
         s, s_ref = self._features(obs)
         e, lam = self._error(s, s_ref)
+        gain = -np.broadcast_to(lam, e.shape[:1])[:, None, None]  # −λ (N, 1, 1)
         LG = self._L(s, s_ref)
         if self.context.action_kind == "twist":
-            return _fit(-lam * self._inverse(LG) @ e, self.twist_limit)
-        q = np.asarray(obs["q"], dtype=float)
-        R_f = self.robot.site_pose(self.site, q)[1]
-        J = self.robot.jacobian(self.site, q)
-        Rc = self.camera_rotation  # optical → world (nominal extrinsics)
-        r = self.moving_offset * R_f[:, 2]  # flange → marker origin (world)
-        M = np.zeros((6, 6))  # flange world twist → marker twist in camera axes
-        M[:3, :3] = Rc.T
-        M[:3, 3:] = -Rc.T @ skew(r)  # v_m = v_f + ω × r
-        M[3:, 3:] = Rc.T
-        J_image = LG @ M @ J
-        return _fit(-lam * self._inverse(J_image) @ e, self.velocity_limit)
+            return _fit(_matvec(gain * self._inverse(LG), e), self.twist_limit)
+        M, J = self._marker_map(np.asarray(obs["q"], dtype=float))
+        J_image = LG @ M @ J  # (N, 8, 7)
+        return _fit(_matvec(gain * self._inverse(J_image), e), self.velocity_limit)
 
 
 VISUAL_SERVO_CONTROLLERS: tuple[type[Controller], ...] = (IBVS, PBVS, EyeToHandIBVS)

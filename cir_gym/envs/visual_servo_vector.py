@@ -40,9 +40,12 @@ Supported: ``features="projected"`` without ``obs_image`` (the defaults), both a
 and ``obs_image=True`` render the camera per copy and step (``mujoco.Renderer``, no batched
 form): :meth:`unsupported` names them and ``cir_gym.make_vec`` falls back to a
 ``SyncVectorEnv``, as it does for ``render_mode``. The moving frame is the flange (the
-camera's optical frame; VisualServoEnv's ``moving_offset`` is 0). VisualServoEyeToHand-v1 (a
-fixed camera, the markers on a plate off the flange) is not batched here: its twist frame and
-the plate's offset are its own.
+camera's optical frame; VisualServoEnv's ``moving_offset`` is 0) and so is the twist's frame;
+VisualServoEyeToHand-v1's batched env
+(:mod:`cir_gym.envs.visual_servo_eye_to_hand_vector`) is this class with its own twist frame
+(:meth:`VisualServoVectorEnv._twist_rotations`, the fixed camera's) and the plate's offset
+(``moving_offset``, which :meth:`VisualServoVectorEnv._moving_jacobians` and ``_record``
+follow as the single env's do).
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ import numpy as np
 from cir_gym.envs.vector_base import BatchedTaskEnv, TaskStep
 from cir_gym.envs.visual_servo import VisualServoEnv
 from cir_gym.envs.visual_servo_base import CONVERGED, JOINT_MARGIN, MIN_DEPTH
+from cir_gym.trajectories import skew
 from cir_gym.vision import CAMERA_GEOM_GROUPS, camera_points, encloses, optical_pose
 
 __all__ = ["VisualServoVectorEnv"]
@@ -139,18 +143,17 @@ class VisualServoVectorEnv(BatchedTaskEnv):
     # ------------------------------------------------------------------ step
     def _joint_command(self, a: np.ndarray) -> np.ndarray:
         """q̇ (N, 7) from the actions (N, m): a ⊙ q̇_max, or q̇ = J⁺ V for the twists
-        V = a ⊙ twist limits in the flange (optical) frame, J the flange Jacobian at the
-        copies' current joints (VisualServoBase._joint_command on rows)."""
+        V = a ⊙ twist limits in the twist's frame (:meth:`_twist_rotations`), J the moving
+        frame's Jacobian at the copies' current joints (VisualServoBase._joint_command on
+        rows)."""
         t = self.template
         if t.action_kind == "joint_velocity":
             return a * t.velocity_limit
         q = self._qpos[:, t.qpos_adr]
-        R = self._site_xmat[:, t._flange].reshape(-1, 3, 3)  # flange → world at q
+        R = self._twist_rotations()  # the twist's frame → world at q
         V = a * t.twist_limit
         V_world = np.concatenate((_rotate(R, V[:, :3]), _rotate(R, V[:, 3:])), axis=1)
-        jacp, jacr = self.batch.jac(self._flange_body, self._site_xpos[:, t._flange])
-        # (N, 6, 7), rows contiguous as the single env's J: its products round as there
-        J = np.ascontiguousarray(np.concatenate((jacp, jacr), axis=1)[:, :, t.dof_adr])
+        J = self._moving_jacobians()
         JT = np.swapaxes(J, 1, 2)
         try:
             qd = (JT @ np.linalg.solve(J @ JT, V_world[:, :, None]))[:, :, 0]  # J⁺ V
@@ -159,6 +162,29 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         corrupted = ~np.all(np.isfinite(q), axis=1)  # the physics step reports it
         qd[corrupted] = 0.0
         return qd
+
+    def _twist_rotations(self) -> np.ndarray:
+        """R (N, 3, 3): the twist's frame → world of every copy at its joints
+        (VisualServoEnv._twist_rotation: the flange's, the camera's optical frame)."""
+        return self._flange_rotations()
+
+    def _flange_rotations(self) -> np.ndarray:
+        """The flange's rotation (N, 3, 3), flange → world, at the batch's current poses."""
+        return self._site_xmat[:, self.template._flange].reshape(-1, 3, 3)
+
+    def _moving_jacobians(self) -> np.ndarray:
+        """Geometric Jacobians (N, 6, 7) of the moving frame's origin, world frame, at the
+        batch's current joints (VisualServoBase._moving_jacobian on rows): the flange's
+        (``mj_jac`` at the flange site), its linear rows shifted to the point ``moving_offset``
+        m along the flange's z axis, v_o = v_f − r × ω."""
+        t = self.template
+        jacp, jacr = self.batch.jac(self._flange_body, self._site_xpos[:, t._flange])
+        # rows contiguous as the single env's J: its products round as there
+        J = np.ascontiguousarray(np.concatenate((jacp, jacr), axis=1)[:, :, t.dof_adr])
+        if t.moving_offset:
+            r = t.moving_offset * self._flange_rotations()[:, :, 2]  # (N, 3) world
+            J[:, :3] -= skew(r) @ J[:, 3:]
+        return J
 
     def _servo_commands(self, qd: np.ndarray) -> np.ndarray:
         """Velocity-servo commands (N, nu): each row of q̇ (N, 7) scaled down uniformly
@@ -267,14 +293,15 @@ class VisualServoVectorEnv(BatchedTaskEnv):
         return self._feature_error
 
     def _record(self, k: np.ndarray) -> np.ndarray:
-        """Store and return the true feature error e (N,) px at steps k (N,), and the flange's
-        position in the goal frame (VisualServoBase._record on rows)."""
+        """Store and return the true feature error e (N,) px at steps k (N,), and the moving
+        frame's position in the goal frame (VisualServoBase._record on rows)."""
         t, rows = self.template, self._rows
         d = (self._s_true - self._s_ref).reshape(self.num_envs, 8)
         e = np.sqrt(np.sum(d**2, axis=1) / 4)
         self._err[rows, k] = e
         p_g, R_g = t._goal_pose
-        p = self._site_xpos[:, t._flange]
+        z = self._flange_rotations()[:, :, 2]
+        p = self._site_xpos[:, t._flange] + t.moving_offset * z
         self._pos[rows, k] = (R_g.T @ (p - p_g)[:, :, None])[:, :, 0]  # R_gᵀ (p − p_g)
         return e
 
