@@ -62,6 +62,19 @@ def assert_info(batched: dict, i: int, single: dict, tol: float, what: str) -> N
             assert_close(batched[key][i], value, tol, f"{what} {key}")
 
 
+def assert_same_episodes(batched: Any, sequential: Any, tol: float) -> None:
+    """Two :class:`cir_gym.evaluation.EvaluationResult` of the same episodes (``evaluate``'s
+    batched and sequential paths): seeds, lengths, outcomes equal, returns and metrics to
+    ``tol`` (relative, and absolute near 0)."""
+    for got, want in zip(batched.episodes, sequential.episodes, strict=True):
+        assert (got.seed, got.length, got.success, got.terminated) == (
+            want.seed, want.length, want.success, want.terminated)
+        assert_close(got.episode_return, want.episode_return, tol, f"seed {want.seed} return")
+        assert set(got.metrics) == set(want.metrics)
+        for name, value in want.metrics.items():
+            assert_close(got.metrics[name], value, tol, f"seed {want.seed} {name}")
+
+
 def row(obs: dict, i: int) -> dict:
     """Copy i's observation of a batched Dict observation."""
     return {key: value[i] for key, value in obs.items()}

@@ -337,7 +337,8 @@ def test_batched_training_env_matches_the_single_env_stack(tmp_path, env_id, fea
                 np.testing.assert_allclose(obs[i], o, atol=1e-5)
     assert dones.all()
     with pytest.raises(ValueError, match="batched"):
-        make_batched_vec_env("cir_gym/VisualServoEyeToHand-v1", {}, layout, 2, seed=0)
+        make_batched_vec_env("cir_gym/VisualServoEyeToHand-v1", {"obs_image": True}, layout, 2,
+                             seed=0)
     with pytest.raises(HyperparameterError, match="vec_env"):
         load_hyperparams("ppo", ENV, path=tiny_hyperparams(tmp_path, vec_env="batch"))
 

@@ -475,8 +475,8 @@ def test_what_cannot_be_batched_runs_sequentially_or_is_refused_when_asked():
     with pytest.raises(ValueError, match="record=True"):
         evaluate(policy, ENV, 2, batched=True, record=True, **SHORT)
     ibvs = baselines.make("ibvs_eye_to_hand", "cir_gym/VisualServoEyeToHand-v1")
-    with pytest.raises(ValueError, match="no batched cir_gym/VisualServoEyeToHand-v1"):
-        evaluate(ibvs, "cir_gym/VisualServoEyeToHand-v1", 2, batched=True)
+    with pytest.raises(ValueError, match="cannot batch features='detected'"):
+        evaluate(ibvs, "cir_gym/VisualServoEyeToHand-v1", 2, batched=True, features="detected")
 
     class Opaque:  # a policy without the flag and not a Controller: sequential by default
         def predict(self, obs, state=None, episode_start=None, deterministic=True):

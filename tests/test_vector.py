@@ -230,7 +230,8 @@ def test_make_vec_falls_back_to_sync_with_the_same_seeding_and_autoreset():
     assert _compare_with_gym_make(envs, "cir_gym/JointTracking-v2", 5, **randomized) == 2
     native = cir_gym.make_vec("cir_gym/JointTracking-v2", 2, **KW)
     assert type(native) is JointTrackingVectorEnv
-    other = cir_gym.make_vec("cir_gym/VisualServoEyeToHand-v1", 2)  # no batched env: sync
+    # rendered features are not batched: sync
+    other = cir_gym.make_vec("cir_gym/VisualServoEyeToHand-v1", 2, features="detected")
     assert isinstance(other, gym.vector.SyncVectorEnv)
     for venv in (envs, native, other):
         venv.close()

@@ -13,13 +13,17 @@ largest command (measured: bit for bit).
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
-from lockstep import lockstep
+from lockstep import SB3_RTOL, assert_same_episodes, lockstep, sb3_step
 
+import cir_gym
 from cir_gym import baselines, vision
+from cir_gym.envs.vector import VECTOR_ENVS
 from cir_gym.envs.visual_servo_eye_to_hand import VisualServoEyeToHandEnv
 from cir_gym.envs.visual_servo_eye_to_hand_vector import VisualServoEyeToHandVectorEnv
+from cir_gym.evaluation import evaluate
 from cir_gym.trajectories import skew
 from cir_gym.validation import InvalidArgument
 
@@ -169,13 +173,67 @@ def test_autoreset_keeps_each_copys_camera_and_generator():
     envs.close()
 
 
-def test_rendered_features_are_not_batched():
+def test_make_vec_builds_it_and_falls_back_on_rendered_features():
+    assert VECTOR_ENVS[ENV] is VisualServoEyeToHandVectorEnv
+    native = cir_gym.make_vec(ENV, 2, nthread=1, episode_duration=0.2)
+    assert type(native) is VisualServoEyeToHandVectorEnv
+    native.close()
     for kwargs in ({"features": "detected"}, {"obs_image": True}):
         name = next(iter(kwargs))
         with pytest.raises(InvalidArgument, match=name):
             VisualServoEyeToHandVectorEnv(num_envs=2, **kwargs)
+        sync = cir_gym.make_vec(ENV, 2, **kwargs)
+        assert isinstance(sync, gym.vector.SyncVectorEnv), name
+        sync.close()
     with pytest.raises(InvalidArgument, match="pixel_noise"):
         VisualServoEyeToHandVectorEnv(num_envs=2, pixel_noise=-1.0)
+
+
+def test_batched_evaluation_gives_the_sequential_episodes():
+    """evaluate()'s batched path (the id is in BATCHED_ENVIRONMENTS, ibvs_eye_to_hand a row
+    law) on the rotation family, where IBVS ends some starts at a joint limit: every
+    EpisodeResult is the sequential one."""
+    policy = _ibvs({})
+    kw = {"start_rotation": ROTATIONS, "episode_duration": 2.0}
+    batched = evaluate(policy, ENV, 4, seed=1000, **kw)
+    sequential = evaluate(policy, ENV, 4, seed=1000, batched=False, **kw)
+    assert [e.terminated for e in sequential.episodes].count(True) >= 1
+    assert_same_episodes(batched, sequential, TOL)
+
+
+def test_a_residual_over_ibvs_is_the_single_residual_stack():
+    """vec_env 'batched' for a residual agent (agents.batched: BatchedResidualAction with the
+    row-law IBVS once per vector step, the log-error bonus on the env's error_norms) against
+    the single stack of agents.train.EnvFactory, three copies with random agent actions
+    through terminations and truncations (SB3's float32 values to 1e-6, as
+    tests/test_residual_batched_vs.py)."""
+    pytest.importorskip("stable_baselines3")
+    from cir_gym.agents.batched import make_batched_vec_env
+    from cir_gym.agents.observation import ObservationLayout
+    from cir_gym.agents.train import EnvFactory
+
+    kwargs = {"start_rotation": ROTATIONS, "episode_duration": 2.0}
+    log_error = {"weight": 0.1, "max_error": 100.0, "floor": 0.01}
+    gains = {"gain": 0.6058598995030436}  # tuned:ibvs_eye_to_hand
+    probe = VisualServoEyeToHandEnv(**kwargs)
+    layout = ObservationLayout.from_space(probe.observation_space)
+    probe.close()
+    n, seed = 3, 10
+    venv = make_batched_vec_env(ENV, kwargs, layout, n, seed, log_error=log_error,
+                                residual="ibvs_eye_to_hand", scale=0.25,
+                                controller_kwargs=gains)
+    singles = [EnvFactory(ENV, kwargs, layout, "ibvs_eye_to_hand", 0.25, gains,
+                          log_error=log_error)() for _ in range(n)]
+    obs = venv.reset()
+    for i, env in enumerate(singles):
+        np.testing.assert_allclose(obs[i], env.reset(seed=seed + i)[0], rtol=SB3_RTOL,
+                                   atol=SB3_RTOL)
+    rng = np.random.default_rng(0)
+    ends = []
+    for k in range(60):
+        ends += sb3_step(venv, singles, rng.uniform(-1, 1, (n, 6)).astype(np.float32), k)
+    venv.close()
+    assert {i for i, _ in ends} == {0, 1, 2}
 
 
 # ---------------------------------------------------------------------- the law on rows

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from lockstep import lockstep
+from lockstep import assert_same_episodes, lockstep
 
 import cir_gym
 from cir_gym import baselines, vision
@@ -201,12 +201,7 @@ def test_batched_evaluation_gives_the_sequential_episodes():
     batched = evaluate(policy, ENV, 4, seed=1000, **kw)
     sequential = evaluate(policy, ENV, 4, seed=1000, batched=False, **kw)
     assert [e.terminated for e in sequential.episodes].count(True) >= 1
-    for got, want in zip(batched.episodes, sequential.episodes, strict=True):
-        assert (got.length, got.success, got.terminated) == (want.length, want.success,
-                                                             want.terminated)
-        assert got.episode_return == pytest.approx(want.episode_return, rel=TOL)
-        for name, value in want.metrics.items():
-            assert got.metrics[name] == pytest.approx(value, rel=TOL, abs=TOL)
+    assert_same_episodes(batched, sequential, TOL)
 
 
 def test_the_projection_rows_are_cir_gym_visions():

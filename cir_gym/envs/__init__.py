@@ -78,6 +78,9 @@ BATCHED_ENVIRONMENTS: dict[str, str] = {
     ),
     "cir_gym/PegInHoleImpedance-v0": "cir_gym.envs.agent_ready_vector:PegInHoleImpedanceVectorEnv",
     "cir_gym/VisualServo-v1": "cir_gym.envs.visual_servo_vector:VisualServoVectorEnv",
+    "cir_gym/VisualServoEyeToHand-v1": (
+        "cir_gym.envs.visual_servo_eye_to_hand_vector:VisualServoEyeToHandVectorEnv"
+    ),
 }
 
 
