@@ -29,8 +29,12 @@ SEED_DIRS = sorted(p.parent for p in TRAINED.rglob("config.yml"))
 CARRIED_TO = {old: new for new, olds in EARLIER_VERSIONS.items() for old in olds}
 #: recorded hyperparameters a retrain need not reproduce: ``n_timesteps`` is the entry's default
 #: budget, which ``--timesteps`` overrides; ``env_wrapper``'s effect, the observation, is
-#: compared whole (absent and ``TaskObservation`` without options give the same one)
-NOT_COMPARED = ("n_timesteps", "env_wrapper")
+#: compared whole (absent and ``TaskObservation`` without options give the same one);
+#: ``vec_env`` is how the same training copies are stepped (one process, subprocesses, or the
+#: id's native batched env, each copy its single env to the tolerance tests/test_vector*.py
+#: state; PPO on VisualServo and VisualServoEyeToHand ends 8192 steps with the very parameters
+#: of a DummyVecEnv run, agents/hyperparams/vs/ppo_study.yml), checked below where batched
+NOT_COMPARED = ("n_timesteps", "env_wrapper", "vec_env")
 
 
 def _id(seed_dir: Path) -> str:
