@@ -311,7 +311,9 @@ def save_replay_buffer(model: Any, run_dir: Path) -> None:
 
 class ReplayBufferCheckpoint(BaseCallback):
     """Every ``save_freq`` calls (the model checkpoints' frequency), :func:`save_replay_buffer`:
-    an off-policy run resumes with the transitions it had gathered, not an empty buffer."""
+    an off-policy run resumes with the transitions it had gathered, not an empty buffer. SB3
+    calls the callbacks before it stores a step's transitions, so a buffer saved here lacks the
+    ``n_envs`` transitions of its checkpoint's last vector step (harmless for uniform replay)."""
 
     def __init__(self, save_freq: int, run_dir: Path) -> None:
         super().__init__()
@@ -706,7 +708,10 @@ def _run(run_dir: Path, config: dict[str, Any], *, resume: bool, progress_bar: b
         if not interrupted:
             model.save(str(run_dir / "model.zip"))
             save_normalization(model.get_vec_normalize_env(), run_dir)
-            if off_policy:  # a finished run lengthened with --timesteps resumes from model.zip
+            # a finished run lengthened with --timesteps resumes from model.zip and this buffer,
+            # complete (a checkpoint's lacks its last vector step); a crash keeps the last
+            # checkpoint's, which its resume starts from
+            if off_policy and meta["finished"]:
                 save_replay_buffer(model, run_dir)
         for e in (venv, eval_env):
             try:

@@ -104,15 +104,19 @@ def test_select_scores_every_checkpoint_and_final_model_and_chooses_per_run(tmp_
     assert "| **checkpoint** | 300000 | 10/10 | 0.200 |" in md
 
 
-def test_select_with_algo_scores_and_records_only_those_runs(tmp_path):
+def test_select_with_algo_scores_only_those_runs_and_keeps_the_others(tmp_path):
     root, out = tmp_path / "runs", tmp_path / "out"
     _run(root, 0, (100_000,), finished=None)
     _run(root, 0, (100_000,), finished=None, algo="residual_ppo")
     scorer = FakeScorer({("seed_0", "checkpoint", 100_000): (10, 0.2)}, episodes=10)
+    ev.select_env(ENV, root, out, episodes=10, score=scorer, algos=["ppo"])
     record = ev.select_env(ENV, root, out, episodes=10, score=scorer, algos=["residual_ppo"])
-    assert list(record["runs"]) == ["residual_ppo/seed_0"] and len(scorer.calls) == 1
+    assert len(scorer.calls) == 2  # one candidate per call: the ppo run is not scored again
+    assert sorted(record["runs"]) == ["ppo/seed_0", "residual_ppo/seed_0"]
     md = (out / "VisualServoEyeToHand-v1_selection.md").read_text()
     assert f"select --env {ENV} --algo residual_ppo`" in md
+    with pytest.raises(ValueError, match=r"--algo sac: no run .* agents there: ppo, residual_ppo"):
+        ev.select_env(ENV, root, out, episodes=10, score=scorer, algos=["sac"])
 
 
 def test_select_does_not_score_a_candidate_twice_but_scores_new_ones(tmp_path):

@@ -103,10 +103,24 @@ def controller(env_id: str, name: str, tuned: bool, env_kwargs: dict[str, Any] |
 
 def runs_of(root: Path, env_id: str, algos: list[str] | None = None) -> list[Path]:
     """The run directories ``<root>/<Env>/<algo>/seed_<k>`` that hold a config, of the agents
-    ``algos`` only when given (``--algo``)."""
+    ``algos`` only when given (``--algo``; ValueError naming the agents there when one of them
+    has no run)."""
     base = root / env_id.split("/")[1]
     runs = sorted(p.parent for p in base.glob("*/seed_*/config.yml"))
+    found = {r.parent.name for r in runs}
+    if unknown := sorted(set(algos or ()) - found):
+        raise ValueError(f"--algo {', '.join(unknown)}: no run under {base}; agents there: "
+                         f"{', '.join(sorted(found)) or 'none'}")
     return [r for r in runs if algos is None or r.parent.name in algos]
+
+
+def other_agents(entries: dict[str, Any], algos: list[str] | None,
+                 agent_of: Callable[[str, Any], str]) -> dict[str, Any]:
+    """The entries of agents a call restricted to ``algos`` does not score, kept as an earlier
+    call left them (none when every agent is scored)."""
+    if algos is None:
+        return {}
+    return {k: v for k, v in entries.items() if agent_of(k, v) not in algos}
 
 
 def algo_option(algos: list[str] | None) -> str:
@@ -268,7 +282,7 @@ def select_env(env_id: str, root: Path, out: Path, episodes: int = VALIDATION_EP
     episodes, choose one per run (:func:`best`), write ``<out>/<Env>_selection.json`` (and a
     table, ``.md``) and return that record. A candidate already in the file with the same
     seeds and episode count is not scored again. ``algos``: only these agents' runs are
-    scored and recorded."""
+    scored; the other agents' entries stay as an earlier call left them."""
     score = score or validation_scorer(env_id, root, episodes)
     file = out / f"{env_id.split('/')[1]}_selection.json"
     earlier: dict[str, Any] = {}
@@ -301,8 +315,9 @@ def select_env(env_id: str, root: Path, out: Path, episodes: int = VALIDATION_EP
         file.write_text(json.dumps({"env_id": env_id, "seed": VALIDATION_SEED,
                                     "episodes": episodes, "runs": {**earlier, **runs}},
                                    indent=1))
-    record = {"env_id": env_id, "seed": VALIDATION_SEED, "episodes": episodes, "runs": runs,
-              "algos": algos}
+    kept = other_agents(earlier, algos, lambda name, _: name.split("/")[0])
+    record = {"env_id": env_id, "seed": VALIDATION_SEED, "episodes": episodes,
+              "runs": {**kept, **runs}, "algos": algos}
     out.mkdir(parents=True, exist_ok=True)
     file.write_text(json.dumps(record, indent=1))
     file.with_suffix(".md").write_text(selection_markdown(record))
@@ -318,7 +333,9 @@ def selection_markdown(record: dict[str, Any]) -> str:
              f"every saved checkpoint and final model of every run on the validation seeds "
              f"{seed}–{seed + n - 1} (not the test seeds {TEST_SEED}…), with the run's own "
              "observation statistics, deterministic actions. Chosen (**bold**): the highest "
-             "success rate, then the lowest final-error IQM, then the fewest steps.", ""]
+             "success rate, then the lowest final-error IQM, then the fewest steps."
+             + (" Other agents' runs as their last selection left them."
+                if record.get("algos") else ""), ""]
     for name, r in record["runs"].items():
         lines += [f"## {name}" + ("" if r["finished"] else " (in training)"), "",
                   "| model | steps | success | final error IQM (px) | median (px) "
@@ -402,6 +419,8 @@ def evaluate_env(env_id: str, episodes: int, root: Path, out: Path,
                 tested[str(run), source, steps] = earlier[label]
             results[label] = earlier[label]
             print(label, np.mean(results[label]["success"]), flush=True)
+    kept = other_agents(earlier, algos, lambda _, r: r["algo"] if r["kind"] == "agent" else "")
+    results.update({k: v for k, v in kept.items() if v["kind"] == "agent"})
     reference_label = CONTROLLERS[env_id][0][0]
     ref = results[reference_label]
     from cir_gym.agents.report import iqm
@@ -421,7 +440,8 @@ def evaluate_env(env_id: str, episodes: int, root: Path, out: Path,
              "the highest success, then the lowest final-error IQM, on the validation seeds "
              f"{VALIDATION_SEED}–{VALIDATION_SEED + VALIDATION_EPISODES - 1} "
              f"(`select`, `{stem.name}_selection.md`). The test seeds choose nothing; do not "
-             "take the better of the two rows per run (that would choose on the test seeds).",
+             "take the better of the two rows per run (that would choose on the test seeds)."
+             + (" Other agents' rows as their last evaluation left them." if algos else ""),
              "", "| policy | success (95 %) | final error IQM, px (95 %) | ratio to "
              f"{reference_label} | median final error (px) | ended early | convergence time "
              "(s), median |", "|---|---:|---:|---:|---:|---:|---:|"]
