@@ -88,7 +88,6 @@ def lockstep(
     seed: int,
     steps: int,
     tol: float,
-    obs_tol: float | None = None,
 ) -> Lockstep:
     """Step ``envs`` and ``singles`` (one per copy) with the same actions for ``steps`` steps.
 
@@ -100,17 +99,15 @@ def lockstep(
         seed: the batch's reset seed (copy i: ``seed + i``).
         steps: batched steps.
         tol: relative and absolute tolerance of every comparison.
-        obs_tol: the observations' (default ``tol``; 0: exactly equal).
 
     Returns:
         :class:`Lockstep`: what the single envs saw, for the caller's own counts.
     """
     seen = Lockstep()
-    obs_tol = tol if obs_tol is None else obs_tol
     obs, reset_infos = envs.reset(seed=seed)
     for i, single in enumerate(singles):
         w_obs, w_reset = single.reset(seed=seed + i)
-        assert_obs(row(obs, i), w_obs, obs_tol, "reset")
+        assert_obs(row(obs, i), w_obs, tol, "reset")
         assert_info(reset_infos, i, w_reset, tol, "reset")
     start = np.ones(len(singles), dtype=bool)
     for k in range(steps):
@@ -127,7 +124,7 @@ def lockstep(
             if w_term or w_trunc:
                 seen.ends.append(w_info)
                 assert infos["_final_obs"][i] and infos["_final_info"][i], what
-                assert_obs(infos["final_obs"][i], w_obs, obs_tol, f"{what} final")
+                assert_obs(infos["final_obs"][i], w_obs, tol, f"{what} final")
                 final = infos["final_info"]
                 assert_info(final, i, w_info, tol, f"{what} final")
                 assert bool(final["is_success"][i]) == w_info["is_success"], what
@@ -140,7 +137,7 @@ def lockstep(
             else:
                 assert not infos.get("_final_obs", np.zeros(len(singles), bool))[i], what
                 assert_info(infos, i, w_info, tol, what)
-            assert_obs(row(obs, i), w_obs, obs_tol, what)
+            assert_obs(row(obs, i), w_obs, tol, what)
     return seen
 
 

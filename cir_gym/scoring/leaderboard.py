@@ -558,7 +558,7 @@ def score_anchors(
     """Each variant's anchors (:func:`cir_gym.scoring.normalized.variant_anchors`: its
     hold-still run at 0, its best controller at 1, on the variant's primary metric), and for a
     variant without them the reason (no hold-still run, no controller with a finite mean,
-    anchors equal: no scale)."""
+    anchors equal, holding still better than the first-ranked controller: no scale)."""
     anchors: dict[tuple[str, str], Anchors] = {}
     why: dict[tuple[str, str], str] = {}
     for env_id in env_ids:
