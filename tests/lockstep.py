@@ -75,6 +75,46 @@ def assert_same_episodes(batched: Any, sequential: Any, tol: float) -> None:
             assert_close(got.metrics[name], value, tol, f"seed {want.seed} {name}")
 
 
+def noisy_actions(policy: Any, std: float, seed: int = 0) -> Callable[..., np.ndarray]:
+    """Actions for :func:`lockstep`: ``policy`` on each copy's observation plus Gaussian noise
+    of ``std`` (clipped by the env), so copies drift, fail and end at different steps."""
+    rng = np.random.default_rng(seed)
+
+    def act(k: int, obs: dict, start: np.ndarray) -> np.ndarray:
+        a, _ = policy.predict(obs)
+        return (a + rng.normal(0.0, std, a.shape)).astype(np.float32)
+
+    return act
+
+
+def episode_ends(vec_cls: type, single_cls: type, kw: dict, act: Callable[..., np.ndarray],
+                 steps: int, tol: float, n: int = 3, seed: int = 5) -> list[dict]:
+    """:func:`lockstep` of ``n`` copies of ``vec_cls(**kw)`` against ``single_cls(**kw)``
+    envs; the single envs' last infos of the episodes that ended."""
+    envs = vec_cls(num_envs=n, nthread=1, **kw)
+    singles = [single_cls(**kw) for _ in range(n)]
+    seen = lockstep(envs, singles, act, seed=seed, steps=steps, tol=tol)
+    envs.close()
+    return seen.ends
+
+
+def sampled_observations(envs: Any, policy: Any, seed: int = 40, steps: int = 24,
+                         every: int = 4, std: float = 0.3) -> dict[str, np.ndarray]:
+    """Observations (rows stacked) of a batched env driven by ``policy`` plus Gaussian noise of
+    ``std`` (generator seeded 0), one batch of rows every ``every`` of ``steps`` steps; closes
+    ``envs``."""
+    rng = np.random.default_rng(0)
+    obs, _ = envs.reset(seed=seed)
+    rows = []
+    for k in range(steps):
+        if k % every == 0:
+            rows.append({key: v.copy() for key, v in obs.items()})
+        a, _ = policy.predict(obs)
+        obs = envs.step(a + rng.normal(0.0, std, a.shape).astype(np.float32))[0]
+    envs.close()
+    return {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
+
+
 def row(obs: dict, i: int) -> dict:
     """Copy i's observation of a batched Dict observation."""
     return {key: value[i] for key, value in obs.items()}

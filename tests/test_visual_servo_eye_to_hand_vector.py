@@ -16,7 +16,15 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from lockstep import SB3_RTOL, assert_same_episodes, lockstep, sb3_step
+from lockstep import (
+    SB3_RTOL,
+    assert_same_episodes,
+    episode_ends,
+    noisy_actions,
+    row,
+    sampled_observations,
+    sb3_step,
+)
 
 import cir_gym
 from cir_gym import baselines, vision
@@ -46,26 +54,14 @@ def _ibvs(env_kwargs: dict, **gains):
 
 
 def _ibvs_with_noise(std: float, kw: dict, seed: int = 0):
-    """Actions: IBVS on each copy's observation plus Gaussian noise of ``std`` (clipped by the
-    env), so copies drift, fail and end at different steps."""
-    policy = _ibvs({k: v for k, v in kw.items() if k == "action"})
-    rng = np.random.default_rng(seed)
-
-    def act(k: int, obs: dict, start: np.ndarray) -> np.ndarray:
-        a, _ = policy.predict(obs)
-        return (a + rng.normal(0.0, std, a.shape)).astype(np.float32)
-
-    return act
+    """IBVS (of ``kw``'s action) plus Gaussian noise on each copy (tests/lockstep.py)."""
+    return noisy_actions(_ibvs({k: v for k, v in kw.items() if k == "action"}), std, seed)
 
 
 def _run(kw: dict, act, steps: int, n: int = 3, seed: int = 5) -> list[dict]:
-    """Lockstep of ``n`` copies against single envs; the single envs' last infos of the
-    episodes that ended."""
-    envs = VisualServoEyeToHandVectorEnv(num_envs=n, nthread=1, **kw)
-    singles = [VisualServoEyeToHandEnv(**kw) for _ in range(n)]
-    seen = lockstep(envs, singles, act, seed=seed, steps=steps, tol=TOL)
-    envs.close()
-    return seen.ends
+    """The single envs' last infos of the episodes that ended in a lockstep of ``n`` copies."""
+    return episode_ends(VisualServoEyeToHandVectorEnv, VisualServoEyeToHandEnv, kw, act, steps,
+                        TOL, n, seed)
 
 
 @pytest.mark.parametrize(
@@ -255,21 +251,7 @@ def servo_obs() -> dict[str, np.ndarray]:
     16 batched copies (features anywhere in the image, rotations up to 180°), every 4th step."""
     envs = VisualServoEyeToHandVectorEnv(num_envs=16, nthread=1, start_rotation=ROTATIONS,
                                          camera_error=CALIBRATION, pixel_noise=0.5)
-    policy = _ibvs({})
-    rng = np.random.default_rng(0)
-    obs, _ = envs.reset(seed=40)
-    rows = []
-    for k in range(24):
-        if k % 4 == 0:
-            rows.append({key: v.copy() for key, v in obs.items()})
-        a = policy.predict(obs)[0] + rng.normal(0.0, 0.3, (16, 6)).astype(np.float32)
-        obs = envs.step(a)[0]
-    envs.close()
-    return {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
-
-
-def _row(obs: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
-    return {key: v[i].copy() for key, v in obs.items()}
+    return sampled_observations(envs, _ibvs({}))
 
 
 def _course_command(policy, obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -311,13 +293,13 @@ def test_the_law_on_rows_is_each_row_alone_and_the_course_law(gains, env_kwargs,
     assert policy.vectorized
     n = len(servo_obs["q"])
     state = np.zeros((n, 0))
-    alone = np.stack([policy.control(_row(servo_obs, i), state[i]) for i in range(n)])
+    alone = np.stack([policy.control(row(servo_obs, i), state[i]) for i in range(n)])
     rng = np.random.default_rng(1)
     for count in (1, 3, n):  # batches of any size, rows reordered
         pick = rng.permutation(n)[:count]
         rows = {key: v[pick] for key, v in servo_obs.items()}
         np.testing.assert_array_equal(policy.control_batch(rows, state[pick]), alone[pick])
-    want = np.stack([_course_command(policy, _row(servo_obs, i)) for i in range(n)])
+    want = np.stack([_course_command(policy, row(servo_obs, i)) for i in range(n)])
     scale = np.max(np.abs(want), axis=1, keepdims=True)
     assert np.max(np.abs(alone - want) / scale) <= TOL
     assert np.ptp(want[:, 0]) > 0.1 * np.max(np.abs(want[:, 0]))  # the rows differ

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from lockstep import row, sampled_observations
 
 from cir_gym import baselines, vision
 from cir_gym.envs.visual_servo_vector import VisualServoVectorEnv
@@ -41,21 +42,7 @@ def servo_obs() -> dict[str, np.ndarray]:
     16 batched copies (features anywhere in the image, rotations up to 180°), every 4th step."""
     envs = VisualServoVectorEnv(num_envs=16, nthread=1, start_rotation=(0.3, np.pi),
                                 camera_error=(0.05, 10.0, 0.01, 0.02), pixel_noise=0.5)
-    policy = baselines.make("ibvs", ENV)
-    rng = np.random.default_rng(0)
-    obs, _ = envs.reset(seed=40)
-    rows = []
-    for k in range(24):
-        if k % 4 == 0:
-            rows.append({key: v.copy() for key, v in obs.items()})
-        a = policy.predict(obs)[0] + rng.normal(0.0, 0.3, (16, 6)).astype(np.float32)
-        obs = envs.step(a)[0]
-    envs.close()
-    return {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
-
-
-def _row(obs: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
-    return {key: v[i].copy() for key, v in obs.items()}
+    return sampled_observations(envs, baselines.make("ibvs", ENV))
 
 
 def _law(name: str, gains: dict, env_kwargs: dict):
@@ -68,14 +55,14 @@ def test_rows_equal_each_row_alone_bit_for_bit(name, gains, env_kwargs, servo_ob
     assert policy.vectorized
     n = len(servo_obs["q"])
     state = np.zeros((n, 0))
-    alone = np.stack([policy.control(_row(servo_obs, i), state[i]) for i in range(n)])
+    alone = np.stack([policy.control(row(servo_obs, i), state[i]) for i in range(n)])
     rng = np.random.default_rng(1)
     for count in (1, 3, 16, n):  # batches of any size, rows reordered
         pick = rng.permutation(n)[:count]
         rows = {key: v[pick] for key, v in servo_obs.items()}
         np.testing.assert_array_equal(policy.control_batch(rows, state[pick]), alone[pick])
     actions, _ = policy.predict(servo_obs, None, np.ones(n, dtype=bool))
-    np.testing.assert_array_equal(actions, np.stack([policy.predict(_row(servo_obs, i))[0]
+    np.testing.assert_array_equal(actions, np.stack([policy.predict(row(servo_obs, i))[0]
                                                      for i in range(n)]))
 
 
@@ -127,7 +114,7 @@ def test_rows_are_the_course_law(name, gains, env_kwargs, servo_obs) -> None:
     policy = _law(name, gains, env_kwargs)
     n = len(servo_obs["q"])
     got = policy.control_batch(servo_obs, np.zeros((n, 0)))
-    want = np.stack([_course_command(policy, _row(servo_obs, i)) for i in range(n)])
+    want = np.stack([_course_command(policy, row(servo_obs, i)) for i in range(n)])
     scale = np.max(np.abs(want), axis=1, keepdims=True)
     assert np.max(np.abs(got - want) / scale) <= REL
     assert np.ptp(want[:, 0]) > 0.1 * np.max(np.abs(want[:, 0]))  # the rows differ

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from lockstep import assert_same_episodes, lockstep
+from lockstep import assert_same_episodes, episode_ends, noisy_actions
 
 import cir_gym
 from cir_gym import baselines, vision
@@ -38,26 +38,13 @@ TURN = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 0.0], dtype=np.float32)
 
 
 def _ibvs_with_noise(std: float, seed: int = 0):
-    """Actions: IBVS on each copy's observation plus Gaussian noise of ``std`` (clipped by the
-    env), so copies drift, lose features and end at different steps."""
-    policy = baselines.make("ibvs", ENV)
-    rng = np.random.default_rng(seed)
-
-    def act(k: int, obs: dict, start: np.ndarray) -> np.ndarray:
-        a, _ = policy.predict(obs)
-        return (a + rng.normal(0.0, std, a.shape)).astype(np.float32)
-
-    return act
+    """IBVS plus Gaussian noise on each copy (tests/lockstep.py noisy_actions)."""
+    return noisy_actions(baselines.make("ibvs", ENV), std, seed)
 
 
 def _run(kw: dict, act, steps: int, n: int = 3, seed: int = 5) -> list[dict]:
-    """Lockstep of ``n`` copies against single envs; the single envs' last infos of the
-    episodes that ended."""
-    envs = VisualServoVectorEnv(num_envs=n, nthread=1, **kw)
-    singles = [VisualServoEnv(**kw) for _ in range(n)]
-    seen = lockstep(envs, singles, act, seed=seed, steps=steps, tol=TOL)
-    envs.close()
-    return seen.ends
+    """The single envs' last infos of the episodes that ended in a lockstep of ``n`` copies."""
+    return episode_ends(VisualServoVectorEnv, VisualServoEnv, kw, act, steps, TOL, n, seed)
 
 
 @pytest.mark.parametrize(
