@@ -115,6 +115,25 @@ def sampled_observations(envs: Any, policy: Any, seed: int = 40, steps: int = 24
     return {key: np.concatenate([r[key] for r in rows]) for key in rows[0]}
 
 
+def only_copy_ends(envs: Any, single: Any, actions: np.ndarray, i: int, tol: float
+                   ) -> tuple[dict, dict]:
+    """Step ``envs`` and ``single`` (copy ``i``'s twin, reset alike) with ``actions`` (row
+    ``i`` for the single env) until a copy terminates: only copy ``i`` must, on the single
+    env's step; its final observation (under gymnasium's masks) is the single env's last one
+    and its new row the single env's next reset (the same generator), to ``tol``. Returns the
+    batch's and the single env's infos of that step."""
+    n = envs.num_envs
+    term = np.zeros(n, dtype=bool)
+    while not term.any():
+        obs, _, term, _, infos = envs.step(actions)
+        w_obs, _, w_term, _, w_info = single.step(actions[i])
+    ended = [k == i for k in range(n)]
+    assert w_term and list(term) == ended and list(infos["_final_obs"]) == ended
+    assert_obs(infos["final_obs"][i], w_obs, tol, "final")
+    assert_obs(row(obs, i), single.reset()[0], tol, "next reset")
+    return infos, w_info
+
+
 def row(obs: dict, i: int) -> dict:
     """Copy i's observation of a batched Dict observation."""
     return {key: value[i] for key, value in obs.items()}

@@ -13,27 +13,22 @@ largest command (measured: bit for bit).
 
 from __future__ import annotations
 
-import gymnasium as gym
 import numpy as np
 import pytest
 from lockstep import (
     SB3_RTOL,
-    assert_same_episodes,
     episode_ends,
     noisy_actions,
+    only_copy_ends,
     row,
     sampled_observations,
     sb3_step,
 )
 
-import cir_gym
 from cir_gym import baselines, vision
-from cir_gym.envs.vector import VECTOR_ENVS
 from cir_gym.envs.visual_servo_eye_to_hand import VisualServoEyeToHandEnv
 from cir_gym.envs.visual_servo_eye_to_hand_vector import VisualServoEyeToHandVectorEnv
-from cir_gym.evaluation import evaluate
 from cir_gym.trajectories import skew
-from cir_gym.validation import InvalidArgument
 
 ENV = "cir_gym/VisualServoEyeToHand-v1"
 TOL = 1e-12
@@ -119,27 +114,6 @@ def test_random_joint_velocities_without_noise():
     assert len(ends) >= 3
 
 
-def test_the_line_of_sight_is_the_single_envs_rule_in_any_configuration():
-    """Random joint configurations (the plate anywhere, turned away, behind the arm): each
-    copy's visibility of the four markers from the fixed camera is cir_gym.vision.visible's
-    on the template in the same state."""
-    envs = VisualServoEyeToHandVectorEnv(num_envs=1, nthread=1, camera_error=CALIBRATION)
-    envs.reset(seed=3)  # the template holds copy 0's scene
-    t = envs.template
-    rng = np.random.default_rng(0)
-    counts = np.zeros(2, dtype=int)
-    for _ in range(60):
-        q = rng.uniform(t.lower + 0.1, t.upper - 0.1)
-        envs._qpos[0, t.qpos_adr] = q
-        envs.batch.forward(stage=1)
-        t._set_state(q)
-        want = t._visible()
-        np.testing.assert_array_equal(envs._visible(np.array([0]))[0], want)
-        counts += np.bincount(want.astype(int), minlength=2)
-    assert counts.min() >= 10  # both outcomes, many times
-    envs.close()
-
-
 def test_autoreset_keeps_each_copys_camera_and_generator():
     """Copy 1 alone terminates (the low start moved down): its final observation is under the
     masks, its row is the next episode's start (the same generator: the single env's next
@@ -153,14 +127,8 @@ def test_autoreset_keeps_each_copys_camera_and_generator():
     assert len({tuple(p) for p in poses}) == 3  # three extrinsic errors
     a = np.zeros((3, 6), dtype=np.float32)
     a[1] = DOWN
-    term = np.zeros(3, dtype=bool)
-    while not term.any():
-        obs, _, term, _, infos = envs.step(a)
-        w_obs, _, w_term, _, w_info = single.step(a[1])
-    assert w_term and w_info["feature_lost"] and list(term) == [False, True, False]
-    assert list(infos["_final_obs"]) == [False, True, False]
-    np.testing.assert_allclose(infos["final_obs"][1]["features"], w_obs["features"], rtol=TOL)
-    np.testing.assert_allclose(obs["features"][1], single.reset()[0]["features"], rtol=TOL)
+    _, w_info = only_copy_ends(envs, single, a, 1, TOL)
+    assert w_info["feature_lost"]
     after = envs._scene["cam_pos"][:, single._cam_id]
     np.testing.assert_array_equal(after[[0, 2]], poses[[0, 2]])
     np.testing.assert_array_equal(after[1], single.model.cam_pos[single._cam_id])
@@ -169,32 +137,8 @@ def test_autoreset_keeps_each_copys_camera_and_generator():
     envs.close()
 
 
-def test_make_vec_builds_it_and_falls_back_on_rendered_features():
-    assert VECTOR_ENVS[ENV] is VisualServoEyeToHandVectorEnv
-    native = cir_gym.make_vec(ENV, 2, nthread=1, episode_duration=0.2)
-    assert type(native) is VisualServoEyeToHandVectorEnv
-    native.close()
-    for kwargs in ({"features": "detected"}, {"obs_image": True}):
-        name = next(iter(kwargs))
-        with pytest.raises(InvalidArgument, match=name):
-            VisualServoEyeToHandVectorEnv(num_envs=2, **kwargs)
-        sync = cir_gym.make_vec(ENV, 2, **kwargs)
-        assert isinstance(sync, gym.vector.SyncVectorEnv), name
-        sync.close()
-    with pytest.raises(InvalidArgument, match="pixel_noise"):
-        VisualServoEyeToHandVectorEnv(num_envs=2, pixel_noise=-1.0)
-
-
-def test_batched_evaluation_gives_the_sequential_episodes():
-    """evaluate()'s batched path (the id is in BATCHED_ENVIRONMENTS, ibvs_eye_to_hand a row
-    law) on the rotation family, where IBVS ends some starts at a joint limit: every
-    EpisodeResult is the sequential one."""
-    policy = _ibvs({})
-    kw = {"start_rotation": ROTATIONS, "episode_duration": 2.0}
-    batched = evaluate(policy, ENV, 4, seed=1000, **kw)
-    sequential = evaluate(policy, ENV, 4, seed=1000, batched=False, **kw)
-    assert [e.terminated for e in sequential.episodes].count(True) >= 1
-    assert_same_episodes(batched, sequential, TOL)
+# make_vec, the line of sight and the batched evaluate of this env:
+# tests/test_visual_servo_vector.py (parametrized over both visual-servoing ids)
 
 
 def test_a_residual_over_ibvs_is_the_single_residual_stack():

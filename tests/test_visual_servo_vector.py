@@ -18,12 +18,13 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from lockstep import assert_same_episodes, episode_ends, noisy_actions
+from lockstep import assert_same_episodes, episode_ends, noisy_actions, only_copy_ends
 
 import cir_gym
 from cir_gym import baselines, vision
 from cir_gym.envs.vector import VECTOR_ENVS
 from cir_gym.envs.visual_servo import VisualServoEnv
+from cir_gym.envs.visual_servo_eye_to_hand_vector import VisualServoEyeToHandVectorEnv
 from cir_gym.envs.visual_servo_vector import VisualServoVectorEnv
 from cir_gym.evaluation import evaluate
 from cir_gym.validation import InvalidArgument
@@ -90,11 +91,18 @@ def test_joint_velocity_actions_without_noise():
     assert len(ends) >= 3
 
 
-def test_the_line_of_sight_is_the_single_envs_rule_in_any_configuration():
-    """Random joint configurations (the camera looking anywhere: through links, at the plate's
-    back, past the target): each copy's visibility of the four markers is
-    cir_gym.vision.visible's on the template in the same state."""
-    envs = VisualServoVectorEnv(num_envs=1, nthread=1)
+@pytest.mark.parametrize(
+    ("vec_cls", "kw"),
+    [(VisualServoVectorEnv, {}),
+     (VisualServoEyeToHandVectorEnv, {"camera_error": (0.05, 10.0, 0.01, 0.02)})],
+    ids=["eye_in_hand", "eye_to_hand"],
+)
+def test_the_line_of_sight_is_the_single_envs_rule_in_any_configuration(vec_cls, kw):
+    """Random joint configurations (eye in hand: the camera looking anywhere, through links,
+    at the plate's back; eye to hand: the plate anywhere, turned away, behind the arm): each
+    copy's visibility of the four markers is cir_gym.vision.visible's on the template in the
+    same state."""
+    envs = vec_cls(num_envs=1, nthread=1, **kw)
     envs.reset(seed=3)  # the template holds copy 0's scene
     t = envs.template
     rng = np.random.default_rng(0)
@@ -148,14 +156,8 @@ def test_autoreset_keeps_each_copys_scene_and_generator():
     assert len({tuple(c) for c in cams}) == 3  # three calibration errors
     a = np.zeros((3, 6), dtype=np.float32)
     a[1] = TURN
-    term = np.zeros(3, dtype=bool)
-    while not term.any():
-        obs, _, term, _, infos = envs.step(a)
-        w_obs, _, w_term, _, w_info = single.step(a[1])
-    assert w_term and w_info["feature_lost"] and list(term) == [False, True, False]
-    assert list(infos["_final_obs"]) == [False, True, False]
-    np.testing.assert_allclose(infos["final_obs"][1]["features"], w_obs["features"], rtol=TOL)
-    np.testing.assert_allclose(obs["features"][1], single.reset()[0]["features"], rtol=TOL)
+    infos, w_info = only_copy_ends(envs, single, a, 1, TOL)
+    assert w_info["feature_lost"]
     assert list(infos["_start_offset"]) == [False, True, False]
     np.testing.assert_array_equal(envs._intrinsics[[0, 2]], cams[[0, 2]])
     t = single
@@ -164,29 +166,40 @@ def test_autoreset_keeps_each_copys_scene_and_generator():
     envs.close()
 
 
-def test_make_vec_builds_it_and_falls_back_on_rendered_features():
-    assert VECTOR_ENVS[ENV] is VisualServoVectorEnv
-    native = cir_gym.make_vec(ENV, 2, nthread=1, episode_duration=0.2)
-    assert type(native) is VisualServoVectorEnv
+#: both visual-servoing ids: their batched env and the IBVS law of each
+BATCHED_VS = [(ENV, VisualServoVectorEnv, "ibvs"),
+              ("cir_gym/VisualServoEyeToHand-v1", VisualServoEyeToHandVectorEnv,
+               "ibvs_eye_to_hand")]
+
+
+@pytest.mark.parametrize(("env_id", "vec_cls", "law"), BATCHED_VS, ids=["eye_in_hand",
+                                                                         "eye_to_hand"])
+def test_make_vec_builds_it_and_falls_back_on_rendered_features(env_id, vec_cls, law):
+    assert VECTOR_ENVS[env_id] is vec_cls
+    native = cir_gym.make_vec(env_id, 2, nthread=1, episode_duration=0.2)
+    assert type(native) is vec_cls
     native.close()
     for kwargs in ({"features": "detected"}, {"obs_image": True}):
         name = next(iter(kwargs))
         with pytest.raises(InvalidArgument, match=name):
-            VisualServoVectorEnv(num_envs=2, **kwargs)
-        sync = cir_gym.make_vec(ENV, 2, **kwargs)
+            vec_cls(num_envs=2, **kwargs)
+        sync = cir_gym.make_vec(env_id, 2, **kwargs)
         assert isinstance(sync, gym.vector.SyncVectorEnv), name
         sync.close()
     with pytest.raises(InvalidArgument, match="pixel_noise"):
-        VisualServoVectorEnv(num_envs=2, pixel_noise=-1.0)
+        vec_cls(num_envs=2, pixel_noise=-1.0)
 
 
-def test_batched_evaluation_gives_the_sequential_episodes():
-    """evaluate()'s batched path (the id is in BATCHED_ENVIRONMENTS) on the rotation family:
-    IBVS fails some starts there; every EpisodeResult is the sequential one."""
-    policy = baselines.make("ibvs", ENV)
+@pytest.mark.parametrize(("env_id", "vec_cls", "law"), BATCHED_VS, ids=["eye_in_hand",
+                                                                         "eye_to_hand"])
+def test_batched_evaluation_gives_the_sequential_episodes(env_id, vec_cls, law):
+    """evaluate()'s batched path (the id is in BATCHED_ENVIRONMENTS, the IBVS law runs on
+    rows) on the rotation family: IBVS fails some starts there (a lost feature, a joint limit);
+    every EpisodeResult is the sequential one."""
+    policy = baselines.make(law, env_id)
     kw = {"start_rotation": ROTATIONS, "episode_duration": 2.0}
-    batched = evaluate(policy, ENV, 4, seed=1000, **kw)
-    sequential = evaluate(policy, ENV, 4, seed=1000, batched=False, **kw)
+    batched = evaluate(policy, env_id, 4, seed=1000, **kw)
+    sequential = evaluate(policy, env_id, 4, seed=1000, batched=False, **kw)
     assert [e.terminated for e in sequential.episodes].count(True) >= 1
     assert_same_episodes(batched, sequential, TOL)
 
