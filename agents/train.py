@@ -297,7 +297,8 @@ def replay_buffer_file(run_dir: Path, steps: int) -> Path:
 def save_replay_buffer(model: Any, run_dir: Path) -> None:
     """Save an off-policy model's replay buffer beside its checkpoint of the same steps and
     delete the earlier ones (a buffer of 10⁶ transitions is hundreds of MB: only the latest is
-    kept, the one a resumed run continues with). Written to a temporary name and renamed, so a
+    kept, the one a resumed run continues with; SB3's ``CheckpointCallback(save_replay_buffer=
+    True)`` would keep every one). Written to a temporary name and renamed, so a
     run killed while writing keeps the previous buffer."""
     path = replay_buffer_file(run_dir, int(model.num_timesteps))
     path.parent.mkdir(parents=True, exist_ok=True)
